@@ -1,0 +1,336 @@
+//! The in-memory mesh every reader produces and every consumer reads.
+//!
+//! Nodes keep the order of the input file (output datasets use the same order).
+//! Volume cells and lower-dimensional elements (surface, line, point) are kept apart:
+//! only volume cells take part in the geometry; the others carry tags for boundary sets.
+
+use std::collections::BTreeMap;
+
+/// A first-order volume cell type. Local node order is the one shared by Gmsh and VTK.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum CellKind {
+    Tet,
+    Hex,
+    Wedge,
+    Pyramid,
+}
+
+const TET_EDGES: [[usize; 2]; 6] = [[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]];
+const TET_FACES: [&[usize]; 4] = [&[0, 2, 1], &[0, 1, 3], &[1, 2, 3], &[0, 3, 2]];
+const HEX_EDGES: [[usize; 2]; 12] = [
+    [0, 1],
+    [1, 2],
+    [2, 3],
+    [0, 3],
+    [4, 5],
+    [5, 6],
+    [6, 7],
+    [4, 7],
+    [0, 4],
+    [1, 5],
+    [2, 6],
+    [3, 7],
+];
+const HEX_FACES: [&[usize]; 6] = [
+    &[0, 3, 2, 1],
+    &[4, 5, 6, 7],
+    &[0, 1, 5, 4],
+    &[1, 2, 6, 5],
+    &[2, 3, 7, 6],
+    &[3, 0, 4, 7],
+];
+const WEDGE_EDGES: [[usize; 2]; 9] = [
+    [0, 1],
+    [1, 2],
+    [0, 2],
+    [3, 4],
+    [4, 5],
+    [3, 5],
+    [0, 3],
+    [1, 4],
+    [2, 5],
+];
+const WEDGE_FACES: [&[usize]; 5] = [
+    &[0, 2, 1],
+    &[3, 4, 5],
+    &[0, 1, 4, 3],
+    &[1, 2, 5, 4],
+    &[2, 0, 3, 5],
+];
+const PYR_EDGES: [[usize; 2]; 8] = [
+    [0, 1],
+    [1, 2],
+    [2, 3],
+    [0, 3],
+    [0, 4],
+    [1, 4],
+    [2, 4],
+    [3, 4],
+];
+const PYR_FACES: [&[usize]; 5] = [
+    &[0, 3, 2, 1],
+    &[0, 1, 4],
+    &[1, 2, 4],
+    &[2, 3, 4],
+    &[3, 0, 4],
+];
+
+impl CellKind {
+    pub fn n_nodes(self) -> usize {
+        match self {
+            CellKind::Tet => 4,
+            CellKind::Hex => 8,
+            CellKind::Wedge => 6,
+            CellKind::Pyramid => 5,
+        }
+    }
+    /// Local edges (pairs of local node indices).
+    pub fn edges(self) -> &'static [[usize; 2]] {
+        match self {
+            CellKind::Tet => &TET_EDGES,
+            CellKind::Hex => &HEX_EDGES,
+            CellKind::Wedge => &WEDGE_EDGES,
+            CellKind::Pyramid => &PYR_EDGES,
+        }
+    }
+    /// Local faces, each wound so that its normal points out of a positively oriented cell.
+    pub fn faces(self) -> &'static [&'static [usize]] {
+        match self {
+            CellKind::Tet => &TET_FACES,
+            CellKind::Hex => &HEX_FACES,
+            CellKind::Wedge => &WEDGE_FACES,
+            CellKind::Pyramid => &PYR_FACES,
+        }
+    }
+    pub fn vtk_type(self) -> u8 {
+        match self {
+            CellKind::Tet => 10,
+            CellKind::Hex => 12,
+            CellKind::Wedge => 13,
+            CellKind::Pyramid => 14,
+        }
+    }
+    pub fn gmsh_type(self) -> u32 {
+        match self {
+            CellKind::Tet => 4,
+            CellKind::Hex => 5,
+            CellKind::Wedge => 6,
+            CellKind::Pyramid => 7,
+        }
+    }
+    pub fn from_gmsh(t: u32) -> Option<CellKind> {
+        match t {
+            4 => Some(CellKind::Tet),
+            5 => Some(CellKind::Hex),
+            6 => Some(CellKind::Wedge),
+            7 => Some(CellKind::Pyramid),
+            _ => None,
+        }
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            CellKind::Tet => "tetrahedron",
+            CellKind::Hex => "hexahedron",
+            CellKind::Wedge => "prism",
+            CellKind::Pyramid => "pyramid",
+        }
+    }
+    /// A permutation of the local nodes that reverses the orientation.
+    pub fn flip(self) -> &'static [usize] {
+        match self {
+            CellKind::Tet => &[0, 2, 1, 3],
+            CellKind::Hex => &[0, 3, 2, 1, 4, 7, 6, 5],
+            CellKind::Wedge => &[0, 2, 1, 3, 5, 4],
+            CellKind::Pyramid => &[0, 3, 2, 1, 4],
+        }
+    }
+}
+
+/// An unstructured volume mesh with tags.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    /// Where it came from (file name, or a generator description); used in messages.
+    pub source: String,
+    pub points: Vec<[f64; 3]>,
+    /// Node ids as the file numbered them (1-based in Gmsh, sparse allowed).
+    pub node_ids: Vec<u64>,
+    pub kinds: Vec<CellKind>,
+    /// `offsets[c]..offsets[c+1]` indexes `conn` for cell `c`.
+    pub offsets: Vec<usize>,
+    pub conn: Vec<u32>,
+    /// Physical tag of each volume cell (0 when the file gave none).
+    pub cell_tags: Vec<i32>,
+    /// Lower-dimensional elements (triangles, quads, lines, points) kept for their tags.
+    pub facets: Facets,
+    /// Physical group names: (dimension, tag) -> name.
+    pub group_names: BTreeMap<(u8, i32), String>,
+    /// Things the reader repaired or noticed, for `eprop info` and the run log.
+    pub warnings: Vec<String>,
+}
+
+/// Lower-dimensional elements with their physical tags.
+#[derive(Clone, Debug, Default)]
+pub struct Facets {
+    pub dim: Vec<u8>,
+    pub tags: Vec<i32>,
+    pub offsets: Vec<usize>,
+    pub conn: Vec<u32>,
+}
+
+impl Facets {
+    pub fn new() -> Self {
+        Facets {
+            offsets: vec![0],
+            ..Default::default()
+        }
+    }
+    pub fn len(&self) -> usize {
+        self.tags.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.tags.is_empty()
+    }
+    pub fn push(&mut self, dim: u8, tag: i32, nodes: &[u32]) {
+        self.dim.push(dim);
+        self.tags.push(tag);
+        self.conn.extend_from_slice(nodes);
+        self.offsets.push(self.conn.len());
+    }
+    pub fn nodes(&self, f: usize) -> &[u32] {
+        &self.conn[self.offsets[f]..self.offsets[f + 1]]
+    }
+}
+
+impl Mesh {
+    pub fn new(source: impl Into<String>) -> Self {
+        Mesh {
+            source: source.into(),
+            offsets: vec![0],
+            facets: Facets::new(),
+            ..Default::default()
+        }
+    }
+    pub fn n_nodes(&self) -> usize {
+        self.points.len()
+    }
+    pub fn n_cells(&self) -> usize {
+        self.kinds.len()
+    }
+    pub fn cell(&self, c: usize) -> &[u32] {
+        &self.conn[self.offsets[c]..self.offsets[c + 1]]
+    }
+    pub fn push_cell(&mut self, kind: CellKind, nodes: &[u32], tag: i32) {
+        debug_assert_eq!(nodes.len(), kind.n_nodes());
+        self.kinds.push(kind);
+        self.conn.extend_from_slice(nodes);
+        self.offsets.push(self.conn.len());
+        self.cell_tags.push(tag);
+    }
+    /// Counts of each cell kind, for summaries.
+    pub fn kind_counts(&self) -> BTreeMap<CellKind, usize> {
+        let mut m = BTreeMap::new();
+        for k in &self.kinds {
+            *m.entry(*k).or_insert(0) += 1;
+        }
+        m
+    }
+    /// The tag of a physical group given by name (any dimension).
+    pub fn group_tag(&self, name: &str) -> Option<(u8, i32)> {
+        self.group_names
+            .iter()
+            .find(|(_, n)| n.as_str() == name)
+            .map(|(k, _)| *k)
+    }
+    /// Axis-aligned bounding box.
+    pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in &self.points {
+            for d in 0..3 {
+                lo[d] = lo[d].min(p[d]);
+                hi[d] = hi[d].max(p[d]);
+            }
+        }
+        (lo, hi)
+    }
+
+    /// Checks cell orientation and degeneracy; reorients inverted cells (with a warning).
+    /// Zero-volume cells are an error naming the cell.
+    pub fn orient_cells(&mut self) -> anyhow::Result<usize> {
+        let mut flipped = 0usize;
+        let mut first_flipped = None;
+        for c in 0..self.n_cells() {
+            let kind = self.kinds[c];
+            let r = self.offsets[c]..self.offsets[c + 1];
+            let nodes: Vec<u32> = self.conn[r.clone()].to_vec();
+            let v = crate::geom::cell_volume(kind, &nodes, &self.points);
+            let scale = crate::geom::cell_size(kind, &nodes, &self.points);
+            if !(v.abs() > 1e-14 * scale.powi(3)) {
+                anyhow::bail!(
+                    "{}: cell {} ({}) has zero volume (nodes {:?}); fix: remove the degenerate \
+                     cell or re-mesh",
+                    self.source,
+                    c + 1,
+                    kind.name(),
+                    nodes
+                        .iter()
+                        .map(|&n| self.node_ids[n as usize])
+                        .collect::<Vec<_>>()
+                );
+            }
+            if v < 0.0 {
+                let perm = kind.flip();
+                for (k, &p) in perm.iter().enumerate() {
+                    self.conn[r.start + k] = nodes[p];
+                }
+                flipped += 1;
+                first_flipped.get_or_insert(c);
+            }
+        }
+        if flipped > 0 {
+            self.warnings.push(format!(
+                "{} inverted cell(s) reoriented (first: cell {})",
+                flipped,
+                first_flipped.unwrap() + 1
+            ));
+        }
+        Ok(flipped)
+    }
+}
+
+/// Boundary faces of the volume cells: faces that belong to exactly one cell, wound outward.
+/// Returned as (cell index, local face index) in cell order.
+pub fn boundary_faces(mesh: &Mesh) -> Vec<(u32, u8)> {
+    let mut keys: Vec<([u32; 4], u32, u8)> = Vec::with_capacity(mesh.n_cells() * 4);
+    for c in 0..mesh.n_cells() {
+        let nodes = mesh.cell(c);
+        for (f, face) in mesh.kinds[c].faces().iter().enumerate() {
+            keys.push((face_key(nodes, face), c as u32, f as u8));
+        }
+    }
+    keys.sort_unstable_by(|a, b| a.0.cmp(&b.0));
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < keys.len() {
+        let mut j = i + 1;
+        while j < keys.len() && keys[j].0 == keys[i].0 {
+            j += 1;
+        }
+        if j - i == 1 {
+            out.push((keys[i].1, keys[i].2));
+        }
+        i = j;
+    }
+    out.sort_unstable();
+    out
+}
+
+/// Sorted node ids of a face, padded with u32::MAX.
+pub fn face_key(nodes: &[u32], face: &[usize]) -> [u32; 4] {
+    let mut k = [u32::MAX; 4];
+    for (i, &l) in face.iter().enumerate() {
+        k[i] = nodes[l];
+    }
+    k.sort_unstable();
+    k
+}

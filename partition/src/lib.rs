@@ -1,0 +1,1 @@
+//! eprop-partition: the node graph of a mesh, and (for distributed runs) its partition.

@@ -1,0 +1,15 @@
+//! eprop: soft-tissue deformation by Poisson energy propagation.
+//!
+//! A force on an organ becomes a directional energy source; the energy spreads through the
+//! volume by a vector Poisson equation, discretised with edge-based median-dual finite
+//! volumes and stepped with explicit Euler; the propagated potential drives damped nodal
+//! dynamics. The model is fixed in MODEL.md; ARCHITECTURE.md maps the code.
+
+pub mod geometry;
+pub mod material;
+pub mod operator;
+pub mod run;
+pub mod scenario;
+pub mod solver;
+
+pub use eprop_io as io;

@@ -1,0 +1,287 @@
+//! The discrete operator L of the vector Poisson equation and its explicit Euler step
+//! (MODEL.md section 3), in the two schemes.
+//!
+//! Layout: CSR over the rows a process updates (owned nodes), neighbour index (u32, local
+//! numbering, halo nodes after owned ones) and per-pair coefficients; the potential is an
+//! array of 3-vectors so one gather fetches all three components. A row is a fixed-order sum
+//! over its neighbours (sorted by global id): no atomics, the same bits on any partition and
+//! any thread count. Rows of Dirichlet or inactive nodes are empty and never change.
+
+use crate::geometry::Dual;
+use crate::material::Tensor;
+use eprop_io::geom::{dot, sub};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+pub type V3 = [f64; 3];
+
+/// Rows per rayon task: large enough to amortise scheduling, small enough to balance.
+const CHUNK: usize = 2048;
+
+/// `compact` scheme: (L u)_i = sum_j c_ij (u_j - u_i), c_ij = a_ij / V_i.
+pub struct Compact {
+    pub row_ptr: Vec<u32>,
+    pub col: Vec<u32>,
+    pub coef: Vec<f64>,
+}
+
+impl Compact {
+    /// `a` holds a_ij on the pair graph of `dual`; rows with `update[i] == false` are emptied.
+    pub fn new(dual: &Dual, a: &[f64], update: &[bool]) -> Compact {
+        let mut row_ptr = Vec::with_capacity(dual.n_rows + 1);
+        let mut col = Vec::new();
+        let mut coef = Vec::new();
+        row_ptr.push(0u32);
+        for i in 0..dual.n_rows {
+            if update[i] {
+                let inv = 1.0 / dual.vol[i];
+                for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
+                    col.push(dual.col[p]);
+                    coef.push(a[p] * inv);
+                }
+            }
+            assert!(
+                col.len() < u32::MAX as usize,
+                "more than 2^32 stored pairs in one process"
+            );
+            row_ptr.push(col.len() as u32);
+        }
+        Compact { row_ptr, col, coef }
+    }
+
+    #[inline(always)]
+    fn row(&self, i: usize, x: &[V3]) -> V3 {
+        let (s, e) = (self.row_ptr[i] as usize, self.row_ptr[i + 1] as usize);
+        let xi = x[i];
+        let mut acc = [0.0; 3];
+        for (&j, &c) in self.col[s..e].iter().zip(&self.coef[s..e]) {
+            let xj = x[j as usize];
+            acc[0] += c * (xj[0] - xi[0]);
+            acc[1] += c * (xj[1] - xi[1]);
+            acc[2] += c * (xj[2] - xi[2]);
+        }
+        acc
+    }
+
+    /// Gershgorin bound of the spectral radius of L.
+    pub fn gershgorin(&self) -> f64 {
+        (0..self.row_ptr.len() - 1)
+            .map(|i| {
+                let r = self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize;
+                let sum: f64 = self.coef[r.clone()].iter().sum();
+                let abs: f64 = self.coef[r].iter().map(|c| c.abs()).sum();
+                sum.abs() + abs
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// `paper` scheme: nodal Green-Gauss gradients, averaged flux, optional edge correction.
+pub struct Paper {
+    pub row_ptr: Vec<u32>,
+    pub col: Vec<u32>,
+    /// S_ij
+    pub s: Vec<V3>,
+    /// R_i S_ij and R_j S_ij
+    pub ris: Vec<V3>,
+    pub rjs: Vec<V3>,
+    /// e = X_j - X_i
+    pub e: Vec<V3>,
+    /// (R_bar e) . S_ij / |e|^2 (zero when the correction is off)
+    pub c: Vec<f64>,
+    pub inv_vol: Vec<f64>,
+    pub update: Vec<bool>,
+}
+
+impl Paper {
+    pub fn new(
+        dual: &Dual,
+        points: &[V3],
+        r: &[Tensor],
+        update: &[bool],
+        correction: bool,
+    ) -> Paper {
+        let n = dual.n_rows;
+        let mut row_ptr = Vec::with_capacity(n + 1);
+        let (mut col, mut s, mut ris, mut rjs, mut e, mut c) =
+            (vec![], vec![], vec![], vec![], vec![], vec![]);
+        row_ptr.push(0u32);
+        for i in 0..n {
+            for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
+                let sij = dual.s[p];
+                if sij == [0.0; 3] {
+                    continue; // shares a cell but no edge: no dual face
+                }
+                let j = dual.col[p] as usize;
+                let sv = Vector3::from(sij);
+                let ri = r[i] * sv;
+                let rj = r[j] * sv;
+                let ev = sub(points[j], points[i]);
+                let rbar = (r[i] + r[j]) * 0.5;
+                let re = rbar * Vector3::from(ev);
+                col.push(j as u32);
+                s.push(sij);
+                ris.push([ri[0], ri[1], ri[2]]);
+                rjs.push([rj[0], rj[1], rj[2]]);
+                e.push(ev);
+                c.push(if correction {
+                    dot([re[0], re[1], re[2]], sij) / dot(ev, ev)
+                } else {
+                    0.0
+                });
+            }
+            row_ptr.push(col.len() as u32);
+        }
+        let inv_vol = dual
+            .vol
+            .iter()
+            .map(|&v| if v > 0.0 { 1.0 / v } else { 0.0 })
+            .collect();
+        Paper {
+            row_ptr,
+            col,
+            s,
+            ris,
+            rjs,
+            e,
+            c,
+            inv_vol,
+            update: update.to_vec(),
+        }
+    }
+
+    /// Nodal gradients of the three components: g[i][3*c + d] = d u_c / d x_d.
+    pub fn gradients(&self, x: &[V3], g: &mut [[f64; 9]]) {
+        g.par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
+            for (k, gi) in chunk.iter_mut().enumerate() {
+                let i = b * CHUNK + k;
+                let (s0, e0) = (self.row_ptr[i] as usize, self.row_ptr[i + 1] as usize);
+                let xi = x[i];
+                let mut acc = [0.0; 9];
+                for p in s0..e0 {
+                    let xj = x[self.col[p] as usize];
+                    let sv = self.s[p];
+                    for c in 0..3 {
+                        let d = 0.5 * (xj[c] - xi[c]);
+                        acc[3 * c] += d * sv[0];
+                        acc[3 * c + 1] += d * sv[1];
+                        acc[3 * c + 2] += d * sv[2];
+                    }
+                }
+                let iv = self.inv_vol[i];
+                for a in acc.iter_mut() {
+                    *a *= iv;
+                }
+                *gi = acc;
+            }
+        });
+    }
+
+    #[inline(always)]
+    fn row(&self, i: usize, x: &[V3], g: &[[f64; 9]]) -> V3 {
+        if !self.update[i] {
+            return [0.0; 3];
+        }
+        let (s0, e0) = (self.row_ptr[i] as usize, self.row_ptr[i + 1] as usize);
+        let xi = x[i];
+        let gi = &g[i];
+        let mut acc = [0.0; 3];
+        for p in s0..e0 {
+            let j = self.col[p] as usize;
+            let (xj, gj) = (x[j], &g[j]);
+            let (ri, rj, e, cc) = (self.ris[p], self.rjs[p], self.e[p], self.c[p]);
+            for c in 0..3 {
+                let gic = [gi[3 * c], gi[3 * c + 1], gi[3 * c + 2]];
+                let gjc = [gj[3 * c], gj[3 * c + 1], gj[3 * c + 2]];
+                let mut f = 0.5 * (dot(gic, ri) + dot(gjc, rj));
+                if cc != 0.0 {
+                    let gbar_e = 0.5 * (dot(gic, e) + dot(gjc, e));
+                    f -= cc * (gbar_e - (xj[c] - xi[c]));
+                }
+                acc[c] += f;
+            }
+        }
+        let iv = self.inv_vol[i];
+        [acc[0] * iv, acc[1] * iv, acc[2] * iv]
+    }
+}
+
+/// Either scheme.
+pub enum Operator {
+    Compact(Compact),
+    Paper(Paper),
+}
+
+impl Operator {
+    pub fn n_rows(&self) -> usize {
+        match self {
+            Operator::Compact(c) => c.row_ptr.len() - 1,
+            Operator::Paper(p) => p.row_ptr.len() - 1,
+        }
+    }
+    pub fn needs_gradients(&self) -> bool {
+        matches!(self, Operator::Paper(_))
+    }
+    /// Gradient pass (paper scheme only; rows `0..n_rows`).
+    pub fn gradients(&self, x: &[V3], g: &mut [[f64; 9]]) {
+        if let Operator::Paper(p) = self {
+            p.gradients(x, &mut g[..p.row_ptr.len() - 1]);
+        }
+    }
+    /// y_i = (L x)_i for rows `0..n_rows` (`g` holds gradients of x for the paper scheme).
+    pub fn apply(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3]) {
+        let n = self.n_rows();
+        y[..n]
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(b, chunk)| {
+                for (k, yi) in chunk.iter_mut().enumerate() {
+                    let i = b * CHUNK + k;
+                    *yi = match self {
+                        Operator::Compact(c) => c.row(i, x),
+                        Operator::Paper(p) => p.row(i, x, g),
+                    };
+                }
+            });
+    }
+    /// One forward Euler substep without source: y_i = x_i + h (L x)_i, for rows in `range`.
+    pub fn step_rows(
+        &self,
+        x: &[V3],
+        g: &[[f64; 9]],
+        y: &mut [V3],
+        h: f64,
+        range: std::ops::Range<usize>,
+    ) {
+        let start = range.start;
+        y[range]
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(b, chunk)| {
+                for (k, yi) in chunk.iter_mut().enumerate() {
+                    let i = start + b * CHUNK + k;
+                    let l = match self {
+                        Operator::Compact(c) => c.row(i, x),
+                        Operator::Paper(p) => p.row(i, x, g),
+                    };
+                    let xi = x[i];
+                    *yi = [xi[0] + h * l[0], xi[1] + h * l[1], xi[2] + h * l[2]];
+                }
+            });
+    }
+    /// Stored pairs (for memory and bandwidth figures).
+    pub fn n_pairs(&self) -> usize {
+        match self {
+            Operator::Compact(c) => c.col.len(),
+            Operator::Paper(p) => p.col.len(),
+        }
+    }
+    /// Bytes one substep must move at least: matrix once, x gathered (assumed cached), y written.
+    pub fn bytes_per_substep(&self) -> usize {
+        let n = self.n_rows();
+        match self {
+            Operator::Compact(c) => c.col.len() * 12 + n * (4 + 24 + 24),
+            Operator::Paper(p) => p.col.len() * (4 + 13 * 8) + n * (8 + 1 + 24 + 24 + 72 * 2),
+        }
+    }
+}

@@ -1,0 +1,372 @@
+//! `eprop run` and `eprop info`: drivers that tie scenario, solver and output together.
+
+use crate::geometry::{compact_coefficients, Dual, Incidence};
+use crate::material::Tensor;
+use crate::operator::{Compact, Operator};
+use crate::scenario::{Scenario, Setup};
+use crate::solver::{check_output_dir, flat, scheme_name, Simulation, SAFETY};
+use anyhow::Result;
+use eprop_io::geom::{cell_quality, cell_volume, norm};
+use eprop_io::vtkhdf::{SeriesSpec, SeriesWriter};
+use eprop_io::Mesh;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+pub const VERSION: &str = concat!("eprop ", env!("CARGO_PKG_VERSION"));
+
+/// Command-line overrides of a scenario.
+#[derive(Default, Clone)]
+pub struct RunOptions {
+    pub output: Option<PathBuf>,
+    pub steps: Option<u64>,
+    pub quiet: bool,
+}
+
+#[derive(Serialize, Debug, Clone)]
+pub struct LoadSummary {
+    pub node: u64,
+    pub force: [f64; 3],
+    pub displacement: [f64; 3],
+}
+
+/// What a run reports at the end.
+#[derive(Serialize, Debug, Clone)]
+pub struct Summary {
+    pub scenario: String,
+    pub mesh: String,
+    pub nodes: usize,
+    pub cells: usize,
+    pub fixed_nodes: usize,
+    pub scheme: String,
+    pub h: f64,
+    pub h_bound: f64,
+    pub substeps: usize,
+    pub dt: f64,
+    pub steps: u64,
+    pub time: f64,
+    pub wall_seconds: f64,
+    pub setup_seconds: f64,
+    pub node_substeps_per_second: f64,
+    pub max_displacement: f64,
+    pub max_displacement_node: u64,
+    pub max_displacement_at: [f64; 3],
+    pub total_energy: f64,
+    pub max_speed: f64,
+    pub loads: Vec<LoadSummary>,
+    pub output: String,
+    pub output_steps: usize,
+    pub warnings: Vec<String>,
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "eprop run: {}", self.scenario)?;
+        writeln!(
+            f,
+            "  mesh        {} ({} nodes, {} cells, {} fixed)",
+            self.mesh, self.nodes, self.cells, self.fixed_nodes
+        )?;
+        writeln!(
+            f,
+            "  scheme      {}, h = {:.4e} (bound {:.4e}), {} substeps per step, dt = {:.4e}",
+            self.scheme, self.h, self.h_bound, self.substeps, self.dt
+        )?;
+        writeln!(f, "  steps       {} to t = {:.6}", self.steps, self.time)?;
+        writeln!(
+            f,
+            "  speed       {:.3} s setup, {:.3} s stepping, {:.3e} node-substeps/s",
+            self.setup_seconds, self.wall_seconds, self.node_substeps_per_second
+        )?;
+        writeln!(
+            f,
+            "  max |u|     {:.6e} at node {} ({:.4}, {:.4}, {:.4})",
+            self.max_displacement,
+            self.max_displacement_node,
+            self.max_displacement_at[0],
+            self.max_displacement_at[1],
+            self.max_displacement_at[2]
+        )?;
+        writeln!(
+            f,
+            "  energy      sum V|phi| = {:.6e}, max |v| = {:.3e}",
+            self.total_energy, self.max_speed
+        )?;
+        for (k, l) in self.loads.iter().enumerate() {
+            writeln!(
+                f,
+                "  load {}      node {}, F = ({:.4}, {:.4}, {:.4}), u = ({:.5e}, {:.5e}, {:.5e})",
+                k + 1,
+                l.node,
+                l.force[0],
+                l.force[1],
+                l.force[2],
+                l.displacement[0],
+                l.displacement[1],
+                l.displacement[2]
+            )?;
+        }
+        for w in &self.warnings {
+            writeln!(f, "  warning     {w}")?;
+        }
+        write!(
+            f,
+            "  output      {} ({} steps)",
+            self.output, self.output_steps
+        )
+    }
+}
+
+/// Runs a scenario file to its stop condition, writing the series; returns the summary.
+pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
+    let t0 = Instant::now();
+    let scenario = Scenario::load(path)?;
+    let mut setup = Setup::new(scenario)?;
+    if let Some(o) = &opts.output {
+        setup.output = o.clone();
+    }
+    if let Some(s) = opts.steps {
+        setup.stop = crate::scenario::Stop::Steps(s);
+    }
+    check_output_dir(&setup.output)?;
+    let sim = Simulation::new(setup)?;
+    run_simulation(sim, t0, opts)
+}
+
+/// Runs a prepared simulation (the scenario already resolved).
+pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Result<Summary> {
+    let mesh = &sim.setup.mesh;
+    let n = mesh.n_nodes();
+    let spec = SeriesSpec {
+        fields: vec![
+            ("displacement", 3),
+            ("velocity", 3),
+            ("potential", 3),
+            ("energy", 1),
+        ],
+        n_loads: sim.loads.len(),
+        load_nodes: sim.loads.iter().map(|l| l.nodes[0] as u64).collect(),
+        scenario: &sim.setup.scenario.text,
+        version: VERSION,
+        control_volumes: &sim.dual.vol,
+        attrs: vec![
+            ("dt", sim.dt),
+            ("h", sim.h),
+            ("substeps", sim.substeps as f64),
+        ],
+    };
+    let mut out = SeriesWriter::create(&sim.setup.output, mesh, &spec)?;
+    drop(spec);
+    let write = |sim: &Simulation, out: &mut SeriesWriter| -> Result<()> {
+        let energy: Vec<f64> = sim.prop.phi.iter().map(|p| norm(*p)).collect();
+        let (u, v, p) = (flat(&sim.u), flat(&sim.v), flat(&sim.prop.phi));
+        out.append(sim.time, sim.step, &[&u, &v, &p, &energy], &sim.probes())
+    };
+    write(&sim, &mut out)?;
+    let setup_seconds = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let every = sim.setup.every;
+    let max_steps = sim.max_steps();
+    let mut last_report = Instant::now();
+    while !sim.done() {
+        sim.advance();
+        let last = sim.done();
+        if sim.step % every == 0 || last {
+            write(&sim, &mut out)?;
+        }
+        if !opts.quiet && last_report.elapsed().as_secs_f64() > 5.0 {
+            eprintln!(
+                "  step {}/{} t = {:.4} max|v| = {:.3e}",
+                sim.step, max_steps, sim.time, sim.max_speed
+            );
+            last_report = Instant::now();
+        }
+    }
+    let wall = t1.elapsed().as_secs_f64();
+    let mesh = &sim.setup.mesh;
+    let (umax, imax) = sim.max_displacement();
+    let mut warnings = sim.setup.mesh.warnings.clone();
+    if sim.inactive_nodes > 0 {
+        warnings.push(format!(
+            "{} node(s) belong to no cell and stay at rest",
+            sim.inactive_nodes
+        ));
+    }
+    if let crate::scenario::Stop::Equilibrium { tol, .. } = sim.setup.stop {
+        if sim.max_speed >= tol {
+            warnings.push(format!(
+                "equilibrium not reached after {} steps (max |v| = {:.3e} > {tol:e})",
+                sim.step, sim.max_speed
+            ));
+        }
+    }
+    let probes = sim.probes();
+    Ok(Summary {
+        scenario: sim.setup.scenario.path.display().to_string(),
+        mesh: mesh.source.clone(),
+        nodes: n,
+        cells: mesh.n_cells(),
+        fixed_nodes: sim.setup.fixed.iter().filter(|&&b| b).count(),
+        scheme: scheme_name(sim.setup.scheme).to_string(),
+        h: sim.h,
+        h_bound: sim.h_bound,
+        substeps: sim.substeps,
+        dt: sim.dt,
+        steps: sim.step,
+        time: sim.time,
+        wall_seconds: wall,
+        setup_seconds,
+        node_substeps_per_second: (n as f64 * sim.step as f64 * sim.substeps as f64)
+            / wall.max(1e-12),
+        max_displacement: umax,
+        max_displacement_node: mesh.node_ids[imax],
+        max_displacement_at: mesh.points[imax],
+        total_energy: sim.total_energy(),
+        max_speed: sim.max_speed,
+        loads: sim
+            .loads
+            .iter()
+            .zip(&probes)
+            .map(|(l, (f, d))| LoadSummary {
+                node: mesh.node_ids[l.nodes[0] as usize],
+                force: *f,
+                displacement: *d,
+            })
+            .collect(),
+        output: out.path().display().to_string(),
+        output_steps: out.steps_written(),
+        warnings,
+    })
+}
+
+/// What `eprop info` reports about a mesh.
+#[derive(Serialize, Debug)]
+pub struct MeshInfo {
+    pub file: String,
+    pub nodes: usize,
+    pub cells: usize,
+    pub cell_kinds: Vec<(String, usize)>,
+    pub surface_facets: usize,
+    pub groups: Vec<(u8, i32, String)>,
+    pub bounds: [[f64; 3]; 2],
+    pub volume: f64,
+    pub control_volume_sum: f64,
+    pub max_closure_error: f64,
+    pub min_quality: f64,
+    pub max_quality: f64,
+    pub stable_h_r005: f64,
+    pub unreferenced_nodes: usize,
+    pub warnings: Vec<String>,
+}
+
+pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
+    let n = mesh.n_nodes();
+    let inc = Incidence::new(mesh);
+    let dual = Dual::build(mesh, &inc, n, None);
+    let volume: f64 = (0..mesh.n_cells())
+        .map(|c| cell_volume(mesh.kinds[c], mesh.cell(c), &mesh.points))
+        .sum();
+    let (mut qmin, mut qmax) = (f64::INFINITY, 0.0f64);
+    for c in 0..mesh.n_cells() {
+        let q = cell_quality(mesh.kinds[c], mesh.cell(c), &mesh.points);
+        qmin = qmin.min(q);
+        qmax = qmax.max(q);
+    }
+    let r = vec![Tensor::identity() * 0.05; n];
+    let a = compact_coefficients(mesh, &inc, &dual, &r);
+    let active: Vec<bool> = dual.vol.iter().map(|&v| v > 0.0).collect();
+    let op = Operator::Compact(Compact::new(&dual, &a, &active));
+    let g = match &op {
+        Operator::Compact(c) => c.gershgorin(),
+        _ => unreachable!(),
+    };
+    let (lo, hi) = mesh.bounds();
+    let unref = dual.vol.iter().filter(|&&v| v <= 0.0).count();
+    let mut warnings = mesh.warnings.clone();
+    if unref > 0 {
+        warnings.push(format!("{unref} node(s) belong to no cell"));
+    }
+    MeshInfo {
+        file: mesh.source.clone(),
+        nodes: n,
+        cells: mesh.n_cells(),
+        cell_kinds: mesh
+            .kind_counts()
+            .into_iter()
+            .map(|(k, c)| (k.name().to_string(), c))
+            .collect(),
+        surface_facets: mesh.facets.len(),
+        groups: mesh
+            .group_names
+            .iter()
+            .map(|((d, t), s)| (*d, *t, s.clone()))
+            .collect(),
+        bounds: [lo, hi],
+        volume,
+        control_volume_sum: dual.vol.iter().sum(),
+        max_closure_error: dual.max_closure_error(),
+        min_quality: qmin,
+        max_quality: qmax,
+        stable_h_r005: SAFETY * 2.0 / g,
+        unreferenced_nodes: unref,
+        warnings,
+    }
+}
+
+impl std::fmt::Display for MeshInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "{}", self.file)?;
+        let kinds: Vec<String> = self
+            .cell_kinds
+            .iter()
+            .map(|(k, c)| format!("{c} {k}"))
+            .collect();
+        writeln!(f, "  nodes            {}", self.nodes)?;
+        writeln!(
+            f,
+            "  cells            {} ({})",
+            self.cells,
+            kinds.join(", ")
+        )?;
+        writeln!(f, "  surface facets   {}", self.surface_facets)?;
+        for (d, t, s) in &self.groups {
+            writeln!(f, "  group            {s:?} (dim {d}, tag {t})")?;
+        }
+        writeln!(
+            f,
+            "  bounds           [{:.4}, {:.4}, {:.4}] .. [{:.4}, {:.4}, {:.4}]",
+            self.bounds[0][0],
+            self.bounds[0][1],
+            self.bounds[0][2],
+            self.bounds[1][0],
+            self.bounds[1][1],
+            self.bounds[1][2]
+        )?;
+        writeln!(f, "  volume           {:.12e}", self.volume)?;
+        writeln!(
+            f,
+            "  sum of V_i       {:.12e} (relative difference {:.1e})",
+            self.control_volume_sum,
+            ((self.control_volume_sum - self.volume) / self.volume).abs()
+        )?;
+        writeln!(
+            f,
+            "  closure error    {:.2e} (max |sum_j S_ij + A_i| / dual area)",
+            self.max_closure_error
+        )?;
+        writeln!(
+            f,
+            "  cell quality     {:.4} .. {:.4} (1 = regular)",
+            self.min_quality, self.max_quality
+        )?;
+        write!(
+            f,
+            "  stable h         {:.4e} (compact, conductivity 0.05, {SAFETY} of the bound)",
+            self.stable_h_r005
+        )?;
+        for w in &self.warnings {
+            write!(f, "\n  warning          {w}")?;
+        }
+        Ok(())
+    }
+}
