@@ -34,8 +34,20 @@ impl TissueLaw {
         if b == 0.0 {
             sigma * sigma / (2.0 * e)
         } else {
-            // ln_1p keeps accuracy when beta sigma / E is small
-            sigma / b - (e / (b * b)) * (b * sigma / e).ln_1p()
+            // q = (E / beta^2) (x - ln(1 + x)), x = beta sigma / E; the difference cancels for
+            // small x, where its series x^2/2 - x^3/3 + ... is used instead
+            let x = b * sigma / e;
+            let d = if x.abs() < 0.1 {
+                let (mut term, mut sum) = (-x, 0.0);
+                for k in 2..=24 {
+                    term *= -x;
+                    sum += term / k as f64;
+                }
+                sum
+            } else {
+                x - x.ln_1p()
+            };
+            e / (b * b) * d
         }
     }
     /// Strain eps(sigma).

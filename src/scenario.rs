@@ -446,7 +446,7 @@ impl Setup {
             ));
         }
         let r0 = m.conductivity.tensor();
-        check_spd(&r0).map_err(|e| sc.err("material", 0, "conductivity", format!("{e}")))?;
+        check_spd(&r0).map_err(|e| sc.err("material", 0, "conductivity", e))?;
         let mut r = vec![r0; n];
         let mut mass = vec![m.mass; n];
         let mut damping = vec![m.damping; n];
@@ -568,19 +568,19 @@ impl Setup {
         let mut loads = Vec::new();
         for (k, l) in f.load.iter().enumerate() {
             let node = match (l.node, l.nearest) {
-                (Some(id), None) => {
-                    match mesh.node_ids.iter().position(|&x| x == id) {
-                        Some(i) => i as u32,
-                        None => return Err(sc.err(
+                (Some(id), None) => match mesh.node_ids.iter().position(|&x| x == id) {
+                    Some(i) => i as u32,
+                    None => {
+                        return Err(sc.err(
                             "load",
                             k,
                             "node",
                             format!(
                                 "node {id} is not in the mesh; fix: use a node id of the mesh file"
                             ),
-                        )),
+                        ))
                     }
-                }
+                },
                 (None, Some(p)) => {
                     if !finite3(&p) {
                         return Err(sc.err("load", k, "nearest", "has a non-finite coordinate"));
@@ -777,7 +777,7 @@ pub fn select(
             set[i] = (0..3).all(|d| p[d] >= b[0][d] && p[d] <= b[1][d]);
         }
     } else if let Some(sp) = &s.sphere {
-        if !finite3(&sp.center) || !(sp.radius > 0.0 && sp.radius.is_finite()) {
+        if !(finite3(&sp.center) && sp.radius > 0.0 && sp.radius.is_finite()) {
             return Err(sc.err(
                 section,
                 k,
@@ -790,7 +790,7 @@ pub fn select(
         }
     } else if let Some(h) = &s.halfspace {
         let nn = norm(h.normal);
-        if !finite3(&h.point) || !(nn > 0.0 && nn.is_finite()) {
+        if !(finite3(&h.point) && nn > 0.0 && nn.is_finite()) {
             return Err(sc.err(
                 section,
                 k,

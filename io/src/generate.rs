@@ -27,7 +27,7 @@ fn push_oriented(mesh: &mut Mesh, kind: CellKind, nodes: &[u32], tag: i32) {
 /// tetrahedra around their main diagonal (a conforming Kuhn split) or into two prisms.
 /// Boundary triangles/quads are tagged 1..6 = xmin, xmax, ymin, ymax, zmin, zmax.
 pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> {
-    if n.iter().any(|&k| k == 0) || size.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
+    if n.contains(&0) || size.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
         bail!("box: every size must be positive and every cell count at least 1");
     }
     let np = (n[0] + 1) * (n[1] + 1) * (n[2] + 1);

@@ -308,7 +308,7 @@ pub fn boundary_faces(mesh: &Mesh) -> Vec<(u32, u8)> {
             keys.push((face_key(nodes, face), c as u32, f as u8));
         }
     }
-    keys.sort_unstable_by(|a, b| a.0.cmp(&b.0));
+    keys.sort_unstable_by_key(|a| a.0);
     let mut out = Vec::new();
     let mut i = 0;
     while i < keys.len() {

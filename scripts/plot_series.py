@@ -1,0 +1,189 @@
+#!/usr/bin/env python3
+"""Plot an eprop VTKHDF time series: the deformed surface at one step and the time history."""
+import argparse
+import os
+import sys
+
+import h5py
+import numpy as np
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+
+EXAMPLES = """examples:
+  plot_series.py scenarios/cylinder.h5
+  plot_series.py scenarios/cylinder.h5 --out-dir /tmp/plots --step 10
+  plot_series.py run.h5 --step -1 --scale 5     # last step, displacement x5
+
+K is the index of an output step (a row of /VTKHDF/Steps/Values), counted from 0;
+negative K counts from the last complete step. Only steps below the file's
+'steps_complete' are read, so a file from an interrupted run can still be plotted.
+Prints the paths of <stem>_deformed.png and <stem>_history.png, one per line."""
+
+# Faces of each VTK cell type, in the cell's local node numbering.
+CELL_FACES = {
+    10: [(0, 1, 2), (0, 1, 3), (1, 2, 3), (0, 2, 3)],                      # tetra
+    12: [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5),
+         (2, 3, 7, 6), (3, 0, 4, 7)],                                       # hexahedron
+    13: [(0, 1, 2), (3, 4, 5), (0, 1, 4, 3), (1, 2, 5, 4), (2, 0, 3, 5)],  # wedge
+    14: [(0, 1, 2, 3), (0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4)],        # pyramid
+}
+
+
+class Fail(Exception):
+    """An error reported to the user as a one-line message."""
+
+
+def boundary_triangles(conn, offsets, types):
+    """Triangles of the faces that belong to exactly one cell (quads split in two)."""
+    faces = {3: [], 4: []}
+    for t in np.unique(types):
+        if t not in CELL_FACES:
+            raise Fail(f"unsupported VTK cell type {t}")
+        sel = np.flatnonzero(types == t)
+        nodes = conn[offsets[sel][:, None] + np.arange(offsets[sel[0] + 1] - offsets[sel[0]])]
+        for f in CELL_FACES[t]:
+            faces[len(f)].append(nodes[:, f])
+    tris = []
+    for k, parts in faces.items():
+        if not parts:
+            continue
+        fs = np.concatenate(parts)
+        _, inv, cnt = np.unique(np.sort(fs, axis=1), axis=0, return_inverse=True, return_counts=True)
+        fs = fs[cnt[inv.ravel()] == 1]
+        tris.append(fs if k == 3 else np.concatenate([fs[:, [0, 1, 2]], fs[:, [0, 2, 3]]]))
+    return np.concatenate(tris)
+
+
+def field_rows(f, name, steps, n):
+    """Array (len(steps), n, ...) of point field `name` at the given output steps."""
+    ds = f["VTKHDF/PointData/" + name]
+    offs = f.get("VTKHDF/Steps/PointDataOffsets/" + name)
+    offs = offs[:][steps] if offs is not None else np.asarray(steps) * n
+    if len(offs) and offs.max() + n > ds.shape[0]:
+        raise Fail(f"/VTKHDF/PointData/{name} is shorter than its step offsets say")
+    data = ds[: offs.max() + n] if len(offs) else ds[:0]
+    return np.stack([data[o:o + n] for o in offs])
+
+
+def read(path, step):
+    if not os.path.isfile(path):
+        raise Fail(f"no such file: {path}")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as e:
+        raise Fail(f"cannot open {path} as HDF5: {e}")
+    with f:
+        if "VTKHDF" not in f or "eprop" not in f or "probes" not in f["eprop"]:
+            raise Fail(f"{path} is not an eprop output file (no /VTKHDF or /eprop/probes)")
+        sc = int(f["eprop"].attrs.get("steps_complete", 0))
+        if sc < 1:
+            raise Fail(f"{path} holds no complete step")
+        k = step if step >= 0 else sc + step
+        if not 0 <= k < sc:
+            raise Fail(f"step {step} out of range: {path} has {sc} complete steps (0..{sc - 1})")
+        v = f["VTKHDF"]
+        n = int(v["NumberOfPoints"][0])
+        pr = f["eprop/probes"]
+        d = dict(
+            k=k, n=n, points=v["Points"][:],
+            tris=boundary_triangles(v["Connectivity"][:], v["Offsets"][:], v["Types"][:]),
+            time=v["Steps/Values"][k], solver_step=int(pr["step"][k]),
+            u=field_rows(f, "displacement", [k], n)[0],
+            energy=field_rows(f, "energy", [k], n)[0],
+            nodes=pr["node"][:].astype(int),
+            probe_time=pr["time"][:sc], probe_u=pr["displacement"][:sc],
+            volumes=f["eprop/control_volumes"][:],
+            all_energy=field_rows(f, "energy", list(range(sc)), n),
+        )
+    return d
+
+
+def surface_panel(fig, ax, xyz, tris, values, label, d, title):
+    coll = Poly3DCollection(xyz[tris], cmap="viridis", edgecolor="k", linewidth=0.1)
+    coll.set_array(values[tris].mean(axis=1))
+    ax.add_collection3d(coll)
+    if len(d["nodes"]):
+        c = xyz[d["nodes"]]
+        ax.scatter(c[:, 0], c[:, 1], c[:, 2], color="red", s=40, depthshade=False,
+                   zorder=10, label="contact node")
+        ax.legend(loc="upper left", fontsize=8)
+    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    mid, half = (lo + hi) / 2, (hi - lo).max() / 2
+    ax.set(xlim=(mid[0] - half, mid[0] + half), ylim=(mid[1] - half, mid[1] + half),
+           zlim=(mid[2] - half, mid[2] + half), xlabel="x", ylabel="y", zlabel="z", title=title)
+    ax.set_box_aspect((1, 1, 1))
+    fig.colorbar(coll, ax=ax, shrink=0.6, label=label)
+
+
+def plot_deformed(d, scale, out, stem):
+    xyz = d["points"] + scale * d["u"]
+    fig = plt.figure(figsize=(13, 6.5))
+    when = f"t = {d['time']:.4g} (output step {d['k']}, solver step {d['solver_step']})"
+    sfx = f", displacement x{scale:g}" if scale != 1 else ""
+    panels = [(d["energy"], "energy |phi|", "energy |phi|"),
+              (np.linalg.norm(d["u"], axis=1), "|displacement|", "|displacement|")]
+    for i, (vals, label, name) in enumerate(panels):
+        ax = fig.add_subplot(1, 2, i + 1, projection="3d", computed_zorder=False)
+        if len(d["nodes"]):  # turn the loaded side towards the viewer
+            r = d["points"][d["nodes"][0]] - d["points"].mean(axis=0)
+            ax.view_init(elev=20, azim=np.degrees(np.arctan2(r[1], r[0])) - 35)
+        surface_panel(fig, ax, xyz, d["tris"], vals, label, d, f"{name}\n{when}{sfx}")
+    path = os.path.join(out, stem + "_deformed.png")
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def plot_history(d, out, stem):
+    t = d["probe_time"]
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    for l, node in enumerate(d["nodes"]):
+        a1.plot(t, np.linalg.norm(d["probe_u"][:, l], axis=1), label=f"load {l} (node {node})")
+    if len(d["nodes"]):
+        a1.legend()
+    else:
+        a1.text(0.5, 0.5, "no loads", transform=a1.transAxes, ha="center")
+    a1.set(ylabel="|displacement| at contact node", title="Contact node displacement")
+    a2.plot(t, d["all_energy"] @ d["volumes"], color="tab:orange")
+    a2.set(xlabel="time", ylabel="sum V_i * energy_i", title="Total energy")
+    for a in (a1, a2):
+        a.axvline(d["time"], color="gray", ls="--", lw=0.8)
+        a.grid(alpha=0.3)
+    path = os.path.join(out, stem + "_history.png")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def main():
+    p = argparse.ArgumentParser(
+        description="Plot an eprop result file (VTKHDF time series): the deformed boundary "
+                    "surface at one step, coloured by energy |phi| and by |displacement|, "
+                    "and the history of contact-node displacement and total energy.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", metavar="FILE.h5", help="HDF5 file written by `eprop run`")
+    p.add_argument("--out-dir", metavar="DIR", help="where to write the PNGs (default: beside FILE.h5)")
+    p.add_argument("--step", metavar="K", type=int, default=-1,
+                   help="output step to draw (default: the last complete step)")
+    p.add_argument("--scale", metavar="S", type=float, default=1.0,
+                   help="displacement magnification for the deformed surface (default: 1)")
+    a = p.parse_args()
+    try:
+        d = read(a.file, a.step)
+        out = a.out_dir or os.path.dirname(os.path.abspath(a.file))
+        os.makedirs(out, exist_ok=True)
+        stem = os.path.splitext(os.path.basename(a.file))[0]
+        print(plot_deformed(d, a.scale, out, stem))
+        print(plot_history(d, out, stem))
+    except (Fail, OSError, KeyError, ValueError, IndexError) as e:
+        print(f"plot_series.py: error: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,190 @@
+//! The `eprop` binary end to end: a run writes a series that reads back with the values
+//! computed in memory; bad input fails cleanly with a message that names the problem.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+fn eprop(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_eprop"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
+}
+
+const SCENARIO: &str = "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 1.0\n[time]\nsteps = 6\n[output]\nfile = \"out.h5\"\nevery = 2\n";
+
+fn workdir(name: &str) -> tempfile::TempDir {
+    let d = tempfile::Builder::new().prefix(name).tempdir().unwrap();
+    let (ok, _, err) = eprop(&[
+        "mesh",
+        "cylinder",
+        "-o",
+        d.path().join("cyl.msh").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    d
+}
+
+#[test]
+fn output_reads_back_with_the_values_computed() {
+    let d = workdir("roundtrip");
+    let sc = d.path().join("s.toml");
+    std::fs::write(&sc, SCENARIO).unwrap();
+    let (ok, out, err) = eprop(&["run", sc.to_str().unwrap(), "--quiet"]);
+    assert!(ok, "{err}");
+    assert!(out.contains("max |u|"), "{out}");
+    // the same run in memory
+    let mut s = eprop::solver::Simulation::new(
+        eprop::scenario::Setup::new(eprop::scenario::Scenario::load(&sc).unwrap()).unwrap(),
+    )
+    .unwrap();
+    let h5 = d.path().join("out.h5");
+    let mut k = 0;
+    let check = |s: &eprop::solver::Simulation, k: usize| {
+        let u = eprop_io::vtkhdf::read_step(&h5, "displacement", k).unwrap();
+        let p = eprop_io::vtkhdf::read_step(&h5, "potential", k).unwrap();
+        let e = eprop_io::vtkhdf::read_step(&h5, "energy", k).unwrap();
+        assert_eq!(
+            u,
+            eprop::solver::flat(&s.u),
+            "displacement at output step {k}"
+        );
+        assert_eq!(
+            p,
+            eprop::solver::flat(&s.prop.phi),
+            "potential at output step {k}"
+        );
+        assert_eq!(e.len(), s.u.len());
+    };
+    check(&s, k);
+    while !s.done() {
+        s.advance();
+        if s.step % 2 == 0 {
+            k += 1;
+            check(&s, k);
+        }
+    }
+    assert!(
+        eprop_io::vtkhdf::read_step(&h5, "displacement", k + 1).is_err(),
+        "more steps than written"
+    );
+}
+
+fn expect_failure(dir: &Path, scenario: &str, needles: &[&str]) {
+    let sc = dir.join("bad.toml");
+    std::fs::write(&sc, scenario).unwrap();
+    let (ok, _, err) = eprop(&["run", sc.to_str().unwrap(), "--quiet"]);
+    assert!(!ok, "a bad scenario ran: {scenario}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    for n in needles {
+        assert!(err.contains(n), "message `{err}` lacks `{n}`");
+    }
+    assert!(
+        err.contains("bad.toml") || err.contains(".msh") || err.contains(".h5"),
+        "message names no file: {err}"
+    );
+}
+
+#[test]
+fn bad_scenarios_fail_cleanly() {
+    let d = workdir("bad");
+    let p = d.path();
+    expect_failure(
+        p,
+        &SCENARIO.replace("cyl.msh", "missing.msh"),
+        &["missing.msh", "no such mesh file"],
+    );
+    expect_failure(
+        p,
+        &SCENARIO.replace("[time]\n", "[time]\nstepz = 3\n"),
+        &["unknown field", "stepz", "bad.toml:"],
+    );
+    expect_failure(
+        p,
+        &format!("{SCENARIO}[material]\nmass = -1.0\n"),
+        &["mass", "positive", "bad.toml:"],
+    );
+    expect_failure(p, &format!("{SCENARIO}[material]\nmass = 0.0\n"), &["mass"]);
+    expect_failure(
+        p,
+        &SCENARIO.replace("nearest = [1.0, 0.0, 2.0]", "nearest = [0.0, 0.0, 0.0]"),
+        &["fixed set"],
+    );
+    expect_failure(
+        p,
+        &SCENARIO.replace("steps = 6", "steps = \"six\""),
+        &["bad.toml:"],
+    );
+    expect_failure(
+        p,
+        &SCENARIO.replace("group = \"bottom\"", "group = \"nowhere\""),
+        &["nowhere", "known groups"],
+    );
+    expect_failure(
+        p,
+        &format!("{SCENARIO}[material]\nconductivity = [0.1, -0.1, 0.1]\n"),
+        &["conductivity", "positive definite"],
+    );
+    expect_failure(
+        p,
+        &SCENARIO.replace("steps = 6", "steps = 6\ndt = 100.0"),
+        &["dt", "stability bound"],
+    );
+    expect_failure(
+        p,
+        &SCENARIO.replace("out.h5", "no/such/dir/out.h5"),
+        &["output directory"],
+    );
+}
+
+#[test]
+fn info_reports_the_geometry_checks() {
+    let d = workdir("info");
+    let (ok, out, err) = eprop(&["info", d.path().join("cyl.msh").to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["nodes"], 444);
+    let (vol, sum) = (
+        v["volume"].as_f64().unwrap(),
+        v["control_volume_sum"].as_f64().unwrap(),
+    );
+    assert!(((vol - sum) / vol).abs() < 1e-12);
+    assert!(v["max_closure_error"].as_f64().unwrap() < 1e-12);
+    assert!(v["stable_h_r005"].as_f64().unwrap() > 0.0);
+    let (ok, _, err) = eprop(&["info", "/nonexistent/x.msh"]);
+    assert!(!ok && err.contains("no such mesh file"));
+}
+
+#[test]
+fn gmsh_versions_read_alike() {
+    // the same tetrahedron written in formats 1, 2.2 and 4.1
+    let v1 = "$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n$ELM\n2\n1 4 7 1 4 1 2 3 4\n2 2 3 3 3 1 2 3\n$ENDELM\n";
+    let v2 = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$PhysicalNames\n2\n2 3 \"base\"\n3 7 \"tissue\"\n$EndPhysicalNames\n$Nodes\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$EndNodes\n$Elements\n2\n1 4 2 7 1 1 2 3 4\n2 2 2 3 3 1 2 3\n$EndElements\n";
+    let v4 = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$PhysicalNames\n2\n2 3 \"base\"\n3 7 \"tissue\"\n$EndPhysicalNames\n$Entities\n0 0 1 1\n1 0 0 0 1 1 0 1 3 0\n1 0 0 0 1 1 1 1 7 0\n$EndEntities\n$Nodes\n1 4 1 4\n3 1 0 4\n1\n2\n3\n4\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n$Elements\n2 2 1 2\n2 1 2 1\n2 1 2 3\n3 1 4 1\n1 1 2 3 4\n$EndElements\n";
+    for (name, text) in [("v1", v1), ("v2", v2), ("v4", v4)] {
+        let m = eprop_io::gmsh::parse(name, text).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(m.n_nodes(), 4, "{name}");
+        assert_eq!(m.n_cells(), 1, "{name}");
+        assert_eq!(m.cell_tags[0], 7, "{name}");
+        assert_eq!(m.facets.len(), 1, "{name}");
+        assert_eq!(m.facets.tags[0], 3, "{name}");
+    }
+    // truncation and a bad node reference name the line
+    let cut = &v2[..v2.find("$EndElements").unwrap() - 10];
+    let e = eprop_io::gmsh::parse("cut.msh", cut)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("cut.msh:"), "{e}");
+    let bad = v2.replace("1 4 2 7 1 1 2 3 4", "1 4 2 7 1 1 2 3 9");
+    let e = eprop_io::gmsh::parse("bad.msh", &bad)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("bad.msh:18") && e.contains("node 9"), "{e}");
+}

@@ -1,0 +1,139 @@
+//! Median-dual geometry: identities that must hold on any valid mesh.
+
+mod common;
+
+use eprop::geometry::{cell_dual, tet_gradients, Dual, Incidence};
+use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
+use eprop_io::geom::cell_volume;
+use eprop_io::Mesh;
+
+fn check_identities(mesh: &Mesh) {
+    let inc = Incidence::new(mesh);
+    let dual = Dual::build(mesh, &inc, mesh.n_nodes(), None);
+    let volume: f64 = (0..mesh.n_cells())
+        .map(|c| cell_volume(mesh.kinds[c], mesh.cell(c), &mesh.points))
+        .sum();
+    let sum_v: f64 = dual.vol.iter().sum();
+    let rel = ((sum_v - volume) / volume).abs();
+    assert!(
+        rel < 1e-12,
+        "{}: sum V_i = {sum_v}, volume = {volume}, rel {rel:e}",
+        mesh.source
+    );
+    assert!(
+        dual.vol.iter().all(|&v| v > 0.0),
+        "{}: a control volume is not positive",
+        mesh.source
+    );
+    let closure = dual.max_closure_error();
+    assert!(
+        closure < 1e-12,
+        "{}: closure error {closure:e}",
+        mesh.source
+    );
+    // antisymmetry S_ji = -S_ij, bitwise
+    for i in 0..mesh.n_nodes() {
+        for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
+            let j = dual.col[p] as usize;
+            let q = (dual.row_ptr[j]..dual.row_ptr[j + 1])
+                .find(|&q| dual.col[q] as usize == i)
+                .unwrap();
+            let (a, b) = (dual.s[p], dual.s[q]);
+            assert_eq!(
+                a,
+                [-b[0], -b[1], -b[2]],
+                "{}: S_ij != -S_ji at ({i},{j})",
+                mesh.source
+            );
+        }
+    }
+    // the boundary dual areas add up to a closed surface
+    let total: [f64; 3] = dual
+        .area
+        .iter()
+        .fold([0.0; 3], |t, a| [t[0] + a[0], t[1] + a[1], t[2] + a[2]]);
+    let scale: f64 = dual
+        .area
+        .iter()
+        .map(|a| (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt())
+        .sum();
+    assert!(
+        total.iter().all(|x| x.abs() < 1e-12 * scale),
+        "{}: sum A_i = {total:?}",
+        mesh.source
+    );
+}
+
+#[test]
+fn identities_on_generated_tetrahedral_meshes() {
+    check_identities(&box_mesh([1.0, 2.0, 0.5], [4, 5, 3], BoxCells::Tet).unwrap());
+    check_identities(&cylinder_mesh(1.0, 4.0, 3, 11).unwrap());
+    check_identities(&cylinder_mesh(0.3, 1.0, 5, 7).unwrap());
+}
+
+#[test]
+fn identities_on_hexahedra_and_prisms() {
+    check_identities(&box_mesh([1.0, 1.0, 1.0], [3, 4, 2], BoxCells::Hex).unwrap());
+    check_identities(&box_mesh([1.0, 0.5, 2.0], [3, 2, 4], BoxCells::Wedge).unwrap());
+    // a distorted (non-affine) hexahedral mesh: dual volumes are exact, not 1/8 fractions
+    let mut m = box_mesh([1.0, 1.0, 1.0], [3, 3, 3], BoxCells::Hex).unwrap();
+    for p in m.points.iter_mut() {
+        let (x, y, z) = (p[0], p[1], p[2]);
+        p[0] += 0.07 * (3.0 * y).sin() * z;
+        p[1] += 0.05 * (2.0 * z).cos() * x;
+        p[2] += 0.06 * (x * y);
+    }
+    check_identities(&m);
+}
+
+#[test]
+fn identities_on_real_organ_meshes() {
+    for name in ["sofa_liver.msh", "sofa_liver2.msh"] {
+        let Some(p) = common::shared_mesh(name) else {
+            continue;
+        };
+        let mesh = eprop_io::read_mesh(&p).unwrap();
+        check_identities(&mesh);
+    }
+}
+
+#[test]
+fn tetrahedron_dual_faces_are_shape_function_differences() {
+    // S_ij^T = (V_T / 4) (grad N_j - grad N_i), on irregular tetrahedra
+    let pts = vec![
+        [0.1, -0.2, 0.05],
+        [1.3, 0.1, -0.1],
+        [0.2, 0.9, 0.3],
+        [0.4, 0.35, 1.7],
+        [2.0, 1.0, 1.0],
+    ];
+    for nodes in [[0u32, 1, 2, 3], [1, 2, 3, 4], [0, 1, 2, 4]] {
+        let mut nodes = nodes;
+        if cell_volume(eprop_io::CellKind::Tet, &nodes, &pts) < 0.0 {
+            nodes.swap(1, 2);
+        }
+        let cd = cell_dual(eprop_io::CellKind::Tet, &nodes, &pts);
+        let (g, v) = tet_gradients(&nodes, &pts);
+        for (e, edge) in eprop_io::CellKind::Tet.edges().iter().enumerate() {
+            let (i, j) = (edge[0], edge[1]);
+            for d in 0..3 {
+                let want = v / 4.0 * (g[j][d] - g[i][d]);
+                assert!(
+                    (cd.s[e][d] - want).abs() < 1e-14 * (1.0 + want.abs()),
+                    "edge {i}-{j}: {:?} vs {want}",
+                    cd.s[e]
+                );
+            }
+        }
+        let sum: f64 = cd.vol.iter().sum();
+        assert!((sum - v).abs() < 1e-15 * v.abs().max(1.0));
+    }
+}
+
+#[test]
+fn cylinder_generator_is_paper_sized() {
+    let m = cylinder_mesh(1.0, 4.0, 3, 11).unwrap();
+    assert_eq!(m.n_nodes(), 444);
+    assert_eq!(m.n_cells(), 1782);
+    assert!(m.group_tag("bottom").is_some() && m.group_tag("side").is_some());
+}

@@ -1,0 +1,298 @@
+//! The two propagation schemes: exactness, symmetry, conservation of constants, stability,
+//! and the steady state against a direct solve.
+
+mod common;
+
+use common::{max_abs, sim};
+use eprop::geometry::{compact_coefficients, Dual, Incidence};
+use eprop::material::Tensor;
+use eprop::operator::Operator;
+use eprop::solver::hash_unit;
+use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
+use eprop_io::Mesh;
+use nalgebra::Vector3;
+
+fn tensors() -> Vec<Tensor> {
+    vec![
+        Tensor::identity() * 0.05,
+        Tensor::from_diagonal(&Vector3::new(0.08, 0.05, 0.05)),
+        Tensor::new(0.3, 0.05, -0.02, 0.05, 0.2, 0.04, -0.02, 0.04, 0.1),
+    ]
+}
+
+/// sum_j a_ij (u_j - u_i) must equal the exact boundary flux -(R g).A_i for linear u = g.x.
+fn check_compact_linear_exactness(mesh: &Mesh) {
+    let n = mesh.n_nodes();
+    let inc = Incidence::new(mesh);
+    let dual = Dual::build(mesh, &inc, n, None);
+    for r in tensors() {
+        let a = compact_coefficients(mesh, &inc, &dual, &vec![r; n]);
+        for g in [[1.0, 0.0, 0.0], [0.3, -1.2, 0.7]] {
+            let u: Vec<f64> = mesh
+                .points
+                .iter()
+                .map(|p| 0.4 + g[0] * p[0] + g[1] * p[1] + g[2] * p[2])
+                .collect();
+            let rg = r * Vector3::from(g);
+            let mut worst = 0.0f64;
+            for i in 0..n {
+                let mut flux = 0.0;
+                let mut scale = 0.0;
+                for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
+                    flux += a[p] * (u[dual.col[p] as usize] - u[i]);
+                    scale += (a[p] * (u[dual.col[p] as usize] - u[i])).abs();
+                }
+                let ai = dual.area[i];
+                let exact = -(rg[0] * ai[0] + rg[1] * ai[1] + rg[2] * ai[2]);
+                worst = worst.max((flux - exact).abs() / (scale + exact.abs() + 1e-300));
+            }
+            assert!(
+                worst < 1e-12,
+                "{}: compact not exact on a linear field (rel {worst:e})",
+                mesh.source
+            );
+        }
+    }
+}
+
+#[test]
+fn compact_is_exact_on_linear_fields() {
+    check_compact_linear_exactness(&cylinder_mesh(1.0, 4.0, 3, 11).unwrap());
+    check_compact_linear_exactness(&box_mesh([1.0, 0.7, 1.3], [4, 3, 5], BoxCells::Tet).unwrap());
+    check_compact_linear_exactness(&box_mesh([1.0, 0.7, 1.3], [3, 3, 2], BoxCells::Hex).unwrap());
+    check_compact_linear_exactness(&box_mesh([1.0, 0.7, 1.3], [3, 2, 2], BoxCells::Wedge).unwrap());
+    if let Some(p) = common::shared_mesh("sofa_liver2.msh") {
+        check_compact_linear_exactness(&eprop_io::read_mesh(&p).unwrap());
+    }
+}
+
+#[test]
+fn compact_is_symmetric_on_tetrahedra() {
+    let mesh = cylinder_mesh(1.0, 4.0, 3, 11).unwrap();
+    let n = mesh.n_nodes();
+    let inc = Incidence::new(&mesh);
+    let dual = Dual::build(&mesh, &inc, n, None);
+    // heterogeneous: per-node tensors differ, the cell mean keeps the operator symmetric
+    let r: Vec<Tensor> = (0..n).map(|i| tensors()[i % 3]).collect();
+    let a = compact_coefficients(&mesh, &inc, &dual, &r);
+    for i in 0..n {
+        for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
+            let j = dual.col[p] as usize;
+            let q = (dual.row_ptr[j]..dual.row_ptr[j + 1])
+                .find(|&q| dual.col[q] as usize == i)
+                .unwrap();
+            assert_eq!(a[p], a[q], "a_ij != a_ji at ({i},{j})");
+        }
+    }
+}
+
+const PAPER: &str = "[model]\nscheme = \"paper\"\n";
+const PAPER_RAW: &str = "[model]\nscheme = \"paper\"\npaper_correction = false\n";
+const BASE: &str = "[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 1.0\n[time]\nsteps = 5\n";
+
+#[test]
+fn paper_scheme_annihilates_constants() {
+    for model in [PAPER, PAPER_RAW] {
+        let mut s = sim(
+            cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
+            &format!("{model}{BASE}"),
+        );
+        let n = s.u.len();
+        let c = vec![[1.5, -2.0, 0.25]; n];
+        let mut y = vec![[9.0; 3]; n];
+        s.prop.apply(&c, &mut y);
+        let m = max_abs(&y);
+        assert!(m < 1e-12, "paper scheme: L(constant) = {m:e}");
+    }
+}
+
+/// Drives the potential with the scenario's load, then switches the source off: max |phi|
+/// must never grow again, at every substep.
+fn check_no_growth(model: &str) {
+    let mut s = sim(
+        cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
+        &format!("{model}{BASE}"),
+    );
+    for _ in 0..10 {
+        s.advance();
+    }
+    let mut prev = max_abs(&s.prop.phi);
+    assert!(prev > 0.0);
+    for k in 0..3000 {
+        s.prop.substep(s.h, &[]);
+        let m = max_abs(&s.prop.phi);
+        assert!(
+            m <= prev * (1.0 + 1e-12),
+            "{model}: max |phi| grew at substep {k}: {prev:e} -> {m:e}"
+        );
+        prev = m;
+    }
+}
+
+#[test]
+fn no_scheme_grows_the_potential_without_source() {
+    check_no_growth("");
+    check_no_growth(PAPER);
+    check_no_growth(PAPER_RAW);
+}
+
+#[test]
+fn compact_keeps_a_maximum_principle_on_random_data() {
+    // Kuhn-split boxes give non-negative couplings: max |phi| cannot grow from any start
+    let mesh = box_mesh([1.0, 1.0, 1.0], [5, 5, 5], BoxCells::Tet).unwrap();
+    let mut s = sim(mesh, "[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n");
+    let n = s.u.len();
+    for i in 0..n {
+        if s.active[i] {
+            s.prop.phi[i] = [
+                hash_unit(i as u64),
+                hash_unit(7 * i as u64 + 1),
+                hash_unit(13 * i as u64 + 2),
+            ];
+        }
+    }
+    let mut prev = max_abs(&s.prop.phi);
+    for _ in 0..500 {
+        s.prop.substep(s.h, &[]);
+        let m = max_abs(&s.prop.phi);
+        assert!(m <= prev * (1.0 + 1e-14));
+        prev = m;
+    }
+    assert!(prev < 0.5, "the potential did not decay ({prev})");
+}
+
+#[test]
+fn substep_above_the_bound_is_refused() {
+    let base = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), BASE);
+    let dir = std::env::temp_dir();
+    for (model, bound) in [
+        ("", base.h_bound),
+        (
+            PAPER,
+            sim(
+                cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
+                &format!("{PAPER}{BASE}"),
+            )
+            .h_bound,
+        ),
+    ] {
+        let toml = format!("{model}{BASE}h = {}\n", 1.5 * bound);
+        let setup = common::setup(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &toml, &dir);
+        let err = eprop::solver::Simulation::new(setup)
+            .err()
+            .expect("h above the bound must be refused")
+            .to_string();
+        assert!(err.contains("above the stability bound"), "{err}");
+        // and a value below the bound is taken
+        let ok = format!("{model}{BASE}h = {}\n", 0.5 * bound);
+        let s = eprop::solver::Simulation::new(common::setup(
+            cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
+            &ok,
+            &dir,
+        ))
+        .unwrap();
+        assert!(s.h <= 0.5 * bound);
+    }
+}
+
+/// Conjugate gradients on K x = b, K the SPD stiffness of the compact operator on free nodes.
+fn cg(apply: impl Fn(&[f64], &mut [f64]), b: &[f64]) -> Vec<f64> {
+    let n = b.len();
+    let mut x = vec![0.0; n];
+    let mut r = b.to_vec();
+    let mut p = r.clone();
+    let mut ap = vec![0.0; n];
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let mut rr = dot(&r, &r);
+    let b2 = rr;
+    for _ in 0..10 * n {
+        apply(&p, &mut ap);
+        let alpha = rr / dot(&p, &ap);
+        for i in 0..n {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * ap[i];
+        }
+        let rr2 = dot(&r, &r);
+        if rr2 < 1e-30 * b2 {
+            break;
+        }
+        for i in 0..n {
+            p[i] = r[i] + rr2 / rr * p[i];
+        }
+        rr = rr2;
+    }
+    x
+}
+
+#[test]
+fn steady_state_matches_a_direct_solve() {
+    let mesh = box_mesh([1.0, 0.5, 0.5], [8, 4, 4], BoxCells::Tet).unwrap();
+    let toml = "[material]\nconductivity = [1.0, 0.6, 0.8]\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [1.0, 0.25, 0.25]\nforce = [1.0, 0.5, -0.3]\n[time]\nsteps = 1\n";
+    let mut s = sim(mesh, toml);
+    let n = s.u.len();
+    let c = s.loads[0].nodes[0] as usize;
+    let qv = [0.7, -0.2, 0.4];
+    let q = vec![(c as u32, qv)];
+    // explicit Euler to steady state
+    let mut steps = 0;
+    loop {
+        let before = s.prop.phi.clone();
+        for _ in 0..200 {
+            s.prop.substep(s.h, &q);
+        }
+        steps += 200;
+        let change = s
+            .prop
+            .phi
+            .iter()
+            .zip(&before)
+            .map(|(a, b)| {
+                (a[0] - b[0])
+                    .abs()
+                    .max((a[1] - b[1]).abs())
+                    .max((a[2] - b[2]).abs())
+            })
+            .fold(0.0, f64::max);
+        if change < 1e-15 * max_abs(&s.prop.phi) || steps > 400_000 {
+            break;
+        }
+    }
+    // direct: sum_j a_ij (phi_j - phi_i) = -V_i Q_i on free nodes, phi = 0 on the fixed face
+    let Operator::Compact(op) = &s.prop.op else {
+        panic!()
+    };
+    let vol = s.dual.vol.clone();
+    let free: Vec<usize> = (0..n).filter(|&i| s.active[i]).collect();
+    let mut pos = vec![usize::MAX; n];
+    for (k, &i) in free.iter().enumerate() {
+        pos[i] = k;
+    }
+    let apply = |x: &[f64], y: &mut [f64]| {
+        for (k, &i) in free.iter().enumerate() {
+            let mut acc = 0.0;
+            for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
+                let j = op.col[p] as usize;
+                let xj = if pos[j] == usize::MAX { 0.0 } else { x[pos[j]] };
+                acc += op.coef[p] * vol[i] * (xj - x[k]);
+            }
+            y[k] = -acc;
+        }
+    };
+    for d in 0..3 {
+        let b: Vec<f64> = free
+            .iter()
+            .map(|&i| if i == c { vol[i] * qv[d] } else { 0.0 })
+            .collect();
+        let x = cg(&apply, &b);
+        let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (k, &i) in free.iter().enumerate() {
+            let diff = (s.prop.phi[i][d] - x[k]).abs();
+            assert!(
+                diff < 1e-8 * scale,
+                "component {d}, node {i}: explicit {} vs direct {} after {steps} substeps",
+                s.prop.phi[i][d],
+                x[k]
+            );
+        }
+    }
+}
