@@ -283,7 +283,7 @@ fn steady_state_matches_a_direct_solve() {
             .iter()
             .map(|&i| if i == c { vol[i] * qv[d] } else { 0.0 })
             .collect();
-        let x = cg(&apply, &b);
+        let x = cg(apply, &b);
         let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         for (k, &i) in free.iter().enumerate() {
             let diff = (s.prop.phi[i][d] - x[k]).abs();
