@@ -115,6 +115,8 @@ def surface_panel(fig, ax, xyz, tris, values, label, d, title):
     ax.set(xlim=(mid[0] - half, mid[0] + half), ylim=(mid[1] - half, mid[1] + half),
            zlim=(mid[2] - half, mid[2] + half), xlabel="x", ylabel="y", zlabel="z", title=title)
     ax.set_box_aspect((1, 1, 1))
+    ax.locator_params(nbins=5)
+    ax.tick_params(labelsize=8)
     fig.colorbar(coll, ax=ax, shrink=0.6, label=label)
 
 
@@ -129,7 +131,7 @@ def plot_deformed(d, scale, out, stem):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d", computed_zorder=False)
         if len(d["nodes"]):  # turn the loaded side towards the viewer
             r = d["points"][d["nodes"][0]] - d["points"].mean(axis=0)
-            ax.view_init(elev=20, azim=np.degrees(np.arctan2(r[1], r[0])) - 35)
+            ax.view_init(elev=15, azim=np.degrees(np.arctan2(r[1], r[0])) - 25)
         surface_panel(fig, ax, xyz, d["tris"], vals, label, d, f"{name}\n{when}{sfx}")
     path = os.path.join(out, stem + "_deformed.png")
     fig.savefig(path, dpi=120, bbox_inches="tight")

@@ -179,12 +179,7 @@ pub fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64)
 
 /// Builds the sorted neighbour lists of rows `0..n_rows`: every node that shares a cell.
 /// `gid` orders neighbours (global ids); None means local index order.
-pub fn pair_graph(
-    mesh: &Mesh,
-    inc: &Incidence,
-    n_rows: usize,
-    gid: Option<&[u64]>,
-) -> (Vec<usize>, Vec<u32>) {
+pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
     let key = |j: u32| gid.map_or(j as u64, |g| g[j as usize]);
     let lists: Vec<Vec<u32>> = (0..n_rows)
         .into_par_iter()
@@ -264,12 +259,7 @@ impl Dual {
                                 let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
                                 let fcn = centroid(&fnodes, pts);
                                 let xi = pts[i];
-                                let quad = [
-                                    xi,
-                                    scale(add(xi, pts[next]), 0.5),
-                                    fcn,
-                                    scale(add(xi, pts[prev]), 0.5),
-                                ];
+                                let quad = [xi, scale(add(xi, pts[next]), 0.5), fcn, scale(add(xi, pts[prev]), 0.5)];
                                 a = add(a, loop_area(&quad));
                             }
                         }

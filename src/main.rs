@@ -27,8 +27,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Cmd {
     /// Run a scenario to its stop condition and write the HDF5 series.
-    #[command(
-        long_about = "Run a scenario to its stop condition and write the HDF5 series.\n\n\
+    #[command(long_about = "Run a scenario to its stop condition and write the HDF5 series.\n\n\
 Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [mesh]      file = \"organ.msh\"             (relative to the scenario file)\n\
   [material]  mass = 1.0, damping = 2.0, conductivity = 0.05 | [rx, ry, rz] | 3x3 table\n\
@@ -43,8 +42,7 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [time]      steps = N | end = T | equilibrium = tol;  dt, h optional (automatic)\n\
   [output]    file = \"out.h5\", every = 1\n\n\
 The summary gives the substep h, the steps, the speed, the largest displacement and the\n\
-contact displacement of each load. Run under mpirun for several processes."
-    )]
+contact displacement of each load. Run under mpirun for several processes.")]
     Run {
         /// Scenario file (TOML)
         scenario: PathBuf,
@@ -130,6 +128,37 @@ fn main() -> ExitCode {
     }
 }
 
+/// True when started by an MPI launcher.
+fn under_mpirun() -> bool {
+    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK", "MPI_LOCALNRANKS"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some())
+}
+
+/// Runs under MPI; an error on any process prints its message and ends every process with a
+/// non-zero exit (MPI_Abort), so a batch job never hangs on a failed rank.
+fn run_under_mpi(scenario: &std::path::Path, opts: &RunOptions) -> Option<eprop::run::Summary> {
+    use mpi::topology::Communicator;
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("error: MPI could not be initialised");
+        std::process::exit(1);
+    };
+    let world = universe.world();
+    let (rank, size) = (world.rank(), world.size());
+    let abort_world = universe.world();
+    match eprop::run::run_mpi(world, scenario, opts) {
+        Ok(s) => s,
+        Err(e) => {
+            if size > 1 {
+                eprintln!("error (rank {rank} of {size}): {e:#}");
+            } else {
+                eprintln!("error: {e:#}");
+            }
+            abort_world.abort(1)
+        }
+    }
+}
+
 fn real_main(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Run {
@@ -139,18 +168,22 @@ fn real_main(cli: Cli) -> Result<()> {
             json,
             quiet,
         } => {
-            let s = run(
-                &scenario,
-                &RunOptions {
-                    output,
-                    steps,
-                    quiet: quiet || json,
-                },
-            )?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&s)?);
+            let opts = RunOptions {
+                output,
+                steps,
+                quiet: quiet || json,
+            };
+            let summary = if under_mpirun() {
+                run_under_mpi(&scenario, &opts)
             } else {
-                println!("{s}");
+                Some(run(&scenario, &opts)?)
+            };
+            if let Some(s) = summary {
+                if json {
+                    println!("{}", serde_json::to_string_pretty(&s)?);
+                } else {
+                    println!("{s}");
+                }
             }
         }
         Cmd::Info { mesh, json } => {
@@ -186,22 +219,13 @@ fn real_main(cli: Cli) -> Result<()> {
                         bail!("--size and --cells take three comma-separated values");
                     }
                     (
-                        box_mesh(
-                            [size[0], size[1], size[2]],
-                            [cells[0], cells[1], cells[2]],
-                            k,
-                        )?,
+                        box_mesh([size[0], size[1], size[2]], [cells[0], cells[1], cells[2]], k)?,
                         output,
                     )
                 }
             };
             eprop_io::write_mesh(&mesh, &out)?;
-            println!(
-                "{}: {} nodes, {} cells",
-                out.display(),
-                mesh.n_nodes(),
-                mesh.n_cells()
-            );
+            println!("{}: {} nodes, {} cells", out.display(), mesh.n_nodes(), mesh.n_cells());
         }
     }
     Ok(())

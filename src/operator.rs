@@ -94,17 +94,10 @@ pub struct Paper {
 }
 
 impl Paper {
-    pub fn new(
-        dual: &Dual,
-        points: &[V3],
-        r: &[Tensor],
-        update: &[bool],
-        correction: bool,
-    ) -> Paper {
+    pub fn new(dual: &Dual, points: &[V3], r: &[Tensor], update: &[bool], correction: bool) -> Paper {
         let n = dual.n_rows;
         let mut row_ptr = Vec::with_capacity(n + 1);
-        let (mut col, mut s, mut ris, mut rjs, mut e, mut c) =
-            (vec![], vec![], vec![], vec![], vec![], vec![]);
+        let (mut col, mut s, mut ris, mut rjs, mut e, mut c) = (vec![], vec![], vec![], vec![], vec![], vec![]);
         row_ptr.push(0u32);
         for i in 0..n {
             for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
@@ -132,11 +125,7 @@ impl Paper {
             }
             row_ptr.push(col.len() as u32);
         }
-        let inv_vol = dual
-            .vol
-            .iter()
-            .map(|&v| if v > 0.0 { 1.0 / v } else { 0.0 })
-            .collect();
+        let inv_vol = dual.vol.iter().map(|&v| if v > 0.0 { 1.0 / v } else { 0.0 }).collect();
         Paper {
             row_ptr,
             col,
@@ -231,43 +220,30 @@ impl Operator {
     /// y_i = (L x)_i for rows `0..n_rows` (`g` holds gradients of x for the paper scheme).
     pub fn apply(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3]) {
         let n = self.n_rows();
-        y[..n]
-            .par_chunks_mut(CHUNK)
-            .enumerate()
-            .for_each(|(b, chunk)| {
-                for (k, yi) in chunk.iter_mut().enumerate() {
-                    let i = b * CHUNK + k;
-                    *yi = match self {
-                        Operator::Compact(c) => c.row(i, x),
-                        Operator::Paper(p) => p.row(i, x, g),
-                    };
-                }
-            });
+        y[..n].par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
+            for (k, yi) in chunk.iter_mut().enumerate() {
+                let i = b * CHUNK + k;
+                *yi = match self {
+                    Operator::Compact(c) => c.row(i, x),
+                    Operator::Paper(p) => p.row(i, x, g),
+                };
+            }
+        });
     }
     /// One forward Euler substep without source: y_i = x_i + h (L x)_i, for rows in `range`.
-    pub fn step_rows(
-        &self,
-        x: &[V3],
-        g: &[[f64; 9]],
-        y: &mut [V3],
-        h: f64,
-        range: std::ops::Range<usize>,
-    ) {
+    pub fn step_rows(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3], h: f64, range: std::ops::Range<usize>) {
         let start = range.start;
-        y[range]
-            .par_chunks_mut(CHUNK)
-            .enumerate()
-            .for_each(|(b, chunk)| {
-                for (k, yi) in chunk.iter_mut().enumerate() {
-                    let i = start + b * CHUNK + k;
-                    let l = match self {
-                        Operator::Compact(c) => c.row(i, x),
-                        Operator::Paper(p) => p.row(i, x, g),
-                    };
-                    let xi = x[i];
-                    *yi = [xi[0] + h * l[0], xi[1] + h * l[1], xi[2] + h * l[2]];
-                }
-            });
+        y[range].par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
+            for (k, yi) in chunk.iter_mut().enumerate() {
+                let i = start + b * CHUNK + k;
+                let l = match self {
+                    Operator::Compact(c) => c.row(i, x),
+                    Operator::Paper(p) => p.row(i, x, g),
+                };
+                let xi = x[i];
+                *yi = [xi[0] + h * l[0], xi[1] + h * l[1], xi[2] + h * l[2]];
+            }
+        });
     }
     /// Stored pairs (for memory and bandwidth figures).
     pub fn n_pairs(&self) -> usize {

@@ -4,7 +4,9 @@ use crate::geometry::{compact_coefficients, Dual, Incidence};
 use crate::material::Tensor;
 use crate::operator::{Compact, Operator};
 use crate::scenario::{Scenario, Setup};
-use crate::solver::{check_output_dir, flat, scheme_name, Simulation, SAFETY};
+use crate::solver::{
+    check_output_dir, flat, max_displacement, scheme_name, total_energy, GlobalState, Simulation, SAFETY,
+};
 use anyhow::Result;
 use eprop_io::geom::{cell_quality, cell_volume, norm};
 use eprop_io::vtkhdf::{SeriesSpec, SeriesWriter};
@@ -37,6 +39,7 @@ pub struct Summary {
     pub mesh: String,
     pub nodes: usize,
     pub cells: usize,
+    pub processes: usize,
     pub fixed_nodes: usize,
     pub scheme: String,
     pub h: f64,
@@ -64,8 +67,8 @@ impl std::fmt::Display for Summary {
         writeln!(f, "eprop run: {}", self.scenario)?;
         writeln!(
             f,
-            "  mesh        {} ({} nodes, {} cells, {} fixed)",
-            self.mesh, self.nodes, self.cells, self.fixed_nodes
+            "  mesh        {} ({} nodes, {} cells, {} fixed) on {} process(es)",
+            self.mesh, self.nodes, self.cells, self.fixed_nodes, self.processes
         )?;
         writeln!(
             f,
@@ -109,17 +112,20 @@ impl std::fmt::Display for Summary {
         for w in &self.warnings {
             writeln!(f, "  warning     {w}")?;
         }
-        write!(
-            f,
-            "  output      {} ({} steps)",
-            self.output, self.output_steps
-        )
+        write!(f, "  output      {} ({} steps)", self.output, self.output_steps)
     }
 }
 
-/// Runs a scenario file to its stop condition, writing the series; returns the summary.
+/// Runs a scenario file on one process to its stop condition; returns the summary.
 pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
+    let setup = prepare(path, opts)?;
+    let sim = Simulation::new(setup)?;
+    run_simulation(sim, t0, opts).map(|s| s.expect("rank 0 has the summary"))
+}
+
+/// Reads and resolves a scenario with the command-line overrides applied.
+pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
     let scenario = Scenario::load(path)?;
     let mut setup = Setup::new(scenario)?;
     if let Some(o) = &opts.output {
@@ -129,40 +135,62 @@ pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
         setup.stop = crate::scenario::Stop::Steps(s);
     }
     check_output_dir(&setup.output)?;
-    let sim = Simulation::new(setup)?;
+    Ok(setup)
+}
+
+/// Runs a scenario under MPI: every process reads the scenario and mesh, the node graph is
+/// split by METIS, each process steps its part with halo exchanges, rank 0 writes the file.
+/// Returns the summary on rank 0.
+pub fn run_mpi(world: mpi::topology::SimpleCommunicator, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
+    use mpi::topology::Communicator;
+    let t0 = Instant::now();
+    let (rank, size) = (world.rank() as usize, world.size() as usize);
+    let setup = prepare(path, opts)?;
+    let mesh = &setup.mesh;
+    let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
+    let part = eprop_partition::partition(&xadj, &adj, size, eprop_partition::Method::Metis)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
+    let plan = eprop_partition::Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, rank);
+    let n_global = mesh.n_nodes();
+    let comm = crate::comm::Mpi::new(world, plan.clone(), n_global);
+    let sim = Simulation::new_with(setup, Box::new(comm), Some(plan))?;
     run_simulation(sim, t0, opts)
 }
 
-/// Runs a prepared simulation (the scenario already resolved).
-pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Result<Summary> {
+/// Runs a prepared simulation; rank 0 writes the series and returns the summary.
+pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Result<Option<Summary>> {
+    let root = sim.comm.rank() == 0;
     let mesh = &sim.setup.mesh;
     let n = mesh.n_nodes();
-    let spec = SeriesSpec {
-        fields: vec![
-            ("displacement", 3),
-            ("velocity", 3),
-            ("potential", 3),
-            ("energy", 1),
-        ],
-        n_loads: sim.loads.len(),
-        load_nodes: sim.loads.iter().map(|l| l.nodes[0] as u64).collect(),
-        scenario: &sim.setup.scenario.text,
-        version: VERSION,
-        control_volumes: &sim.dual.vol,
-        attrs: vec![
-            ("dt", sim.dt),
-            ("h", sim.h),
-            ("substeps", sim.substeps as f64),
-        ],
+    let mut out = if root {
+        let spec = SeriesSpec {
+            fields: vec![("displacement", 3), ("velocity", 3), ("potential", 3), ("energy", 1)],
+            n_loads: sim.loads.len(),
+            load_nodes: sim.loads.iter().map(|l| l.nodes[0] as u64).collect(),
+            scenario: &sim.setup.scenario.text,
+            version: VERSION,
+            control_volumes: &sim.vol_global,
+            attrs: vec![
+                ("dt", sim.dt),
+                ("h", sim.h),
+                ("substeps", sim.substeps as f64),
+                ("processes", sim.comm.size() as f64),
+            ],
+        };
+        Some(SeriesWriter::create(&sim.setup.output, mesh, &spec)?)
+    } else {
+        None
     };
-    let mut out = SeriesWriter::create(&sim.setup.output, mesh, &spec)?;
-    drop(spec);
-    let write = |sim: &Simulation, out: &mut SeriesWriter| -> Result<()> {
-        let energy: Vec<f64> = sim.prop.phi.iter().map(|p| norm(*p)).collect();
-        let (u, v, p) = (flat(&sim.u), flat(&sim.v), flat(&sim.prop.phi));
-        out.append(sim.time, sim.step, &[&u, &v, &p, &energy], &sim.probes())
+    let write = |sim: &Simulation, out: &mut Option<SeriesWriter>| -> Result<Option<GlobalState>> {
+        let g = sim.gather();
+        if let (Some(g), Some(out)) = (&g, out.as_mut()) {
+            let energy: Vec<f64> = g.phi.iter().map(|p| norm(*p)).collect();
+            let (u, v, p) = (flat(&g.u), flat(&g.v), flat(&g.phi));
+            out.append(sim.time, sim.step, &[&u, &v, &p, &energy], &sim.probes(&g.u))?;
+        }
+        Ok(g)
     };
-    write(&sim, &mut out)?;
+    let mut last = write(&sim, &mut out)?;
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let every = sim.setup.every;
@@ -170,11 +198,11 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
     let mut last_report = Instant::now();
     while !sim.done() {
         sim.advance();
-        let last = sim.done();
-        if sim.step % every == 0 || last {
-            write(&sim, &mut out)?;
+        let is_last = sim.done();
+        if sim.step % every == 0 || is_last {
+            last = write(&sim, &mut out)?;
         }
-        if !opts.quiet && last_report.elapsed().as_secs_f64() > 5.0 {
+        if root && !opts.quiet && last_report.elapsed().as_secs_f64() > 5.0 {
             eprintln!(
                 "  step {}/{} t = {:.4} max|v| = {:.3e}",
                 sim.step, max_steps, sim.time, sim.max_speed
@@ -183,8 +211,11 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
         }
     }
     let wall = t1.elapsed().as_secs_f64();
+    let (Some(g), Some(out)) = (last, out) else {
+        return Ok(None);
+    };
     let mesh = &sim.setup.mesh;
-    let (umax, imax) = sim.max_displacement();
+    let (umax, imax) = max_displacement(&g.u);
     let mut warnings = sim.setup.mesh.warnings.clone();
     if sim.inactive_nodes > 0 {
         warnings.push(format!(
@@ -200,12 +231,13 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
             ));
         }
     }
-    let probes = sim.probes();
-    Ok(Summary {
+    let probes = sim.probes(&g.u);
+    Ok(Some(Summary {
         scenario: sim.setup.scenario.path.display().to_string(),
         mesh: mesh.source.clone(),
         nodes: n,
         cells: mesh.n_cells(),
+        processes: sim.comm.size(),
         fixed_nodes: sim.setup.fixed.iter().filter(|&&b| b).count(),
         scheme: scheme_name(sim.setup.scheme).to_string(),
         h: sim.h,
@@ -216,12 +248,11 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
         time: sim.time,
         wall_seconds: wall,
         setup_seconds,
-        node_substeps_per_second: (n as f64 * sim.step as f64 * sim.substeps as f64)
-            / wall.max(1e-12),
+        node_substeps_per_second: (n as f64 * sim.step as f64 * sim.substeps as f64) / wall.max(1e-12),
         max_displacement: umax,
         max_displacement_node: mesh.node_ids[imax],
         max_displacement_at: mesh.points[imax],
-        total_energy: sim.total_energy(),
+        total_energy: total_energy(&sim.vol_global, &g.phi),
         max_speed: sim.max_speed,
         loads: sim
             .loads
@@ -236,7 +267,7 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
         output: out.path().display().to_string(),
         output_steps: out.steps_written(),
         warnings,
-    })
+    }))
 }
 
 /// What `eprop info` reports about a mesh.
@@ -296,11 +327,7 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
             .map(|(k, c)| (k.name().to_string(), c))
             .collect(),
         surface_facets: mesh.facets.len(),
-        groups: mesh
-            .group_names
-            .iter()
-            .map(|((d, t), s)| (*d, *t, s.clone()))
-            .collect(),
+        groups: mesh.group_names.iter().map(|((d, t), s)| (*d, *t, s.clone())).collect(),
         bounds: [lo, hi],
         volume,
         control_volume_sum: dual.vol.iter().sum(),
@@ -316,18 +343,9 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
 impl std::fmt::Display for MeshInfo {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "{}", self.file)?;
-        let kinds: Vec<String> = self
-            .cell_kinds
-            .iter()
-            .map(|(k, c)| format!("{c} {k}"))
-            .collect();
+        let kinds: Vec<String> = self.cell_kinds.iter().map(|(k, c)| format!("{c} {k}")).collect();
         writeln!(f, "  nodes            {}", self.nodes)?;
-        writeln!(
-            f,
-            "  cells            {} ({})",
-            self.cells,
-            kinds.join(", ")
-        )?;
+        writeln!(f, "  cells            {} ({})", self.cells, kinds.join(", "))?;
         writeln!(f, "  surface facets   {}", self.surface_facets)?;
         for (d, t, s) in &self.groups {
             writeln!(f, "  group            {s:?} (dim {d}, tag {t})")?;

@@ -223,10 +223,7 @@ pub struct OutputSec {
 
 impl Default for OutputSec {
     fn default() -> Self {
-        OutputSec {
-            file: None,
-            every: 1,
-        }
+        OutputSec { file: None, every: 1 }
     }
 }
 
@@ -264,12 +261,8 @@ pub fn locate(text: &str, section: &str, index: usize, key: &str) -> Option<usiz
 
 impl Scenario {
     pub fn load(path: &Path) -> Result<Scenario> {
-        let text = std::fs::read_to_string(path).map_err(|e| {
-            anyhow!(
-                "{}: cannot read the scenario: {e}; fix: check the path",
-                path.display()
-            )
-        })?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| anyhow!("{}: cannot read the scenario: {e}; fix: check the path", path.display()))?;
         Self::parse(path, text)
     }
 
@@ -304,21 +297,12 @@ impl Scenario {
             Some(f) => base.join(f),
             None => base.join(format!(
                 "{}.h5",
-                self.path
-                    .file_stem()
-                    .and_then(|s| s.to_str())
-                    .unwrap_or("out")
+                self.path.file_stem().and_then(|s| s.to_str()).unwrap_or("out")
             )),
         }
     }
 
-    fn err(
-        &self,
-        section: &str,
-        index: usize,
-        key: &str,
-        msg: impl std::fmt::Display,
-    ) -> anyhow::Error {
+    fn err(&self, section: &str, index: usize, key: &str, msg: impl std::fmt::Display) -> anyhow::Error {
         let line = locate(&self.text, section, index, key)
             .map(|l| format!(":{l}"))
             .unwrap_or_default();
@@ -412,12 +396,8 @@ fn finite3(v: &[f64; 3]) -> bool {
 impl Setup {
     /// Reads the mesh named by the scenario and resolves everything.
     pub fn new(scenario: Scenario) -> Result<Setup> {
-        let mesh = eprop_io::read_mesh(&scenario.mesh_path()).map_err(|e| {
-            anyhow!(
-                "{e}\n  (mesh named by {} [mesh] file)",
-                scenario.path.display()
-            )
-        })?;
+        let mesh = eprop_io::read_mesh(&scenario.mesh_path())
+            .map_err(|e| anyhow!("{e}\n  (mesh named by {} [mesh] file)", scenario.path.display()))?;
         Self::with_mesh(scenario, mesh)
     }
 
@@ -430,12 +410,7 @@ impl Setup {
         // material
         let m = &f.material;
         if !(m.mass > 0.0 && m.mass.is_finite()) {
-            return Err(sc.err(
-                "material",
-                0,
-                "mass",
-                format!("{} must be a positive number", m.mass),
-            ));
+            return Err(sc.err("material", 0, "mass", format!("{} must be a positive number", m.mass)));
         }
         if !(m.damping >= 0.0 && m.damping.is_finite()) {
             return Err(sc.err(
@@ -461,7 +436,12 @@ impl Setup {
             };
             let set = select(sc, &mesh, &sel, "material.region", k)?;
             if !set.iter().any(|&b| b) {
-                return Err(sc.err("material.region", k, "box", "the region holds no node; fix: check its bounds against the mesh (eprop info MESH)"));
+                return Err(sc.err(
+                    "material.region",
+                    k,
+                    "box",
+                    "the region holds no node; fix: check its bounds against the mesh (eprop info MESH)",
+                ));
             }
             let rt = reg.conductivity.as_ref().map(|c| c.tensor());
             if let Some(rt) = &rt {
@@ -469,22 +449,12 @@ impl Setup {
             }
             if let Some(ms) = reg.mass {
                 if !(ms > 0.0 && ms.is_finite()) {
-                    return Err(sc.err(
-                        "material.region",
-                        k,
-                        "mass",
-                        format!("{ms} must be a positive number"),
-                    ));
+                    return Err(sc.err("material.region", k, "mass", format!("{ms} must be a positive number")));
                 }
             }
             if let Some(d) = reg.damping {
                 if !(d >= 0.0 && d.is_finite()) {
-                    return Err(sc.err(
-                        "material.region",
-                        k,
-                        "damping",
-                        format!("{d} must be zero or positive"),
-                    ));
+                    return Err(sc.err("material.region", k, "damping", format!("{d} must be zero or positive")));
                 }
             }
             for i in 0..n {
@@ -575,9 +545,7 @@ impl Setup {
                             "load",
                             k,
                             "node",
-                            format!(
-                                "node {id} is not in the mesh; fix: use a node id of the mesh file"
-                            ),
+                            format!("node {id} is not in the mesh; fix: use a node id of the mesh file"),
                         ))
                     }
                 },
@@ -585,9 +553,8 @@ impl Setup {
                     if !finite3(&p) {
                         return Err(sc.err("load", k, "nearest", "has a non-finite coordinate"));
                     }
-                    nearest_surface_node(&mesh, p).ok_or_else(|| {
-                        sc.err("load", k, "nearest", "the mesh has no surface node")
-                    })?
+                    nearest_surface_node(&mesh, p)
+                        .ok_or_else(|| sc.err("load", k, "nearest", "the mesh has no surface node"))?
                 }
                 _ => {
                     return Err(sc.err(
@@ -603,7 +570,10 @@ impl Setup {
                     "load",
                     k,
                     if l.node.is_some() { "node" } else { "nearest" },
-                    format!("the load's node {} is in the fixed set; fix: load a free node or shrink the [[fixed]] set", mesh.node_ids[node as usize]),
+                    format!(
+                        "the load's node {} is in the fixed set; fix: load a free node or shrink the [[fixed]] set",
+                        mesh.node_ids[node as usize]
+                    ),
                 ));
             }
             let (force, normal) = match (l.force, l.normal) {
@@ -633,7 +603,12 @@ impl Setup {
                     || rp.windows(2).any(|w| !(w[1][0] > w[0][0]))
                     || rp.iter().any(|p| !p[0].is_finite() || !p[1].is_finite())
                 {
-                    return Err(sc.err("load", k, "ramp", "must be [[t, scale], ...] with finite values and strictly increasing times"));
+                    return Err(sc.err(
+                        "load",
+                        k,
+                        "ramp",
+                        "must be [[t, scale], ...] with finite values and strictly increasing times",
+                    ));
                 }
             }
             loads.push(Load {
@@ -651,20 +626,13 @@ impl Setup {
         let stop = match (tm.steps, tm.end, tm.equilibrium) {
             (Some(s), None, None) => Stop::Steps(s),
             (None, Some(e), None) if e > 0.0 && e.is_finite() => Stop::End(e),
-            (None, Some(_), None) => {
-                return Err(sc.err("time", 0, "end", "must be a positive time"))
-            }
+            (None, Some(_), None) => return Err(sc.err("time", 0, "end", "must be a positive time")),
             (s, None, Some(tol)) if tol > 0.0 && tol.is_finite() => Stop::Equilibrium {
                 tol,
                 max_steps: s.unwrap_or(1_000_000),
             },
             (_, None, Some(_)) => {
-                return Err(sc.err(
-                    "time",
-                    0,
-                    "equilibrium",
-                    "must be a positive velocity tolerance",
-                ))
+                return Err(sc.err("time", 0, "equilibrium", "must be a positive velocity tolerance"))
             }
             (None, None, None) => {
                 return Err(sc.err(
@@ -736,13 +704,7 @@ fn selector_key(s: &SelectSec) -> &'static str {
 }
 
 /// Nodes selected by one selector (exactly one of its keys must be set).
-pub fn select(
-    sc: &Scenario,
-    mesh: &Mesh,
-    s: &SelectSec,
-    section: &str,
-    k: usize,
-) -> Result<Vec<bool>> {
+pub fn select(sc: &Scenario, mesh: &Mesh, s: &SelectSec, section: &str, k: usize) -> Result<Vec<bool>> {
     let n = mesh.n_nodes();
     let count = [
         s.bbox.is_some(),
@@ -778,12 +740,7 @@ pub fn select(
         }
     } else if let Some(sp) = &s.sphere {
         if !(finite3(&sp.center) && sp.radius > 0.0 && sp.radius.is_finite()) {
-            return Err(sc.err(
-                section,
-                k,
-                "sphere",
-                "needs a finite center and a positive radius",
-            ));
+            return Err(sc.err(section, k, "sphere", "needs a finite center and a positive radius"));
         }
         for (i, p) in mesh.points.iter().enumerate() {
             set[i] = norm(sub(*p, sp.center)) <= sp.radius;
@@ -791,12 +748,7 @@ pub fn select(
     } else if let Some(h) = &s.halfspace {
         let nn = norm(h.normal);
         if !(finite3(&h.point) && nn > 0.0 && nn.is_finite()) {
-            return Err(sc.err(
-                section,
-                k,
-                "halfspace",
-                "needs a finite point and a non-zero normal",
-            ));
+            return Err(sc.err(section, k, "halfspace", "needs a finite point and a non-zero normal"));
         }
         // the half-space is the side the normal points to, boundary included (with a tolerance)
         let (lo, hi) = mesh.bounds();
@@ -805,23 +757,12 @@ pub fn select(
             set[i] = dot(sub(*p, h.point), h.normal) / nn >= -tol;
         }
     } else if let Some(ids) = &s.nodes {
-        let index: std::collections::HashMap<u64, usize> = mesh
-            .node_ids
-            .iter()
-            .enumerate()
-            .map(|(i, &id)| (id, i))
-            .collect();
+        let index: std::collections::HashMap<u64, usize> =
+            mesh.node_ids.iter().enumerate().map(|(i, &id)| (id, i)).collect();
         for id in ids {
             match index.get(id) {
                 Some(&i) => set[i] = true,
-                None => {
-                    return Err(sc.err(
-                        section,
-                        k,
-                        "nodes",
-                        format!("node {id} is not in the mesh"),
-                    ))
-                }
+                None => return Err(sc.err(section, k, "nodes", format!("node {id} is not in the mesh"))),
             }
         }
     } else {

@@ -1,10 +1,13 @@
 //! The time loop: energy source, propagation substeps, restoring mechanics (MODEL.md 3-6).
 
+use crate::comm::{exact_sum, Comm, Serial};
 use crate::geometry::{compact_coefficients, Dual, Incidence};
 use crate::operator::{Compact, Operator, Paper, V3};
 use crate::scenario::{Load, Scheme, Setup, Stop};
 use anyhow::{anyhow, bail, Result};
 use eprop_io::geom::{dot, norm, scale};
+use eprop_io::Mesh;
+use eprop_partition::Plan;
 use rayon::prelude::*;
 
 /// Safety factor applied to every stability bound for the automatic choices.
@@ -50,14 +53,15 @@ impl Propagation {
         }
     }
 
-    /// One forward Euler substep of size h with nodal sources `q` (node, Q).
-    pub fn substep(&mut self, h: f64, q: &[(u32, V3)]) {
+    /// One forward Euler substep of size h with nodal sources `q` (owned node, Q); the
+    /// halo of the new potential is refreshed before returning.
+    pub fn substep(&mut self, h: f64, q: &[(u32, V3)], comm: &dyn Comm) {
         let n = self.op.n_rows();
         if self.op.needs_gradients() {
             self.op.gradients(&self.phi, &mut self.grad);
+            comm.exchange(self.grad.as_flattened_mut(), 9);
         }
-        self.op
-            .step_rows(&self.phi, &self.grad, &mut self.next, h, 0..n);
+        self.op.step_rows(&self.phi, &self.grad, &mut self.next, h, 0..n);
         for &(i, qi) in q {
             let y = &mut self.next[i as usize];
             y[0] += h * qi[0];
@@ -65,14 +69,26 @@ impl Propagation {
             y[2] += h * qi[2];
         }
         std::mem::swap(&mut self.phi, &mut self.next);
+        comm.exchange(self.phi.as_flattened_mut(), 3);
     }
 
-    /// y = L x (for tests and spectral estimates).
-    pub fn apply(&mut self, x: &[V3], y: &mut [V3]) {
+    /// One substep on a single process (tests).
+    pub fn substep_serial(&mut self, h: f64, q: &[(u32, V3)]) {
+        self.substep(h, q, &Serial)
+    }
+
+    /// y = L x on the owned rows; x must have a current halo.
+    pub fn apply_with(&mut self, x: &[V3], y: &mut [V3], comm: &dyn Comm) {
         if self.op.needs_gradients() {
             self.op.gradients(x, &mut self.grad);
+            comm.exchange(self.grad.as_flattened_mut(), 9);
         }
         self.op.apply(x, &self.grad, y);
+    }
+
+    /// y = L x on one process (tests).
+    pub fn apply(&mut self, x: &[V3], y: &mut [V3]) {
+        self.apply_with(x, y, &Serial)
     }
 
     /// Largest stable substep h of forward Euler for this operator.
@@ -81,43 +97,43 @@ impl Propagation {
     /// semi-definite), so h < 2 / rho with rho bounded by Gershgorin. `paper`: L is not
     /// symmetric and its spectrum may be complex, so the bound comes from the amplification
     /// operator itself: a start value from power iteration on L, then h is reduced until
-    /// repeated substeps of I + hL no longer grow a random vector.
-    pub fn stable_h(&mut self, active: &[bool]) -> f64 {
+    /// repeated substeps of I + hL no longer grow a random vector. Start vectors hash the
+    /// global node id and norms are exact sums: the same h on any number of processes.
+    /// `active` and `gid` cover the local nodes (owned, then halo).
+    pub fn stable_h(&mut self, active: &[bool], gid: &[u64], comm: &dyn Comm) -> f64 {
         match &self.op {
             Operator::Compact(c) => {
-                let g = c.gershgorin();
+                let g = comm.max(c.gershgorin());
                 if g > 0.0 {
                     2.0 / g
                 } else {
                     f64::INFINITY
                 }
             }
-            Operator::Paper(_) => self.paper_stable_h(active),
+            Operator::Paper(_) => self.paper_stable_h(active, gid, comm),
         }
     }
 
-    fn paper_stable_h(&mut self, active: &[bool]) -> f64 {
+    fn paper_stable_h(&mut self, active: &[bool], gid: &[u64], comm: &dyn Comm) -> f64 {
         let n = self.op.n_rows();
-        let start: Vec<V3> = (0..n)
+        let nl = self.phi.len();
+        let start: Vec<V3> = (0..nl)
             .map(|i| {
+                let g = gid[i];
                 if active[i] {
-                    [
-                        hash_unit(3 * i as u64),
-                        hash_unit(3 * i as u64 + 1),
-                        hash_unit(3 * i as u64 + 2),
-                    ]
+                    [hash_unit(3 * g), hash_unit(3 * g + 1), hash_unit(3 * g + 2)]
                 } else {
                     [0.0; 3]
                 }
             })
             .collect();
-        let nrm = |x: &[V3]| x.iter().map(|v| dot(*v, *v)).sum::<f64>().sqrt();
+        let nrm = |x: &[V3]| exact_sum(comm, x[..n].iter().map(|v| dot(*v, *v))).sqrt();
         // power iteration on L: growth rate of |L^k x|
         let mut x = start.clone();
-        let mut y = vec![[0.0; 3]; n];
+        let mut y = vec![[0.0; 3]; nl];
         let mut logs = Vec::new();
         for _ in 0..60 {
-            self.apply(&x, &mut y);
+            self.apply_with(&x, &mut y, comm);
             let ny = nrm(&y);
             let nx = nrm(&x);
             if ny == 0.0 || nx == 0.0 {
@@ -125,9 +141,10 @@ impl Propagation {
             }
             logs.push((ny / nx).ln());
             let s = 1.0 / ny;
-            for (xi, yi) in x.iter_mut().zip(&y) {
+            for (xi, yi) in x.iter_mut().zip(&y).take(n) {
                 *xi = scale(*yi, s);
             }
+            comm.exchange(x.as_flattened_mut(), 3);
         }
         let tail = &logs[logs.len() - 20..];
         let rho = (tail.iter().sum::<f64>() / tail.len() as f64).exp();
@@ -137,9 +154,9 @@ impl Propagation {
             let mut x = start.clone();
             let mut growth = Vec::new();
             for _ in 0..120 {
-                self.apply(&x, &mut y);
+                self.apply_with(&x, &mut y, comm);
                 let nx = nrm(&x);
-                for (xi, yi) in x.iter_mut().zip(&y) {
+                for (xi, yi) in x.iter_mut().zip(&y).take(n) {
                     xi[0] += h * yi[0];
                     xi[1] += h * yi[1];
                     xi[2] += h * yi[2];
@@ -147,7 +164,8 @@ impl Propagation {
                 let nn = nrm(&x);
                 growth.push(nn / nx);
                 let s = 1.0 / nn.max(1e-300);
-                x.iter_mut().for_each(|v| *v = scale(*v, s));
+                x.iter_mut().take(n).for_each(|v| *v = scale(*v, s));
+                comm.exchange(x.as_flattened_mut(), 3);
             }
             let late = &growth[growth.len() - 40..];
             let g = (late.iter().map(|v| v.ln()).sum::<f64>() / late.len() as f64).exp();
@@ -169,9 +187,24 @@ pub struct Applied {
     pub sigma: f64,
 }
 
-/// One serial simulation.
+/// Global arrays gathered on rank 0 for output.
+pub struct GlobalState {
+    pub u: Vec<V3>,
+    pub v: Vec<V3>,
+    pub phi: Vec<V3>,
+}
+
+/// One simulation on this process's part of the mesh (all of it on one process).
+/// Local numbering: owned nodes first, then halo nodes; per-node arrays cover both, and only
+/// owned entries are computed here (halo entries are copies from their owners).
 pub struct Simulation {
     pub setup: Setup,
+    pub comm: Box<dyn Comm>,
+    /// The local mesh (None on one process: the whole mesh in `setup.mesh` is used).
+    pub local: Option<Mesh>,
+    /// Global node index of each local node.
+    pub gid: Vec<u64>,
+    pub n_owned: usize,
     pub dual: Dual,
     pub prop: Propagation,
     /// nodes that move: not fixed and with a control volume
@@ -180,6 +213,10 @@ pub struct Simulation {
     pub v: Vec<V3>,
     pub force: Vec<V3>,
     pub loads: Vec<Load>,
+    /// owned contact nodes of each load (local index, weight)
+    pub load_local: Vec<Vec<(u32, f64)>>,
+    /// control volumes of every node in global order (rank 0 only; empty elsewhere)
+    pub vol_global: Vec<f64>,
     pub h: f64,
     pub h_bound: f64,
     pub dt: f64,
@@ -191,38 +228,66 @@ pub struct Simulation {
     pub inactive_nodes: usize,
 }
 
+/// The cells of a plan, renumbered locally.
+pub fn local_mesh(global: &Mesh, plan: &Plan) -> Mesh {
+    let mut map = std::collections::HashMap::with_capacity(plan.global.len());
+    for (l, &g) in plan.global.iter().enumerate() {
+        map.insert(g, l as u32);
+    }
+    let mut m = Mesh::new(global.source.clone());
+    m.points = plan.global.iter().map(|&g| global.points[g as usize]).collect();
+    m.node_ids = plan.global.iter().map(|&g| global.node_ids[g as usize]).collect();
+    let mut buf = Vec::with_capacity(8);
+    for &c in &plan.cells {
+        buf.clear();
+        buf.extend(global.cell(c as usize).iter().map(|g| map[g]));
+        m.push_cell(global.kinds[c as usize], &buf, global.cell_tags[c as usize]);
+    }
+    m
+}
+
 impl Simulation {
+    /// A simulation on one process.
     pub fn new(setup: Setup) -> Result<Simulation> {
-        let mesh = &setup.mesh;
-        let n = mesh.n_nodes();
+        Self::new_with(setup, Box::new(Serial), None)
+    }
+
+    /// A simulation of this process's part: `plan` None means the whole mesh.
+    pub fn new_with(setup: Setup, comm: Box<dyn Comm>, plan: Option<Plan>) -> Result<Simulation> {
+        let local = plan.as_ref().map(|p| local_mesh(&setup.mesh, p));
+        let mesh = local.as_ref().unwrap_or(&setup.mesh);
+        let nl = mesh.n_nodes();
+        let (gid, n_owned): (Vec<u64>, usize) = match &plan {
+            Some(p) => (p.global.iter().map(|&g| g as u64).collect(), p.n_owned),
+            None => ((0..nl as u64).collect(), nl),
+        };
+        let g = |i: usize| gid[i] as usize;
         let inc = Incidence::new(mesh);
-        let dual = Dual::build(mesh, &inc, n, None);
-        let inactive_nodes = dual.vol.iter().filter(|&&v| v <= 0.0).count();
-        let active: Vec<bool> = (0..n)
-            .map(|i| !setup.fixed[i] && dual.vol[i] > 0.0)
+        let dual = Dual::build(mesh, &inc, n_owned, plan.as_ref().map(|_| gid.as_slice()));
+        let inactive_nodes = comm.sum_i128(dual.vol.iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
+        // activity of halo nodes comes from their owners; only fixedness matters there
+        let active: Vec<bool> = (0..nl)
+            .map(|i| !setup.fixed[g(i)] && (i >= n_owned || dual.vol[i] > 0.0))
             .collect();
+        let r: Vec<_> = (0..nl).map(|i| setup.r[g(i)]).collect();
         let op = match setup.scheme {
             Scheme::Compact => {
-                let a = compact_coefficients(mesh, &inc, &dual, &setup.r);
+                let a = compact_coefficients(mesh, &inc, &dual, &r);
                 Operator::Compact(Compact::new(&dual, &a, &active))
             }
-            Scheme::Paper { correction } => Operator::Paper(Paper::new(
-                &dual,
-                &mesh.points,
-                &setup.r,
-                &active,
-                correction,
-            )),
+            Scheme::Paper { correction } => Operator::Paper(Paper::new(&dual, &mesh.points, &r, &active, correction)),
         };
-        let mut prop = Propagation::new(op, n);
-        let h_bound = prop.stable_h(&active);
+        let mut prop = Propagation::new(op, nl);
+        let h_bound = prop.stable_h(&active, &gid, comm.as_ref());
         let sc = &setup.scenario;
 
         // mechanics step
-        let dt_bound = (0..n)
-            .filter(|&i| active[i])
-            .map(|i| dt_bound_node(setup.mass[i], setup.damping[i], setup.stiffness))
-            .fold(f64::INFINITY, f64::min);
+        let dt_bound = comm.min(
+            (0..n_owned)
+                .filter(|&i| active[i])
+                .map(|i| dt_bound_node(setup.mass[g(i)], setup.damping[g(i)], setup.stiffness))
+                .fold(f64::INFINITY, f64::min),
+        );
         let dt = match setup.dt {
             Some(dt) if dt > dt_bound => bail!(
                 "{}: [time] dt = {dt} is above the mechanics stability bound {dt_bound:.6e}; fix: use dt <= {:.6e} or leave dt out (automatic)",
@@ -253,13 +318,23 @@ impl Simulation {
         };
         let h = dt / substeps as f64;
 
-        // loads: contact area, normal direction
+        // loads: contact area (summed over the owners of the contact nodes), normal direction
+        let mut local_of = std::collections::HashMap::new();
+        for i in 0..n_owned {
+            local_of.insert(gid[i] as u32, i as u32);
+        }
         let mut loads = setup.loads.clone();
+        let mut load_local = Vec::new();
         for (k, l) in loads.iter_mut().enumerate() {
+            let mine: Vec<(u32, f64)> = l
+                .nodes
+                .iter()
+                .zip(&l.weights)
+                .filter_map(|(gn, &w)| local_of.get(gn).map(|&li| (li, w)))
+                .collect();
             let mut a = [0.0; 3];
-            for (&i, &w) in l.nodes.iter().zip(&l.weights) {
-                let ai = dual.area[i as usize];
-                a = [a[0] + w * ai[0], a[1] + w * ai[1], a[2] + w * ai[2]];
+            for d in 0..3 {
+                a[d] = exact_sum(comm.as_ref(), mine.iter().map(|&(li, w)| w * dual.area[li as usize][d]));
             }
             let an = norm(a);
             if !(an > 0.0) {
@@ -267,22 +342,26 @@ impl Simulation {
                     "{}: load {} on node {}: the node is inside the volume (no boundary area), so no contact stress is defined; fix: load a surface node (`nearest` picks one)",
                     sc.path.display(),
                     k + 1,
-                    mesh.node_ids[l.nodes[0] as usize]
+                    setup.mesh.node_ids[l.nodes[0] as usize]
                 );
             }
             l.area = an;
             if let Some(mag) = l.normal {
                 l.force = scale(a, -mag / an);
             }
+            load_local.push(mine);
         }
+        let vol_global: Vec<f64> = comm.gather(&dual.vol, 1).unwrap_or_default();
         Ok(Simulation {
-            u: vec![[0.0; 3]; n],
-            v: vec![[0.0; 3]; n],
-            force: vec![[0.0; 3]; n],
+            u: vec![[0.0; 3]; nl],
+            v: vec![[0.0; 3]; nl],
+            force: vec![[0.0; 3]; nl],
             dual,
             prop,
             active,
             loads,
+            load_local,
+            vol_global,
             h,
             h_bound,
             dt,
@@ -293,6 +372,10 @@ impl Simulation {
             max_speed: 0.0,
             inactive_nodes,
             setup,
+            comm,
+            local,
+            gid,
+            n_owned,
         })
     }
 
@@ -316,9 +399,9 @@ impl Simulation {
     fn sources(&mut self, t: f64) -> Vec<(u32, V3)> {
         let applied = self.applied(t);
         let mut q = Vec::new();
-        for (l, a) in self.loads.iter().zip(&applied) {
+        for (mine, a) in self.load_local.iter().zip(&applied) {
             let fn_ = norm(a.force);
-            for (&i, &w) in l.nodes.iter().zip(&l.weights) {
+            for &(i, w) in mine {
                 self.force[i as usize] = scale(a.force, w);
                 if fn_ > 0.0 {
                     q.push((i, scale(a.force, w * a.q / fn_)));
@@ -332,25 +415,15 @@ impl Simulation {
     pub fn advance(&mut self) {
         let q = self.sources(self.time);
         for _ in 0..self.substeps {
-            self.prop.substep(self.h, &q);
+            self.prop.substep(self.h, &q, self.comm.as_ref());
         }
-        let (dt, k, kappa, p) = (
-            self.dt,
-            self.setup.stiffness,
-            self.setup.coupling,
-            self.setup.exponent,
-        );
+        let (dt, k, kappa, p) = (self.dt, self.setup.stiffness, self.setup.coupling, self.setup.exponent);
         let phi = &self.prop.phi;
-        let (mass, damp, force, active) = (
-            &self.setup.mass,
-            &self.setup.damping,
-            &self.force,
-            &self.active,
-        );
-        self.max_speed = self
-            .u
+        let (mass, damp, force, active) = (&self.setup.mass, &self.setup.damping, &self.force, &self.active);
+        let n = self.n_owned;
+        let local_max = self.u[..n]
             .par_iter_mut()
-            .zip(self.v.par_iter_mut())
+            .zip(self.v[..n].par_iter_mut())
             .enumerate()
             .map(|(i, (u, v))| {
                 if !active[i] {
@@ -372,6 +445,7 @@ impl Simulation {
                 norm(*v)
             })
             .reduce(|| 0.0, f64::max);
+        self.max_speed = self.comm.max(local_max);
         self.step += 1;
         self.time = self.step as f64 * self.dt;
     }
@@ -396,8 +470,23 @@ impl Simulation {
         }
     }
 
-    /// Probes per load: (applied force, displacement of the contact node).
-    pub fn probes(&self) -> Vec<(V3, V3)> {
+    /// Gathers u, v and phi of every node to rank 0 (None elsewhere).
+    pub fn gather(&self) -> Option<GlobalState> {
+        let n = self.n_owned;
+        let c = self.comm.as_ref();
+        let u = c.gather(self.u[..n].as_flattened(), 3);
+        let v = c.gather(self.v[..n].as_flattened(), 3);
+        let p = c.gather(self.prop.phi[..n].as_flattened(), 3);
+        let unflat = |x: Vec<f64>| x.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<V3>>();
+        Some(GlobalState {
+            u: unflat(u?),
+            v: unflat(v?),
+            phi: unflat(p?),
+        })
+    }
+
+    /// Probes per load from global displacements: (applied force, contact displacement).
+    pub fn probes(&self, u: &[V3]) -> Vec<(V3, V3)> {
         let applied = self.applied(self.time);
         self.loads
             .iter()
@@ -405,7 +494,7 @@ impl Simulation {
             .map(|(l, a)| {
                 let mut d = [0.0; 3];
                 for (&i, &w) in l.nodes.iter().zip(&l.weights) {
-                    let ui = self.u[i as usize];
+                    let ui = u[i as usize];
                     d = [d[0] + w * ui[0], d[1] + w * ui[1], d[2] + w * ui[2]];
                 }
                 (a.force, d)
@@ -413,24 +502,23 @@ impl Simulation {
             .collect()
     }
 
-    /// Sum of V_i |phi_i| over the body.
-    pub fn total_energy(&self) -> f64 {
-        self.prop
-            .phi
-            .iter()
-            .zip(&self.dual.vol)
-            .map(|(p, v)| v * norm(*p))
-            .sum()
+    /// The local mesh this process computes on.
+    pub fn mesh(&self) -> &Mesh {
+        self.local.as_ref().unwrap_or(&self.setup.mesh)
     }
+}
 
-    /// Largest |u| and its node.
-    pub fn max_displacement(&self) -> (f64, usize) {
-        self.u
-            .iter()
-            .enumerate()
-            .map(|(i, u)| (norm(*u), i))
-            .fold((0.0, 0), |a, b| if b.0 > a.0 { b } else { a })
-    }
+/// Sum of V_i |phi_i| (global arrays).
+pub fn total_energy(vol: &[f64], phi: &[V3]) -> f64 {
+    phi.iter().zip(vol).map(|(p, v)| v * norm(*p)).sum()
+}
+
+/// Largest |u| and its node (global arrays).
+pub fn max_displacement(u: &[V3]) -> (f64, usize) {
+    u.iter()
+        .enumerate()
+        .map(|(i, u)| (norm(*u), i))
+        .fold((0.0, 0), |a, b| if b.0 > a.0 { b } else { a })
 }
 
 pub fn scheme_name(s: Scheme) -> &'static str {
@@ -453,7 +541,10 @@ pub fn check_output_dir(path: &std::path::Path) -> Result<()> {
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(std::path::Path::new("."));
     if !dir.is_dir() {
-        return Err(anyhow!("{}: the output directory does not exist; fix: create it or choose another [output] file / --output", path.display()));
+        return Err(anyhow!(
+            "{}: the output directory does not exist; fix: create it or choose another [output] file / --output",
+            path.display()
+        ));
     }
     Ok(())
 }

@@ -7,10 +7,7 @@ use std::path::Path;
 use std::process::Command;
 
 fn eprop(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_eprop"))
-        .args(args)
-        .output()
-        .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_eprop")).args(args).output().unwrap();
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into(),
@@ -22,12 +19,7 @@ const SCENARIO: &str = "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\
 
 fn workdir(name: &str) -> tempfile::TempDir {
     let d = tempfile::Builder::new().prefix(name).tempdir().unwrap();
-    let (ok, _, err) = eprop(&[
-        "mesh",
-        "cylinder",
-        "-o",
-        d.path().join("cyl.msh").to_str().unwrap(),
-    ]);
+    let (ok, _, err) = eprop(&["mesh", "cylinder", "-o", d.path().join("cyl.msh").to_str().unwrap()]);
     assert!(ok, "{err}");
     d
 }
@@ -51,16 +43,8 @@ fn output_reads_back_with_the_values_computed() {
         let u = eprop_io::vtkhdf::read_step(&h5, "displacement", k).unwrap();
         let p = eprop_io::vtkhdf::read_step(&h5, "potential", k).unwrap();
         let e = eprop_io::vtkhdf::read_step(&h5, "energy", k).unwrap();
-        assert_eq!(
-            u,
-            eprop::solver::flat(&s.u),
-            "displacement at output step {k}"
-        );
-        assert_eq!(
-            p,
-            eprop::solver::flat(&s.prop.phi),
-            "potential at output step {k}"
-        );
+        assert_eq!(u, eprop::solver::flat(&s.u), "displacement at output step {k}");
+        assert_eq!(p, eprop::solver::flat(&s.prop.phi), "potential at output step {k}");
         assert_eq!(e.len(), s.u.len());
     };
     check(&s, k);
@@ -117,11 +101,7 @@ fn bad_scenarios_fail_cleanly() {
         &SCENARIO.replace("nearest = [1.0, 0.0, 2.0]", "nearest = [0.0, 0.0, 0.0]"),
         &["fixed set"],
     );
-    expect_failure(
-        p,
-        &SCENARIO.replace("steps = 6", "steps = \"six\""),
-        &["bad.toml:"],
-    );
+    expect_failure(p, &SCENARIO.replace("steps = 6", "steps = \"six\""), &["bad.toml:"]);
     expect_failure(
         p,
         &SCENARIO.replace("group = \"bottom\"", "group = \"nowhere\""),
@@ -151,10 +131,7 @@ fn info_reports_the_geometry_checks() {
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["nodes"], 444);
-    let (vol, sum) = (
-        v["volume"].as_f64().unwrap(),
-        v["control_volume_sum"].as_f64().unwrap(),
-    );
+    let (vol, sum) = (v["volume"].as_f64().unwrap(), v["control_volume_sum"].as_f64().unwrap());
     assert!(((vol - sum) / vol).abs() < 1e-12);
     assert!(v["max_closure_error"].as_f64().unwrap() < 1e-12);
     assert!(v["stable_h_r005"].as_f64().unwrap() > 0.0);
@@ -165,7 +142,8 @@ fn info_reports_the_geometry_checks() {
 #[test]
 fn gmsh_versions_read_alike() {
     // the same tetrahedron written in formats 1, 2.2 and 4.1
-    let v1 = "$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n$ELM\n2\n1 4 7 1 4 1 2 3 4\n2 2 3 3 3 1 2 3\n$ENDELM\n";
+    let v1 =
+        "$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n$ELM\n2\n1 4 7 1 4 1 2 3 4\n2 2 3 3 3 1 2 3\n$ENDELM\n";
     let v2 = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$PhysicalNames\n2\n2 3 \"base\"\n3 7 \"tissue\"\n$EndPhysicalNames\n$Nodes\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$EndNodes\n$Elements\n2\n1 4 2 7 1 1 2 3 4\n2 2 2 3 3 1 2 3\n$EndElements\n";
     let v4 = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$PhysicalNames\n2\n2 3 \"base\"\n3 7 \"tissue\"\n$EndPhysicalNames\n$Entities\n0 0 1 1\n1 0 0 0 1 1 0 1 3 0\n1 0 0 0 1 1 1 1 7 0\n$EndEntities\n$Nodes\n1 4 1 4\n3 1 0 4\n1\n2\n3\n4\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n$Elements\n2 2 1 2\n2 1 2 1\n2 1 2 3\n3 1 4 1\n1 1 2 3 4\n$EndElements\n";
     for (name, text) in [("v1", v1), ("v2", v2), ("v4", v4)] {
@@ -178,13 +156,9 @@ fn gmsh_versions_read_alike() {
     }
     // truncation and a bad node reference name the line
     let cut = &v2[..v2.find("$EndElements").unwrap() - 10];
-    let e = eprop_io::gmsh::parse("cut.msh", cut)
-        .unwrap_err()
-        .to_string();
+    let e = eprop_io::gmsh::parse("cut.msh", cut).unwrap_err().to_string();
     assert!(e.contains("cut.msh:"), "{e}");
     let bad = v2.replace("1 4 2 7 1 1 2 3 4", "1 4 2 7 1 1 2 3 9");
-    let e = eprop_io::gmsh::parse("bad.msh", &bad)
-        .unwrap_err()
-        .to_string();
+    let e = eprop_io::gmsh::parse("bad.msh", &bad).unwrap_err().to_string();
     assert!(e.contains("bad.msh:18") && e.contains("node 9"), "{e}");
 }

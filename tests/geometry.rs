@@ -26,11 +26,7 @@ fn check_identities(mesh: &Mesh) {
         mesh.source
     );
     let closure = dual.max_closure_error();
-    assert!(
-        closure < 1e-12,
-        "{}: closure error {closure:e}",
-        mesh.source
-    );
+    assert!(closure < 1e-12, "{}: closure error {closure:e}", mesh.source);
     // antisymmetry S_ji = -S_ij, bitwise
     for i in 0..mesh.n_nodes() {
         for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
@@ -39,12 +35,7 @@ fn check_identities(mesh: &Mesh) {
                 .find(|&q| dual.col[q] as usize == i)
                 .unwrap();
             let (a, b) = (dual.s[p], dual.s[q]);
-            assert_eq!(
-                a,
-                [-b[0], -b[1], -b[2]],
-                "{}: S_ij != -S_ji at ({i},{j})",
-                mesh.source
-            );
+            assert_eq!(a, [-b[0], -b[1], -b[2]], "{}: S_ij != -S_ji at ({i},{j})", mesh.source);
         }
     }
     // the boundary dual areas add up to a closed surface

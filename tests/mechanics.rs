@@ -27,11 +27,7 @@ fn equilibrium_is_force_plus_pushed_potential_over_stiffness() {
             }
             let ph = s.prop.phi[i];
             let m = norm(ph);
-            let push = if m > 0.0 {
-                kappa * m.powf(p - 1.0)
-            } else {
-                0.0
-            };
+            let push = if m > 0.0 { kappa * m.powf(p - 1.0) } else { 0.0 };
             let f = if i == c { [-0.5, 0.2, 0.1] } else { [0.0; 3] };
             for d in 0..3 {
                 let want = (f[d] + push * ph[d]) / k;
@@ -102,10 +98,7 @@ fn exponential_tissue_law_stores_less_energy_than_linear_at_the_same_stress() {
         let n = 20000;
         let mut q = 0.0;
         for k in 0..n {
-            let (s0, s1) = (
-                sigma * k as f64 / n as f64,
-                sigma * (k + 1) as f64 / n as f64,
-            );
+            let (s0, s1) = (sigma * k as f64 / n as f64, sigma * (k + 1) as f64 / n as f64);
             q += 0.5 * (s0 + s1) * (exp.strain(s1) - exp.strain(s0));
         }
         assert!((q - qe).abs() < 1e-6 * qe, "sigma {sigma}: {q} vs {qe}");

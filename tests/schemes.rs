@@ -88,15 +88,13 @@ fn compact_is_symmetric_on_tetrahedra() {
 
 const PAPER: &str = "[model]\nscheme = \"paper\"\n";
 const PAPER_RAW: &str = "[model]\nscheme = \"paper\"\npaper_correction = false\n";
-const BASE: &str = "[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 1.0\n[time]\nsteps = 5\n";
+const BASE: &str =
+    "[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 1.0\n[time]\nsteps = 5\n";
 
 #[test]
 fn paper_scheme_annihilates_constants() {
     for model in [PAPER, PAPER_RAW] {
-        let mut s = sim(
-            cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
-            &format!("{model}{BASE}"),
-        );
+        let mut s = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &format!("{model}{BASE}"));
         let n = s.u.len();
         let c = vec![[1.5, -2.0, 0.25]; n];
         let mut y = vec![[9.0; 3]; n];
@@ -109,17 +107,14 @@ fn paper_scheme_annihilates_constants() {
 /// Drives the potential with the scenario's load, then switches the source off: max |phi|
 /// must never grow again, at every substep.
 fn check_no_growth(model: &str) {
-    let mut s = sim(
-        cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
-        &format!("{model}{BASE}"),
-    );
+    let mut s = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &format!("{model}{BASE}"));
     for _ in 0..10 {
         s.advance();
     }
     let mut prev = max_abs(&s.prop.phi);
     assert!(prev > 0.0);
     for k in 0..3000 {
-        s.prop.substep(s.h, &[]);
+        s.prop.substep_serial(s.h, &[]);
         let m = max_abs(&s.prop.phi);
         assert!(
             m <= prev * (1.0 + 1e-12),
@@ -153,7 +148,7 @@ fn compact_keeps_a_maximum_principle_on_random_data() {
     }
     let mut prev = max_abs(&s.prop.phi);
     for _ in 0..500 {
-        s.prop.substep(s.h, &[]);
+        s.prop.substep_serial(s.h, &[]);
         let m = max_abs(&s.prop.phi);
         assert!(m <= prev * (1.0 + 1e-14));
         prev = m;
@@ -169,11 +164,7 @@ fn substep_above_the_bound_is_refused() {
         ("", base.h_bound),
         (
             PAPER,
-            sim(
-                cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
-                &format!("{PAPER}{BASE}"),
-            )
-            .h_bound,
+            sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &format!("{PAPER}{BASE}")).h_bound,
         ),
     ] {
         let toml = format!("{model}{BASE}h = {}\n", 1.5 * bound);
@@ -185,12 +176,8 @@ fn substep_above_the_bound_is_refused() {
         assert!(err.contains("above the stability bound"), "{err}");
         // and a value below the bound is taken
         let ok = format!("{model}{BASE}h = {}\n", 0.5 * bound);
-        let s = eprop::solver::Simulation::new(common::setup(
-            cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
-            &ok,
-            &dir,
-        ))
-        .unwrap();
+        let s =
+            eprop::solver::Simulation::new(common::setup(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &ok, &dir)).unwrap();
         assert!(s.h <= 0.5 * bound);
     }
 }
@@ -238,7 +225,7 @@ fn steady_state_matches_a_direct_solve() {
     loop {
         let before = s.prop.phi.clone();
         for _ in 0..200 {
-            s.prop.substep(s.h, &q);
+            s.prop.substep_serial(s.h, &q);
         }
         steps += 200;
         let change = s
@@ -246,21 +233,14 @@ fn steady_state_matches_a_direct_solve() {
             .phi
             .iter()
             .zip(&before)
-            .map(|(a, b)| {
-                (a[0] - b[0])
-                    .abs()
-                    .max((a[1] - b[1]).abs())
-                    .max((a[2] - b[2]).abs())
-            })
+            .map(|(a, b)| (a[0] - b[0]).abs().max((a[1] - b[1]).abs()).max((a[2] - b[2]).abs()))
             .fold(0.0, f64::max);
         if change < 1e-15 * max_abs(&s.prop.phi) || steps > 400_000 {
             break;
         }
     }
     // direct: sum_j a_ij (phi_j - phi_i) = -V_i Q_i on free nodes, phi = 0 on the fixed face
-    let Operator::Compact(op) = &s.prop.op else {
-        panic!()
-    };
+    let Operator::Compact(op) = &s.prop.op else { panic!() };
     let vol = s.dual.vol.clone();
     let free: Vec<usize> = (0..n).filter(|&i| s.active[i]).collect();
     let mut pos = vec![usize::MAX; n];

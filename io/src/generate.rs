@@ -34,10 +34,7 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
     if np > u32::MAX as usize / 2 {
         bail!("box: {np} nodes is more than eprop indexes (2^31)");
     }
-    let mut mesh = Mesh::new(format!(
-        "box {}x{}x{} cells of {:?}",
-        n[0], n[1], n[2], cells
-    ));
+    let mut mesh = Mesh::new(format!("box {}x{}x{} cells of {:?}", n[0], n[1], n[2], cells));
     mesh.points.reserve(np);
     for k in 0..=n[2] {
         for j in 0..=n[1] {
@@ -71,34 +68,14 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
                         push_oriented(&mut mesh, CellKind::Hex, &h, 1);
                     }
                     BoxCells::Wedge => {
-                        let w1 = [
-                            v(0, 0, 0),
-                            v(1, 0, 0),
-                            v(1, 1, 0),
-                            v(0, 0, 1),
-                            v(1, 0, 1),
-                            v(1, 1, 1),
-                        ];
-                        let w2 = [
-                            v(0, 0, 0),
-                            v(1, 1, 0),
-                            v(0, 1, 0),
-                            v(0, 0, 1),
-                            v(1, 1, 1),
-                            v(0, 1, 1),
-                        ];
+                        let w1 = [v(0, 0, 0), v(1, 0, 0), v(1, 1, 0), v(0, 0, 1), v(1, 0, 1), v(1, 1, 1)];
+                        let w2 = [v(0, 0, 0), v(1, 1, 0), v(0, 1, 0), v(0, 0, 1), v(1, 1, 1), v(0, 1, 1)];
                         push_oriented(&mut mesh, CellKind::Wedge, &w1, 1);
                         push_oriented(&mut mesh, CellKind::Wedge, &w2, 1);
                     }
                     BoxCells::Tet => {
-                        const PERMS: [[usize; 3]; 6] = [
-                            [0, 1, 2],
-                            [0, 2, 1],
-                            [1, 0, 2],
-                            [1, 2, 0],
-                            [2, 0, 1],
-                            [2, 1, 0],
-                        ];
+                        const PERMS: [[usize; 3]; 6] =
+                            [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
                         for p in PERMS {
                             let mut c = [0usize; 3];
                             let mut t = [v(0, 0, 0); 4];
@@ -114,10 +91,7 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
         }
     }
     mesh.group_names.insert((3, 1), "tissue".into());
-    for (t, name) in ["xmin", "xmax", "ymin", "ymax", "zmin", "zmax"]
-        .iter()
-        .enumerate()
-    {
+    for (t, name) in ["xmin", "xmax", "ymin", "ymax", "zmin", "zmax"].iter().enumerate() {
         mesh.group_names.insert((2, t as i32 + 1), name.to_string());
     }
     tag_boundary(&mut mesh, |c| {
@@ -139,11 +113,7 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
 /// each (conforming). Boundary triangles are tagged 1 = bottom (z = 0), 2 = top, 3 = side.
 /// `rings = 3, layers = 11` gives the paper-sized cylinder (444 nodes, 1782 tetrahedra).
 pub fn cylinder_mesh(radius: f64, length: f64, rings: usize, layers: usize) -> Result<Mesh> {
-    if rings == 0
-        || layers == 0
-        || !(radius > 0.0 && radius.is_finite())
-        || !(length > 0.0 && length.is_finite())
-    {
+    if rings == 0 || layers == 0 || !(radius > 0.0 && radius.is_finite()) || !(length > 0.0 && length.is_finite()) {
         bail!("cylinder: radius and length must be positive, rings and layers at least 1");
     }
     let per_layer = 1 + 3 * rings * (rings + 1);
@@ -151,9 +121,7 @@ pub fn cylinder_mesh(radius: f64, length: f64, rings: usize, layers: usize) -> R
     if np > u32::MAX as usize / 2 {
         bail!("cylinder: {np} nodes is more than eprop indexes (2^31)");
     }
-    let mut mesh = Mesh::new(format!(
-        "cylinder r={radius} l={length} rings={rings} layers={layers}"
-    ));
+    let mut mesh = Mesh::new(format!("cylinder r={radius} l={length} rings={rings} layers={layers}"));
     // cross-section: node 0 at the centre, then ring k (1-based) holds 6k nodes
     let mut ring_start = vec![1usize; rings + 1];
     let mut xy = vec![[0.0f64; 2]];

@@ -83,10 +83,7 @@ impl<'a> Lines<'a> {
 
 fn short(s: &str) -> String {
     if s.len() > 40 {
-        format!(
-            "{}...",
-            &s[..s.char_indices().nth(40).map(|c| c.0).unwrap_or(s.len())]
-        )
+        format!("{}...", &s[..s.char_indices().nth(40).map(|c| c.0).unwrap_or(s.len())])
     } else {
         s.to_string()
     }
@@ -148,9 +145,14 @@ pub fn parse(name: &str, text: &str) -> Result<Mesh> {
     match first {
         "$NOD" => parse_v1(rd),
         "$MeshFormat" => {
-            let (ln2, fmt) = rd.numbers::<f64>("$MeshFormat").map_err(|e| e.context("reading $MeshFormat"))?;
+            let (ln2, fmt) = rd
+                .numbers::<f64>("$MeshFormat")
+                .map_err(|e| e.context("reading $MeshFormat"))?;
             if fmt.len() < 3 {
-                return Err(rd.err(ln2, "$MeshFormat needs `version file-type data-size`; fix: repair the header"));
+                return Err(rd.err(
+                    ln2,
+                    "$MeshFormat needs `version file-type data-size`; fix: repair the header",
+                ));
             }
             if fmt[1] != 0.0 {
                 return Err(rd.err(ln2, "binary .msh is not read yet; fix: save as ASCII (gmsh -bin 0)"));
@@ -165,7 +167,13 @@ pub fn parse(name: &str, text: &str) -> Result<Mesh> {
                 Err(rd.err(ln2, format!("Gmsh format {v} is not supported (1, 2.2 and 4.1 are); fix: save with gmsh -format msh41 or msh22")))
             }
         }
-        _ => Err(rd.err(ln, format!("`{}` is not the start of a Gmsh file ($MeshFormat or $NOD); fix: check the file type", short(first)))),
+        _ => Err(rd.err(
+            ln,
+            format!(
+                "`{}` is not the start of a Gmsh file ($MeshFormat or $NOD); fix: check the file type",
+                short(first)
+            ),
+        )),
     }
 }
 
@@ -187,10 +195,7 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
         if l == "$ELM" {
             let (ln2, n) = rd.numbers::<usize>("the element count")?;
             if n.len() != 1 {
-                return Err(rd.err(
-                    ln2,
-                    "expected the element count alone on the line after $ELM",
-                ));
+                return Err(rd.err(ln2, "expected the element count alone on the line after $ELM"));
             }
             for _ in 0..n[0] {
                 let (ln3, v) = rd.numbers::<i64>("an element")?;
@@ -213,19 +218,20 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
     build(rd.path.clone(), ids, pts, elems, BTreeMap::new(), &rd)
 }
 
-fn read_nodes_lines(
-    rd: &mut Lines,
-    n: usize,
-    ids: &mut Vec<u64>,
-    pts: &mut Vec<[f64; 3]>,
-) -> Result<()> {
+fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<[f64; 3]>) -> Result<()> {
     ids.reserve(n);
     pts.reserve(n);
     for _ in 0..n {
         let (ln, l) = rd.next("a node")?;
         let t: Vec<&str> = l.split_whitespace().collect();
         if t.len() < 4 || t[0].starts_with('$') {
-            return Err(rd.err(ln, format!("expected `id x y z`, found `{}`; fix: the node count disagrees with the node lines", short(l))));
+            return Err(rd.err(
+                ln,
+                format!(
+                    "expected `id x y z`, found `{}`; fix: the node count disagrees with the node lines",
+                    short(l)
+                ),
+            ));
         }
         let id: u64 = t[0]
             .parse()
@@ -291,10 +297,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
             "$Nodes" => {
                 let (ln2, n) = rd.numbers::<usize>("the node count")?;
                 if n.len() != 1 {
-                    return Err(rd.err(
-                        ln2,
-                        "expected the node count alone on the line after $Nodes",
-                    ));
+                    return Err(rd.err(ln2, "expected the node count alone on the line after $Nodes"));
                 }
                 read_nodes_lines(&mut rd, n[0], &mut ids, &mut pts)?;
                 rd.expect("$EndNodes")?;
@@ -303,10 +306,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
             "$Elements" => {
                 let (ln2, n) = rd.numbers::<usize>("the element count")?;
                 if n.len() != 1 {
-                    return Err(rd.err(
-                        ln2,
-                        "expected the element count alone on the line after $Elements",
-                    ));
+                    return Err(rd.err(ln2, "expected the element count alone on the line after $Elements"));
                 }
                 elems.reserve(n[0]);
                 for _ in 0..n[0] {
@@ -371,9 +371,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
             "$Entities" => {
                 let (ln2, c) = rd.numbers::<usize>("entity counts")?;
                 if c.len() != 4 {
-                    return Err(
-                        rd.err(ln2, "expected `numPoints numCurves numSurfaces numVolumes`")
-                    );
+                    return Err(rd.err(ln2, "expected `numPoints numCurves numSurfaces numVolumes`"));
                 }
                 for dim in 0..4u8 {
                     for _ in 0..c[dim as usize] {
@@ -384,10 +382,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                         }
                         let nphys = v[np_at] as usize;
                         if v.len() < np_at + 1 + nphys {
-                            return Err(rd.err(
-                                ln3,
-                                "entity line has fewer physical tags than it announces",
-                            ));
+                            return Err(rd.err(ln3, "entity line has fewer physical tags than it announces"));
                         }
                         if nphys > 0 {
                             entity_phys.insert((dim, v[0] as i32), v[np_at + 1] as i32);
@@ -399,20 +394,14 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
             "$Nodes" => {
                 let (ln2, h) = rd.numbers::<usize>("the $Nodes header")?;
                 if h.len() != 4 {
-                    return Err(rd.err(
-                        ln2,
-                        "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`",
-                    ));
+                    return Err(rd.err(ln2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
                 }
                 ids.reserve(h[1]);
                 pts.reserve(h[1]);
                 for _ in 0..h[0] {
                     let (ln3, b) = rd.numbers::<i64>("a node block header")?;
                     if b.len() != 4 || b[3] < 0 {
-                        return Err(rd.err(
-                            ln3,
-                            "expected `entityDim entityTag parametric numNodesInBlock`",
-                        ));
+                        return Err(rd.err(ln3, "expected `entityDim entityTag parametric numNodesInBlock`"));
                     }
                     let parametric = b[2] != 0;
                     let n = b[3] as usize;
@@ -420,17 +409,17 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                     for _ in 0..n {
                         let (ln4, t) = rd.numbers::<u64>("a node tag")?;
                         if t.len() != 1 {
-                            return Err(rd.err(ln4, "expected one node tag per line; fix: the block count disagrees with its lines"));
+                            return Err(rd.err(
+                                ln4,
+                                "expected one node tag per line; fix: the block count disagrees with its lines",
+                            ));
                         }
                         ids.push(t[0]);
                     }
                     for k in 0..n {
                         let (ln4, c) = rd.numbers::<f64>("node coordinates")?;
                         if c.len() < 3 || (!parametric && c.len() != 3) {
-                            return Err(rd.err(
-                                ln4,
-                                "expected `x y z`; fix: the block count disagrees with its lines",
-                            ));
+                            return Err(rd.err(ln4, "expected `x y z`; fix: the block count disagrees with its lines"));
                         }
                         if c[..3].iter().any(|x| !x.is_finite()) {
                             return Err(rd.err(
@@ -445,7 +434,14 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                     }
                 }
                 if ids.len() != h[1] {
-                    return Err(rd.err(ln2, format!("$Nodes announces {} nodes but its blocks hold {}; fix: repair the header", h[1], ids.len())));
+                    return Err(rd.err(
+                        ln2,
+                        format!(
+                            "$Nodes announces {} nodes but its blocks hold {}; fix: repair the header",
+                            h[1],
+                            ids.len()
+                        ),
+                    ));
                 }
                 rd.expect("$EndNodes")?;
                 saw_nodes = true;
@@ -463,15 +459,9 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                 for _ in 0..h[0] {
                     let (ln3, b) = rd.numbers::<i64>("an element block header")?;
                     if b.len() != 4 || b[3] < 0 {
-                        return Err(rd.err(
-                            ln3,
-                            "expected `entityDim entityTag elementType numElementsInBlock`",
-                        ));
+                        return Err(rd.err(ln3, "expected `entityDim entityTag elementType numElementsInBlock`"));
                     }
-                    let tag = entity_phys
-                        .get(&(b[0] as u8, b[1] as i32))
-                        .copied()
-                        .unwrap_or(0);
+                    let tag = entity_phys.get(&(b[0] as u8, b[1] as i32)).copied().unwrap_or(0);
                     let gtype = b[2] as u32;
                     for _ in 0..b[3] {
                         let (ln4, v) = rd.numbers::<u64>("an element")?;
@@ -494,7 +484,13 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                     }
                 }
                 if count != h[1] {
-                    return Err(rd.err(ln2, format!("$Elements announces {} elements but its blocks hold {count}; fix: repair the header", h[1])));
+                    return Err(rd.err(
+                        ln2,
+                        format!(
+                            "$Elements announces {} elements but its blocks hold {count}; fix: repair the header",
+                            h[1]
+                        ),
+                    ));
                 }
                 rd.expect("$EndElements")?;
             }
@@ -532,19 +528,12 @@ fn build(
     let mut buf = Vec::with_capacity(8);
     for e in &elems {
         let Some((nn, dim)) = nodes_per_type(e.gtype) else {
-            return Err(rd.err(
-                e.line,
-                format!("element {}: {}", e.id, type_problem(e.gtype)),
-            ));
+            return Err(rd.err(e.line, format!("element {}: {}", e.id, type_problem(e.gtype))));
         };
         if e.nodes.len() != nn {
             return Err(rd.err(
                 e.line,
-                format!(
-                    "element {} has {} node ids, expected {nn}",
-                    e.id,
-                    e.nodes.len()
-                ),
+                format!("element {} has {} node ids, expected {nn}", e.id, e.nodes.len()),
             ));
         }
         buf.clear();
@@ -584,8 +573,7 @@ pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
         ents.entry((3, t)).or_insert(0);
     }
     for f in 0..mesh.facets.len() {
-        ents.entry((mesh.facets.dim[f], mesh.facets.tags[f]))
-            .or_insert(0);
+        ents.entry((mesh.facets.dim[f], mesh.facets.tags[f])).or_insert(0);
     }
     let mut counts = [0usize; 4];
     for ((d, _), e) in ents.iter_mut() {
@@ -593,17 +581,9 @@ pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
         *e = counts[*d as usize] as i32;
     }
     let (lo, hi) = mesh.bounds();
-    let _ = writeln!(
-        s,
-        "$Entities\n{} {} {} {}",
-        counts[0], counts[1], counts[2], counts[3]
-    );
+    let _ = writeln!(s, "$Entities\n{} {} {} {}", counts[0], counts[1], counts[2], counts[3]);
     for ((d, t), e) in &ents {
-        let phys = if *t != 0 {
-            format!("1 {t}")
-        } else {
-            "0".to_string()
-        };
+        let phys = if *t != 0 { format!("1 {t}") } else { "0".to_string() };
         if *d == 0 {
             let _ = writeln!(s, "{e} {} {} {} {phys}", lo[0], lo[1], lo[2]);
         } else {
@@ -617,11 +597,7 @@ pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
     s.push_str("$EndEntities\n");
     // nodes: all in the first volume entity
     let n = mesh.n_nodes();
-    let vol_ent = ents
-        .iter()
-        .find(|((d, _), _)| *d == 3)
-        .map(|(_, e)| *e)
-        .unwrap_or(1);
+    let vol_ent = ents.iter().find(|((d, _), _)| *d == 3).map(|(_, e)| *e).unwrap_or(1);
     let ids: Vec<u64> = if mesh.node_ids.len() == n {
         mesh.node_ids.clone()
     } else {

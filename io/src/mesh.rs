@@ -39,41 +39,10 @@ const HEX_FACES: [&[usize]; 6] = [
     &[2, 3, 7, 6],
     &[3, 0, 4, 7],
 ];
-const WEDGE_EDGES: [[usize; 2]; 9] = [
-    [0, 1],
-    [1, 2],
-    [0, 2],
-    [3, 4],
-    [4, 5],
-    [3, 5],
-    [0, 3],
-    [1, 4],
-    [2, 5],
-];
-const WEDGE_FACES: [&[usize]; 5] = [
-    &[0, 2, 1],
-    &[3, 4, 5],
-    &[0, 1, 4, 3],
-    &[1, 2, 5, 4],
-    &[2, 0, 3, 5],
-];
-const PYR_EDGES: [[usize; 2]; 8] = [
-    [0, 1],
-    [1, 2],
-    [2, 3],
-    [0, 3],
-    [0, 4],
-    [1, 4],
-    [2, 4],
-    [3, 4],
-];
-const PYR_FACES: [&[usize]; 5] = [
-    &[0, 3, 2, 1],
-    &[0, 1, 4],
-    &[1, 2, 4],
-    &[2, 3, 4],
-    &[3, 0, 4],
-];
+const WEDGE_EDGES: [[usize; 2]; 9] = [[0, 1], [1, 2], [0, 2], [3, 4], [4, 5], [3, 5], [0, 3], [1, 4], [2, 5]];
+const WEDGE_FACES: [&[usize]; 5] = [&[0, 2, 1], &[3, 4, 5], &[0, 1, 4, 3], &[1, 2, 5, 4], &[2, 0, 3, 5]];
+const PYR_EDGES: [[usize; 2]; 8] = [[0, 1], [1, 2], [2, 3], [0, 3], [0, 4], [1, 4], [2, 4], [3, 4]];
+const PYR_FACES: [&[usize]; 5] = [&[0, 3, 2, 1], &[0, 1, 4], &[1, 2, 4], &[2, 3, 4], &[3, 0, 4]];
 
 impl CellKind {
     pub fn n_nodes(self) -> usize {
@@ -272,10 +241,7 @@ impl Mesh {
                     self.source,
                     c + 1,
                     kind.name(),
-                    nodes
-                        .iter()
-                        .map(|&n| self.node_ids[n as usize])
-                        .collect::<Vec<_>>()
+                    nodes.iter().map(|&n| self.node_ids[n as usize]).collect::<Vec<_>>()
                 );
             }
             if v < 0.0 {

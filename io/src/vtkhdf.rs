@@ -61,13 +61,7 @@ fn h5<T>(r: hdf5::Result<T>, path: &Path, what: &str) -> Result<T> {
     r.map_err(|e| anyhow!("{}: {what}: {e}", path.display()))
 }
 
-fn growing(
-    group: &hdf5::Group,
-    name: &str,
-    tail: &[usize],
-    chunk_rows: usize,
-    path: &Path,
-) -> Result<Dataset> {
+fn growing(group: &hdf5::Group, name: &str, tail: &[usize], chunk_rows: usize, path: &Path) -> Result<Dataset> {
     let mut ext = vec![Extent::resizable(0)];
     let mut chunk = vec![chunk_rows.max(1)];
     for &t in tail {
@@ -75,11 +69,7 @@ fn growing(
         chunk.push(t);
     }
     h5(
-        group
-            .new_dataset::<f64>()
-            .chunk(chunk)
-            .shape(ext)
-            .create(name),
+        group.new_dataset::<f64>().chunk(chunk).shape(ext).create(name),
         path,
         &format!("create {name}"),
     )
@@ -109,7 +99,10 @@ impl SeriesWriter {
     /// Creates (truncates) the file and writes the static mesh.
     pub fn create(path: &Path, mesh: &Mesh, spec: &SeriesSpec) -> Result<Self> {
         let file = File::create(path).map_err(|e| {
-            anyhow!("{}: cannot create the output file: {e}; fix: check that the directory exists and is writable", path.display())
+            anyhow!(
+                "{}: cannot create the output file: {e}; fix: check that the directory exists and is writable",
+                path.display()
+            )
         })?;
         let n = mesh.n_nodes();
         let root = h5(file.create_group("VTKHDF"), path, "create /VTKHDF")?;
@@ -135,21 +128,14 @@ impl SeriesWriter {
         let mut types: Vec<u8> = Vec::with_capacity(mesh.n_cells());
         offs.push(0);
         for c in 0..mesh.n_cells() {
-            conn.extend(
-                vtk_order(mesh.kinds[c], mesh.cell(c))
-                    .iter()
-                    .map(|&x| x as i64),
-            );
+            conn.extend(vtk_order(mesh.kinds[c], mesh.cell(c)).iter().map(|&x| x as i64));
             offs.push(conn.len() as i64);
             types.push(mesh.kinds[c].vtk_type());
         }
         let pts: Vec<f64> = mesh.points.iter().flatten().copied().collect();
         let w1 = |name: &str, v: &[i64]| {
             h5(
-                root.new_dataset_builder()
-                    .with_data(v)
-                    .create(name)
-                    .map(|_| ()),
+                root.new_dataset_builder().with_data(v).create(name).map(|_| ()),
                 path,
                 name,
             )
@@ -181,21 +167,9 @@ impl SeriesWriter {
             path,
             "NSteps",
         )?;
-        let pdo = h5(
-            steps.create_group("PointDataOffsets"),
-            path,
-            "PointDataOffsets",
-        )?;
-        h5(
-            steps.create_group("CellDataOffsets"),
-            path,
-            "CellDataOffsets",
-        )?;
-        h5(
-            steps.create_group("FieldDataOffsets"),
-            path,
-            "FieldDataOffsets",
-        )?;
+        let pdo = h5(steps.create_group("PointDataOffsets"), path, "PointDataOffsets")?;
+        h5(steps.create_group("CellDataOffsets"), path, "CellDataOffsets")?;
+        h5(steps.create_group("FieldDataOffsets"), path, "FieldDataOffsets")?;
         let values = growing(&steps, "Values", &[], 1024, path)?;
         let mut step_sets = Vec::new();
         for name in [
@@ -242,9 +216,7 @@ impl SeriesWriter {
         )?;
         for (name, v) in &spec.attrs {
             h5(
-                ep.new_attr::<f64>()
-                    .create(*name)
-                    .and_then(|a| a.write_scalar(v)),
+                ep.new_attr::<f64>().create(*name).and_then(|a| a.write_scalar(v)),
                 path,
                 name,
             )?;
@@ -271,9 +243,7 @@ impl SeriesWriter {
             "node_ids",
         )?;
         h5(
-            ep.new_dataset_builder()
-                .with_data(&mesh.cell_tags)
-                .create("cell_tags"),
+            ep.new_dataset_builder().with_data(&mesh.cell_tags).create("cell_tags"),
             path,
             "cell_tags",
         )?;
@@ -309,13 +279,7 @@ impl SeriesWriter {
 
     /// Appends one output step: `data[f]` holds field f for every node (node-major, components
     /// interleaved); `probes[l]` = (applied force, contact displacement) of load l.
-    pub fn append(
-        &mut self,
-        time: f64,
-        step: u64,
-        data: &[&[f64]],
-        probes: &[([f64; 3], [f64; 3])],
-    ) -> Result<()> {
+    pub fn append(&mut self, time: f64, step: u64, data: &[&[f64]], probes: &[([f64; 3], [f64; 3])]) -> Result<()> {
         let k = self.n_steps;
         let n = self.n_points;
         let p = &self.path;
@@ -331,26 +295,17 @@ impl SeriesWriter {
             if f.ncomp == 1 {
                 h5(f.data.resize([(k + 1) * n]), p, &f.name)?;
                 h5(
-                    f.data
-                        .write_slice(ArrayView1::from(*d), s![k * n..(k + 1) * n]),
+                    f.data.write_slice(ArrayView1::from(*d), s![k * n..(k + 1) * n]),
                     p,
                     &f.name,
                 )?;
             } else {
                 h5(f.data.resize([(k + 1) * n, f.ncomp]), p, &f.name)?;
                 let v = ArrayView2::from_shape((n, f.ncomp), d).unwrap();
-                h5(
-                    f.data.write_slice(v, s![k * n..(k + 1) * n, ..]),
-                    p,
-                    &f.name,
-                )?;
+                h5(f.data.write_slice(v, s![k * n..(k + 1) * n, ..]), p, &f.name)?;
             }
             h5(f.offsets.resize([k + 1]), p, &f.name)?;
-            h5(
-                f.offsets.write_slice(&[(k * n) as i64], s![k..k + 1]),
-                p,
-                &f.name,
-            )?;
+            h5(f.offsets.write_slice(&[(k * n) as i64], s![k..k + 1]), p, &f.name)?;
         }
         for (i, ds) in self.step_sets.iter().enumerate() {
             let v = if i == 1 { 1i64 } else { 0 };
@@ -367,17 +322,9 @@ impl SeriesWriter {
             ds[3 * l..3 * l + 3].copy_from_slice(u);
         }
         h5(self.probe_time.resize([k + 1]), p, "probes")?;
-        h5(
-            self.probe_time.write_slice(&[time], s![k..k + 1]),
-            p,
-            "probes",
-        )?;
+        h5(self.probe_time.write_slice(&[time], s![k..k + 1]), p, "probes")?;
         h5(self.probe_step.resize([k + 1]), p, "probes")?;
-        h5(
-            self.probe_step.write_slice(&[step as i64], s![k..k + 1]),
-            p,
-            "probes",
-        )?;
+        h5(self.probe_step.write_slice(&[step as i64], s![k..k + 1]), p, "probes")?;
         for (dset, v) in [(&self.probe_force, &fr), (&self.probe_disp, &ds)] {
             h5(dset.resize([k + 1, nl, 3]), p, "probes")?;
             let view = ArrayView3::from_shape((1, nl, 3), v).unwrap();
@@ -385,11 +332,7 @@ impl SeriesWriter {
         }
         self.n_steps = k + 1;
         let ns = self.n_steps as i64;
-        h5(
-            self.steps.attr("NSteps").and_then(|a| a.write_scalar(&ns)),
-            p,
-            "NSteps",
-        )?;
+        h5(self.steps.attr("NSteps").and_then(|a| a.write_scalar(&ns)), p, "NSteps")?;
         h5(
             self.file
                 .group("eprop")

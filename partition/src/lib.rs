@@ -1,1 +1,264 @@
-//! eprop-partition: the node graph of a mesh, and (for distributed runs) its partition.
+//! eprop-partition: the node graph of a mesh, METIS k-way partitions of it, and the plan of a
+//! distributed run: which nodes a process owns, which it mirrors (halo), which cells it
+//! keeps, and what it sends to and receives from each neighbour.
+//!
+//! The crate takes plain slices (cell offsets and connectivity) so it depends on no mesh type.
+
+use anyhow::{anyhow, bail, Result};
+
+/// Node adjacency (nodes that share a cell) in CSR form, neighbours sorted, no self loops.
+pub fn node_graph(n_nodes: usize, offsets: &[usize], conn: &[u32]) -> (Vec<usize>, Vec<u32>) {
+    let n_cells = offsets.len() - 1;
+    // node -> cells
+    let mut ptr = vec![0usize; n_nodes + 1];
+    for &v in conn {
+        ptr[v as usize + 1] += 1;
+    }
+    for i in 0..n_nodes {
+        ptr[i + 1] += ptr[i];
+    }
+    let mut fill = ptr.clone();
+    let mut cells = vec![0u32; conn.len()];
+    for c in 0..n_cells {
+        for &v in &conn[offsets[c]..offsets[c + 1]] {
+            cells[fill[v as usize]] = c as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    let mut xadj = Vec::with_capacity(n_nodes + 1);
+    xadj.push(0);
+    let mut adj = Vec::new();
+    let mut buf = Vec::new();
+    for i in 0..n_nodes {
+        buf.clear();
+        for &c in &cells[ptr[i]..ptr[i + 1]] {
+            let c = c as usize;
+            buf.extend(
+                conn[offsets[c]..offsets[c + 1]]
+                    .iter()
+                    .copied()
+                    .filter(|&j| j as usize != i),
+            );
+        }
+        buf.sort_unstable();
+        buf.dedup();
+        adj.extend_from_slice(&buf);
+        xadj.push(adj.len());
+    }
+    (xadj, adj)
+}
+
+/// How nodes are split among parts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// METIS k-way on the node graph (minimises the edge cut).
+    Metis,
+    /// Contiguous blocks of the input numbering (for comparison).
+    Block,
+}
+
+/// Part of every node, in `0..nparts`.
+pub fn partition(xadj: &[usize], adj: &[u32], nparts: usize, method: Method) -> Result<Vec<u32>> {
+    let n = xadj.len() - 1;
+    if nparts == 0 {
+        bail!("cannot split into 0 parts");
+    }
+    if nparts > n {
+        bail!("{nparts} parts for {n} nodes: every part needs at least one node; fix: run on at most {n} processes");
+    }
+    if nparts == 1 {
+        return Ok(vec![0; n]);
+    }
+    match method {
+        Method::Block => Ok((0..n).map(|i| (i * nparts / n) as u32).collect()),
+        Method::Metis => {
+            let xadj_i: Vec<metis::Idx> = xadj.iter().map(|&x| x as metis::Idx).collect();
+            let adj_i: Vec<metis::Idx> = adj.iter().map(|&x| x as metis::Idx).collect();
+            let mut part = vec![0 as metis::Idx; n];
+            metis::Graph::new(1, nparts as metis::Idx, &xadj_i, &adj_i)
+                .map_err(|e| anyhow!("METIS rejected the node graph: {e:?}"))?
+                .set_option(metis::option::Seed(1))
+                .part_kway(&mut part)
+                .map_err(|e| anyhow!("METIS failed: {e:?}"))?;
+            let part: Vec<u32> = part.iter().map(|&p| p as u32).collect();
+            let mut count = vec![0usize; nparts];
+            for &p in &part {
+                count[p as usize] += 1;
+            }
+            if let Some(empty) = count.iter().position(|&c| c == 0) {
+                bail!("METIS left part {empty} empty ({nparts} parts of {n} nodes); fix: run on fewer processes");
+            }
+            Ok(part)
+        }
+    }
+}
+
+/// Edge cut, load imbalance (largest part / mean) and halo size per part.
+#[derive(Debug, Clone)]
+pub struct Quality {
+    pub edge_cut: usize,
+    pub imbalance: f64,
+    pub owned: Vec<usize>,
+    pub halo: Vec<usize>,
+    pub neighbours: Vec<usize>,
+}
+
+pub fn quality(xadj: &[usize], adj: &[u32], part: &[u32], nparts: usize) -> Quality {
+    let n = part.len();
+    let mut cut = 0usize;
+    let mut owned = vec![0usize; nparts];
+    let mut halo_sets: Vec<std::collections::BTreeSet<u32>> = vec![Default::default(); nparts];
+    let mut nb: Vec<std::collections::BTreeSet<u32>> = vec![Default::default(); nparts];
+    for i in 0..n {
+        let pi = part[i];
+        owned[pi as usize] += 1;
+        for &j in &adj[xadj[i]..xadj[i + 1]] {
+            let pj = part[j as usize];
+            if pj != pi {
+                if (j as usize) > i {
+                    cut += 1;
+                }
+                halo_sets[pi as usize].insert(j);
+                nb[pi as usize].insert(pj);
+            }
+        }
+    }
+    let mean = n as f64 / nparts as f64;
+    Quality {
+        edge_cut: cut,
+        imbalance: owned.iter().copied().max().unwrap_or(0) as f64 / mean,
+        owned,
+        halo: halo_sets.iter().map(|s| s.len()).collect(),
+        neighbours: nb.iter().map(|s| s.len()).collect(),
+    }
+}
+
+/// What one process holds and exchanges. Local numbering: owned nodes (by global id), then
+/// halo nodes (by global id). Cells: every cell with an owned node, in global order.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    pub rank: usize,
+    /// Global id of each local node (owned first).
+    pub global: Vec<u32>,
+    pub n_owned: usize,
+    /// Global ids of the local cells, increasing.
+    pub cells: Vec<u32>,
+    /// Per neighbour rank: local indices to send (owned) and to receive into (halo),
+    /// both ordered by global id, so the two sides agree without negotiation.
+    pub neighbours: Vec<Neighbour>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Neighbour {
+    pub rank: usize,
+    pub send: Vec<u32>,
+    pub recv: Vec<u32>,
+}
+
+impl Plan {
+    /// The plan of `rank` for a partition of the whole mesh (every process can compute every
+    /// plan from the same inputs; no messages are needed).
+    pub fn new(n_nodes: usize, offsets: &[usize], conn: &[u32], part: &[u32], rank: usize) -> Plan {
+        let me = rank as u32;
+        let n_cells = offsets.len() - 1;
+        let cells: Vec<u32> = (0..n_cells)
+            .filter(|&c| conn[offsets[c]..offsets[c + 1]].iter().any(|&v| part[v as usize] == me))
+            .map(|c| c as u32)
+            .collect();
+        let owned: Vec<u32> = (0..n_nodes as u32).filter(|&v| part[v as usize] == me).collect();
+        let mut halo: Vec<u32> = cells
+            .iter()
+            .flat_map(|&c| conn[offsets[c as usize]..offsets[c as usize + 1]].iter().copied())
+            .filter(|&v| part[v as usize] != me)
+            .collect();
+        halo.sort_unstable();
+        halo.dedup();
+        let n_owned = owned.len();
+        let mut global = owned;
+        global.extend_from_slice(&halo);
+        let mut local = std::collections::HashMap::with_capacity(global.len());
+        for (l, &g) in global.iter().enumerate() {
+            local.insert(g, l as u32);
+        }
+        // send: my owned nodes that share a local cell with a node of rank q
+        let mut send: std::collections::BTreeMap<u32, Vec<u32>> = Default::default();
+        for &c in &cells {
+            let nodes = &conn[offsets[c as usize]..offsets[c as usize + 1]];
+            for &a in nodes.iter().filter(|&&a| part[a as usize] == me) {
+                for &b in nodes {
+                    let q = part[b as usize];
+                    if q != me {
+                        send.entry(q).or_default().push(a);
+                    }
+                }
+            }
+        }
+        let mut recv: std::collections::BTreeMap<u32, Vec<u32>> = Default::default();
+        for &h in &halo {
+            recv.entry(part[h as usize]).or_default().push(h);
+        }
+        let mut neighbours = Vec::new();
+        for (q, mut s) in send {
+            s.sort_unstable();
+            s.dedup();
+            let r = recv.remove(&q).unwrap_or_default();
+            neighbours.push(Neighbour {
+                rank: q as usize,
+                send: s.iter().map(|g| local[g]).collect(),
+                recv: r.iter().map(|g| local[g]).collect(),
+            });
+        }
+        Plan {
+            rank,
+            global,
+            n_owned,
+            cells,
+            neighbours,
+        }
+    }
+
+    pub fn n_halo(&self) -> usize {
+        self.global.len() - self.n_owned
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A strip of 6 tetrahedra in a row (nodes 0..=8) is enough to see the plan agree.
+    fn strip() -> (usize, Vec<usize>, Vec<u32>) {
+        let mut conn = vec![];
+        let mut off = vec![0];
+        for k in 0..6u32 {
+            conn.extend_from_slice(&[k, k + 1, k + 2, k + 3]);
+            off.push(conn.len());
+        }
+        (9, off, conn)
+    }
+
+    #[test]
+    fn plans_agree_on_what_crosses() {
+        let (n, off, conn) = strip();
+        let (xadj, adj) = node_graph(n, &off, &conn);
+        for method in [Method::Block, Method::Metis] {
+            for k in 1..=4 {
+                let part = partition(&xadj, &adj, k, method).unwrap();
+                let plans: Vec<Plan> = (0..k).map(|r| Plan::new(n, &off, &conn, &part, r)).collect();
+                assert_eq!(plans.iter().map(|p| p.n_owned).sum::<usize>(), n);
+                for p in &plans {
+                    for nb in &p.neighbours {
+                        let other = plans[nb.rank].neighbours.iter().find(|x| x.rank == p.rank).unwrap();
+                        let sent: Vec<u32> = nb.send.iter().map(|&l| p.global[l as usize]).collect();
+                        let got: Vec<u32> = other.recv.iter().map(|&l| plans[nb.rank].global[l as usize]).collect();
+                        assert_eq!(sent, got);
+                    }
+                    // every halo node is received from exactly one neighbour
+                    let received: usize = p.neighbours.iter().map(|x| x.recv.len()).sum();
+                    assert_eq!(received, p.n_halo());
+                }
+            }
+        }
+        assert!(partition(&xadj, &adj, 10, Method::Metis).is_err());
+    }
+}

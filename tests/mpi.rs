@@ -1,0 +1,168 @@
+//! Distributed runs: `mpirun -n 1..4` must write bitwise the same datasets as one process,
+//! for both schemes, on a generated mesh and on a real organ mesh; a failing rank must end
+//! the whole job with a non-zero exit, quickly.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+fn mpirun(n: usize, args: &[&str]) -> std::process::Output {
+    Command::new("mpirun")
+        .args(["-n", &n.to_string(), "--oversubscribe"])
+        .arg(env!("CARGO_BIN_EXE_eprop"))
+        .args(args)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
+        .env("RAYON_NUM_THREADS", "1")
+        .output()
+        .expect("mpirun is installed (scripts/test.sh installs openmpi-bin)")
+}
+
+fn serial(args: &[&str], threads: usize) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_eprop"))
+        .args(args)
+        .env("RAYON_NUM_THREADS", threads.to_string())
+        .output()
+        .unwrap()
+}
+
+/// Every output dataset of two files, compared bit for bit.
+fn assert_same(a: &Path, b: &Path) {
+    let fa = hdf5::File::open(a).unwrap();
+    let fb = hdf5::File::open(b).unwrap();
+    for name in [
+        "VTKHDF/PointData/displacement",
+        "VTKHDF/PointData/velocity",
+        "VTKHDF/PointData/potential",
+        "VTKHDF/PointData/energy",
+        "VTKHDF/Steps/Values",
+        "eprop/probes/displacement",
+        "eprop/probes/force",
+        "eprop/control_volumes",
+    ] {
+        let x: Vec<f64> = fa.dataset(name).unwrap().read_raw().unwrap();
+        let y: Vec<f64> = fb.dataset(name).unwrap().read_raw().unwrap();
+        assert_eq!(x.len(), y.len(), "{name}");
+        let diff = x.iter().zip(&y).filter(|(p, q)| p.to_bits() != q.to_bits()).count();
+        assert_eq!(
+            diff,
+            0,
+            "{name}: {diff} values differ between {} and {}",
+            a.display(),
+            b.display()
+        );
+    }
+}
+
+fn check_ranks(mesh: &Path, extra: &str, tag: &str) {
+    let d = tempfile::Builder::new().prefix(tag).tempdir().unwrap();
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n{extra}[time]\nsteps = 8\n[output]\nevery = 2\n",
+            mesh.display()
+        ),
+    )
+    .unwrap();
+    let sc = sc.to_str().unwrap();
+    let one = d.path().join("one.h5");
+    let out = serial(&["run", sc, "-q", "-o", one.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let two_threads = d.path().join("threads.h5");
+    let out = serial(&["run", sc, "-q", "-o", two_threads.to_str().unwrap()], 2);
+    assert!(out.status.success());
+    assert_same(&one, &two_threads);
+    for n in 1..=4 {
+        let f = d.path().join(format!("n{n}.h5"));
+        let out = mpirun(n, &["run", sc, "-q", "-o", f.to_str().unwrap()]);
+        assert!(
+            out.status.success(),
+            "{n} ranks: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("on {n} process")));
+        assert_same(&one, &f);
+    }
+}
+
+const CYL: &str = "[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 1.0\n";
+
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_generated_mesh() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    check_ranks(&mesh, CYL, "compact");
+    check_ranks(&mesh, &format!("[model]\nscheme = \"paper\"\n{CYL}"), "paper");
+    check_ranks(
+        &mesh,
+        &format!("[model]\nscheme = \"paper\"\npaper_correction = false\n{CYL}"),
+        "paper-raw",
+    );
+}
+
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_organ_mesh() {
+    let Some(mesh) = common::shared_mesh("sofa_liver2.msh") else {
+        return;
+    };
+    // fixed on the left lobe's end, pressed on the top
+    let liver = "[material]\nconductivity = [0.08, 0.05, 0.05]\n[[fixed]]\nhalfspace = { point = [-1.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 0.7, 0.0]\nnormal = 1.0\n";
+    check_ranks(&mesh, liver, "liver");
+    check_ranks(&mesh, &format!("[model]\nscheme = \"paper\"\n{liver}"), "liver-paper");
+}
+
+#[test]
+fn a_failing_rank_ends_the_job_quickly() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &mesh).unwrap();
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        format!("[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 5\n", mesh.display()),
+    )
+    .unwrap();
+    // the output directory does not exist: every rank fails
+    let t = Instant::now();
+    let out = mpirun(2, &["run", sc.to_str().unwrap(), "-q", "-o", "/nonexistent/dir/x.h5"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("output directory"));
+    assert!(t.elapsed() < Duration::from_secs(30));
+    // more ranks than nodes of a tiny mesh
+    let tiny = d.path().join("tiny.msh");
+    eprop_io::write_mesh(
+        &eprop_io::generate::box_mesh([1.0; 3], [1, 1, 1], eprop_io::generate::BoxCells::Tet).unwrap(),
+        &tiny,
+    )
+    .unwrap();
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+            tiny.display()
+        ),
+    )
+    .unwrap();
+    let t = Instant::now();
+    let out = mpirun(
+        2,
+        &[
+            "run",
+            sc.to_str().unwrap(),
+            "-q",
+            "-o",
+            d.path().join("t.h5").to_str().unwrap(),
+        ],
+    );
+    assert!(
+        out.status.success(),
+        "2 ranks on 8 nodes must work: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(t.elapsed() < Duration::from_secs(30));
+}
