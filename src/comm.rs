@@ -41,6 +41,17 @@ pub fn exact_sum(comm: &dyn Comm, local: impl Iterator<Item = f64> + Clone) -> f
     (total as f64) / sa / sb
 }
 
+/// Exclusive prefix sums of message sizes (MPI displacements).
+fn displacements(counts: &[i32]) -> Vec<i32> {
+    let mut d = Vec::with_capacity(counts.len());
+    let mut at = 0;
+    for &c in counts {
+        d.push(at);
+        at += c;
+    }
+    d
+}
+
 /// One process: nothing to exchange.
 pub struct Serial;
 
@@ -95,14 +106,7 @@ impl Mpi {
         let (owned_all, counts) = if world.rank() == 0 {
             let mut counts = vec![0i32; size];
             root.gather_into_root(&n_mine, &mut counts[..]);
-            let displs: Vec<i32> = counts
-                .iter()
-                .scan(0, |s, &c| {
-                    let d = *s;
-                    *s += c;
-                    Some(d)
-                })
-                .collect();
+            let displs = displacements(&counts);
             let mut all = vec![0u32; counts.iter().sum::<i32>() as usize];
             {
                 let mut part = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
@@ -200,14 +204,7 @@ impl Comm for Mpi {
         let root = self.world.process_at_rank(0);
         if self.world.rank() == 0 {
             let counts: Vec<i32> = self.counts.iter().map(|&c| (c * stride) as i32).collect();
-            let displs: Vec<i32> = counts
-                .iter()
-                .scan(0, |s, &c| {
-                    let d = *s;
-                    *s += c;
-                    Some(d)
-                })
-                .collect();
+            let displs = displacements(&counts);
             let mut buf = vec![0.0; self.owned_all.len() * stride];
             {
                 let mut part = PartitionMut::new(&mut buf[..], &counts[..], &displs[..]);
