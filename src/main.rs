@@ -103,10 +103,10 @@ enum Shape {
     /// A box [0,X]x[0,Y]x[0,Z]; faces are tagged xmin, xmax, ymin, ymax, zmin, zmax.
     Box {
         /// Size X,Y,Z
-        #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [1.0, 1.0, 1.0])]
+        #[arg(long, value_delimiter = ',', default_values_t = [1.0, 1.0, 1.0])]
         size: Vec<f64>,
         /// Cells along each axis NX,NY,NZ
-        #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [10, 10, 10])]
+        #[arg(long, value_delimiter = ',', default_values_t = [10, 10, 10])]
         cells: Vec<usize>,
         /// Cell kind
         #[arg(long, value_enum, default_value_t = Kind::Tet)]
