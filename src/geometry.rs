@@ -20,23 +20,8 @@ pub struct Incidence {
 
 impl Incidence {
     pub fn new(mesh: &Mesh) -> Self {
-        let n = mesh.n_nodes();
-        let mut count = vec![0usize; n + 1];
-        for &v in &mesh.conn {
-            count[v as usize + 1] += 1;
-        }
-        for i in 0..n {
-            count[i + 1] += count[i];
-        }
-        let mut fill = count.clone();
-        let mut cells = vec![0u32; mesh.conn.len()];
-        for c in 0..mesh.n_cells() {
-            for &v in mesh.cell(c) {
-                cells[fill[v as usize]] = c as u32;
-                fill[v as usize] += 1;
-            }
-        }
-        Incidence { ptr: count, cells }
+        let (ptr, cells) = eprop_partition::incidence(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
+        Incidence { ptr, cells }
     }
     pub fn of(&self, i: usize) -> &[u32] {
         &self.cells[self.ptr[i]..self.ptr[i + 1]]

@@ -245,19 +245,4 @@ impl Operator {
             }
         });
     }
-    /// Stored pairs (for memory and bandwidth figures).
-    pub fn n_pairs(&self) -> usize {
-        match self {
-            Operator::Compact(c) => c.col.len(),
-            Operator::Paper(p) => p.col.len(),
-        }
-    }
-    /// Bytes one substep must move at least: matrix once, x gathered (assumed cached), y written.
-    pub fn bytes_per_substep(&self) -> usize {
-        let n = self.n_rows();
-        match self {
-            Operator::Compact(c) => c.col.len() * 12 + n * (4 + 24 + 24),
-            Operator::Paper(p) => p.col.len() * (4 + 13 * 8) + n * (8 + 1 + 24 + 24 + 72 * 2),
-        }
-    }
 }

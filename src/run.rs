@@ -2,7 +2,7 @@
 
 use crate::geometry::{compact_coefficients, Dual, Incidence};
 use crate::material::Tensor;
-use crate::operator::{Compact, Operator};
+use crate::operator::Compact;
 use crate::scenario::{Scenario, Setup};
 use crate::solver::{
     check_output_dir, flat, max_displacement, scheme_name, total_energy, GlobalState, Simulation, SAFETY,
@@ -306,11 +306,7 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
     let r = vec![Tensor::identity() * 0.05; n];
     let a = compact_coefficients(mesh, &inc, &dual, &r);
     let active: Vec<bool> = dual.vol.iter().map(|&v| v > 0.0).collect();
-    let op = Operator::Compact(Compact::new(&dual, &a, &active));
-    let g = match &op {
-        Operator::Compact(c) => c.gershgorin(),
-        _ => unreachable!(),
-    };
+    let g = Compact::new(&dual, &a, &active).gershgorin();
     let (lo, hi) = mesh.bounds();
     let unref = dual.vol.iter().filter(|&&v| v <= 0.0).count();
     let mut warnings = mesh.warnings.clone();

@@ -6,10 +6,9 @@
 
 use anyhow::{anyhow, bail, Result};
 
-/// Node adjacency (nodes that share a cell) in CSR form, neighbours sorted, no self loops.
-pub fn node_graph(n_nodes: usize, offsets: &[usize], conn: &[u32]) -> (Vec<usize>, Vec<u32>) {
-    let n_cells = offsets.len() - 1;
-    // node -> cells
+/// Node-to-cell incidence in CSR form: the cells of node i, increasing, are
+/// `cells[ptr[i]..ptr[i + 1]]`.
+pub fn incidence(n_nodes: usize, offsets: &[usize], conn: &[u32]) -> (Vec<usize>, Vec<u32>) {
     let mut ptr = vec![0usize; n_nodes + 1];
     for &v in conn {
         ptr[v as usize + 1] += 1;
@@ -19,12 +18,18 @@ pub fn node_graph(n_nodes: usize, offsets: &[usize], conn: &[u32]) -> (Vec<usize
     }
     let mut fill = ptr.clone();
     let mut cells = vec![0u32; conn.len()];
-    for c in 0..n_cells {
+    for c in 0..offsets.len() - 1 {
         for &v in &conn[offsets[c]..offsets[c + 1]] {
             cells[fill[v as usize]] = c as u32;
             fill[v as usize] += 1;
         }
     }
+    (ptr, cells)
+}
+
+/// Node adjacency (nodes that share a cell) in CSR form, neighbours sorted, no self loops.
+pub fn node_graph(n_nodes: usize, offsets: &[usize], conn: &[u32]) -> (Vec<usize>, Vec<u32>) {
+    let (ptr, cells) = incidence(n_nodes, offsets, conn);
     let mut xadj = Vec::with_capacity(n_nodes + 1);
     xadj.push(0);
     let mut adj = Vec::new();
