@@ -11,15 +11,27 @@ pub trait Comm {
     fn rank(&self) -> usize;
     fn size(&self) -> usize;
     /// Overwrites the halo entries of `data` (items of `stride` f64) with their owners' values.
-    fn exchange(&self, data: &mut [f64], stride: usize);
+    fn exchange(&self, data: &mut [f64], stride: usize) {
+        self.exchange_overlapped(data, stride, &mut |_| {});
+    }
+    /// Like `exchange`, running `during` on the old values while the messages are in flight
+    /// (work that reads owned entries only: the interior rows).
+    fn exchange_overlapped(&self, data: &mut [f64], stride: usize, during: &mut dyn FnMut(&[f64]));
     fn max(&self, x: f64) -> f64;
     fn min(&self, x: f64) -> f64;
     /// Sums the integer parts of every process in rank order (exact).
     fn sum_i128(&self, x: i128) -> i128;
     /// Broadcasts `x` from `root`.
     fn broadcast(&self, root: usize, x: &mut [f64]);
-    /// Gathers owned items (`stride` f64 each) to rank 0 in global node order.
-    fn gather(&self, owned: &[f64], stride: usize) -> Option<Vec<f64>>;
+    /// Personalised all-to-all: `send` holds `counts[q]` values for process q, in rank order;
+    /// returns what every process sent here, in rank order.
+    fn all_to_all(&self, send: &[f64], counts: &[usize]) -> Vec<f64>;
+    /// Every process's `x`, in rank order.
+    fn all_gather(&self, x: &[f64]) -> Vec<f64>;
+    /// Seconds spent waiting for halo messages so far.
+    fn halo_wait_seconds(&self) -> f64 {
+        0.0
+    }
     /// Ends every process after an error on this one.
     fn abort(&self, code: i32) -> !;
 }
@@ -62,7 +74,9 @@ impl Comm for Serial {
     fn size(&self) -> usize {
         1
     }
-    fn exchange(&self, _: &mut [f64], _: usize) {}
+    fn exchange_overlapped(&self, data: &mut [f64], _: usize, during: &mut dyn FnMut(&[f64])) {
+        during(data)
+    }
     fn max(&self, x: f64) -> f64 {
         x
     }
@@ -73,8 +87,11 @@ impl Comm for Serial {
         x
     }
     fn broadcast(&self, _: usize, _: &mut [f64]) {}
-    fn gather(&self, owned: &[f64], _: usize) -> Option<Vec<f64>> {
-        Some(owned.to_vec())
+    fn all_to_all(&self, send: &[f64], _: &[usize]) -> Vec<f64> {
+        send.to_vec()
+    }
+    fn all_gather(&self, x: &[f64]) -> Vec<f64> {
+        x.to_vec()
     }
     fn abort(&self, code: i32) -> ! {
         std::process::exit(code)
@@ -85,10 +102,9 @@ impl Comm for Serial {
 pub struct Mpi {
     pub world: mpi::topology::SimpleCommunicator,
     pub plan: Plan,
-    /// Global ids of every rank's owned nodes, concatenated in rank order (rank 0 only).
-    owned_all: Vec<u32>,
-    counts: Vec<usize>,
-    n_global: usize,
+    /// Reusable message buffers of the halo exchange (per neighbour).
+    bufs: std::cell::RefCell<(Vec<Vec<f64>>, Vec<Vec<f64>>)>,
+    waited: std::cell::Cell<f64>,
 }
 
 use mpi::collective::SystemOperation;
@@ -98,32 +114,12 @@ use mpi::topology::Communicator;
 use mpi::traits::*;
 
 impl Mpi {
-    pub fn new(world: mpi::topology::SimpleCommunicator, plan: Plan, n_global: usize) -> Mpi {
-        let size = world.size() as usize;
-        let root = world.process_at_rank(0);
-        let mine: Vec<u32> = plan.global[..plan.n_owned].to_vec();
-        let n_mine = mine.len() as i32;
-        let (owned_all, counts) = if world.rank() == 0 {
-            let mut counts = vec![0i32; size];
-            root.gather_into_root(&n_mine, &mut counts[..]);
-            let displs = displacements(&counts);
-            let mut all = vec![0u32; counts.iter().sum::<i32>() as usize];
-            {
-                let mut part = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
-                root.gather_varcount_into_root(&mine[..], &mut part);
-            }
-            (all, counts.iter().map(|&c| c as usize).collect())
-        } else {
-            root.gather_into(&n_mine);
-            root.gather_varcount_into(&mine[..]);
-            (vec![], vec![])
-        };
+    pub fn new(world: mpi::topology::SimpleCommunicator, plan: Plan) -> Mpi {
         Mpi {
             world,
             plan,
-            owned_all,
-            counts,
-            n_global,
+            bufs: Default::default(),
+            waited: Default::default(),
         }
     }
 }
@@ -135,21 +131,23 @@ impl Comm for Mpi {
     fn size(&self) -> usize {
         self.world.size() as usize
     }
-    fn exchange(&self, data: &mut [f64], stride: usize) {
+    fn exchange_overlapped(&self, data: &mut [f64], stride: usize, during: &mut dyn FnMut(&[f64])) {
         let nbs = &self.plan.neighbours;
-        let sends: Vec<Vec<f64>> = nbs
-            .iter()
-            .map(|nb| {
-                let mut b = Vec::with_capacity(nb.send.len() * stride);
-                for &l in &nb.send {
-                    b.extend_from_slice(&data[l as usize * stride..(l as usize + 1) * stride]);
-                }
-                b
-            })
-            .collect();
-        let mut recvs: Vec<Vec<f64>> = nbs.iter().map(|nb| vec![0.0; nb.recv.len() * stride]).collect();
+        let mut bufs = self.bufs.borrow_mut();
+        let (sends, recvs) = &mut *bufs;
+        sends.resize_with(nbs.len(), Vec::new);
+        recvs.resize_with(nbs.len(), Vec::new);
+        for (nb, b) in nbs.iter().zip(sends.iter_mut()) {
+            b.clear();
+            for &l in &nb.send {
+                b.extend_from_slice(&data[l as usize * stride..(l as usize + 1) * stride]);
+            }
+        }
+        for (nb, b) in nbs.iter().zip(recvs.iter_mut()) {
+            b.resize(nb.recv.len() * stride, 0.0);
+        }
         mpi::request::scope(|scope| {
-            let mut reqs = Vec::with_capacity(2 * nbs.len());
+            let mut reqs = Vec::with_capacity(nbs.len());
             for (nb, buf) in nbs.iter().zip(recvs.iter_mut()) {
                 reqs.push(
                     self.world
@@ -165,12 +163,15 @@ impl Comm for Mpi {
                         .immediate_send(scope, &buf[..]),
                 );
             }
+            during(data);
+            let t = std::time::Instant::now();
             for r in reqs {
                 r.wait();
             }
             for r in sreqs {
                 r.wait();
             }
+            self.waited.set(self.waited.get() + t.elapsed().as_secs_f64());
         });
         for (nb, buf) in nbs.iter().zip(recvs.iter()) {
             for (k, &l) in nb.recv.iter().enumerate() {
@@ -178,6 +179,27 @@ impl Comm for Mpi {
                     .copy_from_slice(&buf[k * stride..(k + 1) * stride]);
             }
         }
+    }
+    fn halo_wait_seconds(&self) -> f64 {
+        self.waited.get()
+    }
+    fn all_to_all(&self, send: &[f64], counts: &[usize]) -> Vec<f64> {
+        let sc: Vec<i32> = counts.iter().map(|&c| c as i32).collect();
+        let mut rc = vec![0i32; sc.len()];
+        self.world.all_to_all_into(&sc[..], &mut rc[..]);
+        let (sd, rd) = (displacements(&sc), displacements(&rc));
+        let mut out = vec![0.0; rc.iter().sum::<i32>() as usize];
+        {
+            let sp = mpi::datatype::Partition::new(send, &sc[..], &sd[..]);
+            let mut rp = PartitionMut::new(&mut out[..], &rc[..], &rd[..]);
+            self.world.all_to_all_varcount_into(&sp, &mut rp);
+        }
+        out
+    }
+    fn all_gather(&self, x: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; x.len() * self.size()];
+        self.world.all_gather_into(x, &mut out[..]);
+        out
     }
     fn max(&self, x: f64) -> f64 {
         let mut y = 0.0;
@@ -199,26 +221,6 @@ impl Comm for Mpi {
     }
     fn broadcast(&self, root: usize, x: &mut [f64]) {
         self.world.process_at_rank(root as i32).broadcast_into(x);
-    }
-    fn gather(&self, owned: &[f64], stride: usize) -> Option<Vec<f64>> {
-        let root = self.world.process_at_rank(0);
-        if self.world.rank() == 0 {
-            let counts: Vec<i32> = self.counts.iter().map(|&c| (c * stride) as i32).collect();
-            let displs = displacements(&counts);
-            let mut buf = vec![0.0; self.owned_all.len() * stride];
-            {
-                let mut part = PartitionMut::new(&mut buf[..], &counts[..], &displs[..]);
-                root.gather_varcount_into_root(owned, &mut part);
-            }
-            let mut out = vec![0.0; self.n_global * stride];
-            for (k, &g) in self.owned_all.iter().enumerate() {
-                out[g as usize * stride..(g as usize + 1) * stride].copy_from_slice(&buf[k * stride..(k + 1) * stride]);
-            }
-            Some(out)
-        } else {
-            root.gather_varcount_into(owned);
-            None
-        }
     }
     fn abort(&self, code: i32) -> ! {
         self.world.abort(code)

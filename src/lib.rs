@@ -6,6 +6,7 @@
 //! dynamics. The model is fixed in MODEL.md; ARCHITECTURE.md maps the code.
 
 pub mod comm;
+pub mod distribute;
 pub mod geometry;
 pub mod material;
 pub mod operator;

@@ -135,8 +135,9 @@ fn under_mpirun() -> bool {
         .any(|v| std::env::var_os(v).is_some())
 }
 
-/// Runs under MPI; an error on any process prints its message and ends every process with a
-/// non-zero exit (MPI_Abort), so a batch job never hangs on a failed rank.
+/// Runs under MPI. An error that every process knows (bad scenario or mesh, found by rank 0
+/// and sent to all) is printed once and every process exits with status 1; an error on one
+/// process prints its message and ends every process (MPI_Abort), so a batch job never hangs.
 fn run_under_mpi(scenario: &std::path::Path, opts: &RunOptions) -> Option<eprop::run::Summary> {
     use mpi::topology::Communicator;
     let Some(universe) = mpi::initialize() else {
@@ -148,6 +149,19 @@ fn run_under_mpi(scenario: &std::path::Path, opts: &RunOptions) -> Option<eprop:
     let abort_world = universe.world();
     match eprop::run::run_mpi(world, scenario, opts) {
         Ok(s) => s,
+        Err(e) if e.is::<eprop::run::ReportedElsewhere>() => {
+            drop(abort_world);
+            drop(universe);
+            std::process::exit(1)
+        }
+        Err(e) if e.is::<eprop::run::Collective>() => {
+            if rank == 0 {
+                eprintln!("error: {e:#}");
+            }
+            drop(abort_world);
+            drop(universe);
+            std::process::exit(1)
+        }
         Err(e) => {
             if size > 1 {
                 eprintln!("error (rank {rank} of {size}): {e:#}");

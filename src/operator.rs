@@ -139,11 +139,12 @@ impl Paper {
         }
     }
 
-    /// Nodal gradients of the three components: g[i][3*c + d] = d u_c / d x_d.
-    pub fn gradients(&self, x: &[V3], g: &mut [[f64; 9]]) {
+    /// Nodal gradients of the three components, g[i][3*c + d] = d u_c / d x_d, for the rows
+    /// `start..start + g.len()`.
+    pub fn gradients(&self, x: &[V3], g: &mut [[f64; 9]], start: usize) {
         g.par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
             for (k, gi) in chunk.iter_mut().enumerate() {
-                let i = b * CHUNK + k;
+                let i = start + b * CHUNK + k;
                 let (s0, e0) = (self.row_ptr[i] as usize, self.row_ptr[i + 1] as usize);
                 let xi = x[i];
                 let mut acc = [0.0; 9];
@@ -211,10 +212,11 @@ impl Operator {
     pub fn needs_gradients(&self) -> bool {
         matches!(self, Operator::Paper(_))
     }
-    /// Gradient pass (paper scheme only; rows `0..n_rows`).
-    pub fn gradients(&self, x: &[V3], g: &mut [[f64; 9]]) {
+    /// Gradient pass (paper scheme only) over the rows in `range`.
+    pub fn gradients(&self, x: &[V3], g: &mut [[f64; 9]], range: std::ops::Range<usize>) {
         if let Operator::Paper(p) = self {
-            p.gradients(x, &mut g[..p.row_ptr.len() - 1]);
+            let start = range.start;
+            p.gradients(x, &mut g[range], start);
         }
     }
     /// y_i = (L x)_i for rows `0..n_rows` (`g` holds gradients of x for the paper scheme).

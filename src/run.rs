@@ -1,15 +1,14 @@
 //! `eprop run` and `eprop info`: drivers that tie scenario, solver and output together.
 
+use crate::distribute::{self, GlobalSizes};
 use crate::geometry::{compact_coefficients, Dual, Incidence};
 use crate::material::Tensor;
 use crate::operator::Compact;
 use crate::scenario::{Scenario, Setup};
-use crate::solver::{
-    check_output_dir, flat, max_displacement, scheme_name, total_energy, GlobalState, Simulation, SAFETY,
-};
+use crate::solver::{check_output_dir, morton_keys, scheme_name, Simulation, SAFETY};
 use anyhow::Result;
 use eprop_io::geom::{cell_quality, cell_volume, norm};
-use eprop_io::vtkhdf::{SeriesSpec, SeriesWriter};
+use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter};
 use eprop_io::Mesh;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -50,7 +49,15 @@ pub struct Summary {
     pub time: f64,
     pub wall_seconds: f64,
     pub setup_seconds: f64,
+    /// Time spent writing output (included in wall_seconds after the first step).
+    pub output_seconds: f64,
+    /// Largest time any process waited for halo messages.
+    pub halo_wait_seconds: f64,
     pub node_substeps_per_second: f64,
+    /// Largest peak resident memory of any process.
+    pub peak_memory_mib: f64,
+    /// Peak resident memory of rank 0 once the parts were sent (distributed runs).
+    pub rank0_scatter_peak_mib: f64,
     pub max_displacement: f64,
     pub max_displacement_node: u64,
     pub max_displacement_at: [f64; 3],
@@ -78,9 +85,22 @@ impl std::fmt::Display for Summary {
         writeln!(f, "  steps       {} to t = {:.6}", self.steps, self.time)?;
         writeln!(
             f,
-            "  speed       {:.3} s setup, {:.3} s stepping, {:.3e} node-substeps/s",
-            self.setup_seconds, self.wall_seconds, self.node_substeps_per_second
+            "  speed       {:.3} s setup, {:.3} s stepping ({:.3} s output, {:.3} s halo wait), {:.3e} node-substeps/s",
+            self.setup_seconds,
+            self.wall_seconds,
+            self.output_seconds,
+            self.halo_wait_seconds,
+            self.node_substeps_per_second
         )?;
+        if self.processes > 1 {
+            writeln!(
+                f,
+                "  memory      {:.1} MiB peak per process, rank 0 {:.1} MiB after reading and scattering the mesh",
+                self.peak_memory_mib, self.rank0_scatter_peak_mib
+            )?;
+        } else {
+            writeln!(f, "  memory      {:.1} MiB peak", self.peak_memory_mib)?;
+        }
         writeln!(
             f,
             "  max |u|     {:.6e} at node {} ({:.4}, {:.4}, {:.4})",
@@ -120,8 +140,13 @@ impl std::fmt::Display for Summary {
 pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
     let setup = prepare(path, opts)?;
+    let sizes = GlobalSizes {
+        nodes: setup.mesh.n_nodes(),
+        cells: setup.mesh.n_cells(),
+        conn: setup.mesh.conn.len(),
+    };
     let sim = Simulation::new(setup)?;
-    run_simulation(sim, t0, opts).map(|s| s.expect("rank 0 has the summary"))
+    run_simulation(sim, sizes, t0, opts, None, 0).map(|s| s.expect("one process has the summary"))
 }
 
 /// Reads and resolves a scenario with the command-line overrides applied.
@@ -138,59 +163,147 @@ pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
     Ok(setup)
 }
 
-/// Runs a scenario under MPI: every process reads the scenario and mesh, the node graph is
-/// split by METIS, each process steps its part with halo exchanges, rank 0 writes the file.
-/// Returns the summary on rank 0.
-pub fn run_mpi(world: mpi::topology::SimpleCommunicator, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
-    use mpi::topology::Communicator;
-    let t0 = Instant::now();
-    let (rank, size) = (world.rank() as usize, world.size() as usize);
+/// An error already reported by another process (rank 0); this process exits quietly.
+#[derive(Debug)]
+pub struct ReportedElsewhere;
+
+impl std::fmt::Display for ReportedElsewhere {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "the run failed on rank 0 (see its message)")
+    }
+}
+
+impl std::error::Error for ReportedElsewhere {}
+
+/// An error found by rank 0 before the parts were sent, and sent to every process instead.
+#[derive(Debug)]
+pub struct Collective(pub String);
+
+impl std::fmt::Display for Collective {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Collective {}
+
+/// Rank 0's side of the start of a distributed run: read, partition, build and encode every
+/// process's part. Returns the parts (index = rank), rank 0's global setup and the sizes.
+fn partition_and_encode(path: &Path, opts: &RunOptions, size: usize) -> Result<(Vec<Vec<u8>>, Setup, GlobalSizes)> {
     let setup = prepare(path, opts)?;
     let mesh = &setup.mesh;
     let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
     let part = eprop_partition::partition(&xadj, &adj, size, eprop_partition::Method::Metis)
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
-    let plan = eprop_partition::Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, rank);
-    let n_global = mesh.n_nodes();
-    let comm = crate::comm::Mpi::new(world, plan.clone(), n_global);
-    let sim = Simulation::new_with(setup, Box::new(comm), Some(plan))?;
-    run_simulation(sim, t0, opts)
+    drop((xadj, adj));
+    let keys = morton_keys(mesh);
+    let sizes = GlobalSizes {
+        nodes: mesh.n_nodes(),
+        cells: mesh.n_cells(),
+        conn: mesh.conn.len(),
+    };
+    let parts = (0..size)
+        .map(|r| {
+            let plan = eprop_partition::Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys));
+            distribute::encode(&setup.restrict(&plan), &plan, sizes)
+        })
+        .collect();
+    Ok((parts, setup, sizes))
 }
 
-/// Runs a prepared simulation; rank 0 writes the series and returns the summary.
-pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Result<Option<Summary>> {
-    let root = sim.comm.rank() == 0;
-    let mesh = &sim.setup.mesh;
-    let n = mesh.n_nodes();
-    let mut out = if root {
-        let spec = SeriesSpec {
-            fields: vec![("displacement", 3), ("velocity", 3), ("potential", 3), ("energy", 1)],
-            n_loads: sim.loads.len(),
-            load_nodes: sim.loads.iter().map(|l| l.nodes[0] as u64).collect(),
-            scenario: &sim.setup.scenario.text,
-            version: VERSION,
-            control_volumes: &sim.vol_global,
-            attrs: vec![
-                ("dt", sim.dt),
-                ("h", sim.h),
-                ("substeps", sim.substeps as f64),
-                ("processes", sim.comm.size() as f64),
-            ],
-        };
-        Some(SeriesWriter::create(&sim.setup.output, mesh, &spec)?)
-    } else {
-        None
-    };
-    let write = |sim: &Simulation, out: &mut Option<SeriesWriter>| -> Result<Option<GlobalState>> {
-        let g = sim.gather();
-        if let (Some(g), Some(out)) = (&g, out.as_mut()) {
-            let energy: Vec<f64> = g.phi.iter().map(|p| norm(*p)).collect();
-            let (u, v, p) = (flat(&g.u), flat(&g.v), flat(&g.phi));
-            out.append(sim.time, sim.step, &[&u, &v, &p, &energy], &sim.probes(&g.u))?;
+/// Runs a scenario under MPI. Rank 0 reads the scenario and the mesh, splits the node graph
+/// with METIS and sends every process its part; each process builds its own geometry and
+/// operator, steps its part with halo exchanges and writes its rows of the output file
+/// (collective MPI-IO). Returns the summary on rank 0.
+pub fn run_mpi(world: mpi::topology::SimpleCommunicator, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
+    use mpi::point_to_point::{Destination, Source};
+    use mpi::topology::Communicator;
+    let t0 = Instant::now();
+    let (rank, size) = (world.rank() as usize, world.size() as usize);
+    let io_comm = world.duplicate();
+    // message: 1 + encoded part, or 0 + error text
+    let (mine, global, sizes) = if rank == 0 {
+        match partition_and_encode(path, opts, size) {
+            Ok((mut parts, setup, sizes)) => {
+                for (r, p) in parts.iter_mut().enumerate().skip(1) {
+                    p.insert(0, 1);
+                    world.process_at_rank(r as i32).send(&p[..]);
+                    *p = Vec::new();
+                }
+                let part = distribute::decode(&parts[0])?;
+                (part, Some(setup), sizes)
+            }
+            Err(e) => {
+                let mut msg = vec![0u8];
+                msg.extend_from_slice(format!("{e:#}").as_bytes());
+                for r in 1..size {
+                    world.process_at_rank(r as i32).send(&msg[..]);
+                }
+                return Err(Collective(format!("{e:#}")).into());
+            }
         }
-        Ok(g)
+    } else {
+        let (msg, _) = world.process_at_rank(0).receive_vec::<u8>();
+        if msg.first() != Some(&1) {
+            return Err(ReportedElsewhere.into());
+        }
+        let part = distribute::decode(&msg[1..])?;
+        let sizes = part.sizes;
+        (part, None, sizes)
     };
-    let mut last = write(&sim, &mut out)?;
+    let rank0_scatter_peak = if rank == 0 { distribute::peak_rss() } else { 0 };
+    let comm = crate::comm::Mpi::new(world, mine.plan.clone());
+    let sim = Simulation::new_with(mine.setup, Box::new(comm), mine.plan, global.map(|s| s.mesh))?;
+    run_simulation(sim, sizes, t0, opts, Some(&io_comm), rank0_scatter_peak)
+}
+
+/// Runs a prepared simulation; every process writes its block of the series, rank 0 returns
+/// the summary.
+pub fn run_simulation(
+    mut sim: Simulation,
+    sizes: GlobalSizes,
+    t0: Instant,
+    opts: &RunOptions,
+    io_comm: Option<&mpi::topology::SimpleCommunicator>,
+    rank0_scatter_peak: u64,
+) -> Result<Option<Summary>> {
+    let root = sim.comm.rank() == 0;
+    let n = sizes.nodes;
+    let layout = Layout {
+        nodes: sizes.nodes,
+        cells: sizes.cells,
+        conn: sizes.conn,
+    };
+    let spec = SeriesSpec {
+        fields: vec![("displacement", 3), ("velocity", 3), ("potential", 3), ("energy", 1)],
+        n_loads: sim.loads.len(),
+        load_nodes: sim.loads.iter().map(|l| l.nodes[0] as u64).collect(),
+        scenario: &sim.setup.scenario.text,
+        version: VERSION,
+        block_start: sim.blocks.start,
+        block_len: sim.blocks.len,
+        control_volumes: &sim.vol_block,
+        attrs: vec![
+            ("dt", sim.dt),
+            ("h", sim.h),
+            ("substeps", sim.substeps as f64),
+            ("processes", sim.comm.size() as f64),
+        ],
+    };
+    let mut out = SeriesWriter::create(&sim.setup.output, layout, sim.global.as_ref(), &spec, io_comm)?;
+    let write = |sim: &Simulation, out: &mut SeriesWriter| -> Result<f64> {
+        let t = Instant::now();
+        let no = sim.n_owned;
+        let c = sim.comm.as_ref();
+        let energy: Vec<f64> = sim.prop.phi[..no].iter().map(|p| norm(*p)).collect();
+        let u = sim.blocks.collect(sim.u[..no].as_flattened(), 3, c);
+        let v = sim.blocks.collect(sim.v[..no].as_flattened(), 3, c);
+        let p = sim.blocks.collect(sim.prop.phi[..no].as_flattened(), 3, c);
+        let e = sim.blocks.collect(&energy, 1, c);
+        out.append(sim.time, sim.step, &[&u, &v, &p, &e], &sim.probes())?;
+        Ok(t.elapsed().as_secs_f64())
+    };
+    let mut output_seconds = write(&sim, &mut out)?;
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let every = sim.setup.every;
@@ -199,8 +312,8 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
     while !sim.done() {
         sim.advance();
         let is_last = sim.done();
-        if sim.step % every == 0 || is_last {
-            last = write(&sim, &mut out)?;
+        if sim.step.is_multiple_of(every) || is_last {
+            output_seconds += write(&sim, &mut out)?;
         }
         if root && !opts.quiet && last_report.elapsed().as_secs_f64() > 5.0 {
             eprintln!(
@@ -211,12 +324,15 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
         }
     }
     let wall = t1.elapsed().as_secs_f64();
-    let (Some(g), Some(out)) = (last, out) else {
+    let (umax, imax) = sim.max_displacement();
+    let total = sim.total_energy();
+    let probes = sim.probes();
+    let halo_wait = sim.comm.max(sim.comm.halo_wait_seconds());
+    let peak = sim.comm.max(distribute::peak_rss() as f64);
+    let Some(mesh) = sim.global.as_ref() else {
         return Ok(None);
     };
-    let mesh = &sim.setup.mesh;
-    let (umax, imax) = max_displacement(&g.u);
-    let mut warnings = sim.setup.mesh.warnings.clone();
+    let mut warnings = mesh.warnings.clone();
     if sim.inactive_nodes > 0 {
         warnings.push(format!(
             "{} node(s) belong to no cell and stay at rest",
@@ -231,14 +347,14 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
             ));
         }
     }
-    let probes = sim.probes(&g.u);
+    let imax = imax as usize;
     Ok(Some(Summary {
         scenario: sim.setup.scenario.path.display().to_string(),
         mesh: mesh.source.clone(),
         nodes: n,
         cells: mesh.n_cells(),
         processes: sim.comm.size(),
-        fixed_nodes: sim.setup.fixed.iter().filter(|&&b| b).count(),
+        fixed_nodes: sim.fixed_nodes,
         scheme: scheme_name(sim.setup.scheme).to_string(),
         h: sim.h,
         h_bound: sim.h_bound,
@@ -248,18 +364,22 @@ pub fn run_simulation(mut sim: Simulation, t0: Instant, opts: &RunOptions) -> Re
         time: sim.time,
         wall_seconds: wall,
         setup_seconds,
+        output_seconds,
+        halo_wait_seconds: halo_wait,
         node_substeps_per_second: (n as f64 * sim.step as f64 * sim.substeps as f64) / wall.max(1e-12),
+        peak_memory_mib: peak / 1048576.0,
+        rank0_scatter_peak_mib: rank0_scatter_peak as f64 / 1048576.0,
         max_displacement: umax,
         max_displacement_node: mesh.node_ids[imax],
         max_displacement_at: mesh.points[imax],
-        total_energy: total_energy(&sim.vol_global, &g.phi),
+        total_energy: total,
         max_speed: sim.max_speed,
         loads: sim
             .loads
             .iter()
             .zip(&probes)
             .map(|(l, (f, d))| LoadSummary {
-                node: mesh.node_ids[l.nodes[0] as usize],
+                node: l.node_ids[0],
                 force: *f,
                 displacement: *d,
             })

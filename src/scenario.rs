@@ -332,8 +332,10 @@ pub enum Stop {
 /// A resolved load.
 #[derive(Clone, Debug)]
 pub struct Load {
-    /// Contact nodes and their weights (summing to 1).
+    /// Contact nodes (global indices) and their weights (summing to 1).
     pub nodes: Vec<u32>,
+    /// Their ids in the mesh file, for messages.
+    pub node_ids: Vec<u64>,
     pub weights: Vec<f64>,
     /// Force at ramp scale 1.
     pub force: [f64; 3],
@@ -613,6 +615,7 @@ impl Setup {
             }
             loads.push(Load {
                 nodes: vec![node],
+                node_ids: vec![mesh.node_ids[node as usize]],
                 weights: vec![1.0],
                 force,
                 area: 0.0,
@@ -684,6 +687,33 @@ impl Setup {
             fixed,
             loads,
         })
+    }
+}
+
+impl Setup {
+    /// The view of one process: the plan's cells and nodes renumbered locally (owned, then
+    /// halo) with their per-node arrays. Loads keep their global node indices.
+    pub fn restrict(&self, plan: &eprop_partition::Plan) -> Setup {
+        let pick = |g: &u32| *g as usize;
+        Setup {
+            scenario: self.scenario.clone(),
+            mesh: crate::solver::local_mesh(&self.mesh, plan),
+            r: plan.global.iter().map(|g| self.r[pick(g)]).collect(),
+            mass: plan.global.iter().map(|g| self.mass[pick(g)]).collect(),
+            damping: plan.global.iter().map(|g| self.damping[pick(g)]).collect(),
+            fixed: plan.global.iter().map(|g| self.fixed[pick(g)]).collect(),
+            loads: self.loads.clone(),
+            scheme: self.scheme,
+            stiffness: self.stiffness,
+            coupling: self.coupling,
+            exponent: self.exponent,
+            law: self.law,
+            stop: self.stop,
+            dt: self.dt,
+            h: self.h,
+            output: self.output.clone(),
+            every: self.every,
+        }
     }
 }
 

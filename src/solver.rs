@@ -34,18 +34,21 @@ pub fn hash_unit(mut x: u64) -> f64 {
     (x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
 }
 
-/// The propagation state and operator of one process.
+/// The propagation state and operator of one process. Rows `0..n_interior` read owned
+/// values only; rows `n_interior..n_rows` also read halo values.
 pub struct Propagation {
     pub op: Operator,
     pub phi: Vec<V3>,
     next: Vec<V3>,
     grad: Vec<[f64; 9]>,
+    n_interior: usize,
 }
 
 impl Propagation {
-    pub fn new(op: Operator, n_local: usize) -> Self {
+    pub fn new(op: Operator, n_local: usize, n_interior: usize) -> Self {
         let ng = if op.needs_gradients() { n_local } else { 0 };
         Propagation {
+            n_interior: n_interior.min(op.n_rows()),
             op,
             phi: vec![[0.0; 3]; n_local],
             next: vec![[0.0; 3]; n_local],
@@ -53,23 +56,36 @@ impl Propagation {
         }
     }
 
-    /// One forward Euler substep of size h with nodal sources `q` (owned node, Q); the
-    /// halo of the new potential is refreshed before returning.
+    /// One forward Euler substep of size h with nodal sources `q` (owned node, Q). The halo of
+    /// phi is refreshed first, while the interior rows are computed; the border rows follow.
     pub fn substep(&mut self, h: f64, q: &[(u32, V3)], comm: &dyn Comm) {
-        let n = self.op.n_rows();
-        if self.op.needs_gradients() {
-            self.op.gradients(&self.phi, &mut self.grad);
-            comm.exchange(self.grad.as_flattened_mut(), 9);
+        let (n, ni) = (self.op.n_rows(), self.n_interior);
+        let Propagation {
+            op, phi, next, grad, ..
+        } = self;
+        if op.needs_gradients() {
+            comm.exchange_overlapped(phi.as_flattened_mut(), 3, &mut |x| {
+                op.gradients(as_v3(x), grad, 0..ni);
+            });
+            op.gradients(phi, grad, ni..n);
+            let phi: &[V3] = phi;
+            comm.exchange_overlapped(grad.as_flattened_mut(), 9, &mut |g| {
+                op.step_rows(phi, g.as_chunks::<9>().0, next, h, 0..ni);
+            });
+            op.step_rows(phi, grad, next, h, ni..n);
+        } else {
+            comm.exchange_overlapped(phi.as_flattened_mut(), 3, &mut |x| {
+                op.step_rows(as_v3(x), &[], next, h, 0..ni);
+            });
+            op.step_rows(phi, &[], next, h, ni..n);
         }
-        self.op.step_rows(&self.phi, &self.grad, &mut self.next, h, 0..n);
         for &(i, qi) in q {
-            let y = &mut self.next[i as usize];
+            let y = &mut next[i as usize];
             y[0] += h * qi[0];
             y[1] += h * qi[1];
             y[2] += h * qi[2];
         }
-        std::mem::swap(&mut self.phi, &mut self.next);
-        comm.exchange(self.phi.as_flattened_mut(), 3);
+        std::mem::swap(phi, next);
     }
 
     /// One substep on a single process (tests).
@@ -80,7 +96,8 @@ impl Propagation {
     /// y = L x on the owned rows; x must have a current halo.
     pub fn apply_with(&mut self, x: &[V3], y: &mut [V3], comm: &dyn Comm) {
         if self.op.needs_gradients() {
-            self.op.gradients(x, &mut self.grad);
+            let n = self.op.n_rows();
+            self.op.gradients(x, &mut self.grad, 0..n);
             comm.exchange(self.grad.as_flattened_mut(), 9);
         }
         self.op.apply(x, &self.grad, y);
@@ -178,6 +195,11 @@ impl Propagation {
     }
 }
 
+/// 3-vectors seen in a flat slice.
+fn as_v3(x: &[f64]) -> &[V3] {
+    x.as_chunks::<3>().0
+}
+
 /// A load as applied at one instant.
 #[derive(Clone, Copy, Debug)]
 pub struct Applied {
@@ -187,24 +209,118 @@ pub struct Applied {
     pub sigma: f64,
 }
 
-/// Global arrays gathered on rank 0 for output.
-pub struct GlobalState {
-    pub u: Vec<V3>,
-    pub v: Vec<V3>,
-    pub phi: Vec<V3>,
+/// Moves owned values into contiguous blocks of the global node order for output: process r
+/// holds rows `start..start + len`, with `start = r N / P`. Built once; each use is one
+/// all-to-all, so no process ever holds a global array.
+pub struct Blocks {
+    pub start: usize,
+    pub len: usize,
+    send_order: Vec<u32>,
+    counts: Vec<usize>,
+    place: Vec<u32>,
+}
+
+impl Blocks {
+    pub fn new(gid_owned: &[u64], n_global: usize, comm: &dyn Comm) -> Blocks {
+        let p = comm.size();
+        let first = |r: usize| (r * n_global) / p;
+        let owner = |g: u64| {
+            // the last r with first(r) <= g
+            let mut r = ((g as usize + 1) * p).div_ceil(n_global.max(1)).min(p) - 1;
+            while first(r) > g as usize {
+                r -= 1;
+            }
+            while r + 1 < p && first(r + 1) <= g as usize {
+                r += 1;
+            }
+            r
+        };
+        let mut items: Vec<(usize, u64, u32)> = gid_owned
+            .iter()
+            .enumerate()
+            .map(|(l, &g)| (owner(g), g, l as u32))
+            .collect();
+        items.sort_unstable();
+        let mut counts = vec![0usize; p];
+        for it in &items {
+            counts[it.0] += 1;
+        }
+        let gids: Vec<f64> = items.iter().map(|it| it.1 as f64).collect();
+        let me = comm.rank();
+        let start = first(me);
+        let got = comm.all_to_all(&gids, &counts);
+        Blocks {
+            start,
+            len: first(me + 1) - start,
+            send_order: items.iter().map(|it| it.2).collect(),
+            counts,
+            place: got.iter().map(|&g| (g as usize - start) as u32).collect(),
+        }
+    }
+
+    /// This process's block of a per-node array (`stride` values per node) from the owned values.
+    pub fn collect(&self, owned: &[f64], stride: usize, comm: &dyn Comm) -> Vec<f64> {
+        let mut send = Vec::with_capacity(self.send_order.len() * stride);
+        for &l in &self.send_order {
+            send.extend_from_slice(&owned[l as usize * stride..(l as usize + 1) * stride]);
+        }
+        let counts: Vec<usize> = self.counts.iter().map(|c| c * stride).collect();
+        let got = comm.all_to_all(&send, &counts);
+        let mut out = vec![0.0; self.len * stride];
+        for (k, &at) in self.place.iter().enumerate() {
+            out[at as usize * stride..(at as usize + 1) * stride].copy_from_slice(&got[k * stride..(k + 1) * stride]);
+        }
+        out
+    }
+}
+
+/// A Morton (Z-order) index of every node inside the mesh's bounding box: sorting by it
+/// keeps nodes that are close in space close in memory.
+pub fn morton_keys(mesh: &Mesh) -> Vec<u64> {
+    let (lo, hi) = mesh.bounds();
+    let spread = |mut x: u64| {
+        x &= 0x1f_ffff;
+        x = (x | x << 32) & 0x1f00000000ffff;
+        x = (x | x << 16) & 0x1f0000ff0000ff;
+        x = (x | x << 8) & 0x100f00f00f00f00f;
+        x = (x | x << 4) & 0x10c30c30c30c30c3;
+        (x | x << 2) & 0x1249249249249249
+    };
+    mesh.points
+        .iter()
+        .map(|p| {
+            let mut k = 0u64;
+            for d in 0..3 {
+                let w = hi[d] - lo[d];
+                let t = if w > 0.0 {
+                    ((p[d] - lo[d]) / w).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                k |= spread((t * 2097151.0) as u64) << d;
+            }
+            k
+        })
+        .collect()
 }
 
 /// One simulation on this process's part of the mesh (all of it on one process).
 /// Local numbering: owned nodes first, then halo nodes; per-node arrays cover both, and only
 /// owned entries are computed here (halo entries are copies from their owners).
 pub struct Simulation {
+    /// This process's view of the scenario: its local mesh and per-node arrays in local
+    /// numbering (loads keep global node indices).
     pub setup: Setup,
     pub comm: Box<dyn Comm>,
-    /// The local mesh (None on one process: the whole mesh in `setup.mesh` is used).
-    pub local: Option<Mesh>,
+    /// The whole mesh, on the process that writes the static part of the output (rank 0).
+    pub global: Option<Mesh>,
+    pub n_global: usize,
     /// Global node index of each local node.
     pub gid: Vec<u64>,
     pub n_owned: usize,
+    pub n_interior: usize,
+    /// Output blocks of the global node order.
+    pub blocks: Blocks,
     pub dual: Dual,
     pub prop: Propagation,
     /// nodes that move: not fixed and with a control volume
@@ -215,8 +331,10 @@ pub struct Simulation {
     pub loads: Vec<Load>,
     /// owned contact nodes of each load (local index, weight)
     pub load_local: Vec<Vec<(u32, f64)>>,
-    /// control volumes of every node in global order (rank 0 only; empty elsewhere)
-    pub vol_global: Vec<f64>,
+    /// control volumes of this process's output block
+    pub vol_block: Vec<f64>,
+    /// nodes of the whole mesh that belong to no cell; fixed nodes of the whole mesh
+    pub fixed_nodes: usize,
     pub h: f64,
     pub h_bound: f64,
     pub dt: f64,
@@ -247,37 +365,41 @@ pub fn local_mesh(global: &Mesh, plan: &Plan) -> Mesh {
 }
 
 impl Simulation {
-    /// A simulation on one process.
+    /// A simulation on one process (nodes reordered for locality; output in input order).
     pub fn new(setup: Setup) -> Result<Simulation> {
-        Self::new_with(setup, Box::new(Serial), None)
+        let m = &setup.mesh;
+        let part = vec![0u32; m.n_nodes()];
+        let plan = Plan::new(m.n_nodes(), &m.offsets, &m.conn, &part, 0, Some(&morton_keys(m)));
+        let local = setup.restrict(&plan);
+        Self::new_with(local, Box::new(Serial), plan, Some(setup.mesh))
     }
 
-    /// A simulation of this process's part: `plan` None means the whole mesh.
-    pub fn new_with(setup: Setup, comm: Box<dyn Comm>, plan: Option<Plan>) -> Result<Simulation> {
-        let local = plan.as_ref().map(|p| local_mesh(&setup.mesh, p));
-        let mesh = local.as_ref().unwrap_or(&setup.mesh);
+    /// A simulation of this process's part: `setup` is its local view (`Setup::restrict`),
+    /// `global` the whole mesh on the process that writes the static output.
+    pub fn new_with(setup: Setup, comm: Box<dyn Comm>, plan: Plan, global: Option<Mesh>) -> Result<Simulation> {
+        let mesh = &setup.mesh;
         let nl = mesh.n_nodes();
-        let (gid, n_owned): (Vec<u64>, usize) = match &plan {
-            Some(p) => (p.global.iter().map(|&g| g as u64).collect(), p.n_owned),
-            None => ((0..nl as u64).collect(), nl),
-        };
-        let g = |i: usize| gid[i] as usize;
+        let gid: Vec<u64> = plan.global.iter().map(|&g| g as u64).collect();
+        let (n_owned, n_interior) = (plan.n_owned, plan.n_interior);
+        let n_global = comm.sum_i128(n_owned as i128) as usize;
         let inc = Incidence::new(mesh);
-        let dual = Dual::build(mesh, &inc, n_owned, plan.as_ref().map(|_| gid.as_slice()));
+        let dual = Dual::build(mesh, &inc, n_owned, Some(gid.as_slice()));
         let inactive_nodes = comm.sum_i128(dual.vol.iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
         // activity of halo nodes comes from their owners; only fixedness matters there
         let active: Vec<bool> = (0..nl)
-            .map(|i| !setup.fixed[g(i)] && (i >= n_owned || dual.vol[i] > 0.0))
+            .map(|i| !setup.fixed[i] && (i >= n_owned || dual.vol[i] > 0.0))
             .collect();
-        let r: Vec<_> = (0..nl).map(|i| setup.r[g(i)]).collect();
+        let fixed_nodes = comm.sum_i128(setup.fixed[..n_owned].iter().filter(|&&b| b).count() as i128) as usize;
+        let r = &setup.r;
         let op = match setup.scheme {
             Scheme::Compact => {
-                let a = compact_coefficients(mesh, &inc, &dual, &r);
+                let a = compact_coefficients(mesh, &inc, &dual, r);
                 Operator::Compact(Compact::new(&dual, &a, &active))
             }
-            Scheme::Paper { correction } => Operator::Paper(Paper::new(&dual, &mesh.points, &r, &active, correction)),
+            Scheme::Paper { correction } => Operator::Paper(Paper::new(&dual, &mesh.points, r, &active, correction)),
         };
-        let mut prop = Propagation::new(op, nl);
+        drop(inc);
+        let mut prop = Propagation::new(op, nl, n_interior);
         let h_bound = prop.stable_h(&active, &gid, comm.as_ref());
         let sc = &setup.scenario;
 
@@ -285,7 +407,7 @@ impl Simulation {
         let dt_bound = comm.min(
             (0..n_owned)
                 .filter(|&i| active[i])
-                .map(|i| dt_bound_node(setup.mass[g(i)], setup.damping[g(i)], setup.stiffness))
+                .map(|i| dt_bound_node(setup.mass[i], setup.damping[i], setup.stiffness))
                 .fold(f64::INFINITY, f64::min),
         );
         let dt = match setup.dt {
@@ -342,7 +464,7 @@ impl Simulation {
                     "{}: load {} on node {}: the node is inside the volume (no boundary area), so no contact stress is defined; fix: load a surface node (`nearest` picks one)",
                     sc.path.display(),
                     k + 1,
-                    setup.mesh.node_ids[l.nodes[0] as usize]
+                    l.node_ids[0]
                 );
             }
             l.area = an;
@@ -351,7 +473,8 @@ impl Simulation {
             }
             load_local.push(mine);
         }
-        let vol_global: Vec<f64> = comm.gather(&dual.vol, 1).unwrap_or_default();
+        let blocks = Blocks::new(&gid[..n_owned], n_global, comm.as_ref());
+        let vol_block = blocks.collect(&dual.vol, 1, comm.as_ref());
         Ok(Simulation {
             u: vec![[0.0; 3]; nl],
             v: vec![[0.0; 3]; nl],
@@ -361,7 +484,11 @@ impl Simulation {
             active,
             loads,
             load_local,
-            vol_global,
+            vol_block,
+            fixed_nodes,
+            blocks,
+            n_global,
+            n_interior,
             h,
             h_bound,
             dt,
@@ -373,7 +500,7 @@ impl Simulation {
             inactive_nodes,
             setup,
             comm,
-            local,
+            global,
             gid,
             n_owned,
         })
@@ -470,55 +597,71 @@ impl Simulation {
         }
     }
 
-    /// Gathers u, v and phi of every node to rank 0 (None elsewhere).
-    pub fn gather(&self) -> Option<GlobalState> {
-        let n = self.n_owned;
-        let c = self.comm.as_ref();
-        let u = c.gather(self.u[..n].as_flattened(), 3);
-        let v = c.gather(self.v[..n].as_flattened(), 3);
-        let p = c.gather(self.prop.phi[..n].as_flattened(), 3);
-        let unflat = |x: Vec<f64>| x.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<V3>>();
-        Some(GlobalState {
-            u: unflat(u?),
-            v: unflat(v?),
-            phi: unflat(p?),
-        })
-    }
-
-    /// Probes per load from global displacements: (applied force, contact displacement).
-    pub fn probes(&self, u: &[V3]) -> Vec<(V3, V3)> {
+    /// Per load: (applied force, weighted displacement of its contact nodes), the same on
+    /// every process (exact sums).
+    pub fn probes(&self) -> Vec<(V3, V3)> {
         let applied = self.applied(self.time);
-        self.loads
+        self.load_local
             .iter()
             .zip(&applied)
-            .map(|(l, a)| {
+            .map(|(mine, a)| {
                 let mut d = [0.0; 3];
-                for (&i, &w) in l.nodes.iter().zip(&l.weights) {
-                    let ui = u[i as usize];
-                    d = [d[0] + w * ui[0], d[1] + w * ui[1], d[2] + w * ui[2]];
+                for c in 0..3 {
+                    d[c] = exact_sum(self.comm.as_ref(), mine.iter().map(|&(i, w)| w * self.u[i as usize][c]));
                 }
                 (a.force, d)
             })
             .collect()
     }
 
+    /// Sum of V_i |phi_i| over the mesh (exact sum).
+    pub fn total_energy(&self) -> f64 {
+        let n = self.n_owned;
+        exact_sum(
+            self.comm.as_ref(),
+            self.dual.vol[..n]
+                .iter()
+                .zip(&self.prop.phi[..n])
+                .map(|(v, p)| v * norm(*p)),
+        )
+    }
+
+    /// Largest |u| and the global index of its node (ties: the lowest index).
+    pub fn max_displacement(&self) -> (f64, u64) {
+        let n = self.n_owned;
+        let (mut best, mut at) = (-1.0, u64::MAX);
+        for i in 0..n {
+            let m = norm(self.u[i]);
+            if m > best || (m == best && self.gid[i] < at) {
+                (best, at) = (m, self.gid[i]);
+            }
+        }
+        let all = self.comm.all_gather(&[best, at as f64]);
+        let (mut best, mut at) = (-1.0, u64::MAX);
+        for c in all.chunks(2) {
+            let (m, g) = (c[0], c[1] as u64);
+            if m > best || (m == best && g < at) {
+                (best, at) = (m, g);
+            }
+        }
+        (best.max(0.0), at)
+    }
+
+    /// Local index of a global node owned here.
+    pub fn local(&self, global: u32) -> Option<usize> {
+        self.gid[..self.n_owned].iter().position(|&g| g == global as u64)
+    }
+
+    /// This process's output block of a per-node array (global node order), flattened.
+    pub fn in_output_order(&self, x: &[V3]) -> Vec<f64> {
+        self.blocks
+            .collect(x[..self.n_owned].as_flattened(), 3, self.comm.as_ref())
+    }
+
     /// The local mesh this process computes on.
     pub fn mesh(&self) -> &Mesh {
-        self.local.as_ref().unwrap_or(&self.setup.mesh)
+        &self.setup.mesh
     }
-}
-
-/// Sum of V_i |phi_i| (global arrays).
-pub fn total_energy(vol: &[f64], phi: &[V3]) -> f64 {
-    phi.iter().zip(vol).map(|(p, v)| v * norm(*p)).sum()
-}
-
-/// Largest |u| and its node (global arrays).
-pub fn max_displacement(u: &[V3]) -> (f64, usize) {
-    u.iter()
-        .enumerate()
-        .map(|(i, u)| (norm(*u), i))
-        .fold((0.0, 0), |a, b| if b.0 > a.0 { b } else { a })
 }
 
 pub fn scheme_name(s: Scheme) -> &'static str {

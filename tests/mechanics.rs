@@ -18,7 +18,7 @@ fn equilibrium_is_force_plus_pushed_potential_over_stiffness() {
             s.advance();
         }
         assert!(s.max_speed < 1e-12, "no equilibrium after {} steps", s.step);
-        let c = s.loads[0].nodes[0] as usize;
+        let c = s.local(s.loads[0].nodes[0]).unwrap();
         let scale = norm(s.u[c]);
         for i in 0..s.u.len() {
             if !s.active[i] {
@@ -51,7 +51,7 @@ fn contact_after_20(force: f64, damping: f64) -> f64 {
     while !s.done() {
         s.advance();
     }
-    norm(s.u[s.loads[0].nodes[0] as usize])
+    norm(s.u[s.local(s.loads[0].nodes[0]).unwrap()])
 }
 
 #[test]

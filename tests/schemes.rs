@@ -217,7 +217,7 @@ fn steady_state_matches_a_direct_solve() {
     let toml = "[material]\nconductivity = [1.0, 0.6, 0.8]\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [1.0, 0.25, 0.25]\nforce = [1.0, 0.5, -0.3]\n[time]\nsteps = 1\n";
     let mut s = sim(mesh, toml);
     let n = s.u.len();
-    let c = s.loads[0].nodes[0] as usize;
+    let c = s.local(s.loads[0].nodes[0]).unwrap();
     let qv = [0.7, -0.2, 0.4];
     let q = vec![(c as u32, qv)];
     // explicit Euler to steady state

@@ -9,11 +9,30 @@
 
 use crate::mesh::{CellKind, Mesh};
 use anyhow::{anyhow, Context, Result};
+use hdf5::dataset::AllocTime;
 use hdf5::types::{FixedAscii, VarLenUnicode};
 use hdf5::{Dataset, Extent, File};
-use ndarray::{s, ArrayView1, ArrayView2, ArrayView3};
+use ndarray::{s, ArrayView3};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
+
+/// Sizes of the whole mesh (every process knows them; only one holds the mesh itself).
+#[derive(Clone, Copy, Debug)]
+pub struct Layout {
+    pub nodes: usize,
+    pub cells: usize,
+    pub conn: usize,
+}
+
+impl Layout {
+    pub fn of(mesh: &Mesh) -> Layout {
+        Layout {
+            nodes: mesh.n_nodes(),
+            cells: mesh.n_cells(),
+            conn: mesh.conn.len(),
+        }
+    }
+}
 
 /// What a series holds besides the mesh.
 pub struct SeriesSpec<'a> {
@@ -23,11 +42,14 @@ pub struct SeriesSpec<'a> {
     pub n_loads: usize,
     /// Contact node of each load (input order index), stored once.
     pub load_nodes: Vec<u64>,
-    /// The scenario text, stored verbatim.
+    /// The scenario text, stored verbatim (UTF-8 bytes).
     pub scenario: &'a str,
     /// Program name and version.
     pub version: &'a str,
-    /// Control volume V_i of each node.
+    /// This process's rows of the output: `block_start..block_start + block_len`.
+    pub block_start: usize,
+    pub block_len: usize,
+    /// Control volume V_i of each node of this process's block.
     pub control_volumes: &'a [f64],
     /// Extra scalar attributes on `/eprop` (name, value).
     pub attrs: Vec<(&'a str, f64)>,
@@ -40,11 +62,16 @@ struct Field {
     offsets: Dataset,
 }
 
-/// Appends output steps to one VTKHDF file.
+/// Appends output steps to one VTKHDF file. Under MPI every process opens the file (MPI-IO),
+/// makes the same metadata calls, and writes its own block of rows of every point array in
+/// one collective transfer; the static mesh and the small per-step tables come from rank 0.
 pub struct SeriesWriter {
     path: PathBuf,
     file: File,
     n_points: usize,
+    block: (usize, usize),
+    root: bool,
+    parallel: bool,
     fields: Vec<Field>,
     steps: hdf5::Group,
     step_sets: Vec<Dataset>,
@@ -61,30 +88,102 @@ fn h5<T>(r: hdf5::Result<T>, path: &Path, what: &str) -> Result<T> {
     r.map_err(|e| anyhow!("{}: {what}: {e}", path.display()))
 }
 
-fn growing(group: &hdf5::Group, name: &str, tail: &[usize], chunk_rows: usize, path: &Path) -> Result<Dataset> {
+fn growing(
+    group: &hdf5::Group,
+    name: &str,
+    tail: &[usize],
+    chunk_rows: usize,
+    parallel: bool,
+    path: &Path,
+) -> Result<Dataset> {
     let mut ext = vec![Extent::resizable(0)];
     let mut chunk = vec![chunk_rows.max(1)];
     for &t in tail {
         ext.push(Extent::fixed(t));
         chunk.push(t);
     }
-    h5(
-        group.new_dataset::<f64>().chunk(chunk).shape(ext).create(name),
-        path,
-        &format!("create {name}"),
-    )
+    let b = group.new_dataset::<f64>().chunk(chunk).shape(ext);
+    let b = if parallel {
+        b.alloc_time(Some(AllocTime::Early))
+    } else {
+        b
+    };
+    h5(b.create(name), path, &format!("create {name}"))
 }
 
-fn growing_i64(group: &hdf5::Group, name: &str, path: &Path) -> Result<Dataset> {
-    h5(
-        group
-            .new_dataset::<i64>()
-            .chunk(1024)
-            .shape(Extent::resizable(0))
-            .create(name),
-        path,
-        &format!("create {name}"),
-    )
+fn growing_i64(group: &hdf5::Group, name: &str, parallel: bool, path: &Path) -> Result<Dataset> {
+    let b = group.new_dataset::<i64>().chunk(1024).shape(Extent::resizable(0));
+    let b = if parallel {
+        b.alloc_time(Some(AllocTime::Early))
+    } else {
+        b
+    };
+    h5(b.create(name), path, &format!("create {name}"))
+}
+
+/// A fixed-size dataset created by every process and filled by the one holding `data`.
+fn fixed<T: hdf5::H5Type>(
+    group: &hdf5::Group,
+    name: &str,
+    shape: &[usize],
+    data: Option<&[T]>,
+    path: &Path,
+) -> Result<()> {
+    let ds = h5(group.new_dataset::<T>().shape(shape).create(name), path, name)?;
+    if let Some(d) = data {
+        if !d.is_empty() {
+            let v = ndarray::ArrayViewD::from_shape(shape, d).map_err(|e| anyhow!("{name}: {e}"))?;
+            h5(ds.write(v), path, name)?;
+        }
+    }
+    Ok(())
+}
+
+/// Writes rows `row0..row0 + rows` (`ncomp` values each) of a dataset, collectively under MPI
+/// (every process calls, some with no rows).
+fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64], parallel: bool) -> Result<()> {
+    use hdf5_sys::h5d::H5Dwrite;
+    use hdf5_sys::h5p::{H5Pclose, H5Pcreate, H5P_CLS_DATASET_XFER};
+    use hdf5_sys::h5s::{H5S_seloper_t, H5Sclose, H5Screate_simple, H5Sselect_hyperslab, H5Sselect_none};
+    use hdf5_sys::h5t::H5T_NATIVE_DOUBLE;
+    if data.len() != rows * ncomp {
+        return Err(anyhow!("internal: {} values for {rows} rows of {ncomp}", data.len()));
+    }
+    let nd = ds.ndim();
+    let start = [row0 as u64, 0];
+    let count = [rows as u64, ncomp as u64];
+    let mdims = [(rows * ncomp).max(1) as u64];
+    // SAFETY: plain HDF5 C calls on ids owned here or by `ds`; buffers outlive the calls.
+    let status = unsafe {
+        let fs = hdf5_sys::h5d::H5Dget_space(ds.id());
+        let ms = H5Screate_simple(1, mdims.as_ptr(), std::ptr::null());
+        if rows == 0 {
+            H5Sselect_none(fs);
+            H5Sselect_none(ms);
+        } else {
+            H5Sselect_hyperslab(
+                fs,
+                H5S_seloper_t::H5S_SELECT_SET,
+                start.as_ptr(),
+                std::ptr::null(),
+                count[..nd].as_ptr(),
+                std::ptr::null(),
+            );
+        }
+        let dxpl = H5Pcreate(*H5P_CLS_DATASET_XFER);
+        if parallel {
+            hdf5_sys::h5p::H5Pset_dxpl_mpio(dxpl, hdf5_sys::h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
+        }
+        let st = H5Dwrite(ds.id(), *H5T_NATIVE_DOUBLE, ms, fs, dxpl, data.as_ptr().cast());
+        H5Pclose(dxpl);
+        H5Sclose(ms);
+        H5Sclose(fs);
+        st
+    };
+    if status < 0 {
+        return Err(anyhow!("writing rows {row0}..{} of {} failed", row0 + rows, ds.name()));
+    }
+    Ok(())
 }
 
 /// VTK connectivity order of a cell (VTK wedges wind their first triangle the other way).
@@ -96,18 +195,35 @@ pub fn vtk_order(kind: CellKind, nodes: &[u32]) -> Vec<u32> {
 }
 
 impl SeriesWriter {
-    /// Creates (truncates) the file and writes the static mesh.
-    pub fn create(path: &Path, mesh: &Mesh, spec: &SeriesSpec) -> Result<Self> {
-        let file = File::create(path).map_err(|e| {
+    /// Creates (truncates) the file and writes the static mesh. `mesh` is given on exactly one
+    /// process (rank 0), `comm` under MPI (then every process of it must call).
+    pub fn create(
+        path: &Path,
+        layout: Layout,
+        mesh: Option<&Mesh>,
+        spec: &SeriesSpec,
+        comm: Option<&mpi::topology::SimpleCommunicator>,
+    ) -> Result<Self> {
+        let parallel = comm.is_some();
+        let root = mesh.is_some();
+        let file = match comm {
+            Some(c) => {
+                use mpi::raw::AsRaw;
+                let raw = c.as_raw();
+                File::with_options().with_fapl(|p| p.mpio(raw, None)).create(path)
+            }
+            None => File::create(path),
+        }
+        .map_err(|e| {
             anyhow!(
                 "{}: cannot create the output file: {e}; fix: check that the directory exists and is writable",
                 path.display()
             )
         })?;
-        let n = mesh.n_nodes();
-        let root = h5(file.create_group("VTKHDF"), path, "create /VTKHDF")?;
+        let n = layout.nodes;
+        let top = h5(file.create_group("VTKHDF"), path, "create /VTKHDF")?;
         h5(
-            root.new_attr::<i64>()
+            top.new_attr::<i64>()
                 .shape([2])
                 .create("Version")
                 .and_then(|a| a.write(&[2i64, 1])),
@@ -116,49 +232,55 @@ impl SeriesWriter {
         )?;
         let ty = FixedAscii::<16>::from_ascii(b"UnstructuredGrid").unwrap();
         h5(
-            root.new_attr::<FixedAscii<16>>()
+            top.new_attr::<FixedAscii<16>>()
                 .create("Type")
                 .and_then(|a| a.write_scalar(&ty)),
             path,
             "Type",
         )?;
 
-        let mut conn: Vec<i64> = Vec::with_capacity(mesh.conn.len());
-        let mut offs: Vec<i64> = Vec::with_capacity(mesh.n_cells() + 1);
-        let mut types: Vec<u8> = Vec::with_capacity(mesh.n_cells());
-        offs.push(0);
-        for c in 0..mesh.n_cells() {
-            conn.extend(vtk_order(mesh.kinds[c], mesh.cell(c)).iter().map(|&x| x as i64));
-            offs.push(conn.len() as i64);
-            types.push(mesh.kinds[c].vtk_type());
+        let (mut conn, mut offs, mut types, mut pts) = (vec![], vec![], vec![], vec![]);
+        if let Some(mesh) = mesh {
+            conn.reserve(mesh.conn.len());
+            offs.push(0i64);
+            for c in 0..mesh.n_cells() {
+                conn.extend(vtk_order(mesh.kinds[c], mesh.cell(c)).iter().map(|&x| x as i64));
+                offs.push(conn.len() as i64);
+                types.push(mesh.kinds[c].vtk_type());
+            }
+            pts = mesh.points.iter().flatten().copied().collect::<Vec<f64>>();
         }
-        let pts: Vec<f64> = mesh.points.iter().flatten().copied().collect();
-        let w1 = |name: &str, v: &[i64]| {
-            h5(
-                root.new_dataset_builder().with_data(v).create(name).map(|_| ()),
-                path,
-                name,
-            )
-        };
-        w1("NumberOfPoints", &[n as i64])?;
-        w1("NumberOfCells", &[mesh.n_cells() as i64])?;
-        w1("NumberOfConnectivityIds", &[conn.len() as i64])?;
-        w1("Connectivity", &conn)?;
-        w1("Offsets", &offs)?;
-        h5(
-            root.new_dataset_builder().with_data(&types).create("Types"),
+        let on_root = |v: &[i64]| Some(v.to_vec()).filter(|_| root);
+        let counts = [n as i64, layout.cells as i64, layout.conn as i64];
+        fixed(&top, "NumberOfPoints", &[1], on_root(&counts[0..1]).as_deref(), path)?;
+        fixed(&top, "NumberOfCells", &[1], on_root(&counts[1..2]).as_deref(), path)?;
+        fixed(
+            &top,
+            "NumberOfConnectivityIds",
+            &[1],
+            on_root(&counts[2..3]).as_deref(),
             path,
-            "Types",
         )?;
-        let pv = ArrayView2::from_shape((n, 3), &pts).unwrap();
-        h5(
-            root.new_dataset_builder().with_data(pv).create("Points"),
+        fixed(
+            &top,
+            "Connectivity",
+            &[layout.conn],
+            Some(&conn[..]).filter(|_| root),
             path,
-            "Points",
         )?;
+        fixed(
+            &top,
+            "Offsets",
+            &[layout.cells + 1],
+            Some(&offs[..]).filter(|_| root),
+            path,
+        )?;
+        fixed(&top, "Types", &[layout.cells], Some(&types[..]).filter(|_| root), path)?;
+        fixed(&top, "Points", &[n, 3], Some(&pts[..]).filter(|_| root), path)?;
+        drop((conn, offs, types, pts));
 
-        let pd = h5(root.create_group("PointData"), path, "PointData")?;
-        let steps = h5(root.create_group("Steps"), path, "Steps")?;
+        let pd = h5(top.create_group("PointData"), path, "PointData")?;
+        let steps = h5(top.create_group("Steps"), path, "Steps")?;
         h5(
             steps
                 .new_attr::<i64>()
@@ -170,7 +292,7 @@ impl SeriesWriter {
         let pdo = h5(steps.create_group("PointDataOffsets"), path, "PointDataOffsets")?;
         h5(steps.create_group("CellDataOffsets"), path, "CellDataOffsets")?;
         h5(steps.create_group("FieldDataOffsets"), path, "FieldDataOffsets")?;
-        let values = growing(&steps, "Values", &[], 1024, path)?;
+        let values = growing(&steps, "Values", &[], 1024, parallel, path)?;
         let mut step_sets = Vec::new();
         for name in [
             "PartOffsets",
@@ -179,17 +301,14 @@ impl SeriesWriter {
             "CellOffsets",
             "ConnectivityIdOffsets",
         ] {
-            step_sets.push(growing_i64(&steps, name, path)?);
+            step_sets.push(growing_i64(&steps, name, parallel, path)?);
         }
         let mut fields = Vec::new();
         for &(name, ncomp) in &spec.fields {
             let rows = n.clamp(1, (1 << 20) / (8 * ncomp));
-            let data = if ncomp == 1 {
-                growing(&pd, name, &[], rows, path)?
-            } else {
-                growing(&pd, name, &[ncomp], rows, path)?
-            };
-            let offsets = growing_i64(&pdo, name, path)?;
+            let tail: &[usize] = if ncomp == 1 { &[] } else { &[ncomp] };
+            let data = growing(&pd, name, tail, rows, parallel, path)?;
+            let offsets = growing_i64(&pdo, name, parallel, path)?;
             fields.push(Field {
                 name: name.to_string(),
                 ncomp,
@@ -221,49 +340,34 @@ impl SeriesWriter {
                 name,
             )?;
         }
-        let sc = VarLenUnicode::from_str(spec.scenario).unwrap();
-        h5(
-            ep.new_dataset::<VarLenUnicode>()
-                .create("scenario")
-                .and_then(|d| d.write_scalar(&sc)),
-            path,
-            "scenario",
-        )?;
-        h5(
-            ep.new_dataset_builder()
-                .with_data(spec.control_volumes)
-                .create("control_volumes"),
+        let text = spec.scenario.as_bytes();
+        fixed(&ep, "scenario", &[text.len()], Some(text).filter(|_| root), path)?;
+        let cv = h5(
+            ep.new_dataset::<f64>().shape([n]).create("control_volumes"),
             path,
             "control_volumes",
         )?;
-        let ids: Vec<i64> = mesh.node_ids.iter().map(|&x| x as i64).collect();
-        h5(
-            ep.new_dataset_builder().with_data(&ids).create("node_ids"),
-            path,
-            "node_ids",
-        )?;
-        h5(
-            ep.new_dataset_builder().with_data(&mesh.cell_tags).create("cell_tags"),
-            path,
-            "cell_tags",
-        )?;
+        write_rows(&cv, spec.block_start, spec.block_len, 1, spec.control_volumes, parallel)
+            .with_context(|| format!("{}: control_volumes", path.display()))?;
+        let ids: Option<Vec<i64>> = mesh.map(|m| m.node_ids.iter().map(|&x| x as i64).collect());
+        fixed(&ep, "node_ids", &[n], ids.as_deref(), path)?;
+        fixed(&ep, "cell_tags", &[layout.cells], mesh.map(|m| &m.cell_tags[..]), path)?;
         let pr = h5(ep.create_group("probes"), path, "probes")?;
         let ln: Vec<i64> = spec.load_nodes.iter().map(|&x| x as i64).collect();
-        h5(
-            pr.new_dataset_builder().with_data(&ln).create("node"),
-            path,
-            "probes/node",
-        )?;
+        fixed(&pr, "node", &[ln.len()], Some(&ln[..]).filter(|_| root), path)?;
         let nl = spec.n_loads.max(1);
-        let probe_time = growing(&pr, "time", &[], 1024, path)?;
-        let probe_step = growing_i64(&pr, "step", path)?;
-        let probe_force = growing(&pr, "force", &[nl, 3], 256, path)?;
-        let probe_disp = growing(&pr, "displacement", &[nl, 3], 256, path)?;
+        let probe_time = growing(&pr, "time", &[], 1024, parallel, path)?;
+        let probe_step = growing_i64(&pr, "step", parallel, path)?;
+        let probe_force = growing(&pr, "force", &[nl, 3], 256, parallel, path)?;
+        let probe_disp = growing(&pr, "displacement", &[nl, 3], 256, parallel, path)?;
         h5(file.flush(), path, "flush")?;
         Ok(SeriesWriter {
             path: path.to_path_buf(),
             file,
             n_points: n,
+            block: (spec.block_start, spec.block_len),
+            root,
+            parallel,
             fields,
             steps,
             step_sets,
@@ -277,43 +381,36 @@ impl SeriesWriter {
         })
     }
 
-    /// Appends one output step: `data[f]` holds field f for every node (node-major, components
-    /// interleaved); `probes[l]` = (applied force, contact displacement) of load l.
+    /// Appends one output step (every process calls): `data[f]` holds field f for this
+    /// process's block of nodes (node-major, components interleaved); `probes[l]` = (applied
+    /// force, contact displacement) of load l (used on rank 0).
     pub fn append(&mut self, time: f64, step: u64, data: &[&[f64]], probes: &[([f64; 3], [f64; 3])]) -> Result<()> {
         let k = self.n_steps;
         let n = self.n_points;
+        let (b0, bl) = self.block;
         let p = &self.path;
+        let root = self.root;
         for (f, d) in self.fields.iter().zip(data) {
-            if d.len() != n * f.ncomp {
-                return Err(anyhow!(
-                    "field {} has {} values, expected {}",
-                    f.name,
-                    d.len(),
-                    n * f.ncomp
-                ));
-            }
             if f.ncomp == 1 {
                 h5(f.data.resize([(k + 1) * n]), p, &f.name)?;
-                h5(
-                    f.data.write_slice(ArrayView1::from(*d), s![k * n..(k + 1) * n]),
-                    p,
-                    &f.name,
-                )?;
             } else {
                 h5(f.data.resize([(k + 1) * n, f.ncomp]), p, &f.name)?;
-                let v = ArrayView2::from_shape((n, f.ncomp), d).unwrap();
-                h5(f.data.write_slice(v, s![k * n..(k + 1) * n, ..]), p, &f.name)?;
             }
+            write_rows(&f.data, k * n + b0, bl, f.ncomp, d, self.parallel)
+                .with_context(|| format!("{}: {}", p.display(), f.name))?;
             h5(f.offsets.resize([k + 1]), p, &f.name)?;
-            h5(f.offsets.write_slice(&[(k * n) as i64], s![k..k + 1]), p, &f.name)?;
+            if root {
+                h5(f.offsets.write_slice(&[(k * n) as i64], s![k..k + 1]), p, &f.name)?;
+            }
         }
         for (i, ds) in self.step_sets.iter().enumerate() {
             let v = if i == 1 { 1i64 } else { 0 };
             h5(ds.resize([k + 1]), p, "Steps")?;
-            h5(ds.write_slice(&[v], s![k..k + 1]), p, "Steps")?;
+            if root {
+                h5(ds.write_slice(&[v], s![k..k + 1]), p, "Steps")?;
+            }
         }
         h5(self.values.resize([k + 1]), p, "Values")?;
-        h5(self.values.write_slice(&[time], s![k..k + 1]), p, "Values")?;
         let nl = self.n_loads;
         let mut fr = vec![0.0; nl * 3];
         let mut ds = vec![0.0; nl * 3];
@@ -322,13 +419,18 @@ impl SeriesWriter {
             ds[3 * l..3 * l + 3].copy_from_slice(u);
         }
         h5(self.probe_time.resize([k + 1]), p, "probes")?;
-        h5(self.probe_time.write_slice(&[time], s![k..k + 1]), p, "probes")?;
         h5(self.probe_step.resize([k + 1]), p, "probes")?;
-        h5(self.probe_step.write_slice(&[step as i64], s![k..k + 1]), p, "probes")?;
-        for (dset, v) in [(&self.probe_force, &fr), (&self.probe_disp, &ds)] {
+        for dset in [&self.probe_force, &self.probe_disp] {
             h5(dset.resize([k + 1, nl, 3]), p, "probes")?;
-            let view = ArrayView3::from_shape((1, nl, 3), v).unwrap();
-            h5(dset.write_slice(view, s![k..k + 1, .., ..]), p, "probes")?;
+        }
+        if root {
+            h5(self.values.write_slice(&[time], s![k..k + 1]), p, "Values")?;
+            h5(self.probe_time.write_slice(&[time], s![k..k + 1]), p, "probes")?;
+            h5(self.probe_step.write_slice(&[step as i64], s![k..k + 1]), p, "probes")?;
+            for (dset, v) in [(&self.probe_force, &fr), (&self.probe_disp, &ds)] {
+                let view = ArrayView3::from_shape((1, nl, 3), v).unwrap();
+                h5(dset.write_slice(view, s![k..k + 1, .., ..]), p, "probes")?;
+            }
         }
         self.n_steps = k + 1;
         let ns = self.n_steps as i64;

@@ -138,13 +138,17 @@ pub fn quality(xadj: &[usize], adj: &[u32], part: &[u32], nparts: usize) -> Qual
     }
 }
 
-/// What one process holds and exchanges. Local numbering: owned nodes (by global id), then
-/// halo nodes (by global id). Cells: every cell with an owned node, in global order.
+/// What one process holds and exchanges. Local numbering: owned interior nodes (no neighbour
+/// on another process), owned border nodes (sent to some neighbour), then halo nodes (copies
+/// of other processes' nodes, by global id). Owned nodes are sorted by an optional locality key
+/// (ties and no key: by global id). Cells: every cell with an owned node, in global order.
 #[derive(Debug, Clone)]
 pub struct Plan {
     pub rank: usize,
     /// Global id of each local node (owned first).
     pub global: Vec<u32>,
+    /// Owned nodes `0..n_interior` need no halo value; `n_interior..n_owned` do.
+    pub n_interior: usize,
     pub n_owned: usize,
     /// Global ids of the local cells, increasing.
     pub cells: Vec<u32>,
@@ -162,8 +166,16 @@ pub struct Neighbour {
 
 impl Plan {
     /// The plan of `rank` for a partition of the whole mesh (every process can compute every
-    /// plan from the same inputs; no messages are needed).
-    pub fn new(n_nodes: usize, offsets: &[usize], conn: &[u32], part: &[u32], rank: usize) -> Plan {
+    /// plan from the same inputs; no messages are needed). `key`, when given, is a locality
+    /// key per global node (for example a space-filling-curve index) that orders owned nodes.
+    pub fn new(
+        n_nodes: usize,
+        offsets: &[usize],
+        conn: &[u32],
+        part: &[u32],
+        rank: usize,
+        key: Option<&[u64]>,
+    ) -> Plan {
         let me = rank as u32;
         let n_cells = offsets.len() - 1;
         let cells: Vec<u32> = (0..n_cells)
@@ -178,13 +190,6 @@ impl Plan {
             .collect();
         halo.sort_unstable();
         halo.dedup();
-        let n_owned = owned.len();
-        let mut global = owned;
-        global.extend_from_slice(&halo);
-        let mut local = std::collections::HashMap::with_capacity(global.len());
-        for (l, &g) in global.iter().enumerate() {
-            local.insert(g, l as u32);
-        }
         // send: my owned nodes that share a local cell with a node of rank q
         let mut send: std::collections::BTreeMap<u32, Vec<u32>> = Default::default();
         for &c in &cells {
@@ -197,6 +202,26 @@ impl Plan {
                     }
                 }
             }
+        }
+        let mut border: Vec<u32> = send.values().flatten().copied().collect();
+        border.sort_unstable();
+        border.dedup();
+        let by_key = |v: &mut Vec<u32>| {
+            if let Some(k) = key {
+                v.sort_by_key(|&g| (k[g as usize], g));
+            }
+        };
+        let mut interior: Vec<u32> = owned.into_iter().filter(|g| border.binary_search(g).is_err()).collect();
+        by_key(&mut interior);
+        by_key(&mut border);
+        let n_interior = interior.len();
+        let n_owned = n_interior + border.len();
+        let mut global = interior;
+        global.extend_from_slice(&border);
+        global.extend_from_slice(&halo);
+        let mut local = std::collections::HashMap::with_capacity(global.len());
+        for (l, &g) in global.iter().enumerate() {
+            local.insert(g, l as u32);
         }
         let mut recv: std::collections::BTreeMap<u32, Vec<u32>> = Default::default();
         for &h in &halo {
@@ -216,6 +241,7 @@ impl Plan {
         Plan {
             rank,
             global,
+            n_interior,
             n_owned,
             cells,
             neighbours,
@@ -249,7 +275,10 @@ mod tests {
         for method in [Method::Block, Method::Metis] {
             for k in 1..=4 {
                 let part = partition(&xadj, &adj, k, method).unwrap();
-                let plans: Vec<Plan> = (0..k).map(|r| Plan::new(n, &off, &conn, &part, r)).collect();
+                let key: Vec<u64> = (0..n as u64).rev().collect();
+                let plans: Vec<Plan> = (0..k)
+                    .map(|r| Plan::new(n, &off, &conn, &part, r, if r % 2 == 0 { Some(&key) } else { None }))
+                    .collect();
                 assert_eq!(plans.iter().map(|p| p.n_owned).sum::<usize>(), n);
                 for p in &plans {
                     for nb in &p.neighbours {
@@ -257,6 +286,15 @@ mod tests {
                         let sent: Vec<u32> = nb.send.iter().map(|&l| p.global[l as usize]).collect();
                         let got: Vec<u32> = other.recv.iter().map(|&l| plans[nb.rank].global[l as usize]).collect();
                         assert_eq!(sent, got);
+                    }
+                    // interior nodes have no neighbour on another process; border nodes do
+                    for l in 0..p.n_owned {
+                        let g = p.global[l];
+                        let c = (0..off.len() - 1).filter(|&c| conn[off[c]..off[c + 1]].contains(&g));
+                        let foreign = c
+                            .flat_map(|c| conn[off[c]..off[c + 1]].to_vec())
+                            .any(|v| part[v as usize] as usize != p.rank);
+                        assert_eq!(foreign, l >= p.n_interior);
                     }
                     // every halo node is received from exactly one neighbour
                     let received: usize = p.neighbours.iter().map(|x| x.recv.len()).sum();
