@@ -17,7 +17,7 @@ through the volume with a vector Poisson equation (median-dual finite volumes, e
 and moves the nodes with damped dynamics driven by the propagated potential.\n\n\
 A run is described by a scenario file (TOML): mesh, material, model, fixed set, loads, time, output.\n\
 Results go to one HDF5 file (VTKHDF) that ParaView opens and h5py reads.",
-    after_help = "Examples:\n  eprop mesh cylinder -o cyl.msh\n  eprop info cyl.msh\n  eprop run scenarios/cylinder.toml\n  mpirun -n 2 eprop run scenarios/cylinder.toml --output out.h5"
+    after_help = "Examples:\n  eprop mesh cylinder -o cyl.msh\n  eprop info cyl.msh\n  eprop run scenarios/cylinder.toml\n  eprop partition cyl.msh --parts 4\n  mpirun -n 2 eprop run scenarios/cylinder.toml --output out.h5"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -63,6 +63,24 @@ contact displacement of each load. Run under mpirun for several processes.")]
     Info {
         /// Mesh file (.msh)
         mesh: PathBuf,
+        /// Print JSON
+        #[arg(long)]
+        json: bool,
+    },
+    /// Split a mesh's node graph for K processes and report the quality of the split.
+    #[command(
+        long_about = "Split a mesh's node graph for K processes (METIS k-way, as `mpirun -n K eprop run` \
+does) and report, for METIS and for a naive block split of the input numbering side by side:\n\
+  edge cut      graph edges between nodes of different parts (halo traffic)\n\
+  imbalance     largest part / mean part (the slowest process sets the pace)\n\
+  per part      owned nodes, halo nodes (copies received every substep), neighbour parts"
+    )]
+    Partition {
+        /// Mesh file
+        mesh: PathBuf,
+        /// Number of parts (processes)
+        #[arg(long, short = 'k', default_value_t = 2)]
+        parts: usize,
         /// Print JSON
         #[arg(long)]
         json: bool,
@@ -207,6 +225,15 @@ fn real_main(cli: Cli) -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&info)?);
             } else {
                 println!("{info}");
+            }
+        }
+        Cmd::Partition { mesh, parts, json } => {
+            let m = eprop_io::read_mesh(&mesh)?;
+            let report = eprop::run::partition_report(&m, parts)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                println!("{report}");
             }
         }
         Cmd::Mesh { shape } => {

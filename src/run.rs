@@ -504,3 +504,86 @@ impl std::fmt::Display for MeshInfo {
         Ok(())
     }
 }
+
+/// Quality of one split of the node graph.
+#[derive(Serialize, Debug)]
+pub struct SplitQuality {
+    pub method: String,
+    pub edge_cut: usize,
+    pub imbalance: f64,
+    pub owned: Vec<usize>,
+    pub halo: Vec<usize>,
+    pub neighbours: Vec<usize>,
+}
+
+/// What `eprop partition` reports: METIS beside a block split.
+#[derive(Serialize, Debug)]
+pub struct PartitionReport {
+    pub file: String,
+    pub nodes: usize,
+    pub graph_edges: usize,
+    pub parts: usize,
+    pub splits: Vec<SplitQuality>,
+}
+
+pub fn partition_report(mesh: &Mesh, parts: usize) -> Result<PartitionReport> {
+    use eprop_partition::{node_graph, partition, quality, Method};
+    let (xadj, adj) = node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
+    let mut splits = Vec::new();
+    for (name, method) in [("metis", Method::Metis), ("block", Method::Block)] {
+        let part = partition(&xadj, &adj, parts, method).map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
+        let q = quality(&xadj, &adj, &part, parts);
+        splits.push(SplitQuality {
+            method: name.to_string(),
+            edge_cut: q.edge_cut,
+            imbalance: q.imbalance,
+            owned: q.owned,
+            halo: q.halo,
+            neighbours: q.neighbours,
+        });
+    }
+    Ok(PartitionReport {
+        file: mesh.source.clone(),
+        nodes: mesh.n_nodes(),
+        graph_edges: adj.len() / 2,
+        parts,
+        splits,
+    })
+}
+
+impl std::fmt::Display for PartitionReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{}: {} nodes, {} graph edges, {} parts",
+            self.file, self.nodes, self.graph_edges, self.parts
+        )?;
+        for s in &self.splits {
+            let halo: usize = s.halo.iter().sum();
+            writeln!(
+                f,
+                "  {:<6} edge cut {} ({:.2}% of edges), imbalance {:.3}, halo nodes {} ({:.2}% of nodes)",
+                s.method,
+                s.edge_cut,
+                100.0 * s.edge_cut as f64 / self.graph_edges.max(1) as f64,
+                s.imbalance,
+                halo,
+                100.0 * halo as f64 / self.nodes.max(1) as f64
+            )?;
+        }
+        writeln!(
+            f,
+            "  part   {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}",
+            "metis:own", "halo", "nbrs", "block:own", "halo", "nbrs"
+        )?;
+        let (m, b) = (&self.splits[0], &self.splits[1]);
+        for p in 0..self.parts {
+            writeln!(
+                f,
+                "  {:<4}   {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}",
+                p, m.owned[p], m.halo[p], m.neighbours[p], b.owned[p], b.halo[p], b.neighbours[p]
+            )?;
+        }
+        Ok(())
+    }
+}

@@ -189,3 +189,132 @@ fn a_failing_rank_ends_the_job_quickly() {
     );
     assert!(t.elapsed() < Duration::from_secs(30));
 }
+
+/// Pids of the `eprop` processes started by `parent` (mpirun).
+fn children(parent: u32) -> Vec<i32> {
+    let mut out = vec![];
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        // pid (comm) state ppid ...
+        let Some(close) = stat.rfind(')') else { continue };
+        let comm = &stat[stat.find('(').unwrap_or(0) + 1..close];
+        let ppid: u32 = stat[close + 2..]
+            .split_whitespace()
+            .nth(1)
+            .and_then(|x| x.parse().ok())
+            .unwrap_or(0);
+        if ppid == parent && comm == "eprop" {
+            out.push(pid);
+        }
+    }
+    out
+}
+
+#[test]
+fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 6, 24).unwrap(), &mesh).unwrap();
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 100000000\n",
+            mesh.display()
+        ),
+    )
+    .unwrap();
+    let h5 = d.path().join("k.h5");
+    let mut child = Command::new("mpirun")
+        .args(["-n", "2", "--oversubscribe"])
+        .arg(env!("CARGO_BIN_EXE_eprop"))
+        .args(["run", sc.to_str().unwrap(), "-q", "-o", h5.to_str().unwrap()])
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("RAYON_NUM_THREADS", "1")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // wait until both ranks run and some steps are in the file
+    let t = Instant::now();
+    let ranks = loop {
+        let r = children(child.id());
+        if r.len() == 2 && h5.exists() && t.elapsed() > Duration::from_secs(2) {
+            break r;
+        }
+        assert!(t.elapsed() < Duration::from_secs(60), "the job did not start");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let killed = Instant::now();
+    Command::new("kill")
+        .args(["-9", &ranks[1].to_string()])
+        .status()
+        .unwrap();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if killed.elapsed() > Duration::from_secs(20) {
+            let _ = child.kill();
+            panic!("mpirun still runs 20 s after a rank was killed");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(!status.success(), "mpirun exited 0 after a rank was killed");
+    eprintln!("mpirun ended {:.2} s after kill -9", killed.elapsed().as_secs_f64());
+    // every flushed step is readable
+    let f = hdf5::File::open(&h5).expect("the file opens after the crash");
+    let done: i64 = f
+        .group("eprop")
+        .unwrap()
+        .attr("steps_complete")
+        .unwrap()
+        .read_scalar()
+        .unwrap();
+    assert!(done >= 1, "no complete step in the file");
+    let n: i64 = f.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0];
+    let u = f.dataset("VTKHDF/PointData/displacement").unwrap();
+    assert!(u.shape()[0] as i64 >= done * n);
+    let last = eprop_io::vtkhdf::read_step(&h5, "displacement", done as usize - 1).unwrap();
+    assert!(last.iter().all(|x| x.is_finite()));
+}
+
+#[test]
+fn more_ranks_than_nodes_is_a_clear_error() {
+    let d = tempfile::tempdir().unwrap();
+    let tiny = d.path().join("tiny.msh");
+    eprop_io::write_mesh(
+        &eprop_io::generate::box_mesh([1.0; 3], [1, 1, 1], eprop_io::generate::BoxCells::Tet).unwrap(),
+        &tiny,
+    )
+    .unwrap();
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+            tiny.display()
+        ),
+    )
+    .unwrap();
+    let out = mpirun(
+        9,
+        &[
+            "run",
+            sc.to_str().unwrap(),
+            "-q",
+            "-o",
+            d.path().join("t.h5").to_str().unwrap(),
+        ],
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("9 parts for 8 nodes") && err.contains("fix:"), "{err}");
+    assert_eq!(err.matches("9 parts for 8 nodes").count(), 1, "printed once: {err}");
+}
