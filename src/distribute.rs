@@ -15,6 +15,45 @@ pub struct GlobalSizes {
     pub nodes: usize,
     pub cells: usize,
     pub conn: usize,
+    /// A hash of the points, cells and node ids (restart checks it).
+    pub mesh_hash: u64,
+}
+
+impl GlobalSizes {
+    pub fn of(mesh: &Mesh) -> GlobalSizes {
+        let mut h = Fnv::default();
+        mesh.points.iter().flatten().for_each(|x| h.u64(x.to_bits()));
+        mesh.conn.iter().for_each(|&c| h.u64(c as u64));
+        mesh.kinds.iter().for_each(|&k| h.u64(kind_code(k) as u64));
+        mesh.node_ids.iter().for_each(|&i| h.u64(i));
+        GlobalSizes {
+            nodes: mesh.n_nodes(),
+            cells: mesh.n_cells(),
+            conn: mesh.conn.len(),
+            mesh_hash: h.0,
+        }
+    }
+}
+
+/// FNV-1a, 64 bit: a stable hash for identity checks (not for security).
+pub struct Fnv(pub u64);
+
+impl Default for Fnv {
+    fn default() -> Self {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv {
+    pub fn bytes(&mut self, b: &[u8]) {
+        for &x in b {
+            self.0 ^= x as u64;
+            self.0 = self.0.wrapping_mul(0x100_0000_01b3);
+        }
+    }
+    pub fn u64(&mut self, x: u64) {
+        self.bytes(&x.to_le_bytes());
+    }
 }
 
 /// What one process receives.
@@ -139,6 +178,7 @@ pub fn encode(setup: &Setup, plan: &Plan, sizes: GlobalSizes) -> Vec<u8> {
     w.u64(sizes.nodes as u64);
     w.u64(sizes.cells as u64);
     w.u64(sizes.conn as u64);
+    w.u64(sizes.mesh_hash);
     // plan
     w.u64(plan.rank as u64);
     w.u32s(&plan.global);
@@ -227,6 +267,7 @@ pub fn decode(bytes: &[u8]) -> Result<Part> {
         nodes: r.usize()?,
         cells: r.usize()?,
         conn: r.usize()?,
+        mesh_hash: r.u64()?,
     };
     let rank = r.usize()?;
     let global = r.u32s()?;

@@ -58,6 +58,10 @@ contact displacement of each load. Run under mpirun for several processes.")]
         /// No progress lines
         #[arg(long, short)]
         quiet: bool,
+        /// Continue the series in FILE (the output of an interrupted run of the same scenario and
+        /// mesh) from its last complete step; the result is bit for bit the uninterrupted run's
+        #[arg(long, value_name = "FILE")]
+        restart: Option<PathBuf>,
     },
     /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep.
     Info {
@@ -199,11 +203,16 @@ fn real_main(cli: Cli) -> Result<()> {
             steps,
             json,
             quiet,
+            restart,
         } => {
+            if restart.is_some() && output.is_some() {
+                bail!("--restart continues the series in its FILE; fix: leave out --output");
+            }
             let opts = RunOptions {
                 output,
                 steps,
                 quiet: quiet || json,
+                restart,
             };
             let summary = if under_mpirun() {
                 run_under_mpi(&scenario, &opts)

@@ -4,7 +4,7 @@ use crate::distribute::{self, GlobalSizes};
 use crate::geometry::{compact_coefficients, Dual, Incidence};
 use crate::material::Tensor;
 use crate::operator::Compact;
-use crate::scenario::{Scenario, Setup};
+use crate::scenario::{Scenario, Setup, FIELDS};
 use crate::solver::{check_output_dir, morton_keys, scheme_name, Simulation, SAFETY};
 use anyhow::Result;
 use eprop_io::geom::{cell_quality, cell_volume, norm};
@@ -22,6 +22,8 @@ pub struct RunOptions {
     pub output: Option<PathBuf>,
     pub steps: Option<u64>,
     pub quiet: bool,
+    /// Continue the series in this file from its last complete step.
+    pub restart: Option<PathBuf>,
 }
 
 #[derive(Serialize, Debug, Clone)]
@@ -49,8 +51,13 @@ pub struct Summary {
     pub time: f64,
     pub wall_seconds: f64,
     pub setup_seconds: f64,
+    /// The step a restarted run continued from.
+    pub restarted_from_step: Option<u64>,
     /// Time spent writing output (included in wall_seconds after the first step).
     pub output_seconds: f64,
+    /// Median time of one output append over the first and the last 100 output steps.
+    pub output_append_first100_median_s: f64,
+    pub output_append_last100_median_s: f64,
     /// Largest time any process waited for halo messages.
     pub halo_wait_seconds: f64,
     pub node_substeps_per_second: f64,
@@ -82,7 +89,14 @@ impl std::fmt::Display for Summary {
             "  scheme      {}, h = {:.4e} (bound {:.4e}), {} substeps per step, dt = {:.4e}",
             self.scheme, self.h, self.h_bound, self.substeps, self.dt
         )?;
-        writeln!(f, "  steps       {} to t = {:.6}", self.steps, self.time)?;
+        match self.restarted_from_step {
+            Some(k) => writeln!(
+                f,
+                "  steps       {} to t = {:.6} (restarted at step {k})",
+                self.steps, self.time
+            )?,
+            None => writeln!(f, "  steps       {} to t = {:.6}", self.steps, self.time)?,
+        }
         writeln!(
             f,
             "  speed       {:.3} s setup, {:.3} s stepping ({:.3} s output, {:.3} s halo wait), {:.3e} node-substeps/s",
@@ -140,11 +154,7 @@ impl std::fmt::Display for Summary {
 pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
     let setup = prepare(path, opts)?;
-    let sizes = GlobalSizes {
-        nodes: setup.mesh.n_nodes(),
-        cells: setup.mesh.n_cells(),
-        conn: setup.mesh.conn.len(),
-    };
+    let sizes = GlobalSizes::of(&setup.mesh);
     let sim = Simulation::new(setup)?;
     run_simulation(sim, sizes, t0, opts, None, 0).map(|s| s.expect("one process has the summary"))
 }
@@ -158,6 +168,15 @@ pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
     }
     if let Some(s) = opts.steps {
         setup.stop = crate::scenario::Stop::Steps(s);
+    }
+    if let Some(r) = &opts.restart {
+        if !r.is_file() {
+            anyhow::bail!(
+                "{}: no such file to restart from; fix: give the output file of the interrupted run",
+                r.display()
+            );
+        }
+        setup.output = r.clone();
     }
     check_output_dir(&setup.output)?;
     Ok(setup)
@@ -197,11 +216,7 @@ fn partition_and_encode(path: &Path, opts: &RunOptions, size: usize) -> Result<(
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
     drop((xadj, adj));
     let keys = morton_keys(mesh);
-    let sizes = GlobalSizes {
-        nodes: mesh.n_nodes(),
-        cells: mesh.n_cells(),
-        conn: mesh.conn.len(),
-    };
+    let sizes = GlobalSizes::of(mesh);
     let parts = (0..size)
         .map(|r| {
             let plan = eprop_partition::Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys));
@@ -274,8 +289,19 @@ pub fn run_simulation(
         cells: sizes.cells,
         conn: sizes.conn,
     };
+    let osec = sim.setup.scenario.file.output.clone();
+    let fields: Vec<(&str, usize)> = FIELDS
+        .iter()
+        .filter(|f| osec.fields.iter().any(|x| x == f.0))
+        .copied()
+        .collect();
+    let mut text_hash = distribute::Fnv::default();
+    text_hash.bytes(sim.setup.scenario.text.as_bytes());
     let spec = SeriesSpec {
-        fields: vec![("displacement", 3), ("velocity", 3), ("potential", 3), ("energy", 1)],
+        fields: fields.clone(),
+        ids: vec![("scenario_hash", text_hash.0), ("mesh_hash", sizes.mesh_hash)],
+        float32: osec.precision == "float32",
+        compression: osec.compression,
         n_loads: sim.loads.len(),
         load_nodes: sim.loads.iter().map(|l| l.nodes[0] as u64).collect(),
         scenario: &sim.setup.scenario.text,
@@ -290,20 +316,37 @@ pub fn run_simulation(
             ("processes", sim.comm.size() as f64),
         ],
     };
-    let mut out = SeriesWriter::create(&sim.setup.output, layout, sim.global.as_ref(), &spec, io_comm)?;
     let write = |sim: &Simulation, out: &mut SeriesWriter| -> Result<f64> {
         let t = Instant::now();
         let no = sim.n_owned;
         let c = sim.comm.as_ref();
-        let energy: Vec<f64> = sim.prop.phi[..no].iter().map(|p| norm(*p)).collect();
-        let u = sim.blocks.collect(sim.u[..no].as_flattened(), 3, c);
-        let v = sim.blocks.collect(sim.v[..no].as_flattened(), 3, c);
-        let p = sim.blocks.collect(sim.prop.phi[..no].as_flattened(), 3, c);
-        let e = sim.blocks.collect(&energy, 1, c);
-        out.append(sim.time, sim.step, &[&u, &v, &p, &e], &sim.probes())?;
+        let mut data = Vec::with_capacity(fields.len());
+        for (name, _) in &fields {
+            data.push(match *name {
+                "displacement" => sim.blocks.collect(sim.u[..no].as_flattened(), 3, c),
+                "velocity" => sim.blocks.collect(sim.v[..no].as_flattened(), 3, c),
+                "potential" => sim.blocks.collect(sim.prop.phi[..no].as_flattened(), 3, c),
+                _ => {
+                    let energy: Vec<f64> = sim.prop.phi[..no].iter().map(|p| norm(*p)).collect();
+                    sim.blocks.collect(&energy, 1, c)
+                }
+            });
+        }
+        let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
+        out.append(sim.time, sim.step, &refs, &sim.probes())?;
         Ok(t.elapsed().as_secs_f64())
     };
-    let mut output_seconds = write(&sim, &mut out)?;
+    let (mut out, mut output_seconds) = if opts.restart.is_some() {
+        let (out, resume) = SeriesWriter::reopen(&sim.setup.output, layout, &spec, io_comm)?;
+        sim.restore(resume.step, &resume.u, &resume.v, &resume.phi);
+        (out, 0.0)
+    } else {
+        let mut out = SeriesWriter::create(&sim.setup.output, layout, sim.global.as_ref(), &spec, io_comm)?;
+        let t = write(&sim, &mut out)?;
+        (out, t)
+    };
+    let restarted_at = sim.step;
+    let mut appends = vec![output_seconds];
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let every = sim.setup.every;
@@ -313,7 +356,9 @@ pub fn run_simulation(
         sim.advance();
         let is_last = sim.done();
         if sim.step.is_multiple_of(every) || is_last {
-            output_seconds += write(&sim, &mut out)?;
+            let t = write(&sim, &mut out)?;
+            appends.push(t);
+            output_seconds += t;
         }
         if root && !opts.quiet && last_report.elapsed().as_secs_f64() > 5.0 {
             eprintln!(
@@ -324,6 +369,13 @@ pub fn run_simulation(
         }
     }
     let wall = t1.elapsed().as_secs_f64();
+    let median = |v: &[f64]| {
+        let mut v = v.to_vec();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    let k = appends.len().min(100);
+    let (append_first, append_last) = (median(&appends[..k]), median(&appends[appends.len() - k..]));
     let (umax, imax) = sim.max_displacement();
     let total = sim.total_energy();
     let probes = sim.probes();
@@ -365,8 +417,11 @@ pub fn run_simulation(
         wall_seconds: wall,
         setup_seconds,
         output_seconds,
+        output_append_first100_median_s: append_first,
+        output_append_last100_median_s: append_last,
         halo_wait_seconds: halo_wait,
-        node_substeps_per_second: (n as f64 * sim.step as f64 * sim.substeps as f64) / wall.max(1e-12),
+        node_substeps_per_second: (n as f64 * (sim.step - restarted_at) as f64 * sim.substeps as f64) / wall.max(1e-12),
+        restarted_from_step: opts.restart.as_ref().map(|_| restarted_at),
         peak_memory_mib: peak / 1048576.0,
         rank0_scatter_peak_mib: rank0_scatter_peak as f64 / 1048576.0,
         max_displacement: umax,

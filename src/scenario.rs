@@ -219,11 +219,37 @@ pub struct OutputSec {
     pub file: Option<String>,
     #[serde(default = "default_every")]
     pub every: u64,
+    /// Point arrays written every output step.
+    #[serde(default = "default_fields")]
+    pub fields: Vec<String>,
+    /// "float64" (default; needed for an exact restart) or "float32".
+    #[serde(default = "default_precision")]
+    pub precision: String,
+    /// gzip (deflate) level of the point arrays, 0 (off, default) to 9.
+    #[serde(default)]
+    pub compression: u8,
+}
+
+/// Every point array eprop can write, with its number of components.
+pub const FIELDS: [(&str, usize); 4] = [("displacement", 3), ("velocity", 3), ("potential", 3), ("energy", 1)];
+
+fn default_fields() -> Vec<String> {
+    FIELDS.iter().map(|f| f.0.to_string()).collect()
+}
+
+fn default_precision() -> String {
+    "float64".into()
 }
 
 impl Default for OutputSec {
     fn default() -> Self {
-        OutputSec { file: None, every: 1 }
+        OutputSec {
+            file: None,
+            every: 1,
+            fields: default_fields(),
+            precision: default_precision(),
+            compression: 0,
+        }
     }
 }
 
@@ -663,6 +689,37 @@ impl Setup {
         }
         if f.output.every == 0 {
             return Err(sc.err("output", 0, "every", "must be at least 1"));
+        }
+        let names: Vec<&str> = FIELDS.iter().map(|f| f.0).collect();
+        for (k, name) in f.output.fields.iter().enumerate() {
+            if !names.contains(&name.as_str()) {
+                return Err(sc.err(
+                    "output",
+                    0,
+                    "fields",
+                    format!("`{name}` is not a field; fix: choose from {names:?}"),
+                ));
+            }
+            if f.output.fields[..k].contains(name) {
+                return Err(sc.err("output", 0, "fields", format!("`{name}` is listed twice")));
+            }
+        }
+        if f.output.fields.is_empty() {
+            return Err(sc.err("output", 0, "fields", format!("is empty; fix: list some of {names:?}")));
+        }
+        if !["float64", "float32"].contains(&f.output.precision.as_str()) {
+            return Err(sc.err(
+                "output",
+                0,
+                "precision",
+                format!(
+                    "`{}` is not a precision; fix: use \"float64\" or \"float32\"",
+                    f.output.precision
+                ),
+            ));
+        }
+        if f.output.compression > 9 {
+            return Err(sc.err("output", 0, "compression", "must be a gzip level from 0 (off) to 9"));
         }
         let output = scenario.output_path();
         Ok(Setup {

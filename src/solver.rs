@@ -217,6 +217,7 @@ pub struct Blocks {
     pub len: usize,
     send_order: Vec<u32>,
     counts: Vec<usize>,
+    recv_counts: Vec<usize>,
     place: Vec<u32>,
 }
 
@@ -249,7 +250,10 @@ impl Blocks {
         let me = comm.rank();
         let start = first(me);
         let got = comm.all_to_all(&gids, &counts);
+        let cf: Vec<f64> = counts.iter().map(|&c| c as f64).collect();
+        let recv_counts = comm.all_to_all(&cf, &vec![1; p]).iter().map(|&c| c as usize).collect();
         Blocks {
+            recv_counts,
             start,
             len: first(me + 1) - start,
             send_order: items.iter().map(|it| it.2).collect(),
@@ -269,6 +273,21 @@ impl Blocks {
         let mut out = vec![0.0; self.len * stride];
         for (k, &at) in self.place.iter().enumerate() {
             out[at as usize * stride..(at as usize + 1) * stride].copy_from_slice(&got[k * stride..(k + 1) * stride]);
+        }
+        out
+    }
+
+    /// The inverse of `collect`: the owned values (local order) from this process's block.
+    pub fn distribute(&self, block: &[f64], stride: usize, comm: &dyn Comm) -> Vec<f64> {
+        let mut send = Vec::with_capacity(self.place.len() * stride);
+        for &at in &self.place {
+            send.extend_from_slice(&block[at as usize * stride..(at as usize + 1) * stride]);
+        }
+        let counts: Vec<usize> = self.recv_counts.iter().map(|c| c * stride).collect();
+        let got = comm.all_to_all(&send, &counts);
+        let mut out = vec![0.0; self.send_order.len() * stride];
+        for (k, &l) in self.send_order.iter().enumerate() {
+            out[l as usize * stride..(l as usize + 1) * stride].copy_from_slice(&got[k * stride..(k + 1) * stride]);
         }
         out
     }
@@ -645,6 +664,25 @@ impl Simulation {
             }
         }
         (best.max(0.0), at)
+    }
+
+    /// Continues from a stored state: this process's blocks of u, v and phi at `step`.
+    pub fn restore(&mut self, step: u64, u: &[f64], v: &[f64], phi: &[f64]) {
+        let c = self.comm.as_ref();
+        let n = self.n_owned;
+        for (dst, src) in [(&mut self.u, u), (&mut self.v, v), (&mut self.prop.phi, phi)] {
+            let owned = self.blocks.distribute(src, 3, c);
+            for i in 0..n {
+                dst[i] = [owned[3 * i], owned[3 * i + 1], owned[3 * i + 2]];
+            }
+        }
+        self.step = step;
+        self.time = step as f64 * self.dt;
+        let local = (0..n)
+            .filter(|&i| self.active[i])
+            .map(|i| norm(self.v[i]))
+            .fold(0.0, f64::max);
+        self.max_speed = c.max(local);
     }
 
     /// Local index of a global node owned here.

@@ -9,7 +9,7 @@
 
 use crate::mesh::{CellKind, Mesh};
 use anyhow::{anyhow, Context, Result};
-use hdf5::dataset::AllocTime;
+use hdf5::dataset::{AllocTime, FillTime};
 use hdf5::types::{FixedAscii, VarLenUnicode};
 use hdf5::{Dataset, Extent, File};
 use ndarray::{s, ArrayView3};
@@ -53,6 +53,12 @@ pub struct SeriesSpec<'a> {
     pub control_volumes: &'a [f64],
     /// Extra scalar attributes on `/eprop` (name, value).
     pub attrs: Vec<(&'a str, f64)>,
+    /// Identity attributes on `/eprop` (name, value), checked by `reopen`.
+    pub ids: Vec<(&'a str, u64)>,
+    /// Store the point arrays as float32 (computed values are float64).
+    pub float32: bool,
+    /// gzip level of the point arrays (0: off).
+    pub compression: u8,
 }
 
 struct Field {
@@ -88,12 +94,33 @@ fn h5<T>(r: hdf5::Result<T>, path: &Path, what: &str) -> Result<T> {
     r.map_err(|e| anyhow!("{}: {what}: {e}", path.display()))
 }
 
-fn growing(
+fn growing(group: &hdf5::Group, name: &str, tail: &[usize], chunk_rows: usize, path: &Path) -> Result<Dataset> {
+    let mut ext = vec![Extent::resizable(0)];
+    let mut chunk = vec![chunk_rows.max(1)];
+    for &t in tail {
+        ext.push(Extent::fixed(t));
+        chunk.push(t);
+    }
+    let b = group.new_dataset::<f64>().chunk(chunk).shape(ext);
+    // allocated early in every file, so that a serial file can be continued under MPI-IO
+    let b = b.alloc_time(Some(AllocTime::Early)).fill_time(FillTime::Never);
+    h5(b.create(name), path, &format!("create {name}"))
+}
+
+fn growing_i64(group: &hdf5::Group, name: &str, path: &Path) -> Result<Dataset> {
+    let b = group.new_dataset::<i64>().chunk(1024).shape(Extent::resizable(0));
+    // allocated early in every file, so that a serial file can be continued under MPI-IO
+    let b = b.alloc_time(Some(AllocTime::Early)).fill_time(FillTime::Never);
+    h5(b.create(name), path, &format!("create {name}"))
+}
+
+/// A growing point array: float64 or float32, optionally deflated.
+fn point_array(
     group: &hdf5::Group,
     name: &str,
     tail: &[usize],
     chunk_rows: usize,
-    parallel: bool,
+    spec: &SeriesSpec,
     path: &Path,
 ) -> Result<Dataset> {
     let mut ext = vec![Extent::resizable(0)];
@@ -102,19 +129,16 @@ fn growing(
         ext.push(Extent::fixed(t));
         chunk.push(t);
     }
-    let b = group.new_dataset::<f64>().chunk(chunk).shape(ext);
-    let b = if parallel {
-        b.alloc_time(Some(AllocTime::Early))
+    let b = if spec.float32 {
+        group.new_dataset::<f32>()
     } else {
-        b
+        group.new_dataset::<f64>()
     };
-    h5(b.create(name), path, &format!("create {name}"))
-}
-
-fn growing_i64(group: &hdf5::Group, name: &str, parallel: bool, path: &Path) -> Result<Dataset> {
-    let b = group.new_dataset::<i64>().chunk(1024).shape(Extent::resizable(0));
-    let b = if parallel {
-        b.alloc_time(Some(AllocTime::Early))
+    let b = b.chunk(chunk).shape(ext);
+    // allocated early in every file, so that a serial file can be continued under MPI-IO
+    let b = b.alloc_time(Some(AllocTime::Early)).fill_time(FillTime::Never);
+    let b = if spec.compression > 0 {
+        b.deflate(spec.compression)
     } else {
         b
     };
@@ -186,6 +210,15 @@ fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64]
     Ok(())
 }
 
+/// The state stored at the last complete step of a series (this process's block).
+pub struct Resume {
+    pub step: u64,
+    pub time: f64,
+    pub u: Vec<f64>,
+    pub v: Vec<f64>,
+    pub phi: Vec<f64>,
+}
+
 /// VTK connectivity order of a cell (VTK wedges wind their first triangle the other way).
 pub fn vtk_order(kind: CellKind, nodes: &[u32]) -> Vec<u32> {
     match kind {
@@ -212,7 +245,8 @@ impl SeriesWriter {
                 let raw = c.as_raw();
                 File::with_options().with_fapl(|p| p.mpio(raw, None)).create(path)
             }
-            None => File::create(path),
+            // no lock: readers (h5py, ParaView) may open the file while the run goes on
+            None => File::with_options().with_fapl(|p| p.file_locking(false)).create(path),
         }
         .map_err(|e| {
             anyhow!(
@@ -292,7 +326,7 @@ impl SeriesWriter {
         let pdo = h5(steps.create_group("PointDataOffsets"), path, "PointDataOffsets")?;
         h5(steps.create_group("CellDataOffsets"), path, "CellDataOffsets")?;
         h5(steps.create_group("FieldDataOffsets"), path, "FieldDataOffsets")?;
-        let values = growing(&steps, "Values", &[], 1024, parallel, path)?;
+        let values = growing(&steps, "Values", &[], 1024, path)?;
         let mut step_sets = Vec::new();
         for name in [
             "PartOffsets",
@@ -301,14 +335,14 @@ impl SeriesWriter {
             "CellOffsets",
             "ConnectivityIdOffsets",
         ] {
-            step_sets.push(growing_i64(&steps, name, parallel, path)?);
+            step_sets.push(growing_i64(&steps, name, path)?);
         }
         let mut fields = Vec::new();
         for &(name, ncomp) in &spec.fields {
             let rows = n.clamp(1, (1 << 20) / (8 * ncomp));
             let tail: &[usize] = if ncomp == 1 { &[] } else { &[ncomp] };
-            let data = growing(&pd, name, tail, rows, parallel, path)?;
-            let offsets = growing_i64(&pdo, name, parallel, path)?;
+            let data = point_array(&pd, name, tail, rows, spec, path)?;
+            let offsets = growing_i64(&pdo, name, path)?;
             fields.push(Field {
                 name: name.to_string(),
                 ncomp,
@@ -340,6 +374,20 @@ impl SeriesWriter {
                 name,
             )?;
         }
+        for (name, v) in &spec.ids {
+            h5(
+                ep.new_attr::<u64>().create(*name).and_then(|a| a.write_scalar(v)),
+                path,
+                name,
+            )?;
+        }
+        h5(
+            ep.new_attr::<u8>()
+                .create("float32")
+                .and_then(|a| a.write_scalar(&(spec.float32 as u8))),
+            path,
+            "float32",
+        )?;
         let text = spec.scenario.as_bytes();
         fixed(&ep, "scenario", &[text.len()], Some(text).filter(|_| root), path)?;
         let cv = h5(
@@ -356,10 +404,10 @@ impl SeriesWriter {
         let ln: Vec<i64> = spec.load_nodes.iter().map(|&x| x as i64).collect();
         fixed(&pr, "node", &[ln.len()], Some(&ln[..]).filter(|_| root), path)?;
         let nl = spec.n_loads.max(1);
-        let probe_time = growing(&pr, "time", &[], 1024, parallel, path)?;
-        let probe_step = growing_i64(&pr, "step", parallel, path)?;
-        let probe_force = growing(&pr, "force", &[nl, 3], 256, parallel, path)?;
-        let probe_disp = growing(&pr, "displacement", &[nl, 3], 256, parallel, path)?;
+        let probe_time = growing(&pr, "time", &[], 1024, path)?;
+        let probe_step = growing_i64(&pr, "step", path)?;
+        let probe_force = growing(&pr, "force", &[nl, 3], 256, path)?;
+        let probe_disp = growing(&pr, "displacement", &[nl, 3], 256, path)?;
         h5(file.flush(), path, "flush")?;
         Ok(SeriesWriter {
             path: path.to_path_buf(),
@@ -445,6 +493,176 @@ impl SeriesWriter {
         )?;
         h5(self.file.flush(), p, "flush").context("writing an output step")?;
         Ok(())
+    }
+
+    /// Opens a series written by `create` with the same `spec` to continue it after its last
+    /// complete step (rows of an incomplete step are dropped). Every process calls under MPI.
+    /// Refuses a file whose identity attributes (`spec.ids`) or layout differ.
+    pub fn reopen(
+        path: &Path,
+        layout: Layout,
+        spec: &SeriesSpec,
+        comm: Option<&mpi::topology::SimpleCommunicator>,
+    ) -> Result<(Self, Resume)> {
+        let parallel = comm.is_some();
+        let root = comm.is_none_or(|c| {
+            use mpi::topology::Communicator;
+            c.rank() == 0
+        });
+        let file = match comm {
+            Some(c) => {
+                use mpi::raw::AsRaw;
+                let raw = c.as_raw();
+                File::with_options().with_fapl(|p| p.mpio(raw, None)).open_rw(path)
+            }
+            None => File::with_options().with_fapl(|p| p.file_locking(false)).open_rw(path),
+        }
+        .map_err(|e| {
+            anyhow!(
+                "{}: cannot open the file to restart: {e}; fix: give the output file of the interrupted run",
+                path.display()
+            )
+        })?;
+        let bad = |what: String| {
+            anyhow!(
+                "{}: cannot restart: {what}; fix: restart with the scenario and mesh that wrote the file, or start a new run",
+                path.display()
+            )
+        };
+        let ep = file
+            .group("eprop")
+            .map_err(|_| bad("no /eprop group (not an eprop series)".into()))?;
+        for (name, v) in &spec.ids {
+            let got: u64 = ep
+                .attr(name)
+                .and_then(|a| a.read_scalar())
+                .map_err(|_| bad(format!("no {name} attribute")))?;
+            if got != *v {
+                return Err(bad(format!(
+                    "it was written for a different {}",
+                    name.trim_end_matches("_hash")
+                )));
+            }
+        }
+        let f32_file: u8 = ep.attr("float32").and_then(|a| a.read_scalar()).unwrap_or(0);
+        if f32_file != 0 || spec.float32 {
+            return Err(bad(
+                "float32 output cannot restart exactly (precision = \"float64\" is)".into(),
+            ));
+        }
+        let n: i64 = h5(
+            file.dataset("VTKHDF/NumberOfPoints").and_then(|d| d.read_raw::<i64>()),
+            path,
+            "NumberOfPoints",
+        )?[0];
+        if n as usize != layout.nodes {
+            return Err(bad(format!("the file has {n} nodes, the mesh {}", layout.nodes)));
+        }
+        let k: i64 = h5(
+            ep.attr("steps_complete").and_then(|a| a.read_scalar()),
+            path,
+            "steps_complete",
+        )?;
+        if k < 1 {
+            return Err(bad("the file holds no complete step".into()));
+        }
+        let k = k as usize;
+        let top = h5(file.group("VTKHDF"), path, "VTKHDF")?;
+        let pd = h5(top.group("PointData"), path, "PointData")?;
+        let steps = h5(top.group("Steps"), path, "Steps")?;
+        let pdo = h5(steps.group("PointDataOffsets"), path, "PointDataOffsets")?;
+        let mut fields = Vec::new();
+        for &(name, ncomp) in &spec.fields {
+            let data = pd.dataset(name).map_err(|_| bad(format!("no field {name}")))?;
+            let offsets = h5(pdo.dataset(name), path, name)?;
+            fields.push(Field {
+                name: name.to_string(),
+                ncomp,
+                data,
+                offsets,
+            });
+        }
+        let nd = layout.nodes;
+        // the state at the last complete step
+        let (b0, bl) = (spec.block_start, spec.block_len);
+        let mut state = Vec::new();
+        for name in ["displacement", "velocity", "potential"] {
+            let f = fields
+                .iter()
+                .find(|f| f.name == name)
+                .ok_or_else(|| bad(format!("the run did not write `{name}`, which a restart needs")))?;
+            let rows = (k - 1) * nd + b0;
+            let v = h5(f.data.read_slice_2d::<f64, _>(s![rows..rows + bl, ..]), path, name)?;
+            state.push(v.iter().copied().collect::<Vec<f64>>());
+        }
+        let values = h5(steps.dataset("Values"), path, "Values")?;
+        let time = h5(values.read_slice_1d::<f64, _>(s![k - 1..k]), path, "Values")?[0];
+        let pr = h5(ep.group("probes"), path, "probes")?;
+        let probe_step = h5(pr.dataset("step"), path, "probes/step")?;
+        let step = h5(probe_step.read_slice_1d::<i64, _>(s![k - 1..k]), path, "probes/step")?[0];
+        let step_sets = [
+            "PartOffsets",
+            "NumberOfParts",
+            "PointOffsets",
+            "CellOffsets",
+            "ConnectivityIdOffsets",
+        ]
+        .iter()
+        .map(|nm| h5(steps.dataset(nm), path, nm))
+        .collect::<Result<Vec<_>>>()?;
+        let w = SeriesWriter {
+            path: path.to_path_buf(),
+            n_points: nd,
+            block: (b0, bl),
+            root,
+            parallel,
+            fields,
+            step_sets,
+            values,
+            probe_time: h5(pr.dataset("time"), path, "probes/time")?,
+            probe_step,
+            probe_force: h5(pr.dataset("force"), path, "probes/force")?,
+            probe_disp: h5(pr.dataset("displacement"), path, "probes/displacement")?,
+            n_loads: spec.n_loads.max(1),
+            n_steps: k,
+            steps,
+            file,
+        };
+        // drop the rows of a step that was being written when the run ended
+        w.truncate()?;
+        let mut it = state.into_iter();
+        let resume = Resume {
+            step: step as u64,
+            time,
+            u: it.next().unwrap_or_default(),
+            v: it.next().unwrap_or_default(),
+            phi: it.next().unwrap_or_default(),
+        };
+        Ok((w, resume))
+    }
+
+    /// Cuts every growing dataset to the complete steps.
+    fn truncate(&self) -> Result<()> {
+        let (k, n, p) = (self.n_steps, self.n_points, &self.path);
+        for f in &self.fields {
+            if f.ncomp == 1 {
+                h5(f.data.resize([k * n]), p, &f.name)?;
+            } else {
+                h5(f.data.resize([k * n, f.ncomp]), p, &f.name)?;
+            }
+            h5(f.offsets.resize([k]), p, &f.name)?;
+        }
+        for ds in self
+            .step_sets
+            .iter()
+            .chain([&self.values, &self.probe_time, &self.probe_step])
+        {
+            h5(ds.resize([k]), p, "Steps")?;
+        }
+        for ds in [&self.probe_force, &self.probe_disp] {
+            h5(ds.resize([k, self.n_loads, 3]), p, "probes")?;
+        }
+        h5(self.file.flush(), p, "flush")
     }
 
     pub fn steps_written(&self) -> usize {

@@ -5,6 +5,7 @@ use eprop::scenario::{Scenario, Setup};
 use eprop::solver::Simulation;
 use eprop_io::Mesh;
 use std::path::{Path, PathBuf};
+use std::process::Command;
 
 /// `../shared/meshes/tet/NAME`, or None (with a message) when the shared data is absent.
 pub fn shared_mesh(name: &str) -> Option<PathBuf> {
@@ -37,4 +38,76 @@ pub fn sim(mesh: Mesh, toml: &str) -> Simulation {
 
 pub fn max_abs(v: &[[f64; 3]]) -> f64 {
     v.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()))
+}
+
+pub fn mpirun(n: usize, args: &[&str]) -> std::process::Output {
+    Command::new("mpirun")
+        .args(["-n", &n.to_string(), "--oversubscribe"])
+        .arg(env!("CARGO_BIN_EXE_eprop"))
+        .args(args)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
+        .env("RAYON_NUM_THREADS", "1")
+        .output()
+        .expect("mpirun is installed (scripts/test.sh installs openmpi-bin)")
+}
+
+pub fn serial(args: &[&str], threads: usize) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_eprop"))
+        .args(args)
+        .env("RAYON_NUM_THREADS", threads.to_string())
+        .output()
+        .unwrap()
+}
+
+/// Every dataset of a group, recursively (full paths).
+pub fn datasets(g: &hdf5::Group, out: &mut Vec<String>) {
+    for d in g.datasets().unwrap() {
+        out.push(d.name());
+    }
+    for sub in g.groups().unwrap() {
+        datasets(&sub, out);
+    }
+}
+
+pub fn bits(f: &hdf5::File, name: &str) -> Vec<u64> {
+    let ds = f.dataset(name).unwrap();
+    let t = ds.dtype().unwrap();
+    if t.is::<f64>() {
+        ds.read_raw::<f64>().unwrap().iter().map(|x| x.to_bits()).collect()
+    } else if t.is::<i64>() {
+        ds.read_raw::<i64>().unwrap().iter().map(|&x| x as u64).collect()
+    } else if t.is::<i32>() {
+        ds.read_raw::<i32>().unwrap().iter().map(|&x| x as u64).collect()
+    } else if t.is::<u8>() {
+        ds.read_raw::<u8>().unwrap().iter().map(|&x| x as u64).collect()
+    } else {
+        panic!("{name}: unexpected type")
+    }
+}
+
+/// Every dataset of two files (the same set), compared bit for bit.
+pub fn assert_same(a: &Path, b: &Path) {
+    let fa = hdf5::File::open(a).unwrap();
+    let fb = hdf5::File::open(b).unwrap();
+    let (mut na, mut nb) = (vec![], vec![]);
+    datasets(&fa, &mut na);
+    datasets(&fb, &mut nb);
+    na.sort();
+    nb.sort();
+    assert_eq!(na, nb, "different datasets");
+    assert!(na.len() >= 20, "{na:?}");
+    for name in &na {
+        let (x, y) = (bits(&fa, name), bits(&fb, name));
+        assert_eq!(x.len(), y.len(), "{name}");
+        let diff = x.iter().zip(&y).filter(|(p, q)| p != q).count();
+        assert_eq!(
+            diff,
+            0,
+            "{name}: {diff} values differ between {} and {}",
+            a.display(),
+            b.display()
+        );
+    }
 }
