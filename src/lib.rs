@@ -5,6 +5,7 @@
 //! volumes and stepped with explicit Euler; the propagated potential drives damped nodal
 //! dynamics. The model is fixed in MODEL.md; ARCHITECTURE.md maps the code.
 
+pub mod bench;
 pub mod comm;
 pub mod distribute;
 pub mod geometry;

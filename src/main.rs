@@ -89,6 +89,29 @@ does) and report, for METIS and for a naive block split of the input numbering s
         #[arg(long)]
         json: bool,
     },
+    /// Measure the propagation kernel against the memory bandwidth (run under mpirun for ranks).
+    #[command(
+        long_about = "Measure the propagation kernel against the memory bandwidth of this machine.\n\n\
+For each generated unit box (N^3 cells, Kuhn tetrahedra) and scheme: node-substeps per second of \
+the explicit substep (halo exchange included), the bytes per node a substep must stream at least, \
+the bandwidth that implies and its fraction of a STREAM-like triad measured in the same process, \
+full steps per second with one substep per step (dt = h), the halo waiting share, the cost of one \
+output step and the peak memory per node. Under mpirun every rank takes part: run \
+`mpirun -n 2 eprop bench` beside `eprop bench` for the speed-up.\n\n\
+Columns: ns/node = ns per node-substep; B/node = bytes per node-substep; frac = GB/s / triad; \
+B/node* = peak resident memory per node, all processes."
+    )]
+    Bench {
+        /// Cells per side of the boxes (nodes = (N+1)^3): 20,45,66,99 give 9k to 1M nodes
+        #[arg(long, value_delimiter = ',', default_values_t = [20, 45, 66, 99])]
+        cells: Vec<usize>,
+        /// Schemes to measure
+        #[arg(long, value_delimiter = ',', default_values_t = ["compact".to_string(), "paper".to_string()])]
+        schemes: Vec<String>,
+        /// Also write the cases as JSON to this file
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Generate a mesh: the paper's cylinder or a box.
     Mesh {
         #[command(subcommand)]
@@ -243,6 +266,27 @@ fn real_main(cli: Cli) -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
                 println!("{report}");
+            }
+        }
+        Cmd::Bench { cells, schemes, json } => {
+            let tmp = std::env::temp_dir();
+            let universe = if under_mpirun() { mpi::initialize() } else { None };
+            let world = universe.as_ref().map(|u| u.world());
+            let root = world.as_ref().is_none_or(|w| {
+                use mpi::topology::Communicator;
+                w.rank() == 0
+            });
+            if root {
+                println!("{}", eprop::bench::header());
+            }
+            let cases = eprop::bench::bench(world, &cells, &schemes, &tmp, |c| {
+                if root {
+                    println!("{}", eprop::bench::row(c));
+                }
+            })?;
+            if let (true, Some(j)) = (root, json) {
+                std::fs::write(&j, serde_json::to_string_pretty(&cases)?)
+                    .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", j.display()))?;
             }
         }
         Cmd::Mesh { shape } => {

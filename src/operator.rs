@@ -22,7 +22,9 @@ const CHUNK: usize = 2048;
 pub struct Compact {
     pub row_ptr: Vec<u32>,
     pub col: Vec<u32>,
+    /// c_ij in float64, or empty when stored in float32 (`coef32`).
     pub coef: Vec<f64>,
+    pub coef32: Vec<f32>,
 }
 
 impl Compact {
@@ -46,21 +48,70 @@ impl Compact {
             );
             row_ptr.push(col.len() as u32);
         }
-        Compact { row_ptr, col, coef }
+        Compact {
+            row_ptr,
+            col,
+            coef,
+            coef32: vec![],
+        }
+    }
+
+    /// Stores the coefficients in float32 (a third fewer bytes per substep; the rounded
+    /// coefficients define the operator, so results stay deterministic).
+    pub fn into_f32(mut self) -> Compact {
+        self.coef32 = self.coef.iter().map(|&c| c as f32).collect();
+        self.coef = vec![];
+        self
     }
 
     #[inline(always)]
     fn row(&self, i: usize, x: &[V3]) -> V3 {
+        if self.coef32.is_empty() {
+            self.row_with(&self.coef, i, x)
+        } else {
+            self.row_with(&self.coef32, i, x)
+        }
+    }
+
+    /// The coefficient of stored pair p.
+    pub fn c(&self, p: usize) -> f64 {
+        if self.coef32.is_empty() {
+            self.coef[p]
+        } else {
+            self.coef32[p] as f64
+        }
+    }
+
+    /// (L x)_i. Pairs are taken two at a time into two partial sums (a fixed order, so
+    /// the same bits on any partition): one chain of dependent additions per sum would
+    /// otherwise bound the speed by the add latency instead of the memory bandwidth.
+    #[inline(always)]
+    fn row_with<C: Copy + Into<f64>>(&self, coef: &[C], i: usize, x: &[V3]) -> V3 {
         let (s, e) = (self.row_ptr[i] as usize, self.row_ptr[i + 1] as usize);
         let xi = x[i];
-        let mut acc = [0.0; 3];
-        for (&j, &c) in self.col[s..e].iter().zip(&self.coef[s..e]) {
-            let xj = x[j as usize];
-            acc[0] += c * (xj[0] - xi[0]);
-            acc[1] += c * (xj[1] - xi[1]);
-            acc[2] += c * (xj[2] - xi[2]);
+        let cols = &self.col[s..e];
+        let coef = &coef[s..e];
+        let mut a = [0.0; 3];
+        let mut b = [0.0; 3];
+        let pairs = cols.len() / 2;
+        for k in 0..pairs {
+            let (j0, j1) = (cols[2 * k] as usize, cols[2 * k + 1] as usize);
+            let (c0, c1): (f64, f64) = (coef[2 * k].into(), coef[2 * k + 1].into());
+            let (x0, x1) = (x[j0], x[j1]);
+            for d in 0..3 {
+                a[d] += c0 * (x0[d] - xi[d]);
+                b[d] += c1 * (x1[d] - xi[d]);
+            }
         }
-        acc
+        if cols.len() % 2 == 1 {
+            let j = cols[cols.len() - 1] as usize;
+            let c: f64 = coef[cols.len() - 1].into();
+            let xj = x[j];
+            for d in 0..3 {
+                a[d] += c * (xj[d] - xi[d]);
+            }
+        }
+        [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
     }
 
     /// Gershgorin bound of the spectral radius of L.
@@ -68,8 +119,8 @@ impl Compact {
         (0..self.row_ptr.len() - 1)
             .map(|i| {
                 let r = self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize;
-                let sum: f64 = self.coef[r.clone()].iter().sum();
-                let abs: f64 = self.coef[r].iter().map(|c| c.abs()).sum();
+                let sum: f64 = r.clone().map(|p| self.c(p)).sum();
+                let abs: f64 = r.map(|p| self.c(p).abs()).sum();
                 sum.abs() + abs
             })
             .fold(0.0, f64::max)
@@ -207,6 +258,24 @@ impl Operator {
         match self {
             Operator::Compact(c) => c.row_ptr.len() - 1,
             Operator::Paper(p) => p.row_ptr.len() - 1,
+        }
+    }
+    /// Bytes one substep must stream at least on this process: every operator array once, the
+    /// potential read once and written once (gradients: written once, read once).
+    pub fn stream_bytes(&self) -> usize {
+        let n = self.n_rows();
+        match self {
+            Operator::Compact(c) => {
+                c.row_ptr.len() * 4 + c.col.len() * 4 + c.coef.len() * 8 + c.coef32.len() * 4 + n * 48
+            }
+            Operator::Paper(p) => {
+                let pairs = p.col.len();
+                // gradient pass: row_ptr, col, s, inv_vol; update pass: all arrays
+                (p.row_ptr.len() * 4 + pairs * (4 + 24) + n * 8)
+                    + (p.row_ptr.len() * 4 + pairs * (4 + 4 * 24 + 8) + n * 9)
+                    + n * (24 + 72) // gradient pass: phi in, gradients out
+                    + n * (24 + 72 + 24) // update pass: phi and gradients in, next out
+            }
         }
     }
     pub fn needs_gradients(&self) -> bool {

@@ -206,24 +206,13 @@ impl std::fmt::Display for Collective {
 
 impl std::error::Error for Collective {}
 
-/// Rank 0's side of the start of a distributed run: read, partition, build and encode every
-/// process's part. Returns the parts (index = rank), rank 0's global setup and the sizes.
-fn partition_and_encode(path: &Path, opts: &RunOptions, size: usize) -> Result<(Vec<Vec<u8>>, Setup, GlobalSizes)> {
-    let setup = prepare(path, opts)?;
+/// Rank 0's split of the whole mesh: the METIS part of every node and the locality keys.
+fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let mesh = &setup.mesh;
     let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
     let part = eprop_partition::partition(&xadj, &adj, size, eprop_partition::Method::Metis)
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
-    drop((xadj, adj));
-    let keys = morton_keys(mesh);
-    let sizes = GlobalSizes::of(mesh);
-    let parts = (0..size)
-        .map(|r| {
-            let plan = eprop_partition::Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys));
-            distribute::encode(&setup.restrict(&plan), &plan, sizes)
-        })
-        .collect();
-    Ok((parts, setup, sizes))
+    Ok((part, morton_keys(mesh)))
 }
 
 /// Runs a scenario under MPI. Rank 0 reads the scenario and the mesh, splits the node graph
@@ -231,21 +220,59 @@ fn partition_and_encode(path: &Path, opts: &RunOptions, size: usize) -> Result<(
 /// operator, steps its part with halo exchanges and writes its rows of the output file
 /// (collective MPI-IO). Returns the summary on rank 0.
 pub fn run_mpi(world: mpi::topology::SimpleCommunicator, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
+    run_mpi_with(world, || prepare(path, opts), opts)
+}
+
+/// `run_mpi` with the whole-mesh setup made by `make_setup` on rank 0 (not called elsewhere).
+pub fn run_mpi_with(
+    world: mpi::topology::SimpleCommunicator,
+    make_setup: impl FnOnce() -> Result<Setup>,
+    opts: &RunOptions,
+) -> Result<Option<Summary>> {
+    let t0 = Instant::now();
+    let b = build_mpi(world, make_setup)?;
+    run_simulation(b.sim, b.sizes, t0, opts, Some(&b.io_comm), b.rank0_scatter_peak)
+}
+
+/// A distributed simulation ready to step.
+pub struct Built {
+    pub sim: Simulation,
+    pub sizes: GlobalSizes,
+    /// A communicator of the same processes for collective output.
+    pub io_comm: mpi::topology::SimpleCommunicator,
+    pub rank0_scatter_peak: u64,
+}
+
+/// Rank 0 makes the whole-mesh setup, splits it and sends every process its part; every
+/// process builds its simulation.
+pub fn build_mpi(
+    world: mpi::topology::SimpleCommunicator,
+    make_setup: impl FnOnce() -> Result<Setup>,
+) -> Result<Built> {
     use mpi::point_to_point::{Destination, Source};
     use mpi::topology::Communicator;
-    let t0 = Instant::now();
     let (rank, size) = (world.rank() as usize, world.size() as usize);
     let io_comm = world.duplicate();
-    // message: 1 + encoded part, or 0 + error text
+    // message: 1 + encoded part, or 0 + error text; parts are built and sent one at a time
     let (mine, global, sizes) = if rank == 0 {
-        match partition_and_encode(path, opts, size) {
-            Ok((mut parts, setup, sizes)) => {
-                for (r, p) in parts.iter_mut().enumerate().skip(1) {
-                    p.insert(0, 1);
-                    world.process_at_rank(r as i32).send(&p[..]);
-                    *p = Vec::new();
+        match make_setup().and_then(|s| split(&s, size).map(|p| (s, p))) {
+            Ok((setup, (part, keys))) => {
+                let mesh = &setup.mesh;
+                let sizes = GlobalSizes::of(mesh);
+                let plan_of =
+                    |r| eprop_partition::Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys));
+                for r in 1..size {
+                    let plan = plan_of(r);
+                    let mut msg = vec![1u8];
+                    msg.extend_from_slice(&distribute::encode(&setup.restrict(&plan), &plan, sizes));
+                    world.process_at_rank(r as i32).send(&msg[..]);
                 }
-                let part = distribute::decode(&parts[0])?;
+                let plan = plan_of(0);
+                let part = distribute::Part {
+                    setup: setup.restrict(&plan),
+                    plan,
+                    sizes,
+                };
                 (part, Some(setup), sizes)
             }
             Err(e) => {
@@ -269,7 +296,12 @@ pub fn run_mpi(world: mpi::topology::SimpleCommunicator, path: &Path, opts: &Run
     let rank0_scatter_peak = if rank == 0 { distribute::peak_rss() } else { 0 };
     let comm = crate::comm::Mpi::new(world, mine.plan.clone());
     let sim = Simulation::new_with(mine.setup, Box::new(comm), mine.plan, global.map(|s| s.mesh))?;
-    run_simulation(sim, sizes, t0, opts, Some(&io_comm), rank0_scatter_peak)
+    Ok(Built {
+        sim,
+        sizes,
+        io_comm,
+        rank0_scatter_peak,
+    })
 }
 
 /// Runs a prepared simulation; every process writes its block of the series, rank 0 returns

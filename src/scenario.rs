@@ -151,6 +151,9 @@ pub struct ModelSec {
     pub coupling: f64,
     #[serde(default = "one")]
     pub exponent: f64,
+    /// Storage of the compact operator's coefficients: "float64" (default) or "float32".
+    #[serde(default = "default_precision")]
+    pub operator_precision: String,
 }
 
 impl Default for ModelSec {
@@ -161,6 +164,7 @@ impl Default for ModelSec {
             stiffness: 1.0,
             coupling: 1.0,
             exponent: 1.0,
+            operator_precision: default_precision(),
         }
     }
 }
@@ -516,6 +520,17 @@ impl Setup {
                 ))
             }
         };
+        if !["float64", "float32"].contains(&md.operator_precision.as_str()) {
+            return Err(sc.err(
+                "model",
+                0,
+                "operator_precision",
+                format!(
+                    "`{}` is not a precision; fix: use \"float64\" or \"float32\"",
+                    md.operator_precision
+                ),
+            ));
+        }
         if !(md.stiffness >= 0.0 && md.stiffness.is_finite()) {
             return Err(sc.err("model", 0, "stiffness", "must be zero or positive"));
         }
