@@ -151,7 +151,10 @@ pub fn measure(
         cells: sizes.cells,
         conn: sizes.conn,
     };
-    let file = tmp.join(format!("bench-{}.h5", std::process::id()));
+    // one name for every process (rank 0's pid)
+    let mut id = [std::process::id() as f64];
+    sim.comm.broadcast(0, &mut id);
+    let file = tmp.join(format!("eprop-bench-{}.h5", id[0] as u64));
     let spec = SeriesSpec {
         fields: FIELDS.to_vec(),
         n_loads: 1,

@@ -112,6 +112,20 @@ B/node* = peak resident memory per node, all processes."
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Write a scenario's compact operator L (with its diagonal) as CSR in HDF5, for comparisons.
+    #[command(
+        long_about = "Write the compact operator L of a scenario (mesh, conductivity, fixed set) as a \
+CSR matrix in HDF5: datasets row_ptr, col, val over the nodes in input order, the diagonal \
+included (rows of fixed nodes are empty), and attributes h (the substep eprop would use) and \
+nodes. One explicit substep is x <- x + h L x; scripts/bench_petsc.py times it with PETSc."
+    )]
+    ExportOperator {
+        /// Scenario file (TOML); its mesh, material and fixed set define L
+        scenario: PathBuf,
+        /// Output file (.h5)
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Generate a mesh: the paper's cylinder or a box.
     Mesh {
         #[command(subcommand)]
@@ -288,6 +302,52 @@ fn real_main(cli: Cli) -> Result<()> {
                 std::fs::write(&j, serde_json::to_string_pretty(&cases)?)
                     .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", j.display()))?;
             }
+        }
+        Cmd::ExportOperator { scenario, output } => {
+            let setup = eprop::scenario::Setup::new(eprop::scenario::Scenario::load(&scenario)?)?;
+            let sim = eprop::solver::Simulation::new(setup)?;
+            let eprop::operator::Operator::Compact(op) = &sim.prop.op else {
+                bail!(
+                    "{}: export-operator needs [model] scheme = \"compact\"",
+                    scenario.display()
+                );
+            };
+            let n = sim.n_owned;
+            let mut rows: Vec<Vec<(i64, f64)>> = vec![vec![]; n];
+            for i in 0..n {
+                let g = sim.gid[i] as usize;
+                let r = op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize;
+                if r.is_empty() {
+                    continue;
+                }
+                let mut diag = 0.0;
+                let mut row: Vec<(i64, f64)> = r
+                    .map(|p| {
+                        diag -= op.c(p);
+                        (sim.gid[op.col[p] as usize] as i64, op.c(p))
+                    })
+                    .collect();
+                row.push((g as i64, diag));
+                row.sort_by_key(|e| e.0);
+                rows[g] = row;
+            }
+            let mut row_ptr = vec![0i64];
+            let (mut col, mut val) = (vec![], vec![]);
+            for r in &rows {
+                for &(j, v) in r {
+                    col.push(j);
+                    val.push(v);
+                }
+                row_ptr.push(col.len() as i64);
+            }
+            eprop_io::vtkhdf::write_csr(&output, &row_ptr, &col, &val, &[("h", sim.h), ("nodes", n as f64)])?;
+            println!(
+                "{}: {} rows, {} entries, h = {:.6e}",
+                output.display(),
+                n,
+                col.len(),
+                sim.h
+            );
         }
         Cmd::Mesh { shape } => {
             let (mesh, out) = match shape {

@@ -247,3 +247,38 @@ fn more_ranks_than_nodes_is_a_clear_error() {
     assert!(err.contains("9 parts for 8 nodes") && err.contains("fix:"), "{err}");
     assert_eq!(err.matches("9 parts for 8 nodes").count(), 1, "printed once: {err}");
 }
+
+#[test]
+fn bench_runs_on_one_and_two_ranks() {
+    let d = tempfile::tempdir().unwrap();
+    for n in [1, 2] {
+        let j = d.path().join(format!("b{n}.json"));
+        let out = Command::new("timeout")
+            .args(["120", "mpirun", "-n", &n.to_string(), "--oversubscribe"])
+            .arg(env!("CARGO_BIN_EXE_eprop"))
+            .args([
+                "bench",
+                "--cells",
+                "6",
+                "--schemes",
+                "compact,paper,compact32",
+                "--json",
+            ])
+            .arg(&j)
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+            .env("RAYON_NUM_THREADS", "1")
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let cases: serde_json::Value = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
+        let cases = cases.as_array().unwrap();
+        assert_eq!(cases.len(), 3);
+        for c in cases {
+            assert_eq!(c["processes"].as_u64(), Some(n as u64));
+            assert_eq!(c["nodes"].as_u64(), Some(343));
+            assert!(c["node_substeps_per_second"].as_f64().unwrap() > 0.0);
+            assert!(c["bytes_per_node_substep"].as_f64().unwrap() > 100.0);
+        }
+    }
+}

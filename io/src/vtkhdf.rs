@@ -698,3 +698,22 @@ pub fn read_step(path: &Path, name: &str, k: usize) -> Result<Vec<f64>> {
             .collect())
     }
 }
+
+/// Writes a sparse matrix in CSR form (global rows in input node order) with scalar
+/// attributes, for comparisons with other solvers: datasets `row_ptr`, `col`, `val`.
+pub fn write_csr(path: &Path, row_ptr: &[i64], col: &[i64], val: &[f64], attrs: &[(&str, f64)]) -> Result<()> {
+    let f =
+        File::create(path).map_err(|e| anyhow!("{}: cannot create: {e}; fix: check the directory", path.display()))?;
+    for (name, v) in [("row_ptr", row_ptr), ("col", col)] {
+        h5(f.new_dataset_builder().with_data(v).create(name), path, name)?;
+    }
+    h5(f.new_dataset_builder().with_data(val).create("val"), path, "val")?;
+    for (name, v) in attrs {
+        h5(
+            f.new_attr::<f64>().create(*name).and_then(|a| a.write_scalar(v)),
+            path,
+            name,
+        )?;
+    }
+    Ok(())
+}
