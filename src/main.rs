@@ -65,7 +65,7 @@ contact displacement of each load. Run under mpirun for several processes.")]
     },
     /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep.
     Info {
-        /// Mesh file (.msh)
+        /// Mesh file (.msh, .vtu)
         mesh: PathBuf,
         /// Print JSON
         #[arg(long)]
@@ -124,6 +124,13 @@ nodes. One explicit substep is x <- x + h L x; scripts/bench_petsc.py times it w
         scenario: PathBuf,
         /// Output file (.h5)
         #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Convert a mesh: read any supported file, check it, write Gmsh 4.1 (.msh) or VTK XML (.vtu).
+    Convert {
+        /// Input mesh (.msh, .vtu)
+        input: PathBuf,
+        /// Output mesh (.msh or .vtu, by extension)
         output: PathBuf,
     },
     /// Generate a mesh: the paper's cylinder or a box.
@@ -348,6 +355,14 @@ fn real_main(cli: Cli) -> Result<()> {
                 col.len(),
                 sim.h
             );
+        }
+        Cmd::Convert { input, output } => {
+            let m = eprop_io::read_mesh(&input)?;
+            eprop_io::write_mesh(&m, &output)?;
+            for w in &m.warnings {
+                eprintln!("warning: {}: {w}", input.display());
+            }
+            println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
         }
         Cmd::Mesh { shape } => {
             let (mesh, out) = match shape {

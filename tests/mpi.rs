@@ -69,6 +69,21 @@ fn bitwise_identical_on_1_to_4_ranks_organ_mesh() {
 }
 
 #[test]
+fn bitwise_identical_on_1_to_4_ranks_vtu_liver() {
+    let Some(mesh) = common::shared_mesh("mor_liverFine.vtu") else {
+        return;
+    };
+    // fixed at the left tip, pressed on the top
+    let liver = "[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n";
+    check_ranks(&mesh, liver, "vtu-liver");
+    check_ranks(
+        &mesh,
+        &format!("[model]\nscheme = \"paper\"\n{liver}"),
+        "vtu-liver-paper",
+    );
+}
+
+#[test]
 fn a_failing_rank_ends_the_job_quickly() {
     let d = tempfile::tempdir().unwrap();
     let mesh = d.path().join("cyl.msh");

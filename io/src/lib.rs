@@ -5,6 +5,7 @@ pub mod geom;
 pub mod gmsh;
 pub mod mesh;
 pub mod vtkhdf;
+pub mod vtu;
 
 pub use mesh::{CellKind, Mesh};
 
@@ -23,8 +24,9 @@ pub fn read_mesh(path: &Path) -> Result<Mesh> {
         .to_ascii_lowercase();
     match ext.as_str() {
         "msh" => gmsh::read(path),
+        "vtu" => vtu::read(path),
         _ => bail!(
-            "{}: unknown mesh format `.{ext}`; fix: eprop reads Gmsh .msh (versions 1, 2.2, 4.1 ASCII)",
+            "{}: unknown mesh format `.{ext}`; fix: eprop reads Gmsh .msh (versions 1, 2.2, 4.1 ASCII) and VTK .vtu",
             path.display()
         ),
     }
@@ -39,8 +41,9 @@ pub fn write_mesh(mesh: &Mesh, path: &Path) -> Result<()> {
         .to_ascii_lowercase();
     match ext.as_str() {
         "msh" => gmsh::write(mesh, path),
+        "vtu" => vtu::write(mesh, path),
         _ => bail!(
-            "{}: eprop writes Gmsh 4.1 (.msh); fix: name the output FILE.msh",
+            "{}: eprop writes Gmsh 4.1 (.msh) and VTK XML (.vtu); fix: name the output FILE.msh or FILE.vtu",
             path.display()
         ),
     }
