@@ -11,5 +11,9 @@ cp scenarios/cylinder.toml out/cylinder.toml
 mpirun -n 2 ./target/release/eprop run out/cylinder.toml --output out/cylinder.h5 --quiet
 echo
 echo "pictures:"
-/usr/bin/python3 scripts/plot_series.py out/cylinder.h5 --out-dir out | sed 's/^/  /'
+py=.venv/bin/python
+$py scripts/plot_series.py out/cylinder.h5 --out-dir out | sed 's/^/  /'
+$py scripts/render.py out/cylinder.h5 -o out/cylinder_energy.png --scale 2 2>/dev/null | sed 's/^/  /'
+$py scripts/history.py out/cylinder.h5 -o out/cylinder_energy_history.png | sed 's/^/  /'
+$py scripts/force_displacement.py out/cylinder.h5 -o out/cylinder_force_displacement.png | sed 's/^/  /'
 echo "series: out/cylinder.h5 (open in ParaView 5.12+, or with h5py)"

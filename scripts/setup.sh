@@ -5,7 +5,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 pkgs=(libopenmpi-dev openmpi-bin libclang-dev libmetis-dev libhdf5-openmpi-dev hdf5-tools pkg-config
-      python3-h5py python3-numpy python3-matplotlib)
+      python3-h5py python3-numpy python3-matplotlib python3-venv
+      libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -22,3 +23,11 @@ if ! command -v cargo >/dev/null; then
   exit 1
 fi
 cargo build --release --quiet
+# post-processing environment (scripts/requirements.txt) in .venv, refreshed when it changes
+py=$(command -v python3)
+if [ ! -x .venv/bin/python ] || [ scripts/requirements.txt -nt .venv/.stamp ]; then
+  echo "setup: python environment .venv (scripts/requirements.txt)"
+  "$py" -m venv .venv
+  .venv/bin/pip install -q --disable-pip-version-check -r scripts/requirements.txt
+  touch .venv/.stamp
+fi

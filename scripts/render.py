@@ -1,0 +1,115 @@
+#!/usr/bin/env python3
+"""Render the deformed mesh of an eprop run coloured by a field (the paper's figures 3, 4, 6, 7).
+
+Uses VTK off-screen (vtkUnstructuredGrid -> surface -> PNG, with a scalar bar and the time).
+
+examples:
+  render.py run.h5 -o frame.png                    # last complete step, coloured by energy
+  render.py run.h5 -o frame.png --step 10 --scale 3 --field energy
+Prints the path of the PNG."""
+import argparse
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import numpy as np  # noqa: E402
+from eprop_series import Fail, open_series  # noqa: E402
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("file", help="eprop series (.h5)")
+    ap.add_argument("-o", "--output", required=True, help="PNG to write")
+    ap.add_argument("--step", type=int, default=-1, help="output step, negative from the last (default -1)")
+    ap.add_argument("--scale", type=float, default=1.0, help="displacement magnification (default 1)")
+    ap.add_argument("--field", default="energy", help="point field to colour by (default energy)")
+    ap.add_argument("--size", default="900x700", help="image size WxH (default 900x700)")
+    a = ap.parse_args()
+    try:
+        import vtk
+        from vtk.util import numpy_support as ns
+    except ImportError:
+        raise Fail("the vtk module is missing; fix: scripts/setup.sh installs it into .venv (pip install vtk)")
+    s = open_series(a.file)
+    k = s.step_index(a.step)
+    u = s.field("displacement", k)
+    val = s.field(a.field, k)
+    if val.ndim == 2:
+        val = np.linalg.norm(val, axis=1)
+    conn, offs, types = s.cells()
+    pts = s.points + a.scale * u
+    grid = vtk.vtkUnstructuredGrid()
+    vp = vtk.vtkPoints()
+    vp.SetData(ns.numpy_to_vtk(np.ascontiguousarray(pts), deep=True))
+    grid.SetPoints(vp)
+    ca = vtk.vtkCellArray()
+    ca.SetData(ns.numpy_to_vtkIdTypeArray(np.ascontiguousarray(offs, dtype=np.int64), deep=True),
+               ns.numpy_to_vtkIdTypeArray(np.ascontiguousarray(conn, dtype=np.int64), deep=True))
+    grid.SetCells(ns.numpy_to_vtk(np.ascontiguousarray(types, dtype=np.uint8), deep=True,
+                                  array_type=vtk.VTK_UNSIGNED_CHAR), ca)
+    arr = ns.numpy_to_vtk(np.ascontiguousarray(val), deep=True)
+    arr.SetName(a.field)
+    grid.GetPointData().SetScalars(arr)
+    surf = vtk.vtkDataSetSurfaceFilter()
+    surf.SetInputData(grid)
+    mapper = vtk.vtkPolyDataMapper()
+    mapper.SetInputConnection(surf.GetOutputPort())
+    lo, hi = float(val.min()), float(val.max())
+    mapper.SetScalarRange(lo, hi if hi > lo else lo + 1.0)
+    lut = vtk.vtkLookupTable()
+    lut.SetHueRange(0.667, 0.0)
+    lut.Build()
+    mapper.SetLookupTable(lut)
+    actor = vtk.vtkActor()
+    actor.SetMapper(mapper)
+    actor.GetProperty().EdgeVisibilityOn()
+    actor.GetProperty().SetEdgeColor(0.2, 0.2, 0.2)
+    bar = vtk.vtkScalarBarActor()
+    bar.SetLookupTable(lut)
+    bar.SetTitle(a.field)
+    for tp in (bar.GetTitleTextProperty(), bar.GetLabelTextProperty()):
+        tp.SetColor(0, 0, 0)
+        tp.ItalicOff()
+        tp.ShadowOff()
+    text = vtk.vtkTextActor()
+    text.SetInput(f"{os.path.basename(a.file)}  step {k}  t = {s.times[k]:.4g}  (u x {a.scale:g})")
+    text.GetTextProperty().SetFontSize(18)
+    text.GetTextProperty().SetColor(0, 0, 0)
+    ren = vtk.vtkRenderer()
+    ren.SetBackground(1, 1, 1)
+    ren.AddActor(actor)
+    ren.AddViewProp(bar)
+    ren.AddViewProp(text)
+    # look at the mesh from +x, a little from below and the side, z up
+    lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
+    c = (lo3 + hi3) / 2
+    d = float(np.linalg.norm(hi3 - lo3))
+    cam = ren.GetActiveCamera()
+    cam.SetFocalPoint(*c)
+    cam.SetPosition(*(c + d * np.array([1.6, -1.0, 0.6])))
+    cam.SetViewUp(0, 0, 1)
+    ren.ResetCamera()
+    w, h = (int(x) for x in a.size.split("x"))
+    win = vtk.vtkRenderWindow()
+    win.SetOffScreenRendering(1)
+    win.SetSize(w, h)
+    win.AddRenderer(ren)
+    win.Render()
+    grab = vtk.vtkWindowToImageFilter()
+    grab.SetInput(win)
+    grab.Update()
+    png = vtk.vtkPNGWriter()
+    png.SetFileName(a.output)
+    png.SetInputConnection(grab.GetOutputPort())
+    png.Write()
+    s.close()
+    if not os.path.exists(a.output):
+        raise Fail(f"{a.output}: VTK wrote no image (no off-screen OpenGL: install libegl1 libegl-mesa0 libgl1-mesa-dri)")
+    print(a.output)
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except Fail as e:
+        sys.exit(f"render.py: {e}")
