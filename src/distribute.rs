@@ -225,6 +225,7 @@ pub fn encode(setup: &Setup, plan: &Plan, sizes: GlobalSizes) -> Vec<u8> {
         w.u64(l.ramp.is_some() as u64);
         w.f64s(l.ramp.as_deref().unwrap_or(&[]).as_flattened());
         w.opt_f64(l.normal);
+        w.opt_f64(l.depth);
     }
     // settings
     match setup.scheme {
@@ -326,7 +327,9 @@ pub fn decode(bytes: &[u8]) -> Result<Part> {
         let has_ramp = r.u64()? != 0;
         let ramp: Vec<[f64; 2]> = r.f64s()?.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
         let normal = r.opt_f64()?;
+        let depth = r.opt_f64()?;
         loads.push(Load {
+            depth,
             nodes,
             node_ids,
             weights,

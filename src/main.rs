@@ -32,7 +32,7 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [mesh]      file = \"organ.msh\"             (relative to the scenario file)\n\
   [material]  mass = 1.0, damping = 2.0, conductivity = 0.05 | [rx, ry, rz] | 3x3 table\n\
   [[material.region]]  box | sphere | halfspace | tag | group, and conductivity / mass / damping\n\
-  [model]     scheme = \"compact\" | \"paper\", paper_correction = true,\n\
+  [model]     scheme = \"compact\" | \"paper\", paper_correction = true, operator_precision = \"float64\" | \"float32\",\n\
               stiffness = 1.0 (k_e), coupling = 1.0 (kappa), exponent = 1.0 (p)\n\
   [tissue]    young = 100.0, beta = 0.0 (exponential law when > 0)\n\
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\
@@ -40,9 +40,11 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [[load]]    node = ID | nearest = [x,y,z];  force = [fx,fy,fz] | normal = magnitude;\n\
               ramp = [[t0, s0], [t1, s1], ...] (optional scale in time)\n\
   [time]      steps = N | end = T | equilibrium = tol;  dt, h optional (automatic)\n\
-  [output]    file = \"out.h5\", every = 1\n\n\
+  [output]    file = \"out.h5\", every = 1, fields = [\"displacement\", ...],\n\
+              precision = \"float64\" | \"float32\", compression = 0..9 (gzip)\n\n\
 The summary gives the substep h, the steps, the speed, the largest displacement and the\n\
-contact displacement of each load. Run under mpirun for several processes.")]
+contact displacement of each load. Run under mpirun for several processes; --restart FILE\n\
+continues an interrupted series from its last complete step.")]
     Run {
         /// Scenario file (TOML)
         scenario: PathBuf,
@@ -62,6 +64,18 @@ contact displacement of each load. Run under mpirun for several processes.")]
         /// mesh) from its last complete step; the result is bit for bit the uninterrupted run's
         #[arg(long, value_name = "FILE")]
         restart: Option<PathBuf>,
+    },
+    /// Validate a scenario without running it and print what it derives: counts, fixed and
+    /// loaded nodes, h, dt, substeps, estimated run time, memory and output size.
+    Check {
+        /// Scenario file (TOML)
+        scenario: PathBuf,
+        /// Number of steps (overrides [time])
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Print JSON
+        #[arg(long)]
+        json: bool,
     },
     /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep.
     Info {
@@ -355,6 +369,18 @@ fn real_main(cli: Cli) -> Result<()> {
                 col.len(),
                 sim.h
             );
+        }
+        Cmd::Check { scenario, steps, json } => {
+            let opts = RunOptions {
+                steps,
+                ..Default::default()
+            };
+            let r = eprop::run::check(&scenario, &opts)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                println!("{r}");
+            }
         }
         Cmd::Convert { input, output } => {
             let m = eprop_io::read_mesh(&input)?;

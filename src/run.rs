@@ -28,7 +28,10 @@ pub struct RunOptions {
 
 #[derive(Serialize, Debug, Clone)]
 pub struct LoadSummary {
+    /// The (first) contact node's id; `contact_nodes` nodes over `contact_area` in all.
     pub node: u64,
+    pub contact_nodes: usize,
+    pub contact_area: f64,
     pub force: [f64; 3],
     pub displacement: [f64; 3],
 }
@@ -130,11 +133,15 @@ impl std::fmt::Display for Summary {
             self.total_energy, self.max_speed
         )?;
         for (k, l) in self.loads.iter().enumerate() {
+            let at = if l.contact_nodes > 1 {
+                format!("patch of {} nodes (area {:.4e})", l.contact_nodes, l.contact_area)
+            } else {
+                format!("node {}", l.node)
+            };
             writeln!(
                 f,
-                "  load {}      node {}, F = ({:.4}, {:.4}, {:.4}), u = ({:.5e}, {:.5e}, {:.5e})",
+                "  load {}      {at}, F = ({:.4}, {:.4}, {:.4}), u = ({:.5e}, {:.5e}, {:.5e})",
                 k + 1,
-                l.node,
                 l.force[0],
                 l.force[1],
                 l.force[2],
@@ -384,6 +391,8 @@ pub fn run_simulation(
     let every = sim.setup.every;
     let max_steps = sim.max_steps();
     let mut last_report = Instant::now();
+    // a progress bar on rank 0 when a person watches (stderr is a terminal) and not --quiet
+    let bar = root && !opts.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr());
     while !sim.done() {
         sim.advance();
         let is_last = sim.done();
@@ -392,13 +401,28 @@ pub fn run_simulation(
             appends.push(t);
             output_seconds += t;
         }
-        if root && !opts.quiet && last_report.elapsed().as_secs_f64() > 5.0 {
-            eprintln!(
-                "  step {}/{} t = {:.4} max|v| = {:.3e}",
-                sim.step, max_steps, sim.time, sim.max_speed
+        if bar && last_report.elapsed().as_secs_f64() > 0.2 {
+            let done = (sim.step - restarted_at) as f64;
+            let rate = done / t1.elapsed().as_secs_f64().max(1e-9);
+            let frac = (sim.step as f64 / max_steps.max(1) as f64).min(1.0);
+            let eta = (max_steps.saturating_sub(sim.step)) as f64 / rate.max(1e-9);
+            let w = 30;
+            let fill = (frac * w as f64) as usize;
+            eprint!(
+                "\r  [{}{}] step {}/{} {:.1} steps/s ETA {:.0} s max|v| {:.2e}   ",
+                "#".repeat(fill),
+                "-".repeat(w - fill),
+                sim.step,
+                max_steps,
+                rate,
+                eta,
+                sim.max_speed
             );
             last_report = Instant::now();
         }
+    }
+    if bar {
+        eprint!("\r{}\r", " ".repeat(100));
     }
     let wall = t1.elapsed().as_secs_f64();
     let median = |v: &[f64]| {
@@ -467,6 +491,8 @@ pub fn run_simulation(
             .zip(&probes)
             .map(|(l, (f, d))| LoadSummary {
                 node: l.node_ids[0],
+                contact_nodes: l.nodes.len(),
+                contact_area: l.area,
                 force: *f,
                 displacement: *d,
             })
@@ -670,6 +696,127 @@ impl std::fmt::Display for PartitionReport {
                 "  {:<4}   {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}",
                 p, m.owned[p], m.halo[p], m.neighbours[p], b.owned[p], b.halo[p], b.neighbours[p]
             )?;
+        }
+        Ok(())
+    }
+}
+
+/// What `eprop check` derives from a scenario without running it.
+#[derive(Serialize, Debug)]
+pub struct CheckReport {
+    pub scenario: String,
+    pub mesh: String,
+    pub nodes: usize,
+    pub cells: usize,
+    pub fixed_nodes: usize,
+    /// Per load: contact nodes and contact area.
+    pub loads: Vec<(usize, f64)>,
+    pub scheme: String,
+    pub h: f64,
+    pub h_bound: f64,
+    pub dt: f64,
+    pub dt_bound: f64,
+    pub substeps: usize,
+    pub steps: u64,
+    pub output: String,
+    pub output_steps: u64,
+    pub output_mib: f64,
+    pub memory_mib: f64,
+    pub estimated_seconds: f64,
+    pub warnings: Vec<String>,
+}
+
+/// Validates a scenario, builds its simulation on one process and times a few substeps.
+pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
+    let setup = prepare(path, opts)?;
+    let mut sim = Simulation::new(setup)?;
+    let n = sim.n_global;
+    let q: Vec<(u32, [f64; 3])> = vec![];
+    let t = Instant::now();
+    let reps = 5;
+    for _ in 0..reps {
+        sim.prop.substep(sim.h, &q, sim.comm.as_ref());
+    }
+    let per_substep = t.elapsed().as_secs_f64() / reps as f64;
+    let steps = sim.max_steps();
+    let every = sim.setup.every.max(1);
+    let output_steps = steps / every + 1 + u64::from(!steps.is_multiple_of(every));
+    let fields: usize = FIELDS
+        .iter()
+        .filter(|f| sim.setup.scenario.file.output.fields.iter().any(|x| x == f.0))
+        .map(|f| f.1)
+        .sum();
+    let width = if sim.setup.scenario.file.output.precision == "float32" {
+        4.0
+    } else {
+        8.0
+    };
+    let mesh = sim.global.as_ref().unwrap_or(&sim.setup.mesh);
+    let mut warnings = mesh.warnings.clone();
+    if sim.inactive_nodes > 0 {
+        warnings.push(format!(
+            "{} node(s) belong to no cell and stay at rest",
+            sim.inactive_nodes
+        ));
+    }
+    if sim.loads.iter().any(|l| l.nodes.len() == 1) {
+        warnings.push(
+            "a load on a single node is mesh-dependent (the source is singular); a `patch = { center, radius }` is not"
+                .into(),
+        );
+    }
+    Ok(CheckReport {
+        scenario: path.display().to_string(),
+        mesh: mesh.source.clone(),
+        nodes: n,
+        cells: mesh.n_cells(),
+        fixed_nodes: sim.fixed_nodes,
+        loads: sim.loads.iter().map(|l| (l.nodes.len(), l.area)).collect(),
+        scheme: scheme_name(sim.setup.scheme).to_string(),
+        h: sim.h,
+        h_bound: sim.h_bound,
+        dt: sim.dt,
+        dt_bound: sim.dt_bound,
+        substeps: sim.substeps,
+        steps,
+        output: sim.setup.output.display().to_string(),
+        output_steps,
+        output_mib: (n * fields) as f64 * width * output_steps as f64 / 1048576.0,
+        memory_mib: distribute::peak_rss() as f64 / 1048576.0,
+        estimated_seconds: per_substep * 1.3 * sim.substeps as f64 * steps as f64,
+        warnings,
+    })
+}
+
+impl std::fmt::Display for CheckReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "{}: ok", self.scenario)?;
+        writeln!(
+            f,
+            "  mesh        {} ({} nodes, {} cells)",
+            self.mesh, self.nodes, self.cells
+        )?;
+        writeln!(f, "  fixed       {} nodes", self.fixed_nodes)?;
+        for (k, (n, a)) in self.loads.iter().enumerate() {
+            writeln!(f, "  load {}      {n} contact node(s), contact area {a:.4e}", k + 1)?;
+        }
+        writeln!(
+            f,
+            "  scheme      {}, h = {:.4e} (bound {:.4e}), dt = {:.4e} (bound {:.4e}), {} substeps per step",
+            self.scheme, self.h, self.h_bound, self.dt, self.dt_bound, self.substeps
+        )?;
+        writeln!(
+            f,
+            "  run         {} steps, about {:.3} s on one process; {:.1} MiB of memory",
+            self.steps, self.estimated_seconds, self.memory_mib
+        )?;
+        write!(
+            f,
+            "  output      {} ({} steps, about {:.1} MiB)",
+            self.output, self.output_steps, self.output_mib
+        )?;
+        for w in &self.warnings {
+            write!(f, "\n  warning     {w}")?;
         }
         Ok(())
     }

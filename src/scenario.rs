@@ -34,13 +34,15 @@ pub struct MeshSec {
     pub file: String,
 }
 
-/// A conductivity: a scalar, three diagonal values, or a full symmetric 3x3 table.
+/// A conductivity: a scalar, three diagonal values, a full symmetric 3x3 table, or diagonal
+/// values along the axes of an orthonormal frame (`{ diagonal = [...], axes = [[...], ...] }`).
 #[derive(Deserialize, Debug, Clone)]
 #[serde(untagged)]
 pub enum Conductivity {
     Scalar(f64),
     Diagonal([f64; 3]),
     Full([[f64; 3]; 3]),
+    Frame { diagonal: [f64; 3], axes: [[f64; 3]; 3] },
 }
 
 impl Conductivity {
@@ -49,7 +51,36 @@ impl Conductivity {
             Conductivity::Scalar(r) => Tensor::identity() * *r,
             Conductivity::Diagonal(d) => Tensor::from_diagonal(&nalgebra::Vector3::from(*d)),
             Conductivity::Full(m) => Tensor::from_fn(|i, j| m[i][j]),
+            Conductivity::Frame { diagonal, axes } => {
+                // R = sum_k d_k a_k a_k^T
+                let mut t = Tensor::zeros();
+                for k in 0..3 {
+                    let a = nalgebra::Vector3::from(axes[k]);
+                    t += a * a.transpose() * diagonal[k];
+                }
+                t
+            }
         }
+    }
+
+    /// The axes of a frame must be orthonormal (to 1e-6).
+    pub fn check_frame(&self) -> std::result::Result<(), String> {
+        if let Conductivity::Frame { axes, .. } = self {
+            for i in 0..3 {
+                for j in 0..3 {
+                    let d: f64 = (0..3).map(|c| axes[i][c] * axes[j][c]).sum();
+                    let want = if i == j { 1.0 } else { 0.0 };
+                    if !((d - want).abs() <= 1e-6) {
+                        return Err(format!(
+                            "the axes are not orthonormal (axis {} . axis {} = {d:.6}); fix: give three unit vectors at right angles",
+                            i + 1,
+                            j + 1
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -196,6 +227,9 @@ impl Default for TissueSec {
 pub struct LoadSec {
     pub node: Option<u64>,
     pub nearest: Option<[f64; 3]>,
+    /// A contact patch: every surface node within `radius` of `center`, weighted by its
+    /// boundary dual area.
+    pub patch: Option<Sphere>,
     pub force: Option<[f64; 3]>,
     pub normal: Option<f64>,
     /// Piecewise-linear ramp: [[t0, s0], [t1, s1], ...]; the force is scaled by s(t).
@@ -374,6 +408,10 @@ pub struct Load {
     pub ramp: Option<Vec<[f64; 2]>>,
     /// Normal load magnitude (force direction is set from the boundary normal).
     pub normal: Option<f64>,
+    /// Contact patches: the source enters through the patch surface as a flux of depth
+    /// `depth` (the patch radius): Q_i = q |A_i| depth / V_i, so the energy put in does not
+    /// depend on the mesh. None: the paper's nodal source Q_c = q.
+    pub depth: Option<f64>,
 }
 
 impl Load {
@@ -452,6 +490,9 @@ impl Setup {
                 format!("{} must be zero or positive", m.damping),
             ));
         }
+        m.conductivity
+            .check_frame()
+            .map_err(|e| sc.err("material", 0, "conductivity", e))?;
         let r0 = m.conductivity.tensor();
         check_spd(&r0).map_err(|e| sc.err("material", 0, "conductivity", e))?;
         let mut r = vec![r0; n];
@@ -474,6 +515,10 @@ impl Setup {
                     "box",
                     "the region holds no node; fix: check its bounds against the mesh (eprop info MESH)",
                 ));
+            }
+            if let Some(c) = &reg.conductivity {
+                c.check_frame()
+                    .map_err(|e| sc.err("material.region", k, "conductivity", e))?;
             }
             let rt = reg.conductivity.as_ref().map(|c| c.tensor());
             if let Some(rt) = &rt {
@@ -577,12 +622,45 @@ impl Setup {
             }
         }
 
+        // every piece of the mesh needs its own fixed node, else its energy never leaves
+        let (comp, ncomp) = components(&mesh);
+        if ncomp > 1 {
+            let mut has_cells = vec![false; ncomp];
+            let mut held = vec![false; ncomp];
+            let mut size = vec![0usize; ncomp];
+            for c in 0..mesh.n_cells() {
+                has_cells[comp[mesh.cell(c)[0] as usize] as usize] = true;
+            }
+            for i in 0..n {
+                size[comp[i] as usize] += 1;
+                held[comp[i] as usize] |= fixed[i];
+            }
+            if let Some(q) = (0..ncomp).find(|&q| has_cells[q] && !held[q]) {
+                let any = (0..n).find(|&i| comp[i] as usize == q).unwrap_or(0);
+                bail!(
+                    "{}: the mesh has {} separate pieces and the one with node {} ({} nodes) holds no fixed node; \
+                     fix: add a [[fixed]] set on that piece (every piece needs its own)",
+                    sc.path.display(),
+                    has_cells.iter().filter(|&&b| b).count(),
+                    mesh.node_ids[any],
+                    size[q]
+                );
+            }
+        }
+
         // loads
         let mut loads = Vec::new();
         for (k, l) in f.load.iter().enumerate() {
-            let node = match (l.node, l.nearest) {
-                (Some(id), None) => match mesh.node_ids.iter().position(|&x| x == id) {
-                    Some(i) => i as u32,
+            let key = if l.node.is_some() {
+                "node"
+            } else if l.nearest.is_some() {
+                "nearest"
+            } else {
+                "patch"
+            };
+            let (nodes, weights): (Vec<u32>, Vec<f64>) = match (l.node, l.nearest, &l.patch) {
+                (Some(id), None, None) => match mesh.node_ids.iter().position(|&x| x == id) {
+                    Some(i) => (vec![i as u32], vec![1.0]),
                     None => {
                         return Err(sc.err(
                             "load",
@@ -592,30 +670,60 @@ impl Setup {
                         ))
                     }
                 },
-                (None, Some(p)) => {
+                (None, Some(p), None) => {
                     if !finite3(&p) {
                         return Err(sc.err("load", k, "nearest", "has a non-finite coordinate"));
                     }
-                    nearest_surface_node(&mesh, p)
-                        .ok_or_else(|| sc.err("load", k, "nearest", "the mesh has no surface node"))?
+                    let n = nearest_surface_node(&mesh, p)
+                        .ok_or_else(|| sc.err("load", k, "nearest", "the mesh has no surface node"))?;
+                    (vec![n], vec![1.0])
+                }
+                (None, None, Some(ps)) => {
+                    if !(finite3(&ps.center) && ps.radius > 0.0 && ps.radius.is_finite()) {
+                        return Err(sc.err(
+                            "load",
+                            k,
+                            "patch",
+                            "needs a finite center and a positive radius",
+                        ));
+                    }
+                    let area = surface_node_areas(&mesh);
+                    let picked: Vec<u32> = (0..mesh.n_nodes())
+                        .filter(|&i| area[i] > 0.0 && norm(sub(mesh.points[i], ps.center)) <= ps.radius)
+                        .map(|i| i as u32)
+                        .collect();
+                    if picked.is_empty() {
+                        return Err(sc.err(
+                            "load",
+                            k,
+                            "patch",
+                            format!(
+                                "no surface node within {} of {:?}; fix: move the center onto the surface or widen the radius (eprop info MESH gives the bounds)",
+                                ps.radius, ps.center
+                            ),
+                        ));
+                    }
+                    let total: f64 = picked.iter().map(|&i| area[i as usize]).sum();
+                    let w = picked.iter().map(|&i| area[i as usize] / total).collect();
+                    (picked, w)
                 }
                 _ => {
                     return Err(sc.err(
                         "load",
                         k,
                         "node",
-                        "give exactly one of `node = ID` or `nearest = [x, y, z]`",
+                        "give exactly one of `node = ID`, `nearest = [x, y, z]` or `patch = { center = [x, y, z], radius = R }`",
                     ))
                 }
             };
-            if fixed[node as usize] {
+            if let Some(&bad) = nodes.iter().find(|&&n| fixed[n as usize]) {
                 return Err(sc.err(
                     "load",
                     k,
-                    if l.node.is_some() { "node" } else { "nearest" },
+                    key,
                     format!(
-                        "the load's node {} is in the fixed set; fix: load a free node or shrink the [[fixed]] set",
-                        mesh.node_ids[node as usize]
+                        "the load's node {} is in the fixed set; fix: load free nodes or shrink the [[fixed]] set",
+                        mesh.node_ids[bad as usize]
                     ),
                 ));
             }
@@ -655,9 +763,10 @@ impl Setup {
                 }
             }
             loads.push(Load {
-                nodes: vec![node],
-                node_ids: vec![mesh.node_ids[node as usize]],
-                weights: vec![1.0],
+                depth: l.patch.as_ref().map(|p| p.radius),
+                node_ids: nodes.iter().map(|&n| mesh.node_ids[n as usize]).collect(),
+                nodes,
+                weights,
                 force,
                 area: 0.0,
                 ramp: l.ramp.clone(),
@@ -915,6 +1024,58 @@ pub fn select(sc: &Scenario, mesh: &Mesh, s: &SelectSec, section: &str, k: usize
 }
 
 /// The surface node nearest to a point (surface = on a boundary face of the volume cells).
+/// The boundary dual area of every node: each boundary face's area shared equally by its
+/// corners (exact for the median dual of triangles; quadrilaterals are split evenly).
+pub fn surface_node_areas(mesh: &Mesh) -> Vec<f64> {
+    let mut area = vec![0.0; mesh.n_nodes()];
+    for (c, f) in eprop_io::mesh::boundary_faces(mesh) {
+        let cell = mesh.cell(c as usize);
+        let face = mesh.kinds[c as usize].faces()[f as usize];
+        let pts: Vec<[f64; 3]> = face.iter().map(|&l| mesh.points[cell[l] as usize]).collect();
+        let a = norm(eprop_io::geom::loop_area(&pts)) / face.len() as f64;
+        for &l in face {
+            area[cell[l] as usize] += a;
+        }
+    }
+    area
+}
+
+/// Connected components of the cells (nodes sharing a cell): a component id per node, and
+/// the number of components (cell-less nodes get their own ids).
+pub fn components(mesh: &Mesh) -> (Vec<u32>, usize) {
+    let n = mesh.n_nodes();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn root(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    for c in 0..mesh.n_cells() {
+        let cell = mesh.cell(c);
+        let r0 = root(&mut parent, cell[0]);
+        for &v in &cell[1..] {
+            let r = root(&mut parent, v);
+            if r != r0 {
+                parent[r as usize] = r0;
+            }
+        }
+    }
+    let mut id = vec![u32::MAX; n];
+    let mut comp = vec![0u32; n];
+    let mut count = 0usize;
+    for i in 0..n {
+        let r = root(&mut parent, i as u32) as usize;
+        if id[r] == u32::MAX {
+            id[r] = count as u32;
+            count += 1;
+        }
+        comp[i] = id[r];
+    }
+    (comp, count)
+}
+
 pub fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {
     let mut on_surface = vec![false; mesh.n_nodes()];
     for (c, f) in eprop_io::mesh::boundary_faces(mesh) {

@@ -348,8 +348,8 @@ pub struct Simulation {
     pub v: Vec<V3>,
     pub force: Vec<V3>,
     pub loads: Vec<Load>,
-    /// owned contact nodes of each load (local index, weight)
-    pub load_local: Vec<Vec<(u32, f64)>>,
+    /// owned contact nodes of each load (local index, probe weight, force weight, source weight)
+    pub load_local: Vec<Vec<(u32, f64, f64, f64)>>,
     /// control volumes of this process's output block
     pub vol_block: Vec<f64>,
     /// nodes of the whole mesh that belong to no cell; fixed nodes of the whole mesh
@@ -480,7 +480,7 @@ impl Simulation {
                 .collect();
             let mut a = [0.0; 3];
             for d in 0..3 {
-                a[d] = exact_sum(comm.as_ref(), mine.iter().map(|&(li, w)| w * dual.area[li as usize][d]));
+                a[d] = exact_sum(comm.as_ref(), mine.iter().map(|&(li, _)| dual.area[li as usize][d]));
             }
             let an = norm(a);
             if !(an > 0.0) {
@@ -495,6 +495,15 @@ impl Simulation {
             if let Some(mag) = l.normal {
                 l.force = scale(a, -mag / an);
             }
+            let mine = mine
+                .iter()
+                .map(|&(li, w)| match l.depth {
+                    // a patch: every contact node is pressed by F (the mechanics are nodal) and
+                    // the source enters through the patch surface as a flux
+                    Some(depth) => (li, w, 1.0, norm(dual.area[li as usize]) * depth / dual.vol[li as usize]),
+                    None => (li, w, w, w),
+                })
+                .collect();
             load_local.push(mine);
         }
         let blocks = Blocks::new(&gid[..n_owned], n_global, comm.as_ref());
@@ -552,10 +561,10 @@ impl Simulation {
         let mut q = Vec::new();
         for (mine, a) in self.load_local.iter().zip(&applied) {
             let fn_ = norm(a.force);
-            for &(i, w) in mine {
-                self.force[i as usize] = scale(a.force, w);
+            for &(i, _, fw, sw) in mine {
+                self.force[i as usize] = scale(a.force, fw);
                 if fn_ > 0.0 {
-                    q.push((i, scale(a.force, w * a.q / fn_)));
+                    q.push((i, scale(a.force, sw * a.q / fn_)));
                 }
             }
         }
@@ -643,7 +652,10 @@ impl Simulation {
             .map(|(mine, a)| {
                 let mut d = [0.0; 3];
                 for c in 0..3 {
-                    d[c] = exact_sum(self.comm.as_ref(), mine.iter().map(|&(i, w)| w * self.u[i as usize][c]));
+                    d[c] = exact_sum(
+                        self.comm.as_ref(),
+                        mine.iter().map(|&(i, w, _, _)| w * self.u[i as usize][c]),
+                    );
                 }
                 (a.force, d)
             })
