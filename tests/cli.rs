@@ -125,6 +125,77 @@ fn bad_scenarios_fail_cleanly() {
 }
 
 #[test]
+fn every_kind_of_bad_scenario_is_named() {
+    let d = workdir("bad2");
+    let p = d.path();
+    let with = |extra: &str| format!("{SCENARIO}{extra}");
+    let cases: Vec<(String, Vec<&str>)> = vec![
+        (with("[material]\ndamping = -1.0\n"), vec!["damping", "zero or positive"]),
+        (with("[material]\nmass = nan\n"), vec!["mass"]),
+        (SCENARIO.replace("normal = 1.0", "normal = nan"), vec!["normal", "finite"]),
+        (SCENARIO.replace("steps = 6", "steps = 6\nh = 50.0"), vec!["h = 50", "stability bound"]),
+        (
+            with("[material]\nconductivity = { diagonal = [0.1, 0.1, 0.1], axes = [[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]] }\n"),
+            vec!["conductivity", "orthonormal"],
+        ),
+        (
+            with("[[material.region]]\nbox = [[10.0, 10.0, 10.0], [11.0, 11.0, 11.0]]\nmass = 2.0\n"),
+            vec!["region", "holds no node"],
+        ),
+        (
+            SCENARIO.replace("nearest = [1.0, 0.0, 2.0]", "patch = { center = [9.0, 9.0, 9.0], radius = 0.1 }"),
+            vec!["patch", "no surface node"],
+        ),
+        (
+            SCENARIO.replace("nearest = [1.0, 0.0, 2.0]", "patch = { center = [0.0, 0.0, 0.0], radius = 0.5 }"),
+            vec!["fixed set"],
+        ),
+        (
+            SCENARIO.replace("normal = 1.0", "normal = 1.0\nramp = [[1.0, 0.0], [0.5, 1.0]]"),
+            vec!["ramp", "increasing"],
+        ),
+        (SCENARIO.replace("every = 2", "every = 2\nfields = []"), vec!["fields", "empty"]),
+        (SCENARIO.replace("every = 2", "every = 2\nfields = [\"strain\"]"), vec!["strain", "not a field"]),
+        (SCENARIO.replace("every = 2", "every = 2\nprecision = \"float16\""), vec!["precision"]),
+        (SCENARIO.replace("every = 2", "every = 2\ncompression = 12"), vec!["compression"]),
+        (SCENARIO.replace("every = 2", "every = 0"), vec!["every", "at least 1"]),
+        (with("[model]\nscheme = \"magic\"\n"), vec!["scheme", "compact"]),
+        (with("[model]\noperator_precision = \"half\"\n"), vec!["operator_precision"]),
+        (with("[tissue]\nyoung = 0.0\n"), vec!["young"]),
+        (SCENARIO.replace("[[fixed]]\ngroup = \"bottom\"\n", ""), vec!["no [[fixed]] set"]),
+        (SCENARIO.replace("steps = 6", "end = -1.0"), vec!["end", "positive"]),
+        (SCENARIO.replace("nearest = [1.0, 0.0, 2.0]", "node = 999999"), vec!["999999", "not in the mesh"]),
+        (with("[material]\nconductivity = \"high\"\n"), vec!["bad.toml:"]),
+        (SCENARIO.replace("[time]", "[times]"), vec!["bad.toml:"]),
+    ];
+    assert!(cases.len() >= 20);
+    for (text, needles) in &cases {
+        expect_failure(p, text, needles);
+    }
+}
+
+#[test]
+fn each_piece_of_the_mesh_needs_a_fixed_node() {
+    let d = workdir("pieces");
+    // two cylinders side by side in one file; only the first one's bottom is fixed
+    let mut m = eprop_io::generate::cylinder_mesh(1.0, 4.0, 3, 11).unwrap();
+    let b = eprop_io::generate::cylinder_mesh(1.0, 4.0, 3, 11).unwrap();
+    let off = m.n_nodes() as u32;
+    let id0 = m.node_ids.iter().max().unwrap() + 1;
+    m.points.extend(b.points.iter().map(|p| [p[0] + 5.0, p[1], p[2]]));
+    m.node_ids.extend(b.node_ids.iter().map(|i| i + id0));
+    for c in 0..b.n_cells() {
+        let nodes: Vec<u32> = b.cell(c).iter().map(|&v| v + off).collect();
+        m.push_cell(b.kinds[c], &nodes, b.cell_tags[c]);
+    }
+    eprop_io::write_mesh(&m, &d.path().join("two.msh")).unwrap();
+    let text = SCENARIO
+        .replace("cyl.msh", "two.msh")
+        .replace("group = \"bottom\"", "box = [[-2.0, -2.0, -0.1], [2.0, 2.0, 0.1]]");
+    expect_failure(d.path(), &text, &["separate pieces", "fixed", "fix:"]);
+}
+
+#[test]
 fn info_reports_the_geometry_checks() {
     let d = workdir("info");
     let (ok, out, err) = eprop(&["info", d.path().join("cyl.msh").to_str().unwrap(), "--json"]);
