@@ -217,7 +217,8 @@ impl std::error::Error for Collective {}
 fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let mesh = &setup.mesh;
     let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
-    let part = eprop_partition::partition(&xadj, &adj, size, eprop_partition::Method::Metis)
+    let weights = eprop_partition::degree_weights(&xadj);
+    let part = eprop_partition::partition_weighted(&xadj, &adj, size, eprop_partition::Method::Metis, Some(&weights))
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
     Ok((part, morton_keys(mesh)))
 }
@@ -640,11 +641,14 @@ pub struct PartitionReport {
 }
 
 pub fn partition_report(mesh: &Mesh, parts: usize) -> Result<PartitionReport> {
-    use eprop_partition::{node_graph, partition, quality, Method};
+    use eprop_partition::{node_graph, quality, Method};
     let (xadj, adj) = node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
     let mut splits = Vec::new();
+    let weights = eprop_partition::degree_weights(&xadj);
     for (name, method) in [("metis", Method::Metis), ("block", Method::Block)] {
-        let part = partition(&xadj, &adj, parts, method).map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
+        // METIS balances the work per node (its neighbours + 1), as `mpirun eprop run` does
+        let part = eprop_partition::partition_weighted(&xadj, &adj, parts, method, Some(&weights))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
         let q = quality(&xadj, &adj, &part, parts);
         splits.push(SplitQuality {
             method: name.to_string(),

@@ -64,6 +64,23 @@ pub enum Method {
 
 /// Part of every node, in `0..nparts`.
 pub fn partition(xadj: &[usize], adj: &[u32], nparts: usize, method: Method) -> Result<Vec<u32>> {
+    partition_weighted(xadj, adj, nparts, method, None)
+}
+
+/// Work per node for balancing: its number of neighbours plus one (the stored pairs of its
+/// operator row and its own update).
+pub fn degree_weights(xadj: &[usize]) -> Vec<u32> {
+    xadj.windows(2).map(|w| (w[1] - w[0] + 1) as u32).collect()
+}
+
+/// Like `partition`, with optional node weights that METIS balances instead of node counts.
+pub fn partition_weighted(
+    xadj: &[usize],
+    adj: &[u32],
+    nparts: usize,
+    method: Method,
+    weights: Option<&[u32]>,
+) -> Result<Vec<u32>> {
     let n = xadj.len() - 1;
     if nparts == 0 {
         bail!("cannot split into 0 parts");
@@ -80,11 +97,19 @@ pub fn partition(xadj: &[usize], adj: &[u32], nparts: usize, method: Method) -> 
             let xadj_i: Vec<metis::Idx> = xadj.iter().map(|&x| x as metis::Idx).collect();
             let adj_i: Vec<metis::Idx> = adj.iter().map(|&x| x as metis::Idx).collect();
             let mut part = vec![0 as metis::Idx; n];
-            metis::Graph::new(1, nparts as metis::Idx, &xadj_i, &adj_i)
+            let w: Vec<metis::Idx> = weights
+                .map(|w| w.iter().map(|&x| x as metis::Idx).collect())
+                .unwrap_or_default();
+            let mut g = metis::Graph::new(1, nparts as metis::Idx, &xadj_i, &adj_i)
                 .map_err(|e| anyhow!("METIS rejected the node graph: {e:?}"))?
-                .set_option(metis::option::Seed(1))
-                .part_kway(&mut part)
-                .map_err(|e| anyhow!("METIS failed: {e:?}"))?;
+                .set_option(metis::option::Seed(1));
+            if weights.is_some() {
+                if w.len() != n {
+                    bail!("{} node weights for {n} nodes", w.len());
+                }
+                g = g.set_vwgt(&w);
+            }
+            g.part_kway(&mut part).map_err(|e| anyhow!("METIS failed: {e:?}"))?;
             let part: Vec<u32> = part.iter().map(|&p| p as u32).collect();
             let mut count = vec![0usize; nparts];
             for &p in &part {
@@ -303,5 +328,31 @@ mod tests {
             }
         }
         assert!(partition(&xadj, &adj, 10, Method::Metis).is_err());
+    }
+
+    #[test]
+    fn node_weights_balance_work_not_counts() {
+        // a path of 200 nodes whose first 50 weigh 7 each: the split must balance the weights
+        let n = 200usize;
+        let mut xadj = vec![0usize];
+        let mut adj = vec![];
+        for i in 0..n {
+            if i > 0 {
+                adj.push(i as u32 - 1);
+            }
+            if i + 1 < n {
+                adj.push(i as u32 + 1);
+            }
+            xadj.push(adj.len());
+        }
+        let w: Vec<u32> = (0..n).map(|i| if i < 50 { 7 } else { 1 }).collect();
+        let part = partition_weighted(&xadj, &adj, 2, Method::Metis, Some(&w)).unwrap();
+        let mut sum = [0u32; 2];
+        for i in 0..n {
+            sum[part[i] as usize] += w[i];
+        }
+        let total = sum[0] + sum[1];
+        assert!(sum[0].max(sum[1]) as f64 <= 0.56 * total as f64, "weights {sum:?}");
+        assert!(partition_weighted(&xadj, &adj, 2, Method::Metis, Some(&w[..10])).is_err());
     }
 }
