@@ -57,29 +57,36 @@ fn bitwise_identical_on_1_to_4_ranks_generated_mesh() {
     );
 }
 
-#[test]
-fn bitwise_identical_on_1_to_4_ranks_organ_mesh() {
-    let Some(mesh) = common::shared_mesh("sofa_liver2.msh") else {
+/// Both schemes on a shared organ mesh (skipped without the shared data).
+fn organ(name: &str, setting: &str, tag: &str) {
+    let Some(mesh) = common::shared_mesh(name) else {
         return;
     };
+    check_ranks(&mesh, setting, tag);
+    check_ranks(
+        &mesh,
+        &format!("[model]\nscheme = \"paper\"\n{setting}"),
+        &format!("{tag}-paper"),
+    );
+}
+
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_organ_mesh() {
     // fixed on the left lobe's end, pressed on the top
-    let liver = "[material]\nconductivity = [0.08, 0.05, 0.05]\n[[fixed]]\nhalfspace = { point = [-1.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 0.7, 0.0]\nnormal = 1.0\n";
-    check_ranks(&mesh, liver, "liver");
-    check_ranks(&mesh, &format!("[model]\nscheme = \"paper\"\n{liver}"), "liver-paper");
+    organ(
+        "sofa_liver2.msh",
+        "[material]\nconductivity = [0.08, 0.05, 0.05]\n[[fixed]]\nhalfspace = { point = [-1.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 0.7, 0.0]\nnormal = 1.0\n",
+        "liver",
+    );
 }
 
 #[test]
 fn bitwise_identical_on_1_to_4_ranks_vtu_liver() {
-    let Some(mesh) = common::shared_mesh("mor_liverFine.vtu") else {
-        return;
-    };
     // fixed at the left tip, pressed on the top
-    let liver = "[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n";
-    check_ranks(&mesh, liver, "vtu-liver");
-    check_ranks(
-        &mesh,
-        &format!("[model]\nscheme = \"paper\"\n{liver}"),
-        "vtu-liver-paper",
+    organ(
+        "mor_liverFine.vtu",
+        "[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n",
+        "vtu-liver",
     );
 }
 
