@@ -20,6 +20,9 @@ Results go to one HDF5 file (VTKHDF) that ParaView opens and h5py reads.",
     after_help = "Examples:\n  eprop mesh cylinder -o cyl.msh\n  eprop info cyl.msh\n  eprop run scenarios/cylinder.toml\n  eprop partition cyl.msh --parts 4\n  mpirun -n 2 eprop run scenarios/cylinder.toml --output out.h5"
 )]
 struct Cli {
+    /// More log lines on stderr: -v the setup phases, -vv details
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
     #[command(subcommand)]
     cmd: Cmd,
 }
@@ -199,6 +202,20 @@ enum Shape {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if cli.verbose > 0 {
+        let level = if cli.verbose > 1 {
+            tracing::Level::DEBUG
+        } else {
+            tracing::Level::INFO
+        };
+        tracing_subscriber::fmt()
+            .with_max_level(level)
+            .with_writer(std::io::stderr)
+            .with_target(false)
+            .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            .with_timer(tracing_subscriber::fmt::time::uptime())
+            .init();
+    }
     match real_main(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -169,7 +169,14 @@ pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
 /// Reads and resolves a scenario with the command-line overrides applied.
 pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
     let scenario = Scenario::load(path)?;
+    tracing::info!("scenario {} read; reading the mesh", path.display());
     let mut setup = Setup::new(scenario)?;
+    tracing::info!(
+        "mesh {}: {} nodes, {} cells; scenario resolved",
+        setup.mesh.source,
+        setup.mesh.n_nodes(),
+        setup.mesh.n_cells()
+    );
     if let Some(o) = &opts.output {
         setup.output = o.clone();
     }
@@ -216,6 +223,7 @@ impl std::error::Error for Collective {}
 /// Rank 0's split of the whole mesh: the METIS part of every node and the locality keys.
 fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let mesh = &setup.mesh;
+    tracing::info!("splitting {} nodes into {size} parts (METIS)", mesh.n_nodes());
     let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
     let weights = eprop_partition::degree_weights(&xadj);
     let part = eprop_partition::partition_weighted(&xadj, &adj, size, eprop_partition::Method::Metis, Some(&weights))
@@ -271,6 +279,12 @@ pub fn build_mpi(
                     |r| eprop_partition::Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys));
                 for r in 1..size {
                     let plan = plan_of(r);
+                    tracing::debug!(
+                        "part {r}: {} owned, {} halo, {} neighbours",
+                        plan.n_owned,
+                        plan.n_halo(),
+                        plan.neighbours.len()
+                    );
                     let mut msg = vec![1u8];
                     msg.extend_from_slice(&distribute::encode(&setup.restrict(&plan), &plan, sizes));
                     world.process_at_rank(r as i32).send(&msg[..]);
@@ -302,6 +316,11 @@ pub fn build_mpi(
         (part, None, sizes)
     };
     let rank0_scatter_peak = if rank == 0 { distribute::peak_rss() } else { 0 };
+    tracing::info!(
+        "rank {rank}: part received ({} owned, {} halo nodes); building geometry and operator",
+        mine.plan.n_owned,
+        mine.plan.n_halo()
+    );
     let comm = crate::comm::Mpi::new(world, mine.plan.clone());
     let sim = Simulation::new_with(mine.setup, Box::new(comm), mine.plan, global.map(|s| s.mesh))?;
     Ok(Built {
@@ -376,6 +395,14 @@ pub fn run_simulation(
         out.append(sim.time, sim.step, &refs, &sim.probes())?;
         Ok(t.elapsed().as_secs_f64())
     };
+    tracing::info!(
+        "h = {:.4e} (bound {:.4e}), dt = {:.4e}, {} substeps per step; writing {}",
+        sim.h,
+        sim.h_bound,
+        sim.dt,
+        sim.substeps,
+        sim.setup.output.display()
+    );
     let (mut out, mut output_seconds) = if opts.restart.is_some() {
         let (out, resume) = SeriesWriter::reopen(&sim.setup.output, layout, &spec, io_comm)?;
         sim.restore(resume.step, &resume.u, &resume.v, &resume.phi);

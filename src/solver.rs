@@ -424,6 +424,10 @@ impl Simulation {
         };
         drop(inc);
         let mut prop = Propagation::new(op, nl, n_interior);
+        tracing::info!(
+            "geometry and operator built ({} rows); searching the stable substep",
+            n_owned
+        );
         let h_bound = prop.stable_h(&active, &gid, comm.as_ref());
         let sc = &setup.scenario;
 

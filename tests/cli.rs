@@ -233,3 +233,24 @@ fn gmsh_versions_read_alike() {
     let e = eprop_io::gmsh::parse("bad.msh", &bad).unwrap_err().to_string();
     assert!(e.contains("bad.msh:18") && e.contains("node 9"), "{e}");
 }
+
+#[test]
+fn verbose_logs_the_setup_phases_and_quiet_prints_nothing_else() {
+    let d = workdir("verbose");
+    let sc = d.path().join("s.toml");
+    std::fs::write(&sc, SCENARIO).unwrap();
+    let (ok, out, err) = eprop(&["-v", "run", sc.to_str().unwrap(), "-q"]);
+    assert!(ok, "{err}");
+    for phase in [
+        "reading the mesh",
+        "scenario resolved",
+        "stable substep",
+        "substeps per step",
+    ] {
+        assert!(err.contains(phase), "-v lacks `{phase}`: {err}");
+    }
+    assert!(!err.contains('\u{1b}'), "colour codes on a pipe");
+    assert!(out.contains("max |u|"));
+    let (ok, _, err) = eprop(&["run", sc.to_str().unwrap(), "-q"]);
+    assert!(ok && err.is_empty(), "quiet run wrote to stderr: {err}");
+}
