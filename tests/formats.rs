@@ -278,3 +278,68 @@ fn malformed_files_give_clear_errors() {
     expect_error(p, "noverts.msh", b"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n", "fix:");
     expect_error(p, "ext.xyz", b"1 2 3", "fix:");
 }
+
+#[test]
+fn tetgen_files_read_with_markers_and_both_numberings() {
+    let d = tempfile::tempdir().unwrap();
+    let m = box_mesh([1.0, 1.0, 1.0], [2, 2, 2], BoxCells::Tet).unwrap();
+    for base in [0i64, 1] {
+        let mut node = format!("# a box\n{} 3 0 0\n", m.n_nodes());
+        for (i, p) in m.points.iter().enumerate() {
+            node += &format!("{} {:?} {:?} {:?}\n", i as i64 + base, p[0], p[1], p[2]);
+        }
+        let mut ele = format!("{} 4 1\n", m.n_cells());
+        for c in 0..m.n_cells() {
+            let v: Vec<String> = m.cell(c).iter().map(|&x| (x as i64 + base).to_string()).collect();
+            ele += &format!("{} {} {}\n", c as i64 + base, v.join(" "), 1 + c % 2);
+        }
+        let stem = d.path().join(format!("b{base}.1"));
+        std::fs::write(stem.with_extension("node"), &node).unwrap();
+        std::fs::write(stem.with_extension("ele"), &ele).unwrap();
+        std::fs::write(
+            stem.with_extension("face"),
+            format!("1 1\n{base} {} {} {} 7\n", base, base + 1, base + 2),
+        )
+        .unwrap();
+        let back = eprop_io::read_mesh(&stem.with_extension("ele")).unwrap();
+        assert_eq!(back.points, m.points);
+        assert_eq!(back.conn, m.conn);
+        assert_eq!(back.cell_tags[..2], [1, 2]);
+        assert_eq!(back.facets.tags, [7]);
+        // the .node file names the same mesh
+        assert_eq!(eprop_io::read_mesh(&stem.with_extension("node")).unwrap().conn, m.conn);
+        // damaged: a missing node, a truncated element list
+        std::fs::write(stem.with_extension("ele"), ele.replacen(" 1 ", " 999 ", 1)).unwrap();
+        let e = format!("{:#}", eprop_io::read_mesh(&stem.with_extension("ele")).unwrap_err());
+        assert!(e.contains("does not define") && e.contains("fix:"), "{e}");
+        let cut: String = ele.lines().take(5).collect::<Vec<_>>().join("\n");
+        std::fs::write(stem.with_extension("ele"), cut).unwrap();
+        let e = format!("{:#}", eprop_io::read_mesh(&stem.with_extension("ele")).unwrap_err());
+        assert!(e.contains("truncated") && e.contains(".ele"), "{e}");
+    }
+}
+
+#[test]
+fn tetgen_made_organ_meshes_read() {
+    let surf = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/meshes/surface/hubmap_VH_M_prostate_peripheral_zone_L.off");
+    let have = std::process::Command::new("tetgen").arg("-h").output().is_ok();
+    if !surf.exists() || !have {
+        eprintln!("skipped: tetgen or the shared surfaces are missing");
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let off = d.path().join("p.off");
+    std::fs::copy(&surf, &off).unwrap();
+    let st = std::process::Command::new("tetgen")
+        .args(["-pq1.5", "-Q"])
+        .arg(&off)
+        .output()
+        .unwrap();
+    assert!(st.status.success());
+    let m = eprop_io::read_mesh(&d.path().join("p.1.ele")).unwrap();
+    let info = eprop::run::mesh_info(&m);
+    assert!(((info.control_volume_sum - info.volume) / info.volume).abs() < 1e-12);
+    assert!(info.max_closure_error < 1e-10);
+    assert!(m.facets.len() > 0, "the .face file gives the boundary");
+}

@@ -4,6 +4,7 @@ pub mod generate;
 pub mod geom;
 pub mod gmsh;
 pub mod mesh;
+pub mod tetgen;
 pub mod vtkhdf;
 pub mod vtu;
 
@@ -25,8 +26,9 @@ pub fn read_mesh(path: &Path) -> Result<Mesh> {
     match ext.as_str() {
         "msh" => gmsh::read(path),
         "vtu" => vtu::read(path),
+        "ele" | "node" => tetgen::read(path),
         _ => bail!(
-            "{}: unknown mesh format `.{ext}`; fix: eprop reads Gmsh .msh (versions 1, 2.2, 4.1 ASCII) and VTK .vtu",
+            "{}: unknown mesh format `.{ext}`; fix: eprop reads Gmsh .msh (versions 1, 2.2, 4.1 ASCII), VTK .vtu and TetGen .node/.ele",
             path.display()
         ),
     }
