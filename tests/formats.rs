@@ -341,5 +341,5 @@ fn tetgen_made_organ_meshes_read() {
     let info = eprop::run::mesh_info(&m);
     assert!(((info.control_volume_sum - info.volume) / info.volume).abs() < 1e-12);
     assert!(info.max_closure_error < 1e-10);
-    assert!(m.facets.len() > 0, "the .face file gives the boundary");
+    assert!(!m.facets.is_empty(), "the .face file gives the boundary");
 }
