@@ -90,17 +90,27 @@ fn bitwise_identical_on_1_to_4_ranks_vtu_liver() {
     );
 }
 
+/// A generated cylinder in `dir` and a scenario on it with `steps` steps.
+fn cylinder_scenario(dir: &Path, rings: usize, layers: usize, steps: u64) -> std::path::PathBuf {
+    let mesh = dir.join("cyl.msh");
+    eprop_io::write_mesh(
+        &eprop_io::generate::cylinder_mesh(1.0, 4.0, rings, layers).unwrap(),
+        &mesh,
+    )
+    .unwrap();
+    let sc = dir.join("s.toml");
+    std::fs::write(
+        &sc,
+        format!("[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = {steps}\n", mesh.display()),
+    )
+    .unwrap();
+    sc
+}
+
 #[test]
 fn a_failing_rank_ends_the_job_quickly() {
     let d = tempfile::tempdir().unwrap();
-    let mesh = d.path().join("cyl.msh");
-    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &mesh).unwrap();
-    let sc = d.path().join("s.toml");
-    std::fs::write(
-        &sc,
-        format!("[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 5\n", mesh.display()),
-    )
-    .unwrap();
+    let sc = cylinder_scenario(d.path(), 3, 11, 5);
     // the output directory does not exist: every rank fails
     let t = Instant::now();
     let out = mpirun(2, &["run", sc.to_str().unwrap(), "-q", "-o", "/nonexistent/dir/x.h5"]);
@@ -169,17 +179,7 @@ fn children(parent: u32) -> Vec<i32> {
 #[test]
 fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
     let d = tempfile::tempdir().unwrap();
-    let mesh = d.path().join("cyl.msh");
-    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 6, 24).unwrap(), &mesh).unwrap();
-    let sc = d.path().join("s.toml");
-    std::fs::write(
-        &sc,
-        format!(
-            "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 100000000\n",
-            mesh.display()
-        ),
-    )
-    .unwrap();
+    let sc = cylinder_scenario(d.path(), 6, 24, 100_000_000);
     let h5 = d.path().join("k.h5");
     let mut child = Command::new("mpirun")
         .args(["-n", "2", "--oversubscribe"])
