@@ -61,11 +61,24 @@ contact displacement of each load. Run under mpirun for several processes.")]
     },
     /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep.
     Info {
-        /// Mesh file (.msh)
+        /// Mesh file (.msh, .vtk, .vtu, .node/.ele, .mesh)
         mesh: PathBuf,
         /// Print JSON
         #[arg(long)]
         json: bool,
+        /// Refuse inverted cells instead of reorienting them
+        #[arg(long)]
+        strict: bool,
+    },
+    /// Convert a mesh: read any supported format, validate, write .msh (Gmsh 4.1) or .vtu.
+    Convert {
+        /// Input mesh (.msh, .vtk, .vtu, .node/.ele, .mesh)
+        input: PathBuf,
+        /// Output mesh (.msh or .vtu)
+        output: PathBuf,
+        /// Refuse inverted cells instead of reorienting them
+        #[arg(long)]
+        strict: bool,
     },
     /// Generate a mesh: the paper's cylinder or a box.
     Mesh {
@@ -186,8 +199,16 @@ fn real_main(cli: Cli) -> Result<()> {
                 }
             }
         }
-        Cmd::Info { mesh, json } => {
-            let m = eprop_io::read_mesh(&mesh)?;
+        Cmd::Convert { input, output, strict } => {
+            let m = eprop_io::read_mesh_with(&input, &eprop_io::ReadOptions { strict })?;
+            for w in &m.warnings {
+                eprintln!("warning: {w}");
+            }
+            eprop_io::write_mesh(&m, &output)?;
+            println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
+        }
+        Cmd::Info { mesh, json, strict } => {
+            let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
             let info = mesh_info(&m);
             if json {
                 println!("{}", serde_json::to_string_pretty(&info)?);

@@ -1,0 +1,1 @@
+//! Writers for formats eprop reads but does not write, for round-trip tests and fuzz seeds.

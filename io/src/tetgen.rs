@@ -1,0 +1,199 @@
+//! TetGen `.node` / `.ele` (+ optional `.face`) reader.
+//!
+//! The region attribute (first attribute) of each tetrahedron becomes its cell tag; boundary
+//! markers of `.face` become facet tags. Numbering may start at 0 or 1; `#` starts a comment.
+
+use crate::mesh::{CellKind, Mesh};
+use crate::scan::{cap, Scan};
+use anyhow::{anyhow, bail, Result};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// The marker line that separates the parts of a bundle (`parse_bundle`).
+pub const BUNDLE_SEP: &str = "%% tetgen-part";
+
+fn id_of(sc: &mut Scan, what: &str) -> Result<u64> {
+    let w = sc.word(what)?;
+    w.parse::<u64>().map_err(|_| {
+        sc.err(format!(
+            "`{}` is not a valid index for {what}; fix: repair the line",
+            crate::scan::short(w)
+        ))
+    })
+}
+
+/// Parses the three files (the `.face` part is optional).
+pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result<Mesh> {
+    let node_name = format!("{name}.node");
+    let mut sc = Scan::new(&node_name, node);
+    sc.comment = Some(b'#');
+    let n = sc.count("the node count")?;
+    let dim = sc.count("the dimension")?;
+    if dim != 3 {
+        return Err(sc.err(format!("dimension {dim}; eprop reads 3D meshes; fix: mesh in 3D")));
+    }
+    let nattr = sc.count("the attribute count")?;
+    let nmark = sc.count("the boundary marker flag")?;
+    if nmark > 1 || nattr > 1 << 16 {
+        return Err(sc.err("the header is not `<#points> 3 <#attributes> <0|1>`; fix: repair the first line"));
+    }
+    let mut mesh = Mesh::new(name);
+    let c = cap(n, sc.remaining(), 8);
+    mesh.points.reserve(c);
+    mesh.node_ids.reserve(c);
+    let mut index: HashMap<u64, u32> = HashMap::with_capacity(c);
+    for _ in 0..n {
+        let id = id_of(&mut sc, "a node index")?;
+        let mut p = [0.0; 3];
+        for v in &mut p {
+            *v = sc.num("a coordinate")?;
+        }
+        for _ in 0..nattr + nmark {
+            sc.num::<f64>("a node attribute or marker")?;
+        }
+        if index.insert(id, mesh.points.len() as u32).is_some() {
+            return Err(sc.err(format!("node {id} is defined twice; fix: renumber the nodes")));
+        }
+        mesh.points.push(p);
+        mesh.node_ids.push(id);
+    }
+    if !sc.at_end() {
+        return Err(sc.err(format!(
+            "more lines than the {n} nodes announced; fix: the node count is wrong"
+        )));
+    }
+    let ele_name = format!("{name}.ele");
+    let mut sc = Scan::new(&ele_name, ele);
+    sc.comment = Some(b'#');
+    let ne = sc.count("the tetrahedron count")?;
+    let npt = sc.count("the nodes per tetrahedron")?;
+    if npt != 4 {
+        return Err(sc.err(format!(
+            "{npt} nodes per tetrahedron; eprop reads first-order (4-node) tetrahedra; fix: re-mesh with first-order elements (tetgen without -o2)"
+        )));
+    }
+    let nreg = sc.count("the region attribute count")?;
+    if nreg > 1 << 16 {
+        return Err(sc.err("too many attributes; fix: repair the first line"));
+    }
+    let c = cap(ne, sc.remaining(), 10);
+    mesh.conn.reserve(c * 4);
+    let mut nodes = [0u32; 4];
+    for _ in 0..ne {
+        let eid = id_of(&mut sc, "a tetrahedron index")?;
+        for k in &mut nodes {
+            let nid = id_of(&mut sc, "a node index")?;
+            *k = *index.get(&nid).ok_or_else(|| {
+                sc.err(format!("tetrahedron {eid} names node {nid}, which the .node file does not define; fix: repair the element or use the matching .node file"))
+            })?;
+        }
+        let mut tag = 0i32;
+        for a in 0..nreg {
+            let v: f64 = sc.num("a region attribute")?;
+            if a == 0 {
+                if v.fract() != 0.0 || !(i32::MIN as f64..=i32::MAX as f64).contains(&v) {
+                    return Err(sc.err(format!("region attribute {v} of tetrahedron {eid} is not an integer; fix: use integer region attributes")));
+                }
+                tag = v as i32;
+            }
+        }
+        mesh.push_cell(CellKind::Tet, &nodes, tag);
+        mesh.cell_ids.push(eid);
+    }
+    if !sc.at_end() {
+        return Err(sc.err(format!(
+            "more lines than the {ne} tetrahedra announced; fix: the count is wrong"
+        )));
+    }
+    if let Some(face) = face {
+        let face_name = format!("{name}.face");
+        let mut sc = Scan::new(&face_name, face);
+        sc.comment = Some(b'#');
+        let nf = sc.count("the face count")?;
+        let nm = sc.count("the boundary marker flag")?;
+        if nm > 1 {
+            return Err(sc.err("the header is not `<#faces> <0|1>`; fix: repair the first line"));
+        }
+        let mut tri = [0u32; 3];
+        for _ in 0..nf {
+            let fid = id_of(&mut sc, "a face index")?;
+            for k in &mut tri {
+                let nid = id_of(&mut sc, "a node index")?;
+                *k = *index.get(&nid).ok_or_else(|| {
+                    sc.err(format!("face {fid} names node {nid}, which the .node file does not define; fix: use the matching .face file"))
+                })?;
+            }
+            let tag = if nm == 1 {
+                sc.num::<i32>("a boundary marker")?
+            } else {
+                0
+            };
+            // tetgen -nn adds the two adjacent tetrahedra: skip what is left on the line
+            let rest = sc.rest_of_line();
+            if rest.iter().any(|c| !c.is_ascii_whitespace()) && !rest.trim_ascii().starts_with(b"#") {
+                let ok = rest
+                    .split(|c| c.is_ascii_whitespace())
+                    .filter(|t| !t.is_empty())
+                    .all(|t| {
+                        std::str::from_utf8(t)
+                            .ok()
+                            .and_then(|s| s.parse::<i64>().ok())
+                            .is_some()
+                    });
+                if !ok {
+                    return Err(sc.err(format!(
+                        "face {fid}: unexpected values after the marker; fix: repair the line"
+                    )));
+                }
+            }
+            mesh.facets.push(2, tag, &tri);
+        }
+        if !sc.at_end() {
+            return Err(sc.err(format!(
+                "more lines than the {nf} faces announced; fix: the count is wrong"
+            )));
+        }
+    }
+    Ok(mesh)
+}
+
+/// Parses `node`, `ele` and optional `face` parts joined by `BUNDLE_SEP` lines (for fuzzing).
+pub fn parse_bundle(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let sep = BUNDLE_SEP.as_bytes();
+    let mut parts: Vec<&[u8]> = Vec::new();
+    let mut s = 0;
+    let mut i = 0;
+    while i + sep.len() <= bytes.len() {
+        if &bytes[i..i + sep.len()] == sep {
+            parts.push(&bytes[s..i]);
+            i += sep.len();
+            s = i;
+        } else {
+            i += 1;
+        }
+    }
+    parts.push(&bytes[s..]);
+    match parts.as_slice() {
+        [n, e] => parse(name, n, e, None),
+        [n, e, f] => parse(name, n, e, Some(f)),
+        _ => bail!("{name}: a TetGen bundle needs node and ele parts; fix: join them with `{BUNDLE_SEP}`"),
+    }
+}
+
+/// Reads `x.node` + `x.ele` (+ `x.face` when present), given any of them.
+pub fn read(path: &Path) -> Result<Mesh> {
+    let base: PathBuf = path.with_extension("");
+    let sib = |ext: &str| base.with_extension(ext);
+    let rd = |p: &Path| {
+        std::fs::read(p).map_err(|e| {
+            anyhow!(
+                "{}: cannot read: {e}; fix: TetGen meshes need x.node and x.ele side by side",
+                p.display()
+            )
+        })
+    };
+    let node = rd(&sib("node"))?;
+    let ele = rd(&sib("ele"))?;
+    let face = std::fs::read(sib("face")).ok();
+    parse(&base.display().to_string(), &node, &ele, face.as_deref())
+}

@@ -1,0 +1,892 @@
+//! VTK XML `.vtu` reader and writer.
+//!
+//! Reads ascii, inline base64 (`format="binary"`, UInt32 or UInt64 headers), appended raw and
+//! appended base64 data, zlib-compressed (`vtkZLibDataCompressor`) or not, in either byte order.
+//! Writes inline base64 with a `tag` cell-data array and `node_ids` point data.
+
+use crate::mesh::Mesh;
+use crate::scan::{decode, parse_text, short, Scan, Ty, Vals};
+use crate::vtk::{build, vtk_order, VtkData};
+use anyhow::{anyhow, bail, Result};
+use std::io::{Read, Write as _};
+use std::path::Path;
+
+/// One XML start tag.
+struct Tag {
+    name: String,
+    attrs: Vec<(String, String)>,
+    /// Byte position of the `<`.
+    pos: usize,
+    /// First byte after the `>`.
+    end: usize,
+    self_closing: bool,
+}
+
+impl Tag {
+    fn attr(&self, k: &str) -> Option<&str> {
+        self.attrs.iter().find(|(a, _)| a == k).map(|(_, v)| v.as_str())
+    }
+}
+
+/// Minimal XML scanner: start tags, end tags; skips declarations and comments.
+struct Xml<'a> {
+    sc: Scan<'a>,
+}
+
+enum Ev {
+    Start(Tag),
+    End(String),
+}
+
+impl<'a> Xml<'a> {
+    fn find(&self, from: usize, pat: &[u8]) -> Option<usize> {
+        let b = self.sc.b;
+        if from > b.len() || pat.is_empty() {
+            return None;
+        }
+        b[from..].windows(pat.len()).position(|w| w == pat).map(|p| p + from)
+    }
+    fn next(&mut self) -> Result<Option<Ev>> {
+        loop {
+            let Some(lt) = self.find(self.sc.pos, b"<") else {
+                return Ok(None);
+            };
+            self.sc.pos = lt;
+            let b = self.sc.b;
+            if b[lt..].starts_with(b"<!--") {
+                let e = self
+                    .find(lt + 4, b"-->")
+                    .ok_or_else(|| self.sc.err("comment without `-->`; fix: the file is truncated"))?;
+                self.sc.pos = e + 3;
+                continue;
+            }
+            if b[lt..].starts_with(b"<?") || b[lt..].starts_with(b"<!") {
+                let e = self
+                    .find(lt, b">")
+                    .ok_or_else(|| self.sc.err("declaration without `>`; fix: the file is truncated"))?;
+                self.sc.pos = e + 1;
+                continue;
+            }
+            let close = b.get(lt + 1) == Some(&b'/');
+            let mut p = lt + 1 + close as usize;
+            let s = p;
+            while p < b.len() && !b[p].is_ascii_whitespace() && b[p] != b'>' && b[p] != b'/' {
+                p += 1;
+            }
+            let name = String::from_utf8_lossy(&b[s..p]).to_string();
+            if name.is_empty() {
+                return Err(self
+                    .sc
+                    .err_at(lt, "a `<` without a tag name; fix: the XML is malformed"));
+            }
+            let mut attrs = Vec::new();
+            loop {
+                while p < b.len() && b[p].is_ascii_whitespace() {
+                    p += 1;
+                }
+                match b.get(p) {
+                    None => {
+                        return Err(self.sc.err_at(
+                            lt,
+                            format!("tag <{}> is not closed; fix: the file is truncated", short(&name)),
+                        ))
+                    }
+                    Some(b'>') => {
+                        self.sc.pos = p + 1;
+                        if close {
+                            return Ok(Some(Ev::End(name)));
+                        }
+                        return Ok(Some(Ev::Start(Tag {
+                            name,
+                            attrs,
+                            pos: lt,
+                            end: p + 1,
+                            self_closing: false,
+                        })));
+                    }
+                    Some(b'/') if b.get(p + 1) == Some(&b'>') => {
+                        self.sc.pos = p + 2;
+                        return Ok(Some(Ev::Start(Tag {
+                            name,
+                            attrs,
+                            pos: lt,
+                            end: p + 2,
+                            self_closing: true,
+                        })));
+                    }
+                    Some(_) => {
+                        let ks = p;
+                        while p < b.len() && b[p] != b'=' && b[p] != b'>' && !b[p].is_ascii_whitespace() {
+                            p += 1;
+                        }
+                        let key = String::from_utf8_lossy(&b[ks..p]).to_string();
+                        while p < b.len() && b[p].is_ascii_whitespace() {
+                            p += 1;
+                        }
+                        if b.get(p) != Some(&b'=') {
+                            return Err(self.sc.err_at(
+                                p,
+                                format!("attribute `{}` without a value; fix: the XML is malformed", short(&key)),
+                            ));
+                        }
+                        p += 1;
+                        while p < b.len() && b[p].is_ascii_whitespace() {
+                            p += 1;
+                        }
+                        let q = match b.get(p) {
+                            Some(&c) if c == b'"' || c == b'\'' => c,
+                            _ => {
+                                return Err(self.sc.err_at(
+                                    p,
+                                    format!(
+                                        "attribute `{}` value is not quoted; fix: the XML is malformed",
+                                        short(&key)
+                                    ),
+                                ))
+                            }
+                        };
+                        let vs = p + 1;
+                        let ve = b[vs..].iter().position(|&c| c == q).map(|x| x + vs).ok_or_else(|| {
+                            self.sc
+                                .err_at(p, "attribute value not closed; fix: the file is truncated")
+                        })?;
+                        attrs.push((key, String::from_utf8_lossy(&b[vs..ve]).to_string()));
+                        p = ve + 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A streaming base64 decoder over concatenated base64 blocks (each may carry padding).
+struct B64<'a> {
+    s: &'a [u8],
+    pos: usize,
+    pending: Vec<u8>,
+    name: &'a str,
+    base: usize,
+}
+
+fn b64val(c: u8) -> Option<u32> {
+    Some(match c {
+        b'A'..=b'Z' => (c - b'A') as u32,
+        b'a'..=b'z' => (c - b'a' + 26) as u32,
+        b'0'..=b'9' => (c - b'0' + 52) as u32,
+        b'+' => 62,
+        b'/' => 63,
+        _ => return None,
+    })
+}
+
+impl<'a> B64<'a> {
+    fn remaining_bytes(&self) -> usize {
+        self.pending.len() + (self.s.len().saturating_sub(self.pos)) / 4 * 3 + 3
+    }
+    fn take(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
+        if n > self.remaining_bytes() {
+            bail!(
+                "{}: byte {}: base64 data ends while reading {what} ({n} bytes announced); fix: the data is truncated or its header is wrong, export again",
+                self.name,
+                self.base + self.pos
+            );
+        }
+        while self.pending.len() < n {
+            let mut q = [0u8; 4];
+            let mut k = 0;
+            while k < 4 {
+                let Some(&c) = self.s.get(self.pos) else {
+                    bail!("{}: byte {}: base64 data ends while reading {what}; fix: the data is truncated or its header is wrong, export again", self.name, self.base + self.pos);
+                };
+                self.pos += 1;
+                if c.is_ascii_whitespace() {
+                    continue;
+                }
+                q[k] = c;
+                k += 1;
+            }
+            let pad = q.iter().rev().take_while(|&&c| c == b'=').count();
+            if pad > 2 {
+                bail!(
+                    "{}: byte {}: bad base64 padding; fix: the data is corrupt, export again",
+                    self.name,
+                    self.base + self.pos
+                );
+            }
+            let mut v = 0u32;
+            for &c in &q[..4 - pad] {
+                let x = b64val(c).ok_or_else(|| {
+                    anyhow!(
+                        "{}: byte {}: `{}` is not a base64 character; fix: the data is corrupt, export again",
+                        self.name,
+                        self.base + self.pos,
+                        c.escape_ascii()
+                    )
+                })?;
+                v = (v << 6) | x;
+            }
+            v <<= 6 * pad as u32;
+            let bytes = [(v >> 16) as u8, (v >> 8) as u8, v as u8];
+            self.pending.extend_from_slice(&bytes[..3 - pad]);
+        }
+        Ok(self.pending.drain(..n).collect())
+    }
+}
+
+/// Where the bytes of a binary array come from.
+enum Src<'a> {
+    Raw {
+        b: &'a [u8],
+        pos: usize,
+        base: usize,
+        name: &'a str,
+    },
+    B64(B64<'a>),
+}
+
+impl Src<'_> {
+    fn take(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
+        match self {
+            Src::Raw { b, pos, base, name } => {
+                if n > b.len().saturating_sub(*pos) {
+                    bail!(
+                        "{name}: byte {}: appended data ends while reading {what} ({n} bytes announced, {} left); fix: the file is truncated or its header is wrong, export again",
+                        *base + *pos,
+                        b.len().saturating_sub(*pos)
+                    );
+                }
+                let v = b[*pos..*pos + n].to_vec();
+                *pos += n;
+                Ok(v)
+            }
+            Src::B64(d) => d.take(n, what),
+        }
+    }
+}
+
+struct Fmt {
+    big: bool,
+    header: Ty,
+    zlib: bool,
+}
+
+fn uint(b: &[u8], ty: Ty, big: bool) -> u64 {
+    match decode(b, ty, big) {
+        Vals::I(v) => v.first().copied().unwrap_or(0).max(0) as u64,
+        Vals::F(_) => 0,
+    }
+}
+
+/// Reads one binary array (header + data, possibly zlib blocks) from `src`.
+fn read_binary(src: &mut Src, f: &Fmt, what: &str, name: &str) -> Result<Vec<u8>> {
+    let hs = f.header.size();
+    if !f.zlib {
+        let n = uint(&src.take(hs, what)?, f.header, f.big);
+        let n = usize::try_from(n)
+            .map_err(|_| anyhow!("{name}: {what}: size {n} too large; fix: the header is corrupt"))?;
+        return src.take(n, what);
+    }
+    let h = src.take(3 * hs, what)?;
+    let nblocks = uint(&h[..hs], f.header, f.big) as usize;
+    let bsize = uint(&h[hs..2 * hs], f.header, f.big) as usize;
+    let last = uint(&h[2 * hs..], f.header, f.big) as usize;
+    let sizes_len = nblocks
+        .checked_mul(hs)
+        .ok_or_else(|| anyhow!("{name}: {what}: {nblocks} compressed blocks announced; fix: the header is corrupt"))?;
+    let sizes = src.take(sizes_len, what)?;
+    let mut out = Vec::new();
+    for (k, cs) in sizes.chunks_exact(hs).enumerate() {
+        let cs = uint(cs, f.header, f.big) as usize;
+        let want = if k + 1 == nblocks && last != 0 { last } else { bsize };
+        // zlib cannot expand more than about 1032:1; larger claims are corrupt headers
+        if want / 1100 > cs.saturating_add(64) {
+            bail!("{name}: {what}: block {k} claims {want} bytes from {cs} compressed bytes; fix: the compression header is corrupt, export again");
+        }
+        let comp = src.take(cs, what)?;
+        let mut dec = flate2::read::ZlibDecoder::new(&comp[..]).take(want as u64 + 1);
+        let before = out.len();
+        dec.read_to_end(&mut out).map_err(|e| {
+            anyhow!(
+                "{name}: {what}: zlib block {k} cannot be decompressed ({e}); fix: the data is corrupt, export again"
+            )
+        })?;
+        if out.len() - before != want {
+            bail!(
+                "{name}: {what}: zlib block {k} holds {} bytes, its header says {want}; fix: the data is corrupt, export again",
+                out.len() - before
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// A `<DataArray>` as found in the file.
+struct Arr {
+    parent: String,
+    tag: Tag,
+    /// The text between the start and end tags.
+    text: (usize, usize),
+}
+
+/// Parses the bytes of a `.vtu` file.
+pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let mut x = Xml {
+        sc: Scan::new(name, bytes),
+    };
+    let mut stack: Vec<String> = Vec::new();
+    let mut fmt = Fmt {
+        big: false,
+        header: Ty::U32,
+        zlib: false,
+    };
+    let mut arrays: Vec<Arr> = Vec::new();
+    let mut pieces = 0usize;
+    let mut npoints: Option<usize> = None;
+    let mut ncells: Option<usize> = None;
+    let mut appended: Option<(usize, bool)> = None; // (start of data after `_`, base64)
+    let mut saw_root = false;
+    while let Some(ev) = x.next()? {
+        match ev {
+            Ev::Start(t) => {
+                match t.name.as_str() {
+                    "VTKFile" => {
+                        saw_root = true;
+                        if let Some(ty) = t.attr("type") {
+                            if ty != "UnstructuredGrid" {
+                                return Err(x.sc.err_at(t.pos, format!("VTK XML type {} is not a volume mesh (UnstructuredGrid is read); fix: save as .vtu (unstructured grid)", short(ty))));
+                            }
+                        }
+                        fmt.big = match t.attr("byte_order") {
+                            Some("BigEndian") => true,
+                            Some("LittleEndian") | None => false,
+                            Some(o) => {
+                                return Err(x.sc.err_at(
+                                    t.pos,
+                                    format!("unknown byte_order `{}`; fix: use LittleEndian or BigEndian", short(o)),
+                                ))
+                            }
+                        };
+                        fmt.header = match t.attr("header_type") {
+                            None | Some("UInt32") => Ty::U32,
+                            Some("UInt64") => Ty::U64,
+                            Some(h) => {
+                                return Err(x.sc.err_at(
+                                    t.pos,
+                                    format!("unknown header_type `{}`; fix: use UInt32 or UInt64", short(h)),
+                                ))
+                            }
+                        };
+                        fmt.zlib = match t.attr("compressor") {
+                            None | Some("") => false,
+                            Some("vtkZLibDataCompressor") => true,
+                            Some(c) => {
+                                return Err(x.sc.err_at(
+                                    t.pos,
+                                    format!(
+                                        "compressor {} is not supported; fix: save with zlib compression or none",
+                                        short(c)
+                                    ),
+                                ))
+                            }
+                        };
+                    }
+                    "Piece" => {
+                        pieces += 1;
+                        if pieces > 1 {
+                            return Err(x.sc.err_at(t.pos, "more than one <Piece>; fix: merge the pieces into one (e.g. ParaView Merge Blocks) and save again"));
+                        }
+                        let num = |k: &str| -> Result<usize> {
+                            t.attr(k)
+                                .ok_or_else(|| x.sc.err_at(t.pos, format!("<Piece> has no {k}; fix: repair the file")))?
+                                .trim()
+                                .parse::<usize>()
+                                .map_err(|_| {
+                                    x.sc.err_at(t.pos, format!("<Piece> {k} is not a count; fix: repair the file"))
+                                })
+                        };
+                        npoints = Some(num("NumberOfPoints")?);
+                        ncells = Some(num("NumberOfCells")?);
+                    }
+                    "DataArray" => {
+                        let parent = stack.last().cloned().unwrap_or_default();
+                        let text = if t.self_closing {
+                            (t.end, t.end)
+                        } else {
+                            let e = x.find(t.end, b"<").unwrap_or(bytes.len());
+                            (t.end, e)
+                        };
+                        arrays.push(Arr { parent, tag: t, text });
+                        continue; // its end tag pops nothing
+                    }
+                    "AppendedData" => {
+                        let enc = t.attr("encoding").unwrap_or("raw");
+                        let b64 = match enc {
+                            "raw" => false,
+                            "base64" => true,
+                            _ => {
+                                return Err(x.sc.err_at(
+                                    t.pos,
+                                    format!("appended encoding `{}` is unknown; fix: use raw or base64", short(enc)),
+                                ))
+                            }
+                        };
+                        let us = x.find(t.end, b"_").ok_or_else(|| {
+                            x.sc.err_at(t.pos, "<AppendedData> has no `_` marker; fix: the file is truncated")
+                        })?;
+                        appended = Some((us + 1, b64));
+                        break;
+                    }
+                    _ => {}
+                }
+                if !t.self_closing {
+                    stack.push(t.name);
+                }
+            }
+            Ev::End(n) => {
+                if n == "DataArray" {
+                    continue;
+                }
+                match stack.pop() {
+                    Some(open) if open == n => {}
+                    other => {
+                        return Err(x.sc.err(format!(
+                            "</{}> closes <{}>; fix: the XML is malformed",
+                            short(&n),
+                            other.unwrap_or_default()
+                        )))
+                    }
+                }
+            }
+        }
+    }
+    if !saw_root {
+        bail!("{name}: no <VTKFile> element; fix: check that this is a VTK XML file");
+    }
+    let (Some(np), Some(nc)) = (npoints, ncells) else {
+        bail!("{name}: no <Piece>; fix: the file holds no unstructured grid");
+    };
+    // the end of appended data is the closing tag, when present
+    let app_end = appended.map(|(s, _)| {
+        bytes[s..]
+            .windows(16)
+            .rposition(|w| w == b"</AppendedData>\n" || w.starts_with(b"</AppendedData>"))
+            .map(|p| p + s)
+            .unwrap_or(bytes.len())
+    });
+    let sc = &x.sc;
+    let read = |a: &Arr, count_hint: Option<usize>| -> Result<Vals> {
+        let t = &a.tag;
+        let aname = t.attr("Name").unwrap_or("");
+        let what = format!("DataArray `{}`", short(aname));
+        let ty_s = t.attr("type").unwrap_or("");
+        let ty = Ty::from_xml(ty_s).ok_or_else(|| {
+            sc.err_at(
+                t.pos,
+                format!(
+                    "{what} has unknown type `{}`; fix: use Int32, Int64, UInt8, Float32 or Float64",
+                    short(ty_s)
+                ),
+            )
+        })?;
+        let format = t.attr("format").unwrap_or("ascii");
+        let bytes_out = match format {
+            "ascii" => {
+                let mut s = Scan::new(name, &bytes[..a.text.1]);
+                s.pos = a.text.0;
+                let mut n = 0usize;
+                {
+                    let mut c = Scan::new(name, &bytes[..a.text.1]);
+                    c.pos = a.text.0;
+                    while c.token().is_some() {
+                        n += 1;
+                    }
+                }
+                if let Some(h) = count_hint {
+                    if n != h {
+                        return Err(sc.err_at(
+                            t.pos,
+                            format!("{what} holds {n} values, expected {h}; fix: the counts disagree, export again"),
+                        ));
+                    }
+                }
+                return parse_text(&mut s, n, ty, &what);
+            }
+            "binary" => {
+                let mut src = Src::B64(B64 {
+                    s: &bytes[a.text.0..a.text.1],
+                    pos: 0,
+                    pending: Vec::new(),
+                    name,
+                    base: a.text.0,
+                });
+                read_binary(&mut src, &fmt, &what, name)?
+            }
+            "appended" => {
+                let Some((start, b64)) = appended else {
+                    return Err(sc.err_at(
+                        t.pos,
+                        format!("{what} is appended but the file has no <AppendedData>; fix: the file is truncated"),
+                    ));
+                };
+                let end = app_end.unwrap_or(bytes.len()).max(start);
+                let off: usize = t
+                    .attr("offset")
+                    .and_then(|o| o.trim().parse().ok())
+                    .ok_or_else(|| sc.err_at(t.pos, format!("{what} has no valid offset; fix: repair the file")))?;
+                let region = &bytes[start..end];
+                if off > region.len() {
+                    return Err(sc.err_at(t.pos, format!("{what}: offset {off} is past the end of the appended data ({} bytes); fix: the file is truncated", region.len())));
+                }
+                let mut src = if b64 {
+                    Src::B64(B64 {
+                        s: &region[off..],
+                        pos: 0,
+                        pending: Vec::new(),
+                        name,
+                        base: start + off,
+                    })
+                } else {
+                    Src::Raw {
+                        b: region,
+                        pos: off,
+                        base: start,
+                        name,
+                    }
+                };
+                read_binary(&mut src, &fmt, &what, name)?
+            }
+            f => {
+                return Err(sc.err_at(
+                    t.pos,
+                    format!(
+                        "{what} has unknown format `{}`; fix: use ascii, binary or appended",
+                        short(f)
+                    ),
+                ))
+            }
+        };
+        if bytes_out.len() % ty.size() != 0 {
+            return Err(sc.err_at(t.pos, format!("{what} holds {} bytes, not a whole number of {ty_s} values; fix: the data is corrupt, export again", bytes_out.len())));
+        }
+        let v = decode(&bytes_out, ty, fmt.big);
+        if let Some(h) = count_hint {
+            if v.len() != h {
+                return Err(sc.err_at(
+                    t.pos,
+                    format!(
+                        "{what} holds {} values, expected {h}; fix: the counts disagree, export again",
+                        v.len()
+                    ),
+                ));
+            }
+        }
+        Ok(v)
+    };
+    let find = |parent: &str, nm: Option<&str>| {
+        arrays
+            .iter()
+            .find(|a| a.parent == parent && (nm.is_none() || a.tag.attr("Name") == nm))
+    };
+    let pts_a =
+        find("Points", None).ok_or_else(|| anyhow!("{name}: no <Points> array; fix: the file holds no mesh"))?;
+    let ncomp: usize = pts_a
+        .tag
+        .attr("NumberOfComponents")
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(1);
+    if ncomp != 3 {
+        return Err(sc.err_at(
+            pts_a.tag.pos,
+            format!("points have {ncomp} components, expected 3; fix: export 3D points"),
+        ));
+    }
+    let np3 = np
+        .checked_mul(3)
+        .ok_or_else(|| anyhow!("{name}: NumberOfPoints {np} too large; fix: repair the file"))?;
+    let points = read(pts_a, Some(np3))?.to_f64();
+    let cell = |n: &str| {
+        find("Cells", Some(n))
+            .ok_or_else(|| anyhow!("{name}: no `{n}` array in <Cells>; fix: the file is incomplete, export again"))
+    };
+    let ints = |a: &Arr, hint: Option<usize>| -> Result<Vec<i64>> {
+        read(a, hint)?
+            .to_i64()
+            .ok_or_else(|| sc.err_at(a.tag.pos, "cell array holds non-integers; fix: repair the file"))
+    };
+    let types = ints(cell("types")?, Some(nc))?;
+    let offsets = ints(cell("offsets")?, Some(nc))?;
+    let conn = ints(cell("connectivity")?, None)?;
+    let mut starts = Vec::with_capacity(nc + 1);
+    starts.push(0i64);
+    starts.extend_from_slice(&offsets);
+    let mut cell_arrays = Vec::new();
+    let mut point_arrays = Vec::new();
+    for a in &arrays {
+        let one = a
+            .tag
+            .attr("NumberOfComponents")
+            .map(|s| s.trim() == "1")
+            .unwrap_or(true);
+        if !one {
+            continue;
+        }
+        let nm = a.tag.attr("Name").unwrap_or("").to_string();
+        if a.parent == "CellData" {
+            cell_arrays.push((nm, read(a, Some(nc))?));
+        } else if a.parent == "PointData" && nm == "node_ids" {
+            point_arrays.push((nm, read(a, Some(np))?));
+        }
+    }
+    build(
+        name,
+        VtkData {
+            points,
+            conn,
+            starts,
+            types,
+            cell_arrays,
+            point_arrays,
+        },
+    )
+}
+
+/// How to encode the data arrays of a written `.vtu`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Encoding {
+    Ascii,
+    /// Inline base64 (`format="binary"`).
+    Base64,
+    /// Appended raw bytes.
+    AppendedRaw,
+    /// Appended base64.
+    AppendedBase64,
+}
+
+/// Options of the `.vtu` writer.
+#[derive(Clone, Copy, Debug)]
+pub struct VtuOptions {
+    pub encoding: Encoding,
+    pub zlib: bool,
+    pub header64: bool,
+    pub big_endian: bool,
+}
+
+impl Default for VtuOptions {
+    fn default() -> Self {
+        VtuOptions {
+            encoding: Encoding::Base64,
+            zlib: false,
+            header64: true,
+            big_endian: false,
+        }
+    }
+}
+
+fn b64encode(b: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::with_capacity(b.len().div_ceil(3) * 4);
+    for c in b.chunks(3) {
+        let v = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(T[(v >> (18 - 6 * k)) as usize & 63] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+/// Encodes a mesh as `.vtu` bytes.
+pub fn to_bytes(mesh: &Mesh, o: &VtuOptions) -> Vec<u8> {
+    enum A {
+        F(Vec<f64>),
+        I(Vec<i64>),
+        I32(Vec<i32>),
+        U8(Vec<u8>),
+    }
+    let n = mesh.n_nodes();
+    let mut conn = Vec::new();
+    let mut offs = Vec::new();
+    let mut types = Vec::new();
+    let mut tags = Vec::new();
+    for c in 0..mesh.n_cells() {
+        conn.extend(vtk_order(mesh.kinds[c], mesh.cell(c)).into_iter().map(|x| x as i64));
+        offs.push(conn.len() as i64);
+        types.push(mesh.kinds[c].vtk_type());
+        tags.push(mesh.cell_tags[c]);
+    }
+    for f in 0..mesh.facets.len() {
+        let nodes = mesh.facets.nodes(f);
+        let t = match (mesh.facets.dim[f], nodes.len()) {
+            (2, 3) => 5,
+            (2, 4) => 9,
+            (1, 2) => 3,
+            _ => continue,
+        };
+        conn.extend(nodes.iter().map(|&x| x as i64));
+        offs.push(conn.len() as i64);
+        types.push(t);
+        tags.push(mesh.facets.tags[f]);
+    }
+    let ncells = types.len();
+    let ids: Vec<i64> = if mesh.node_ids.len() == n {
+        mesh.node_ids.iter().map(|&i| i as i64).collect()
+    } else {
+        (0..n as i64).collect()
+    };
+    let arrays: Vec<(&str, &str, &str, usize, A)> = vec![
+        (
+            "Points",
+            "Points",
+            "Float64",
+            3,
+            A::F(mesh.points.iter().flatten().copied().collect()),
+        ),
+        ("Cells", "connectivity", "Int64", 1, A::I(conn)),
+        ("Cells", "offsets", "Int64", 1, A::I(offs)),
+        ("Cells", "types", "UInt8", 1, A::U8(types)),
+        ("CellData", "tag", "Int32", 1, A::I32(tags)),
+        ("PointData", "node_ids", "Int64", 1, A::I(ids)),
+    ];
+    let big = o.big_endian;
+    let raw = |a: &A| -> Vec<u8> {
+        let mut v = Vec::new();
+        match a {
+            A::F(x) => x
+                .iter()
+                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
+            A::I(x) => x
+                .iter()
+                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
+            A::I32(x) => x
+                .iter()
+                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
+            A::U8(x) => v.extend_from_slice(x),
+        }
+        v
+    };
+    let hdr = |x: usize| -> Vec<u8> {
+        match (o.header64, big) {
+            (true, true) => (x as u64).to_be_bytes().to_vec(),
+            (true, false) => (x as u64).to_le_bytes().to_vec(),
+            (false, true) => (x as u32).to_be_bytes().to_vec(),
+            (false, false) => (x as u32).to_le_bytes().to_vec(),
+        }
+    };
+    // header + payload, each base64-encoded separately as VTK does
+    let block = |data: Vec<u8>| -> (Vec<u8>, Vec<u8>) {
+        if !o.zlib {
+            return (hdr(data.len()), data);
+        }
+        const BS: usize = 1 << 15;
+        let chunks: Vec<&[u8]> = if data.is_empty() {
+            vec![]
+        } else {
+            data.chunks(BS).collect()
+        };
+        let mut comp = Vec::new();
+        let mut h = hdr(chunks.len());
+        h.extend(hdr(BS));
+        h.extend(hdr(chunks.last().map(|c| c.len() % BS).unwrap_or(0)));
+        for c in &chunks {
+            let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+            let _ = e.write_all(c);
+            let z = e.finish().unwrap_or_default();
+            h.extend(hdr(z.len()));
+            comp.extend(z);
+        }
+        (h, comp)
+    };
+    let mut s = String::new();
+    let mut app: Vec<u8> = Vec::new();
+    s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\"");
+    s.push_str(if big {
+        " byte_order=\"BigEndian\""
+    } else {
+        " byte_order=\"LittleEndian\""
+    });
+    s.push_str(if o.header64 {
+        " header_type=\"UInt64\""
+    } else {
+        " header_type=\"UInt32\""
+    });
+    if o.zlib && o.encoding != Encoding::Ascii {
+        s.push_str(" compressor=\"vtkZLibDataCompressor\"");
+    }
+    s.push_str(">\n<!-- written by eprop -->\n<UnstructuredGrid>\n");
+    s.push_str(&format!("<Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{ncells}\">\n"));
+    let mut open = "";
+    for (parent, nm, ty, nc, a) in &arrays {
+        if *parent != open {
+            if !open.is_empty() {
+                s.push_str(&format!("</{open}>\n"));
+            }
+            s.push_str(&format!("<{parent}>\n"));
+            open = parent;
+        }
+        let fmt = match o.encoding {
+            Encoding::Ascii => "ascii",
+            Encoding::Base64 => "binary",
+            _ => "appended",
+        };
+        s.push_str(&format!(
+            "<DataArray type=\"{ty}\" Name=\"{nm}\" NumberOfComponents=\"{nc}\" format=\"{fmt}\""
+        ));
+        match o.encoding {
+            Encoding::Ascii => {
+                s.push_str(">\n");
+                let t: Vec<String> = match a {
+                    A::F(x) => x.iter().map(|v| format!("{v:?}")).collect(),
+                    A::I(x) => x.iter().map(|v| v.to_string()).collect(),
+                    A::I32(x) => x.iter().map(|v| v.to_string()).collect(),
+                    A::U8(x) => x.iter().map(|v| v.to_string()).collect(),
+                };
+                for line in t.chunks(12) {
+                    s.push_str(&line.join(" "));
+                    s.push('\n');
+                }
+                s.push_str("</DataArray>\n");
+            }
+            Encoding::Base64 => {
+                let (h, d) = block(raw(a));
+                s.push_str(">\n");
+                s.push_str(&b64encode(&h));
+                s.push_str(&b64encode(&d));
+                s.push_str("\n</DataArray>\n");
+            }
+            Encoding::AppendedRaw | Encoding::AppendedBase64 => {
+                s.push_str(&format!(" offset=\"{}\"/>\n", app.len()));
+                let (h, d) = block(raw(a));
+                if o.encoding == Encoding::AppendedRaw {
+                    app.extend(h);
+                    app.extend(d);
+                } else {
+                    app.extend(b64encode(&h).bytes());
+                    app.extend(b64encode(&d).bytes());
+                }
+            }
+        }
+    }
+    s.push_str(&format!("</{open}>\n</Piece>\n</UnstructuredGrid>\n"));
+    let mut out = s.into_bytes();
+    if matches!(o.encoding, Encoding::AppendedRaw | Encoding::AppendedBase64) {
+        let enc = if o.encoding == Encoding::AppendedRaw {
+            "raw"
+        } else {
+            "base64"
+        };
+        out.extend(format!("<AppendedData encoding=\"{enc}\">\n_").bytes());
+        out.extend(app);
+        out.extend(b"\n</AppendedData>\n");
+    }
+    out.extend(b"</VTKFile>\n");
+    out
+}
+
+/// Writes a mesh as `.vtu` (inline base64, UInt64 headers).
+pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
+    std::fs::write(path, to_bytes(mesh, &VtuOptions::default()))
+        .map_err(|e| anyhow!("{}: cannot write: {e}", path.display()))
+}
