@@ -934,8 +934,8 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
                 while done < n {
                     let hp = b.sc.pos;
                     let gtype = b.i32("an element type")? as u32;
-                    let follow = b.count("the element count of a block")?;
-                    let ntags = b.count("the tag count")?;
+                    let follow = b.i32("the element count of a block")?.max(0) as usize;
+                    let ntags = b.i32("the tag count")?.max(0) as usize;
                     let Some((nn, _)) = nodes_per_type(gtype) else {
                         return Err(b.sc.err_byte(hp, type_problem(gtype)));
                     };
