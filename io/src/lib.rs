@@ -78,7 +78,8 @@ pub fn read_mesh_with(path: &Path, opts: &ReadOptions) -> Result<Mesh> {
         );
     };
     if format == Format::TetGen {
-        if !path.with_extension("ele").exists() || !path.with_extension("node").exists() {
+        let base = path.with_extension("").display().to_string();
+        if !Path::new(&format!("{base}.ele")).exists() || !Path::new(&format!("{base}.node")).exists() {
             bail!(
                 "{}: no such mesh file (TetGen needs x.node and x.ele side by side); fix: check the path",
                 path.display()

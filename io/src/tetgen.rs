@@ -183,7 +183,8 @@ pub fn parse_bundle(name: &str, bytes: &[u8]) -> Result<Mesh> {
 /// Reads `x.node` + `x.ele` (+ `x.face` when present), given any of them.
 pub fn read(path: &Path) -> Result<Mesh> {
     let base: PathBuf = path.with_extension("");
-    let sib = |ext: &str| base.with_extension(ext);
+    // `x.1.ele` -> `x.1.node`: append, since with_extension would replace the `.1`
+    let sib = |ext: &str| PathBuf::from(format!("{}.{ext}", base.display()));
     let rd = |p: &Path| {
         std::fs::read(p).map_err(|e| {
             anyhow!(
