@@ -254,3 +254,427 @@ fn gmsh_output_reads_alike() {
         assert!(ok, "{out}: {err}");
     }
 }
+
+const GMSH: &str = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n6\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0 0 -1\n6 0.2 0.2 0.5\n$EndNodes\n$Elements\n3\n1 4 2 7 1 1 2 3 4\n2 4 2 7 1 1 3 2 5\n3 2 2 3 3 1 2 4\n$EndElements\n";
+const VTK: &str = "# vtk DataFile Version 4.2\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 5 double\n0 0 0 1 0 0 0 1 0 0 0 1 0 0 -1\nCELLS 2 10\n4 0 1 2 3\n4 0 2 1 4\nCELL_TYPES 2\n10 10\n";
+const VTK51: &str = "# vtk DataFile Version 5.1\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 5 double\n0 0 0 1 0 0 0 1 0 0 0 1 0 0 -1\nCELLS 3 8\nOFFSETS vtktypeint64\n0 4 8\nCONNECTIVITY vtktypeint64\n0 1 2 3 0 2 1 4\nCELL_TYPES 2\n10 10\n";
+const NODE: &str = "# liver\n6 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0 0 -1\n6 0.2 0.2 0.5\n";
+const ELE: &str = "2 4 1\n1 1 2 3 4 7\n2 1 3 2 5 7\n";
+const MEDIT: &str = "MeshVersionFormatted 2\nDimension 3\nVertices\n6\n0 0 0 0\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 -1 0\n0.2 0.2 0.5 0\nTetrahedra\n2\n1 2 3 4 7\n1 3 2 5 7\nEnd\n";
+
+/// (file name, contents, key phrase of the error, strict)
+fn catalogue() -> Vec<(String, Vec<u8>, &'static str, bool)> {
+    let mut v: Vec<(String, Vec<u8>, &'static str, bool)> = Vec::new();
+    let mut t = |name: &str, text: String, key: &'static str, strict: bool| {
+        v.push((name.to_string(), text.into_bytes(), key, strict))
+    };
+    let el = "$EndElements";
+    t(
+        "gmsh_truncated.msh",
+        GMSH[..GMSH.find("3 2 2 3").unwrap()].to_string(),
+        "file ends",
+        false,
+    );
+    t(
+        "gmsh_cut_line.msh",
+        GMSH[..GMSH.find(el).unwrap() - 12].to_string(),
+        "line is cut",
+        false,
+    );
+    t(
+        "gmsh_node_count.msh",
+        GMSH.replace("$Nodes\n6", "$Nodes\n7"),
+        "node count disagrees",
+        false,
+    );
+    t(
+        "gmsh_element_count.msh",
+        GMSH.replace("$Elements\n3", "$Elements\n4"),
+        "disagrees",
+        false,
+    );
+    t(
+        "gmsh_nan.msh",
+        GMSH.replace("4 0 0 1\n", "4 0 nan 1\n"),
+        "non-finite",
+        false,
+    );
+    t(
+        "gmsh_out_of_range.msh",
+        GMSH.replace("1 1 2 3 4\n", "1 1 2 3 9\n"),
+        "node 9",
+        false,
+    );
+    t(
+        "gmsh_duplicate.msh",
+        GMSH.replace("1 1 3 2 5\n", "1 2 1 3 4\n"),
+        "duplicates",
+        false,
+    );
+    t(
+        "gmsh_zero_volume.msh",
+        GMSH.replace("5 0 0 -1\n", "5 0.3 0.3 0\n"),
+        "zero volume",
+        false,
+    );
+    t(
+        "gmsh_inverted_strict.msh",
+        GMSH.replace("1 1 3 2 5\n", "1 1 2 3 5\n"),
+        "inverted",
+        true,
+    );
+    t(
+        "gmsh_nonmanifold.msh",
+        GMSH.replace("$Elements\n3", "$Elements\n4")
+            .replace("3 2 2 3 3 1 2 4\n", "3 2 2 3 3 1 2 4\n4 4 2 7 1 1 2 3 6\n"),
+        "non-manifold",
+        false,
+    );
+    t(
+        "gmsh_quadratic.msh",
+        GMSH.replace("1 4 2 7 1 1 2 3 4\n", "1 11 2 7 1 1 2 3 4 1 2 3 4 5 6\n"),
+        "higher-order",
+        false,
+    );
+    t(
+        "gmsh_bad_version.msh",
+        GMSH.replace("2.2 0 8", "9.9 0 8"),
+        "not supported",
+        false,
+    );
+    t(
+        "gmsh_no_volume.msh",
+        GMSH.replace("$Elements\n3", "$Elements\n1")
+            .replace("1 4 2 7 1 1 2 3 4\n2 4 2 7 1 1 3 2 5\n", ""),
+        "no volume cells",
+        false,
+    );
+    t(
+        "vtk_truncated.vtk",
+        VTK[..VTK.find("4 0 2 1").unwrap()].to_string(),
+        "file ends",
+        false,
+    );
+    t(
+        "vtk_wrong_cells_count.vtk",
+        VTK.replace("CELLS 2 10", "CELLS 3 10"),
+        "counts disagree",
+        false,
+    );
+    t(
+        "vtk_nan.vtk",
+        VTK.replace("0 0 1 0 0 -1", "0 0 nan 0 0 -1"),
+        "non-finite",
+        false,
+    );
+    t(
+        "vtk_out_of_range.vtk",
+        VTK.replace("4 0 2 1 4", "4 0 2 1 7"),
+        "names node 7",
+        false,
+    );
+    t(
+        "vtk_quadratic.vtk",
+        VTK.replace("10 10", "24 10"),
+        "quadratic tetrahedron",
+        false,
+    );
+    t(
+        "vtk_polydata.vtk",
+        VTK.replace("UNSTRUCTURED_GRID", "POLYDATA"),
+        "not a volume mesh",
+        false,
+    );
+    t(
+        "vtk_bad_type.vtk",
+        VTK.replace("POINTS 5 double", "POINTS 5 quad"),
+        "unknown data type",
+        false,
+    );
+    t(
+        "vtk51_bad_offsets.vtk",
+        VTK51.replace("0 4 8", "0 4 12"),
+        "outside the connectivity",
+        false,
+    );
+    t(
+        "vtk_inverted_strict.vtk",
+        VTK.replace("4 0 2 1 4", "4 0 1 2 4"),
+        "inverted",
+        true,
+    );
+    t(
+        "vtk_missing_types.vtk",
+        VTK[..VTK.find("CELL_TYPES").unwrap()].to_string(),
+        "no CELL_TYPES",
+        false,
+    );
+    t(
+        "tetgen_out_of_range.ele",
+        ELE.replace("2 1 3 2 5", "2 1 3 2 9"),
+        "does not define",
+        false,
+    );
+    t(
+        "tetgen_quadratic.ele",
+        "1 10 0\n1 1 2 3 4 1 2 3 4 5 6\n".into(),
+        "first-order",
+        false,
+    );
+    t(
+        "tetgen_truncated.ele",
+        ELE.replace("2 4 1", "3 4 1"),
+        "file ends",
+        false,
+    );
+    t(
+        "tetgen_nonmanifold.ele",
+        "3 4 1\n1 1 2 3 4 7\n2 1 3 2 5 7\n3 1 2 3 6 7\n".into(),
+        "non-manifold",
+        false,
+    );
+    t(
+        "tetgen_extra_lines.ele",
+        ELE.replace("2 4 1", "1 4 1"),
+        "more lines",
+        false,
+    );
+    t(
+        "medit_out_of_range.mesh",
+        MEDIT.replace("1 3 2 5 7", "1 3 2 9 7"),
+        "names vertex 9",
+        false,
+    );
+    t(
+        "medit_truncated.mesh",
+        MEDIT[..MEDIT.find("1 3 2 5").unwrap()].to_string(),
+        "file ends",
+        false,
+    );
+    t(
+        "medit_zero_volume.mesh",
+        MEDIT.replace("0 0 -1 0\n", "0.3 0.3 0 0\n"),
+        "zero volume",
+        false,
+    );
+    t(
+        "medit_duplicate.mesh",
+        MEDIT.replace("1 3 2 5 7", "4 3 2 1 7"),
+        "duplicates",
+        false,
+    );
+    t(
+        "medit_p2.mesh",
+        MEDIT.replace("Tetrahedra\n", "TetrahedraP2\n"),
+        "higher-order",
+        false,
+    );
+    t(
+        "medit_inverted_strict.mesh",
+        MEDIT.replace("1 3 2 5 7", "1 2 3 5 7"),
+        "inverted",
+        true,
+    );
+    t(
+        "medit_2d.mesh",
+        MEDIT.replace("Dimension 3", "Dimension 2"),
+        "3D",
+        false,
+    );
+    t(
+        "medit_repeated_node.mesh",
+        MEDIT.replace("1 3 2 5 7", "1 3 3 5 7"),
+        "repeats a node",
+        false,
+    );
+    // binary and XML variants made from generated meshes
+    let m = box_mesh([1.0, 1.0, 1.0], [1, 1, 1], BoxCells::Tet).unwrap();
+    let b41 = testwrite::gmsh41_binary(&m, false);
+    v.push((
+        "gmsh41_bin_truncated.msh".into(),
+        b41[..b41.len() * 2 / 3].to_vec(),
+        "truncated",
+        false,
+    ));
+    let mut bad = testwrite::gmsh22_binary(&m, false);
+    bad[20] = 2;
+    v.push(("gmsh22_bin_bad_marker.msh".into(), bad, "endianness", false));
+    let b41s = String::from_utf8_lossy(&b41[..30]).to_string();
+    assert!(b41s.contains("4.1 1 8"));
+    let mut ds = b41.clone();
+    ds[18] = b'6';
+    v.push(("gmsh41_bin_data_size.msh".into(), ds, "data-size", false));
+    let vb = testwrite::vtk_legacy(&m, testwrite::Legacy::V42, true);
+    v.push((
+        "vtk_binary_truncated.vtk".into(),
+        vb[..vb.len() / 2].to_vec(),
+        "file ends",
+        false,
+    ));
+    let b64 = String::from_utf8(to_bytes(&m, &VtuOptions::default())).unwrap();
+    let p = b64.find("format=\"binary\">\n").unwrap() + 30;
+    v.push((
+        "vtu_bad_base64.vtu".into(),
+        format!("{}!{}", &b64[..p], &b64[p + 1..]).into_bytes(),
+        "not a base64 character",
+        false,
+    ));
+    let z = to_bytes(
+        &m,
+        &VtuOptions {
+            encoding: Encoding::AppendedRaw,
+            zlib: true,
+            header64: false,
+            big_endian: false,
+        },
+    );
+    let a = z.windows(2).position(|w| w == b"\n_").unwrap() + 2 + 4 * 4 + 4;
+    let mut zb = z.clone();
+    for k in a..a + 8 {
+        zb[k] ^= 0x55;
+    }
+    v.push(("vtu_bad_zlib.vtu".into(), zb, "zlib", false));
+    let raw = to_bytes(
+        &m,
+        &VtuOptions {
+            encoding: Encoding::AppendedRaw,
+            zlib: false,
+            header64: true,
+            big_endian: false,
+        },
+    );
+    v.push((
+        "vtu_truncated.vtu".into(),
+        raw[..raw.len() - 200].to_vec(),
+        "ends",
+        false,
+    ));
+    let nc = format!("NumberOfCells=\"{}\"", m.n_cells() + m.facets.len());
+    v.push((
+        "vtu_wrong_count.vtu".into(),
+        b64.replace(&nc, "NumberOfCells=\"3\"").into_bytes(),
+        "counts disagree",
+        false,
+    ));
+    v.push((
+        "vtu_bad_header_type.vtu".into(),
+        b64.replace("UInt64\"", "UInt16\"").into_bytes(),
+        "header_type",
+        false,
+    ));
+    v.push((
+        "vtu_lz4.vtu".into(),
+        b64.replace("LittleEndian\"", "LittleEndian\" compressor=\"vtkLZ4DataCompressor\"")
+            .into_bytes(),
+        "not supported",
+        false,
+    ));
+    v.push((
+        "vtu_not_xml.vtu".into(),
+        b"hello, world\n".to_vec(),
+        "no <VTKFile>",
+        false,
+    ));
+    v.push((
+        "vtu_unclosed.vtu".into(),
+        b64[..b64.find("<Cells>").unwrap() + 3].as_bytes().to_vec(),
+        "not closed",
+        false,
+    ));
+    v
+}
+
+#[test]
+fn malformed_files_give_clear_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let cat = catalogue();
+    assert!(cat.len() >= 30);
+    let mut bad = Vec::new();
+    for (name, bytes, key, strict) in &cat {
+        let p = d.path().join(name);
+        std::fs::write(&p, bytes).unwrap();
+        if name.starts_with("tetgen") {
+            std::fs::write(p.with_extension("node"), NODE).unwrap();
+        }
+        let stem = name.split('.').next().unwrap();
+        let e = match read_mesh_with(&p, &ReadOptions { strict: *strict }) {
+            Ok(_) => {
+                bad.push(format!("{name}: read without error"));
+                continue;
+            }
+            Err(e) => format!("{e:#}"),
+        };
+        if !(e.contains(stem) && e.contains("fix:") && e.contains(key)) {
+            bad.push(format!("{name}: expected the file name, `fix:` and `{key}` in: {e}"));
+            continue;
+        }
+        if *strict {
+            assert!(read_mesh(&p).is_ok(), "{name}: reads without --strict");
+        }
+        let mut args = vec!["info", p.to_str().unwrap()];
+        if *strict {
+            args.push("--strict");
+        }
+        let (ok, _, err) = eprop(&args);
+        assert!(!ok, "{name}: eprop info succeeded");
+        assert!(!err.contains("panicked"), "{name}: {err}");
+        assert!(err.contains("fix:"), "{name}: {err}");
+    }
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+}
+
+#[test]
+fn repairs_are_reported() {
+    let d = tempfile::tempdir().unwrap();
+    // inverted cell reoriented, unused node dropped, two components
+    let text = GMSH
+        .replace("1 1 3 2 5\n", "1 1 2 3 5\n")
+        .replace("$Nodes\n6", "$Nodes\n11")
+        .replace(
+            "6 0.2 0.2 0.5\n",
+            "6 0.2 0.2 0.5\n7 5 5 5\n8 6 5 5\n9 5 6 5\n10 5 5 6\n11 9 9 9\n",
+        )
+        .replace("$Elements\n3", "$Elements\n4")
+        .replace("3 2 2 3 3 1 2 4\n", "3 2 2 3 3 1 2 4\n4 4 2 7 1 7 8 9 10\n");
+    let p = d.path().join("repairs.msh");
+    std::fs::write(&p, text).unwrap();
+    let m = read_mesh(&p).unwrap();
+    let w = m.warnings.join("\n");
+    assert!(w.contains("1 inverted cell(s) reoriented"), "{w}");
+    assert!(w.contains("dropped"), "{w}");
+    assert!(w.contains("2 disconnected components"), "{w}");
+    assert!(!m.node_ids.contains(&6) && !m.node_ids.contains(&11) && m.node_ids.contains(&10));
+    let (ok, out, err) = eprop(&["info", p.to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(v["warnings"].to_string().contains("reoriented"));
+    let (ok, _, err) = eprop(&["info", p.to_str().unwrap(), "--strict"]);
+    assert!(!ok && err.contains("inverted"), "{err}");
+}
+
+#[test]
+fn fuzz_regressions_do_not_panic() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fuzz-regressions");
+    let mut n = 0;
+    for e in std::fs::read_dir(&dir).unwrap().flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        let format = match name.split('-').next().unwrap_or("") {
+            "gmsh" => eprop_io::Format::Gmsh,
+            "vtk" => eprop_io::Format::VtkLegacy,
+            "vtu" => eprop_io::Format::Vtu,
+            "tetgen" => eprop_io::Format::TetGen,
+            "medit" => eprop_io::Format::Medit,
+            _ => continue,
+        };
+        let bytes = std::fs::read(e.path()).unwrap();
+        let t = std::time::Instant::now();
+        let r = std::panic::catch_unwind(|| {
+            eprop_io::parse_mesh(format, &name, &bytes)
+                .and_then(|mut m| eprop_io::validate(&mut m, &ReadOptions::default()))
+        });
+        assert!(r.is_ok(), "{name} panics");
+        assert!(t.elapsed().as_secs_f64() < 2.0, "{name} is slow");
+        n += 1;
+    }
+    println!("{n} fuzz regression inputs replayed");
+}

@@ -49,10 +49,14 @@ impl<'a> Lines<'a> {
         let mut v = Vec::new();
         for tok in l.split_whitespace() {
             v.push(tok.parse::<T>().map_err(|_| {
-                self.err(
-                    ln,
-                    format!("cannot read `{tok}` as a number in {what}; fix: repair the line"),
-                )
+                if tok.starts_with('$') {
+                    self.err(
+                        ln,
+                        format!("found `{}` while reading {what}; fix: the count in the section header disagrees with its lines, repair it", short(tok)),
+                    )
+                } else {
+                    self.err(ln, format!("cannot read `{}` as a number in {what}; fix: repair the line", short(tok)))
+                }
             })?);
         }
         Ok((ln, v))
