@@ -577,7 +577,7 @@ fn catalogue() -> Vec<(String, Vec<u8>, &'static str, bool)> {
     ));
     v.push((
         "vtu_unclosed.vtu".into(),
-        b64[..b64.find("<Cells>").unwrap() + 3].as_bytes().to_vec(),
+        b64.as_bytes()[..b64.find("<Cells>").unwrap() + 3].to_vec(),
         "not closed",
         false,
     ));
