@@ -144,3 +144,16 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
     }
     Ok(mesh)
 }
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn skips_unused_sections_and_comments() {
+        let t = "MeshVersionFormatted 2 # v\nDimension\n3\nVertices\n4\n0 0 0 1\n1 0 0 1\n0 1 0 1\n0 0 1 1\nCorners\n1\n1\nNormals\n1\n0 0 1\nTetrahedra\n1\n1 2 3 4 5\nTriangles\n1\n1 2 3 9\nEnd\n";
+        let m = super::parse("m.mesh", t.as_bytes()).unwrap();
+        assert_eq!(
+            (m.n_nodes(), m.n_cells(), m.cell_tags[0], m.facets.tags[0]),
+            (4, 1, 5, 9)
+        );
+    }
+}

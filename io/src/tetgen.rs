@@ -198,3 +198,16 @@ pub fn read(path: &Path) -> Result<Mesh> {
     let face = std::fs::read(sib("face")).ok();
     parse(&base.display().to_string(), &node, &ele, face.as_deref())
 }
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn zero_based_numbering_and_region_attribute() {
+        let node = "4 3 0 1\n0 0 0 0 1\n1 1 0 0 1\n2 0 1 0 1\n3 0 0 1 1\n";
+        let ele = "# tets\n1 4 1\n0 0 1 2 3 -2.0\n";
+        let face = "1 1\n0 0 1 2 7\n";
+        let m = super::parse("x", node.as_bytes(), ele.as_bytes(), Some(face.as_bytes())).unwrap();
+        assert_eq!(m.node_ids, vec![0, 1, 2, 3]);
+        assert_eq!((m.cell_tags[0], m.facets.tags[0]), (-2, 7));
+    }
+}

@@ -229,3 +229,57 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::CellKind;
+
+    fn two_tets() -> Mesh {
+        let mut m = Mesh::new("t");
+        m.points = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [9.0; 3],
+        ];
+        m.node_ids = vec![10, 20, 30, 40, 50, 60];
+        m.push_cell(CellKind::Tet, &[0, 1, 2, 3], 1);
+        m.push_cell(CellKind::Tet, &[0, 1, 2, 4], 1); // inverted
+        m
+    }
+
+    #[test]
+    fn repairs_keep_input_ids() {
+        let mut m = two_tets();
+        validate(&mut m, &ReadOptions::default()).unwrap();
+        assert_eq!(m.node_ids, vec![10, 20, 30, 40, 50]);
+        assert_eq!(m.cell(1), &[0, 2, 1, 4]);
+        assert_eq!(m.warnings.len(), 2, "{:?}", m.warnings);
+        let e = validate(&mut two_tets(), &ReadOptions { strict: true })
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("cell 2") && e.contains("inverted") && e.contains("fix:"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn defects_name_nodes_and_cells() {
+        let mut m = two_tets();
+        m.points[3][1] = f64::NAN;
+        let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("node 40") && e.contains("non-finite"), "{e}");
+        let mut m = two_tets();
+        m.push_cell(CellKind::Tet, &[3, 2, 1, 0], 1);
+        let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("cells 1 and 3 are duplicates"), "{e}");
+        let mut m = two_tets();
+        m.conn[7] = 99;
+        let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("cell 2 names node index 99"), "{e}");
+    }
+}

@@ -890,3 +890,55 @@ pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
     std::fs::write(path, to_bytes(mesh, &VtuOptions::default()))
         .map_err(|e| anyhow!("{}: cannot write: {e}", path.display()))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_stream_reads_across_padded_blocks() {
+        // header and payload encoded separately, as VTK does
+        let s = format!("{}{}", b64encode(&[4, 0, 0, 0]), b64encode(b"abcd"));
+        let mut d = B64 {
+            s: s.as_bytes(),
+            pos: 0,
+            pending: Vec::new(),
+            name: "t",
+            base: 0,
+        };
+        assert_eq!(d.take(4, "h").unwrap(), vec![4, 0, 0, 0]);
+        assert_eq!(d.take(4, "d").unwrap(), b"abcd".to_vec());
+        assert!(d.take(1, "x").is_err());
+        let mut bad = B64 {
+            s: b"AB!D",
+            pos: 0,
+            pending: Vec::new(),
+            name: "t",
+            base: 0,
+        };
+        assert!(format!("{:#}", bad.take(2, "x").unwrap_err()).contains("not a base64 character"));
+    }
+
+    #[test]
+    fn zlib_header_claiming_huge_blocks_is_refused() {
+        // one block of 2^40 bytes from 10 compressed bytes
+        let mut h = Vec::new();
+        for v in [1u64, 1 << 40, 1 << 40, 10] {
+            h.extend(v.to_le_bytes());
+        }
+        h.extend([0u8; 10]);
+        let mut src = Src::Raw {
+            b: &h,
+            pos: 0,
+            base: 0,
+            name: "t",
+        };
+        let f = Fmt {
+            big: false,
+            header: Ty::U64,
+            zlib: true,
+        };
+        let e = format!("{:#}", read_binary(&mut src, &f, "a", "t").unwrap_err());
+        assert!(e.contains("compression header is corrupt"), "{e}");
+    }
+}
