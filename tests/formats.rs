@@ -678,3 +678,37 @@ fn fuzz_regressions_do_not_panic() {
     }
     println!("{n} fuzz regression inputs replayed");
 }
+
+#[test]
+fn gmsh_hexahedra_read_alike_in_msh_mesh_and_vtk() {
+    if !tool("gmsh") {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let geo = "Point(1)={0,0,0}; Point(2)={1,0,0}; Point(3)={1,1,0}; Point(4)={0,1,0};\n\
+Line(1)={1,2}; Line(2)={2,3}; Line(3)={3,4}; Line(4)={4,1};\n\
+Curve Loop(1)={1,2,3,4}; Plane Surface(1)={1};\n\
+Transfinite Curve{1,2,3,4}=3; Transfinite Surface{1}; Recombine Surface{1};\n\
+Extrude{0,0,1}{Surface{1}; Layers{2}; Recombine;}\nPhysical Volume(5) = {1};\n";
+    std::fs::write(d.path().join("hex.geo"), geo).unwrap();
+    let mut meshes = Vec::new();
+    for (fmt, out) in [("msh41", "hex.msh"), ("mesh", "hex.mesh"), ("vtk", "hex.vtk")] {
+        let st = Command::new("gmsh")
+            .current_dir(d.path())
+            .args(["-3", "hex.geo", "-format", fmt, "-o", out, "-v", "1"])
+            .status()
+            .unwrap();
+        assert!(st.success());
+        let m = read_mesh(&d.path().join(out)).unwrap();
+        assert!(
+            m.warnings.iter().all(|w| !w.contains("inverted")),
+            "{out}: {:?}",
+            m.warnings
+        );
+        assert_eq!(m.kind_counts().get(&eprop_io::CellKind::Hex), Some(&8), "{out}");
+        meshes.push(m);
+    }
+    // Medit and VTK keep Gmsh's local hexahedron order
+    assert_eq!(meshes[0].conn, meshes[1].conn);
+    assert_eq!(meshes[0].conn, meshes[2].conn);
+}

@@ -2,9 +2,11 @@
 //!
 //! Keywords `Vertices`, `Tetrahedra`, `Hexahedra`, `Prisms`, `Pyramids` (volume cells),
 //! `Triangles`, `Quadrilaterals`, `Edges` (facets); the reference of each entity is its tag.
-//! Medit numbers vertices from 1. Its local orders of tetrahedra, hexahedra (bottom face then
-//! the top face above it) and prisms (bottom triangle then the top one above it) match Gmsh's,
-//! so cells are taken as they are; the validation pass reorients any that come inverted.
+//! Medit numbers vertices from 1. Its local orders of tetrahedra and hexahedra (bottom face, then
+//! the top face above it) are Gmsh's (checked against gmsh's own `.mesh` output in
+//! tests/formats.rs); prisms are taken the same way (bottom triangle, then the top one above it;
+//! gmsh writes no prisms to `.mesh`, so that order is not cross-checked), and the validation pass
+//! reorients any cell that comes inverted.
 
 use crate::mesh::{CellKind, Mesh};
 use crate::scan::{cap, short, Scan};
