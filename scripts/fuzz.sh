@@ -13,5 +13,5 @@ bin="${CARGO_TARGET_DIR:-target}/release/examples/fuzz"
 corpus=()
 [ -d ../shared/meshes/tet ] && corpus=(--corpus ../shared/meshes/tet)
 for r in "${readers[@]}"; do
-  nice -n 19 "$bin" --reader "$r" --seconds "$secs" "${corpus[@]}"
+  nice -n 19 "$bin" --reader "$r" --seconds "$secs" "${corpus[@]}" || echo "fuzz: $r stopped abnormally (see the input it wrote)"
 done

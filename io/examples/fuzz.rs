@@ -306,6 +306,10 @@ fn main() {
                 if r.is_ok() {
                     oks += 1;
                 }
+                // the set of shapes is bounded: unquoted file text in messages can make it grow
+                if shapes.len() > 200_000 {
+                    shapes.clear();
+                }
                 if shapes.insert(key) && corpus.len() < 1000 && input.len() < 400_000 {
                     corpus.push(input.clone());
                 }

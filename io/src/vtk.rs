@@ -212,7 +212,7 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
     let ds = sc.word("the dataset type")?.to_ascii_uppercase();
     if ds != "UNSTRUCTURED_GRID" {
         return Err(sc.err(format!(
-            "dataset {} is not a volume mesh (UNSTRUCTURED_GRID is read); fix: tetrahedralize the surface first (e.g. tetgen -pq) and save an unstructured grid",
+            "dataset `{}` is not a volume mesh (UNSTRUCTURED_GRID is read); fix: tetrahedralize the surface first (e.g. tetgen -pq) and save an unstructured grid",
             short(&ds)
         )));
     }
