@@ -82,11 +82,24 @@ continues an interrupted series from its last complete step.")]
     },
     /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep.
     Info {
-        /// Mesh file (.msh, .vtu)
+        /// Mesh file (.msh, .vtk, .vtu, .node/.ele, .mesh)
         mesh: PathBuf,
         /// Print JSON
         #[arg(long)]
         json: bool,
+        /// Refuse inverted cells instead of reorienting them
+        #[arg(long)]
+        strict: bool,
+    },
+    /// Convert a mesh: read any supported format, validate, write .msh (Gmsh 4.1) or .vtu.
+    Convert {
+        /// Input mesh (.msh, .vtk, .vtu, .node/.ele, .mesh)
+        input: PathBuf,
+        /// Output mesh (.msh or .vtu)
+        output: PathBuf,
+        /// Refuse inverted cells instead of reorienting them
+        #[arg(long)]
+        strict: bool,
     },
     /// Split a mesh's node graph for K processes and report the quality of the split.
     #[command(
@@ -141,13 +154,6 @@ nodes. One explicit substep is x <- x + h L x; scripts/bench_petsc.py times it w
         scenario: PathBuf,
         /// Output file (.h5)
         #[arg(short, long)]
-        output: PathBuf,
-    },
-    /// Convert a mesh: read any supported file, check it, write Gmsh 4.1 (.msh) or VTK XML (.vtu).
-    Convert {
-        /// Input mesh (.msh, .vtu)
-        input: PathBuf,
-        /// Output mesh (.msh or .vtu, by extension)
         output: PathBuf,
     },
     /// Generate a mesh: the paper's cylinder or a box.
@@ -302,8 +308,16 @@ fn real_main(cli: Cli) -> Result<()> {
                 }
             }
         }
-        Cmd::Info { mesh, json } => {
-            let m = eprop_io::read_mesh(&mesh)?;
+        Cmd::Convert { input, output, strict } => {
+            let m = eprop_io::read_mesh_with(&input, &eprop_io::ReadOptions { strict })?;
+            for w in &m.warnings {
+                eprintln!("warning: {w}");
+            }
+            eprop_io::write_mesh(&m, &output)?;
+            println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
+        }
+        Cmd::Info { mesh, json, strict } => {
+            let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
             let info = mesh_info(&m);
             if json {
                 println!("{}", serde_json::to_string_pretty(&info)?);
@@ -398,14 +412,6 @@ fn real_main(cli: Cli) -> Result<()> {
             } else {
                 println!("{r}");
             }
-        }
-        Cmd::Convert { input, output } => {
-            let m = eprop_io::read_mesh(&input)?;
-            eprop_io::write_mesh(&m, &output)?;
-            for w in &m.warnings {
-                eprintln!("warning: {}: {w}", input.display());
-            }
-            println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
         }
         Cmd::Mesh { shape } => {
             let (mesh, out) = match shape {

@@ -3,6 +3,7 @@
 //! Physical tags become cell tags and facet tags; `$PhysicalNames` become group names.
 
 use crate::mesh::{CellKind, Mesh};
+use crate::scan::{cap, Scan};
 use anyhow::{anyhow, bail, Result};
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -48,10 +49,14 @@ impl<'a> Lines<'a> {
         let mut v = Vec::new();
         for tok in l.split_whitespace() {
             v.push(tok.parse::<T>().map_err(|_| {
-                self.err(
-                    ln,
-                    format!("cannot read `{tok}` as a number in {what}; fix: repair the line"),
-                )
+                if tok.starts_with('$') {
+                    self.err(
+                        ln,
+                        format!("found `{}` while reading {what}; fix: the count in the section header disagrees with its lines, repair it", short(tok)),
+                    )
+                } else {
+                    self.err(ln, format!("cannot read `{}` as a number in {what}; fix: repair the line", short(tok)))
+                }
             })?);
         }
         Ok((ln, v))
@@ -122,20 +127,30 @@ fn type_problem(t: u32) -> String {
     }
 }
 
-/// Reads a Gmsh file of any supported version.
+/// Reads a Gmsh file of any supported version, ASCII or binary.
 pub fn read(path: &Path) -> Result<Mesh> {
     let bytes = std::fs::read(path).map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
-    let name = path.display().to_string();
-    let text = match std::str::from_utf8(&bytes) {
-        Ok(t) => t,
-        Err(e) => {
-            // binary sections are not text
-            let upto = &bytes[..e.valid_up_to()];
-            let line = upto.iter().filter(|&&b| b == b'\n').count() + 1;
-            bail!("{name}:{line}: binary data in the file; fix: binary .msh is not read yet, save as ASCII (gmsh -bin 0 or File > Export > ASCII)")
+    parse_bytes(&path.display().to_string(), &bytes)
+}
+
+/// Parses the bytes of a Gmsh file: binary files by the binary reader, text by `parse`.
+pub fn parse_bytes(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let mut sc = Scan::new(name, bytes);
+    let first = sc.rest_of_line().trim_ascii();
+    if first == b"$MeshFormat" {
+        let fmt = String::from_utf8_lossy(sc.rest_of_line()).to_string();
+        let f: Vec<&str> = fmt.split_whitespace().collect();
+        if f.get(1) == Some(&"1") {
+            return parse_binary(name, bytes);
         }
-    };
-    parse(&name, text)
+    }
+    match std::str::from_utf8(bytes) {
+        Ok(t) => parse(name, t),
+        Err(e) => {
+            let line = bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count() + 1;
+            bail!("{name}:{line}: binary data in a file whose $MeshFormat says ASCII; fix: the file is corrupt, export it again")
+        }
+    }
 }
 
 /// Parses the text of a Gmsh file.
@@ -155,7 +170,10 @@ pub fn parse(name: &str, text: &str) -> Result<Mesh> {
                 ));
             }
             if fmt[1] != 0.0 {
-                return Err(rd.err(ln2, "binary .msh is not read yet; fix: save as ASCII (gmsh -bin 0)"));
+                return Err(rd.err(
+                    ln2,
+                    "binary .msh given as text; fix: read it with gmsh::parse_bytes (read_mesh does)",
+                ));
             }
             rd.expect("$EndMeshFormat")?;
             let v = fmt[0];
@@ -199,7 +217,7 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
             }
             for _ in 0..n[0] {
                 let (ln3, v) = rd.numbers::<i64>("an element")?;
-                if v.len() < 5 || v[4] < 0 || v.len() != 5 + v[4] as usize {
+                if v.len() < 5 || v[4] < 0 || (v.len() - 5) as u64 != v[4] as u64 {
                     return Err(rd.err(ln3, format!("element line has {} numbers; expected `id type phys elem n` and n node ids; fix: the count disagrees with the $ELM header or the line is cut", v.len())));
                 }
                 elems.push(RawElem {
@@ -219,8 +237,9 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
 }
 
 fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<[f64; 3]>) -> Result<()> {
-    ids.reserve(n);
-    pts.reserve(n);
+    let c = n.min(rd.lines.len());
+    ids.reserve(c);
+    pts.reserve(c);
     for _ in 0..n {
         let (ln, l) = rd.next("a node")?;
         let t: Vec<&str> = l.split_whitespace().collect();
@@ -308,10 +327,10 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
                 if n.len() != 1 {
                     return Err(rd.err(ln2, "expected the element count alone on the line after $Elements"));
                 }
-                elems.reserve(n[0]);
+                elems.reserve(n[0].min(rd.lines.len()));
                 for _ in 0..n[0] {
                     let (ln3, v) = rd.numbers::<i64>("an element")?;
-                    if v.len() < 3 || v[2] < 0 || v.len() < 3 + v[2] as usize {
+                    if v.len() < 3 || v[2] < 0 || ((v.len() - 3) as u64) < v[2] as u64 {
                         return Err(rd.err(ln3, "element line too short; expected `id type ntags tags... nodes...`; fix: the count disagrees with $Elements or the line is cut"));
                     }
                     let ntags = v[2] as usize;
@@ -381,7 +400,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                             return Err(rd.err(ln3, "entity line too short"));
                         }
                         let nphys = v[np_at] as usize;
-                        if v.len() < np_at + 1 + nphys {
+                        if v.len().saturating_sub(np_at + 1) < nphys {
                             return Err(rd.err(ln3, "entity line has fewer physical tags than it announces"));
                         }
                         if nphys > 0 {
@@ -396,8 +415,8 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                 if h.len() != 4 {
                     return Err(rd.err(ln2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
                 }
-                ids.reserve(h[1]);
-                pts.reserve(h[1]);
+                ids.reserve(h[1].min(rd.lines.len()));
+                pts.reserve(h[1].min(rd.lines.len()));
                 for _ in 0..h[0] {
                     let (ln3, b) = rd.numbers::<i64>("a node block header")?;
                     if b.len() != 4 || b[3] < 0 {
@@ -454,7 +473,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                         "expected `numEntityBlocks numElements minElementTag maxElementTag`",
                     ));
                 }
-                elems.reserve(h[1]);
+                elems.reserve(h[1].min(rd.lines.len()));
                 let mut count = 0usize;
                 for _ in 0..h[0] {
                     let (ln3, b) = rd.numbers::<i64>("an element block header")?;
@@ -515,6 +534,20 @@ fn build(
     names: BTreeMap<(u8, i32), String>,
     rd: &Lines,
 ) -> Result<Mesh> {
+    let path = rd.path.clone();
+    build_at(source, ids, pts, elems, names, &|line| format!("{path}:{line}"))
+}
+
+/// Resolves node ids of the raw elements; `loc` turns a raw element's position into
+/// `file:line` (text) or `file: byte N` (binary) for messages.
+fn build_at(
+    source: String,
+    ids: Vec<u64>,
+    pts: Vec<[f64; 3]>,
+    elems: Vec<RawElem>,
+    names: BTreeMap<(u8, i32), String>,
+    loc: &dyn Fn(usize) -> String,
+) -> Result<Mesh> {
     let mut index: HashMap<u64, u32> = HashMap::with_capacity(ids.len());
     for (k, &id) in ids.iter().enumerate() {
         if index.insert(id, k as u32).is_some() {
@@ -528,23 +561,26 @@ fn build(
     let mut buf = Vec::with_capacity(8);
     for e in &elems {
         let Some((nn, dim)) = nodes_per_type(e.gtype) else {
-            return Err(rd.err(e.line, format!("element {}: {}", e.id, type_problem(e.gtype))));
+            return Err(anyhow!("{}: element {}: {}", loc(e.line), e.id, type_problem(e.gtype)));
         };
         if e.nodes.len() != nn {
-            return Err(rd.err(
-                e.line,
-                format!("element {} has {} node ids, expected {nn}", e.id, e.nodes.len()),
+            return Err(anyhow!(
+                "{}: element {} has {} node ids, expected {nn}; fix: repair the element",
+                loc(e.line),
+                e.id,
+                e.nodes.len()
             ));
         }
         buf.clear();
         for &n in &e.nodes {
             let Some(&k) = index.get(&n) else {
-                return Err(rd.err(e.line, format!("element {} names node {n}, which the file does not define; fix: repair the element or add the node", e.id)));
+                return Err(anyhow!("{}: element {} names node {n}, which the file does not define; fix: repair the element or add the node", loc(e.line), e.id));
             };
             buf.push(k);
         }
-        if dim == 3 {
-            mesh.push_cell(CellKind::from_gmsh(e.gtype).unwrap(), &buf, e.tag);
+        if let (3, Some(kind)) = (dim, CellKind::from_gmsh(e.gtype)) {
+            mesh.push_cell(kind, &buf, e.tag);
+            mesh.cell_ids.push(e.id);
         } else {
             mesh.facets.push(dim, e.tag, &buf);
         }
@@ -552,7 +588,6 @@ fn build(
     if mesh.n_cells() == 0 {
         bail!("{source}: no volume cells (tetrahedra, hexahedra, prisms or pyramids); fix: mesh the volume (gmsh -3), not only its surface");
     }
-    mesh.orient_cells()?;
     Ok(mesh)
 }
 
@@ -598,8 +633,10 @@ pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
     // nodes: all in the first volume entity
     let n = mesh.n_nodes();
     let vol_ent = ents.iter().find(|((d, _), _)| *d == 3).map(|(_, e)| *e).unwrap_or(1);
+    // Gmsh node tags start at 1: shift 0-based numberings (VTK, TetGen) by one
     let ids: Vec<u64> = if mesh.node_ids.len() == n {
-        mesh.node_ids.clone()
+        let shift = mesh.node_ids.contains(&0) as u64;
+        mesh.node_ids.iter().map(|&i| i + shift).collect()
     } else {
         (1..=n as u64).collect()
     };
@@ -657,4 +694,373 @@ pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
     }
     s.push_str("$EndElements\n");
     std::fs::write(path, s).map_err(|e| anyhow!("{}: cannot write: {e}", path.display()))
+}
+
+/// Binary `.msh` data: little- or big-endian numbers, `size_t` of 4 or 8 bytes.
+struct Bin<'a> {
+    sc: Scan<'a>,
+    big: bool,
+    dsize: usize,
+}
+
+impl<'a> Bin<'a> {
+    fn i32(&mut self, what: &str) -> Result<i32> {
+        let b = self.sc.raw(4, what)?;
+        let a = [b[0], b[1], b[2], b[3]];
+        Ok(if self.big {
+            i32::from_be_bytes(a)
+        } else {
+            i32::from_le_bytes(a)
+        })
+    }
+    fn size(&mut self, what: &str) -> Result<u64> {
+        if self.dsize == 4 {
+            return Ok(self.i32(what)? as u32 as u64);
+        }
+        let b = self.sc.raw(8, what)?;
+        let mut a = [0u8; 8];
+        a.copy_from_slice(b);
+        Ok(if self.big {
+            u64::from_be_bytes(a)
+        } else {
+            u64::from_le_bytes(a)
+        })
+    }
+    fn count(&mut self, what: &str) -> Result<usize> {
+        let p = self.sc.pos;
+        let v = self.size(what)?;
+        usize::try_from(v).map_err(|_| {
+            self.sc
+                .err_byte(p, format!("{what} {v} is too large; fix: the file is corrupt"))
+        })
+    }
+    fn f64(&mut self, what: &str) -> Result<f64> {
+        let b = self.sc.raw(8, what)?;
+        let mut a = [0u8; 8];
+        a.copy_from_slice(b);
+        Ok(if self.big {
+            f64::from_be_bytes(a)
+        } else {
+            f64::from_le_bytes(a)
+        })
+    }
+    /// A text line (section markers, ASCII counts).
+    fn line(&mut self) -> Option<String> {
+        loop {
+            if self.sc.remaining() == 0 {
+                return None;
+            }
+            let l = String::from_utf8_lossy(self.sc.rest_of_line()).trim().to_string();
+            if !l.is_empty() {
+                return Some(l);
+            }
+        }
+    }
+    fn expect(&mut self, tag: &str) -> Result<()> {
+        let p = self.sc.pos;
+        match self.line() {
+            Some(l) if l == tag => Ok(()),
+            Some(l) => Err(self.sc.err_byte(
+                p,
+                format!(
+                    "expected `{tag}`, found `{}`; fix: a count disagrees with the data or the file is truncated",
+                    crate::scan::short(&l)
+                ),
+            )),
+            None => Err(self.sc.truncated(tag)),
+        }
+    }
+    fn text_count(&mut self, what: &str) -> Result<usize> {
+        let p = self.sc.pos;
+        let l = self.line().ok_or_else(|| self.sc.truncated(what))?;
+        l.parse().map_err(|_| {
+            self.sc.err_at(
+                p,
+                format!(
+                    "expected {what}, found `{}`; fix: repair the line",
+                    crate::scan::short(&l)
+                ),
+            )
+        })
+    }
+}
+
+fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let mut sc = Scan::new(name, bytes);
+    sc.rest_of_line();
+    let fmt_pos = sc.pos;
+    let fmt = String::from_utf8_lossy(sc.rest_of_line()).to_string();
+    let f: Vec<&str> = fmt.split_whitespace().collect();
+    let version: f64 = f.first().and_then(|v| v.parse().ok()).unwrap_or(0.0);
+    let dsize: usize = f.get(2).and_then(|v| v.parse().ok()).unwrap_or(0);
+    if dsize != 4 && dsize != 8 {
+        return Err(sc.err_at(
+            fmt_pos,
+            format!(
+                "data-size {} is not 4 or 8; fix: repair the $MeshFormat line",
+                f.get(2).unwrap_or(&"")
+            ),
+        ));
+    }
+    let v2 = (2.0..3.0).contains(&version);
+    if !v2 && !(4.1..4.2).contains(&version) {
+        return Err(sc.err_at(fmt_pos, format!("binary Gmsh format {version} is not supported (2.2 and 4.1 are); fix: save with gmsh -format msh41 or msh22")));
+    }
+    let one = sc.raw(4, "the endianness marker")?;
+    let big = match one {
+        [1, 0, 0, 0] => false,
+        [0, 0, 0, 1] => true,
+        _ => {
+            return Err(sc.err_byte(
+                sc.pos - 4,
+                "the endianness marker is not the integer 1; fix: the file is corrupt, export it again",
+            ))
+        }
+    };
+    let mut b = Bin { sc, big, dsize };
+    b.expect("$EndMeshFormat")?;
+    let mut ids: Vec<u64> = Vec::new();
+    let mut pts: Vec<[f64; 3]> = Vec::new();
+    let mut elems: Vec<RawElem> = Vec::new();
+    let mut names = BTreeMap::new();
+    let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
+    let mut saw_nodes = false;
+    while let Some(l) = b.line() {
+        let sec_pos = b.sc.pos;
+        match l.as_str() {
+            "$PhysicalNames" => {
+                let n = b.text_count("the physical name count")?;
+                for _ in 0..n {
+                    let p = b.sc.pos;
+                    let l = b.line().ok_or_else(|| b.sc.truncated("a physical name"))?;
+                    let mut it = l.splitn(3, char::is_whitespace);
+                    let dim = it.next().and_then(|s| s.parse::<u8>().ok());
+                    let tag = it.next().and_then(|s| s.trim().parse::<i32>().ok());
+                    let (Some(dim), Some(tag)) = (dim, tag) else {
+                        return Err(b.sc.err_at(p, "expected `dim tag \"name\"`; fix: repair the line"));
+                    };
+                    names.insert((dim, tag), it.next().unwrap_or("").trim().trim_matches('"').to_string());
+                }
+                b.expect("$EndPhysicalNames")?;
+            }
+            "$Entities" if !v2 => {
+                let mut c = [0usize; 4];
+                for x in &mut c {
+                    *x = b.count("an entity count")?;
+                }
+                for dim in 0..4u8 {
+                    for _ in 0..c[dim as usize] {
+                        let tag = b.i32("an entity tag")?;
+                        for _ in 0..if dim == 0 { 3 } else { 6 } {
+                            b.f64("an entity bound")?;
+                        }
+                        let np = b.count("a physical tag count")?;
+                        for k in 0..np {
+                            let ph = b.i32("a physical tag")?;
+                            if k == 0 {
+                                entity_phys.insert((dim, tag), ph);
+                            }
+                        }
+                        if dim > 0 {
+                            let nb = b.count("a bounding entity count")?;
+                            for _ in 0..nb {
+                                b.i32("a bounding entity")?;
+                            }
+                        }
+                    }
+                }
+                b.expect("$EndEntities")?;
+            }
+            "$Nodes" if v2 => {
+                let n = b.text_count("the node count")?;
+                let c = cap(n, b.sc.remaining(), 28);
+                ids.reserve(c);
+                pts.reserve(c);
+                for _ in 0..n {
+                    let id = b.i32("a node id")?;
+                    let mut p = [0.0; 3];
+                    for x in &mut p {
+                        *x = b.f64("a coordinate")?;
+                    }
+                    ids.push(id as u32 as u64);
+                    pts.push(p);
+                }
+                b.expect("$EndNodes")?;
+                saw_nodes = true;
+            }
+            "$Nodes" => {
+                let nblocks = b.count("the node block count")?;
+                let n = b.count("the node count")?;
+                b.count("the minimum node tag")?;
+                b.count("the maximum node tag")?;
+                let c = cap(n, b.sc.remaining(), 32);
+                ids.reserve(c);
+                pts.reserve(c);
+                for _ in 0..nblocks {
+                    let edim = b.i32("an entity dimension")?;
+                    b.i32("an entity tag")?;
+                    let param = b.i32("the parametric flag")?;
+                    let nn = b.count("the block node count")?;
+                    if nn > b.sc.remaining() / (dsize + 24) {
+                        return Err(b.sc.err_byte(b.sc.pos, format!("a node block announces {nn} nodes, more than the file holds; fix: the file is truncated or corrupt")));
+                    }
+                    for _ in 0..nn {
+                        ids.push(b.size("a node tag")?);
+                    }
+                    let extra = if param != 0 { edim.clamp(0, 3) as usize } else { 0 };
+                    for _ in 0..nn {
+                        let mut p = [0.0; 3];
+                        for x in &mut p {
+                            *x = b.f64("a coordinate")?;
+                        }
+                        for _ in 0..extra {
+                            b.f64("a parametric coordinate")?;
+                        }
+                        pts.push(p);
+                    }
+                }
+                if ids.len() != n {
+                    return Err(b.sc.err_byte(
+                        sec_pos,
+                        format!(
+                            "$Nodes announces {n} nodes but its blocks hold {}; fix: repair the header",
+                            ids.len()
+                        ),
+                    ));
+                }
+                b.expect("$EndNodes")?;
+                saw_nodes = true;
+            }
+            "$Elements" if v2 => {
+                let n = b.text_count("the element count")?;
+                elems.reserve(cap(n, b.sc.remaining(), 20));
+                let mut done = 0usize;
+                while done < n {
+                    let hp = b.sc.pos;
+                    let gtype = b.i32("an element type")? as u32;
+                    let follow = b.i32("the element count of a block")?.max(0) as usize;
+                    let ntags = b.i32("the tag count")?.max(0) as usize;
+                    let Some((nn, _)) = nodes_per_type(gtype) else {
+                        return Err(b.sc.err_byte(hp, type_problem(gtype)));
+                    };
+                    if follow == 0 || follow > n - done {
+                        return Err(b.sc.err_byte(hp, format!("an element block announces {follow} elements, but {} remain of the {n} announced; fix: the counts disagree, export again", n - done)));
+                    }
+                    if ntags > 1 << 16 {
+                        return Err(b
+                            .sc
+                            .err_byte(hp, format!("{ntags} tags per element; fix: the file is corrupt")));
+                    }
+                    for _ in 0..follow {
+                        let p = b.sc.pos;
+                        let id = b.i32("an element id")? as u32 as u64;
+                        let mut tag = 0;
+                        for k in 0..ntags {
+                            let t = b.i32("an element tag")?;
+                            if k == 0 {
+                                tag = t;
+                            }
+                        }
+                        let mut nodes = Vec::with_capacity(nn);
+                        for _ in 0..nn {
+                            nodes.push(b.i32("an element node")? as u32 as u64);
+                        }
+                        elems.push(RawElem {
+                            line: p,
+                            id,
+                            gtype,
+                            tag,
+                            nodes,
+                        });
+                    }
+                    done += follow;
+                }
+                b.expect("$EndElements")?;
+            }
+            "$Elements" => {
+                let nblocks = b.count("the element block count")?;
+                let n = b.count("the element count")?;
+                b.count("the minimum element tag")?;
+                b.count("the maximum element tag")?;
+                elems.reserve(cap(n, b.sc.remaining(), 2 * dsize));
+                for _ in 0..nblocks {
+                    let hp = b.sc.pos;
+                    let edim = b.i32("an entity dimension")?;
+                    let etag = b.i32("an entity tag")?;
+                    let gtype = b.i32("an element type")? as u32;
+                    let ne = b.count("the block element count")?;
+                    let Some((nn, _)) = nodes_per_type(gtype) else {
+                        return Err(b.sc.err_byte(hp, type_problem(gtype)));
+                    };
+                    if ne > b.sc.remaining() / ((nn + 1) * dsize) {
+                        return Err(b.sc.err_byte(hp, format!("an element block announces {ne} elements, more than the file holds; fix: the file is truncated or corrupt")));
+                    }
+                    let tag = u8::try_from(edim)
+                        .ok()
+                        .and_then(|d| entity_phys.get(&(d, etag)).copied())
+                        .unwrap_or(0);
+                    for _ in 0..ne {
+                        let p = b.sc.pos;
+                        let id = b.size("an element tag")?;
+                        let mut nodes = Vec::with_capacity(nn);
+                        for _ in 0..nn {
+                            nodes.push(b.size("an element node")?);
+                        }
+                        elems.push(RawElem {
+                            line: p,
+                            id,
+                            gtype,
+                            tag,
+                            nodes,
+                        });
+                    }
+                }
+                if elems.len() != n {
+                    return Err(b.sc.err_byte(
+                        sec_pos,
+                        format!(
+                            "$Elements announces {n} elements but its blocks hold {}; fix: repair the header",
+                            elems.len()
+                        ),
+                    ));
+                }
+                b.expect("$EndElements")?;
+            }
+            s if s.starts_with('$') && s.len() > 1 => {
+                // a section eprop does not use: find its end marker
+                let end = format!("\n$End{}", &s[1..]);
+                let from = b.sc.pos.saturating_sub(1);
+                let hay = &b.sc.b[from..];
+                match hay.windows(end.len()).position(|w| w == end.as_bytes()) {
+                    Some(k) => {
+                        b.sc.pos = from + k + 1;
+                        b.line();
+                    }
+                    None => {
+                        return Err(b.sc.err_byte(
+                            sec_pos,
+                            format!(
+                                "section {} has no end marker; fix: the file is truncated",
+                                crate::scan::short(s)
+                            ),
+                        ))
+                    }
+                }
+            }
+            _ => {
+                return Err(b.sc.err_byte(
+                    sec_pos,
+                    format!(
+                        "unexpected `{}` between sections; fix: a count disagrees with the data",
+                        crate::scan::short(&l)
+                    ),
+                ))
+            }
+        }
+    }
+    if !saw_nodes {
+        bail!("{name}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)");
+    }
+    let nm = name.to_string();
+    build_at(name.to_string(), ids, pts, elems, names, &|p| format!("{nm}: byte {p}"))
 }

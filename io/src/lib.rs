@@ -1,40 +1,106 @@
 //! eprop-io: meshes in (readers, generators), time series out (VTKHDF).
+//!
+//! Readers: Gmsh `.msh` (1, 2.2, 4.1; ASCII and binary), VTK legacy `.vtk`, VTK XML `.vtu`,
+//! TetGen `.node`/`.ele`/`.face`, Medit `.mesh`. Each has a `parse` function on bytes; every
+//! mesh read through `read_mesh` goes through one validation pass (`validate`).
 
 pub mod generate;
 pub mod geom;
 pub mod gmsh;
+pub mod medit;
 pub mod mesh;
+pub mod scan;
+pub mod testwrite;
 pub mod tetgen;
+pub mod validate;
+pub mod vtk;
 pub mod vtkhdf;
 pub mod vtu;
 
 pub use mesh::{CellKind, Mesh};
+pub use validate::{validate, ReadOptions};
 
-use anyhow::{bail, Result};
+use anyhow::{anyhow, bail, Result};
 use std::path::Path;
 
-/// Reads a mesh file, choosing the reader by extension.
-pub fn read_mesh(path: &Path) -> Result<Mesh> {
-    if !path.exists() {
-        bail!("{}: no such mesh file; fix: check the path (relative paths in a scenario are relative to the scenario file)", path.display());
-    }
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    match ext.as_str() {
-        "msh" => gmsh::read(path),
-        "vtu" => vtu::read(path),
-        "ele" | "node" => tetgen::read(path),
-        _ => bail!(
-            "{}: unknown mesh format `.{ext}`; fix: eprop reads Gmsh .msh (versions 1, 2.2, 4.1 ASCII), VTK .vtu and TetGen .node/.ele",
-            path.display()
-        ),
+/// The mesh formats eprop reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Gmsh,
+    VtkLegacy,
+    Vtu,
+    TetGen,
+    Medit,
+}
+
+impl Format {
+    /// The format of a file name, by extension.
+    pub fn of(path: &Path) -> Option<Format> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
+        Some(match ext.as_str() {
+            "msh" => Format::Gmsh,
+            "vtk" => Format::VtkLegacy,
+            "vtu" => Format::Vtu,
+            "node" | "ele" | "face" => Format::TetGen,
+            "mesh" => Format::Medit,
+            _ => return None,
+        })
     }
 }
 
-/// Writes a mesh, choosing the writer by extension.
+/// Parses a mesh held in memory (no validation). TetGen bytes are a bundle
+/// (see `tetgen::parse_bundle`).
+pub fn parse_mesh(format: Format, name: &str, bytes: &[u8]) -> Result<Mesh> {
+    match format {
+        Format::Gmsh => gmsh::parse_bytes(name, bytes),
+        Format::VtkLegacy => vtk::parse(name, bytes),
+        Format::Vtu => vtu::parse(name, bytes),
+        Format::TetGen => tetgen::parse_bundle(name, bytes),
+        Format::Medit => medit::parse(name, bytes),
+    }
+}
+
+/// Reads a mesh file, choosing the reader by extension, and validates it (not strict).
+pub fn read_mesh(path: &Path) -> Result<Mesh> {
+    read_mesh_with(path, &ReadOptions::default())
+}
+
+/// Reads a mesh file, choosing the reader by extension, and validates it.
+pub fn read_mesh_with(path: &Path, opts: &ReadOptions) -> Result<Mesh> {
+    let Some(format) = Format::of(path) else {
+        bail!(
+            "{}: unknown mesh format; fix: eprop reads Gmsh .msh, VTK .vtk and .vtu, TetGen .node/.ele, Medit .mesh",
+            path.display()
+        );
+    };
+    if format == Format::TetGen {
+        let base = path.with_extension("").display().to_string();
+        if !Path::new(&format!("{base}.ele")).exists() || !Path::new(&format!("{base}.node")).exists() {
+            bail!(
+                "{}: no such mesh file (TetGen needs x.node and x.ele side by side); fix: check the path",
+                path.display()
+            );
+        }
+    } else if !path.exists() {
+        bail!("{}: no such mesh file; fix: check the path (relative paths in a scenario are relative to the scenario file)", path.display());
+    }
+    let mut mesh = match format {
+        Format::TetGen => tetgen::read(path)?,
+        _ => {
+            let bytes = std::fs::read(path)
+                .map_err(|e| anyhow!("{}: cannot read: {e}; fix: check the permissions", path.display()))?;
+            parse_mesh(format, &path.display().to_string(), &bytes)?
+        }
+    };
+    validate(&mut mesh, opts)?;
+    Ok(mesh)
+}
+
+/// Writes a mesh, choosing the writer by extension: Gmsh 4.1 `.msh` or `.vtu`.
 pub fn write_mesh(mesh: &Mesh, path: &Path) -> Result<()> {
     let ext = path
         .extension()

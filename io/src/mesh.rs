@@ -129,6 +129,8 @@ pub struct Mesh {
     pub conn: Vec<u32>,
     /// Physical tag of each volume cell (0 when the file gave none).
     pub cell_tags: Vec<i32>,
+    /// Element ids as the file numbered the volume cells (empty: cell index + 1).
+    pub cell_ids: Vec<u64>,
     /// Lower-dimensional elements (triangles, quads, lines, points) kept for their tags.
     pub facets: Facets,
     /// Physical group names: (dimension, tag) -> name.
@@ -184,6 +186,14 @@ impl Mesh {
     }
     pub fn n_cells(&self) -> usize {
         self.kinds.len()
+    }
+    /// The file's id of volume cell `c`, for messages.
+    pub fn cell_id(&self, c: usize) -> u64 {
+        self.cell_ids.get(c).copied().unwrap_or(c as u64 + 1)
+    }
+    /// The file's id of node `n`, for messages.
+    pub fn node_id(&self, n: usize) -> u64 {
+        self.node_ids.get(n).copied().unwrap_or(n as u64 + 1)
     }
     pub fn cell(&self, c: usize) -> &[u32] {
         &self.conn[self.offsets[c]..self.offsets[c + 1]]

@@ -1,174 +1,213 @@
-//! TetGen `.node` / `.ele` (+ optional `.face`) reader (own code).
+//! TetGen `.node` / `.ele` (+ optional `.face`) reader.
 //!
-//! Given `x.ele` or `x.node`, reads both (and `x.face` when present: boundary markers become
-//! facet tags). Numbering may start at 0 or 1 (taken from the first node). The first element
-//! attribute, when there is one (a region from `tetgen -A`), becomes the cell tag. Comments start
-//! with `#`.
+//! The region attribute (first attribute) of each tetrahedron becomes its cell tag; boundary
+//! markers of `.face` become facet tags. Numbering may start at 0 or 1; `#` starts a comment.
 
 use crate::mesh::{CellKind, Mesh};
+use crate::scan::{cap, Scan};
 use anyhow::{anyhow, bail, Result};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-/// Non-empty, comment-free lines with their 1-based line numbers.
-fn lines(text: &str) -> impl Iterator<Item = (usize, Vec<&str>)> {
-    text.lines().enumerate().filter_map(|(i, l)| {
-        let l = l.split('#').next().unwrap_or("");
-        let w: Vec<&str> = l.split_whitespace().collect();
-        (!w.is_empty()).then_some((i + 1, w))
+/// The marker line that separates the parts of a bundle (`parse_bundle`).
+pub const BUNDLE_SEP: &str = "%% tetgen-part";
+
+fn id_of(sc: &mut Scan, what: &str) -> Result<u64> {
+    let w = sc.word(what)?;
+    w.parse::<u64>().map_err(|_| {
+        sc.err(format!(
+            "`{}` is not a valid index for {what}; fix: repair the line",
+            crate::scan::short(w)
+        ))
     })
 }
 
-fn num<T: std::str::FromStr>(file: &str, line: usize, w: &str, what: &str) -> Result<T> {
-    w.parse()
-        .map_err(|_| anyhow!("{file}:{line}: `{w}` is not a valid {what}; fix: repair the line"))
+/// Parses the three files (the `.face` part is optional).
+pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result<Mesh> {
+    let node_name = format!("{name}.node");
+    let mut sc = Scan::new(&node_name, node);
+    sc.comment = Some(b'#');
+    let n = sc.count("the node count")?;
+    let dim = sc.count("the dimension")?;
+    if dim != 3 {
+        return Err(sc.err(format!("dimension {dim}; eprop reads 3D meshes; fix: mesh in 3D")));
+    }
+    let nattr = sc.count("the attribute count")?;
+    let nmark = sc.count("the boundary marker flag")?;
+    if nmark > 1 || nattr > 1 << 16 {
+        return Err(sc.err("the header is not `<#points> 3 <#attributes> <0|1>`; fix: repair the first line"));
+    }
+    let mut mesh = Mesh::new(name);
+    let c = cap(n, sc.remaining(), 8);
+    mesh.points.reserve(c);
+    mesh.node_ids.reserve(c);
+    let mut index: HashMap<u64, u32> = HashMap::with_capacity(c);
+    for _ in 0..n {
+        let id = id_of(&mut sc, "a node index")?;
+        let mut p = [0.0; 3];
+        for v in &mut p {
+            *v = sc.num("a coordinate")?;
+        }
+        for _ in 0..nattr + nmark {
+            sc.num::<f64>("a node attribute or marker")?;
+        }
+        if index.insert(id, mesh.points.len() as u32).is_some() {
+            return Err(sc.err(format!("node {id} is defined twice; fix: renumber the nodes")));
+        }
+        mesh.points.push(p);
+        mesh.node_ids.push(id);
+    }
+    if !sc.at_end() {
+        return Err(sc.err(format!(
+            "more lines than the {n} nodes announced; fix: the node count is wrong"
+        )));
+    }
+    let ele_name = format!("{name}.ele");
+    let mut sc = Scan::new(&ele_name, ele);
+    sc.comment = Some(b'#');
+    let ne = sc.count("the tetrahedron count")?;
+    let npt = sc.count("the nodes per tetrahedron")?;
+    if npt != 4 {
+        return Err(sc.err(format!(
+            "{npt} nodes per tetrahedron; eprop reads first-order (4-node) tetrahedra; fix: re-mesh with first-order elements (tetgen without -o2)"
+        )));
+    }
+    let nreg = sc.count("the region attribute count")?;
+    if nreg > 1 << 16 {
+        return Err(sc.err("too many attributes; fix: repair the first line"));
+    }
+    let c = cap(ne, sc.remaining(), 10);
+    mesh.conn.reserve(c * 4);
+    let mut nodes = [0u32; 4];
+    for _ in 0..ne {
+        let eid = id_of(&mut sc, "a tetrahedron index")?;
+        for k in &mut nodes {
+            let nid = id_of(&mut sc, "a node index")?;
+            *k = *index.get(&nid).ok_or_else(|| {
+                sc.err(format!("tetrahedron {eid} names node {nid}, which the .node file does not define; fix: repair the element or use the matching .node file"))
+            })?;
+        }
+        let mut tag = 0i32;
+        for a in 0..nreg {
+            let v: f64 = sc.num("a region attribute")?;
+            if a == 0 {
+                if v.fract() != 0.0 || !(i32::MIN as f64..=i32::MAX as f64).contains(&v) {
+                    return Err(sc.err(format!("region attribute {v} of tetrahedron {eid} is not an integer; fix: use integer region attributes")));
+                }
+                tag = v as i32;
+            }
+        }
+        mesh.push_cell(CellKind::Tet, &nodes, tag);
+        mesh.cell_ids.push(eid);
+    }
+    if !sc.at_end() {
+        return Err(sc.err(format!(
+            "more lines than the {ne} tetrahedra announced; fix: the count is wrong"
+        )));
+    }
+    if let Some(face) = face {
+        let face_name = format!("{name}.face");
+        let mut sc = Scan::new(&face_name, face);
+        sc.comment = Some(b'#');
+        let nf = sc.count("the face count")?;
+        let nm = sc.count("the boundary marker flag")?;
+        if nm > 1 {
+            return Err(sc.err("the header is not `<#faces> <0|1>`; fix: repair the first line"));
+        }
+        let mut tri = [0u32; 3];
+        for _ in 0..nf {
+            let fid = id_of(&mut sc, "a face index")?;
+            for k in &mut tri {
+                let nid = id_of(&mut sc, "a node index")?;
+                *k = *index.get(&nid).ok_or_else(|| {
+                    sc.err(format!("face {fid} names node {nid}, which the .node file does not define; fix: use the matching .face file"))
+                })?;
+            }
+            let tag = if nm == 1 {
+                sc.num::<i32>("a boundary marker")?
+            } else {
+                0
+            };
+            // tetgen -nn adds the two adjacent tetrahedra: skip what is left on the line
+            let rest = sc.rest_of_line();
+            if rest.iter().any(|c| !c.is_ascii_whitespace()) && !rest.trim_ascii().starts_with(b"#") {
+                let ok = rest
+                    .split(|c| c.is_ascii_whitespace())
+                    .filter(|t| !t.is_empty())
+                    .all(|t| {
+                        std::str::from_utf8(t)
+                            .ok()
+                            .and_then(|s| s.parse::<i64>().ok())
+                            .is_some()
+                    });
+                if !ok {
+                    return Err(sc.err(format!(
+                        "face {fid}: unexpected values after the marker; fix: repair the line"
+                    )));
+                }
+            }
+            mesh.facets.push(2, tag, &tri);
+        }
+        if !sc.at_end() {
+            return Err(sc.err(format!(
+                "more lines than the {nf} faces announced; fix: the count is wrong"
+            )));
+        }
+    }
+    Ok(mesh)
 }
 
-fn sibling(path: &Path, ext: &str) -> PathBuf {
-    path.with_extension(ext)
+/// Parses `node`, `ele` and optional `face` parts joined by `BUNDLE_SEP` lines (for fuzzing).
+pub fn parse_bundle(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let sep = BUNDLE_SEP.as_bytes();
+    let mut parts: Vec<&[u8]> = Vec::new();
+    let mut s = 0;
+    let mut i = 0;
+    while i + sep.len() <= bytes.len() {
+        if &bytes[i..i + sep.len()] == sep {
+            parts.push(&bytes[s..i]);
+            i += sep.len();
+            s = i;
+        } else {
+            i += 1;
+        }
+    }
+    parts.push(&bytes[s..]);
+    match parts.as_slice() {
+        [n, e] => parse(name, n, e, None),
+        [n, e, f] => parse(name, n, e, Some(f)),
+        _ => bail!("{name}: a TetGen bundle needs node and ele parts; fix: join them with `{BUNDLE_SEP}`"),
+    }
 }
 
+/// Reads `x.node` + `x.ele` (+ `x.face` when present), given any of them.
 pub fn read(path: &Path) -> Result<Mesh> {
-    let node = sibling(path, "node");
-    let ele = sibling(path, "ele");
-    let face = sibling(path, "face");
+    let base: PathBuf = path.with_extension("");
+    // `x.1.ele` -> `x.1.node`: append, since with_extension would replace the `.1`
+    let sib = |ext: &str| PathBuf::from(format!("{}.{ext}", base.display()));
     let rd = |p: &Path| {
-        std::fs::read_to_string(p).map_err(|e| {
+        std::fs::read(p).map_err(|e| {
             anyhow!(
-                "{}: cannot read: {e}; fix: TetGen meshes need both FILE.node and FILE.ele side by side",
+                "{}: cannot read: {e}; fix: TetGen meshes need x.node and x.ele side by side",
                 p.display()
             )
         })
     };
-    let nt = rd(&node)?;
-    let et = rd(&ele)?;
-    let ft = if face.exists() { Some(rd(&face)?) } else { None };
-    parse(
-        &node.display().to_string(),
-        &nt,
-        &ele.display().to_string(),
-        &et,
-        ft.as_deref().map(|t| (face.display().to_string(), t)),
-    )
+    let node = rd(&sib("node"))?;
+    let ele = rd(&sib("ele"))?;
+    let face = std::fs::read(sib("face")).ok();
+    parse(&base.display().to_string(), &node, &ele, face.as_deref())
 }
 
-/// Parses the texts of `.node`, `.ele` and optionally `.face`.
-pub fn parse(nname: &str, ntext: &str, ename: &str, etext: &str, face: Option<(String, &str)>) -> Result<Mesh> {
-    let mut it = lines(ntext);
-    let (hl, h) = it
-        .next()
-        .ok_or_else(|| anyhow!("{nname}: empty file; fix: give a TetGen .node file"))?;
-    let n: usize = num(nname, hl, h[0], "node count")?;
-    let dim: usize = match h.get(1) {
-        Some(w) => num(nname, hl, w, "dimension")?,
-        None => 3,
-    };
-    if dim != 3 {
-        bail!("{nname}:{hl}: dimension {dim}; fix: eprop needs 3-D nodes");
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn zero_based_numbering_and_region_attribute() {
+        let node = "4 3 0 1\n0 0 0 0 1\n1 1 0 0 1\n2 0 1 0 1\n3 0 0 1 1\n";
+        let ele = "# tets\n1 4 1\n0 0 1 2 3 -2.0\n";
+        let face = "1 1\n0 0 1 2 7\n";
+        let m = super::parse("x", node.as_bytes(), ele.as_bytes(), Some(face.as_bytes())).unwrap();
+        assert_eq!(m.node_ids, vec![0, 1, 2, 3]);
+        assert_eq!((m.cell_tags[0], m.facets.tags[0]), (-2, 7));
     }
-    if n > ntext.len() {
-        bail!("{nname}:{hl}: {n} nodes announced, more than the file can hold; fix: repair the header");
-    }
-    let mut mesh = Mesh::new(ename);
-    let mut index: HashMap<i64, u32> = HashMap::with_capacity(n);
-    for (ln, w) in it.by_ref().take(n) {
-        if w.len() < 4 {
-            bail!("{nname}:{ln}: a node line needs an id and three coordinates; fix: repair the line");
-        }
-        let id: i64 = num(nname, ln, w[0], "node id")?;
-        let mut p = [0.0f64; 3];
-        for d in 0..3 {
-            p[d] = num(nname, ln, w[1 + d], "coordinate")?;
-            if !p[d].is_finite() {
-                bail!("{nname}:{ln}: node {id} has a NaN or infinite coordinate; fix: repair the node");
-            }
-        }
-        if index.insert(id, mesh.points.len() as u32).is_some() {
-            bail!("{nname}:{ln}: node id {id} appears twice; fix: renumber the nodes");
-        }
-        mesh.points.push(p);
-        mesh.node_ids.push(id.max(0) as u64);
-    }
-    if mesh.points.len() != n {
-        bail!(
-            "{nname}: {n} nodes announced but {} found; fix: the file is truncated or its header is wrong",
-            mesh.points.len()
-        );
-    }
-    let mut it = lines(etext);
-    let (hl, h) = it
-        .next()
-        .ok_or_else(|| anyhow!("{ename}: empty file; fix: give a TetGen .ele file"))?;
-    let ne: usize = num(ename, hl, h[0], "element count")?;
-    let per: usize = match h.get(1) {
-        Some(w) => num(ename, hl, w, "nodes per element")?,
-        None => 4,
-    };
-    let nattr: usize = match h.get(2) {
-        Some(w) => num(ename, hl, w, "attribute count")?,
-        None => 0,
-    };
-    if per != 4 {
-        bail!("{ename}:{hl}: {per} nodes per element; fix: eprop reads linear tetrahedra (run tetgen without -o2)");
-    }
-    if ne > etext.len() {
-        bail!("{ename}:{hl}: {ne} elements announced, more than the file can hold; fix: repair the header");
-    }
-    let mut count = 0;
-    for (ln, w) in it.by_ref().take(ne) {
-        if w.len() < 5 {
-            bail!("{ename}:{ln}: an element line needs an id and four nodes; fix: repair the line");
-        }
-        let mut v = [0u32; 4];
-        for k in 0..4 {
-            let id: i64 = num(ename, ln, w[1 + k], "node index")?;
-            v[k] = *index.get(&id).ok_or_else(|| {
-                anyhow!(
-                    "{ename}:{ln}: element {} names node {id}, which {nname} does not define; fix: repair the element",
-                    w[0]
-                )
-            })?;
-        }
-        let tag = if nattr > 0 {
-            let a: f64 = num(ename, ln, w.get(5).copied().unwrap_or("0"), "attribute")?;
-            a as i32
-        } else {
-            0
-        };
-        mesh.push_cell(CellKind::Tet, &v, tag);
-        count += 1;
-    }
-    if count != ne {
-        bail!("{ename}: {ne} elements announced but {count} found; fix: the file is truncated or its header is wrong");
-    }
-    if let Some((fname, ftext)) = face {
-        let mut it = lines(ftext);
-        if let Some((hl, h)) = it.next() {
-            let nf: usize = num(&fname, hl, h[0], "face count")?;
-            let marked = h.get(1).is_some_and(|m| *m == "1");
-            for (ln, w) in it.take(nf) {
-                if w.len() < 4 {
-                    bail!("{fname}:{ln}: a face line needs an id and three nodes; fix: repair the line");
-                }
-                let mut v = [0u32; 3];
-                for k in 0..3 {
-                    let id: i64 = num(&fname, ln, w[1 + k], "node index")?;
-                    v[k] = *index.get(&id).ok_or_else(|| {
-                        anyhow!("{fname}:{ln}: face names node {id}, which is not defined; fix: repair the face")
-                    })?;
-                }
-                let tag = if marked {
-                    num(&fname, ln, w.get(4).copied().unwrap_or("0"), "boundary marker")?
-                } else {
-                    0
-                };
-                mesh.facets.push(2, tag, &v);
-            }
-        }
-    }
-    if mesh.n_cells() == 0 {
-        bail!("{ename}: no tetrahedra; fix: mesh the volume (tetgen -p SURFACE)");
-    }
-    mesh.orient_cells()?;
-    Ok(mesh)
 }

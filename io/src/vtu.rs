@@ -1,604 +1,944 @@
-//! VTK XML UnstructuredGrid (`.vtu`) reader and writer (own code; base64 and zlib by crates).
+//! VTK XML `.vtu` reader and writer.
 //!
-//! Reads every encoding VTK and meshio write: `ascii`, inline `binary` (base64, with a UInt32 or
-//! UInt64 header, optionally zlib-compressed in blocks), and `appended` data (raw or base64),
-//! little or big endian. Cell-data arrays with integer values become cell tags (preferred names:
-//! tissue, tag, gmsh:physical, CellEntityIds, label, region, material). Surface and line cells
-//! are kept as facets with their tags; higher-order or unknown volume cells are refused.
+//! Reads ascii, inline base64 (`format="binary"`, UInt32 or UInt64 headers), appended raw and
+//! appended base64 data, zlib-compressed (`vtkZLibDataCompressor`) or not, in either byte order.
+//! Writes inline base64 with a `tag` cell-data array and `node_ids` point data.
 
-use crate::mesh::{CellKind, Mesh};
+use crate::mesh::Mesh;
+use crate::scan::{decode, parse_text, short, Scan, Ty, Vals};
+use crate::vtk::{build, vtk_order, VtkData};
 use anyhow::{anyhow, bail, Result};
-use base64::Engine;
-use std::collections::HashMap;
-use std::io::Read;
+use std::io::{Read, Write as _};
 use std::path::Path;
 
-pub fn read(path: &Path) -> Result<Mesh> {
-    let bytes = std::fs::read(path).map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
-    parse(&path.display().to_string(), &bytes)
-}
-
-/// A tag with its attributes and the byte range of its content.
+/// One XML start tag.
 struct Tag {
     name: String,
-    attrs: HashMap<String, String>,
-    content: std::ops::Range<usize>,
-    line: usize,
+    attrs: Vec<(String, String)>,
+    /// Byte position of the `<`.
+    pos: usize,
+    /// First byte after the `>`.
+    end: usize,
+    self_closing: bool,
 }
 
-fn line_of(b: &[u8], at: usize) -> usize {
-    b[..at.min(b.len())].iter().filter(|&&c| c == b'\n').count() + 1
+impl Tag {
+    fn attr(&self, k: &str) -> Option<&str> {
+        self.attrs.iter().find(|(a, _)| a == k).map(|(_, v)| v.as_str())
+    }
 }
 
-/// Scans the XML up to `<AppendedData` (raw bytes may follow): every element with its
-/// attributes and text content (up to the next `<`).
-fn scan(name: &str, b: &[u8]) -> Result<(Vec<Tag>, Option<(usize, HashMap<String, String>)>)> {
-    let mut tags = Vec::new();
-    let mut i = 0;
-    while let Some(off) = b[i..].iter().position(|&c| c == b'<') {
-        let start = i + off;
-        let rest = &b[start + 1..];
-        if rest.starts_with(b"?") || rest.starts_with(b"!") || rest.starts_with(b"/") {
-            // declaration, comment or closing tag
-            let end = if rest.starts_with(b"!--") {
-                find(b, start, b"-->").map(|e| e + 3)
-            } else {
-                find(b, start, b">").map(|e| e + 1)
-            };
-            i = end.ok_or_else(|| {
-                anyhow!(
-                    "{name}:{}: unterminated markup; fix: the file is truncated",
-                    line_of(b, start)
-                )
-            })?;
-            continue;
+/// Minimal XML scanner: start tags, end tags; skips declarations and comments.
+struct Xml<'a> {
+    sc: Scan<'a>,
+}
+
+enum Ev {
+    Start(Tag),
+    End(String),
+}
+
+impl<'a> Xml<'a> {
+    fn find(&self, from: usize, pat: &[u8]) -> Option<usize> {
+        let b = self.sc.b;
+        if from > b.len() || pat.is_empty() {
+            return None;
         }
-        let close = find(b, start, b">").ok_or_else(|| {
+        b[from..].windows(pat.len()).position(|w| w == pat).map(|p| p + from)
+    }
+    fn next(&mut self) -> Result<Option<Ev>> {
+        loop {
+            let Some(lt) = self.find(self.sc.pos, b"<") else {
+                return Ok(None);
+            };
+            self.sc.pos = lt;
+            let b = self.sc.b;
+            if b[lt..].starts_with(b"<!--") {
+                let e = self
+                    .find(lt + 4, b"-->")
+                    .ok_or_else(|| self.sc.err("comment without `-->`; fix: the file is truncated"))?;
+                self.sc.pos = e + 3;
+                continue;
+            }
+            if b[lt..].starts_with(b"<?") || b[lt..].starts_with(b"<!") {
+                let e = self
+                    .find(lt, b">")
+                    .ok_or_else(|| self.sc.err("declaration without `>`; fix: the file is truncated"))?;
+                self.sc.pos = e + 1;
+                continue;
+            }
+            let close = b.get(lt + 1) == Some(&b'/');
+            let mut p = lt + 1 + close as usize;
+            let s = p;
+            while p < b.len() && !b[p].is_ascii_whitespace() && b[p] != b'>' && b[p] != b'/' {
+                p += 1;
+            }
+            let name = String::from_utf8_lossy(&b[s..p]).to_string();
+            if name.is_empty() {
+                return Err(self
+                    .sc
+                    .err_at(lt, "a `<` without a tag name; fix: the XML is malformed"));
+            }
+            let mut attrs = Vec::new();
+            loop {
+                while p < b.len() && b[p].is_ascii_whitespace() {
+                    p += 1;
+                }
+                match b.get(p) {
+                    None => {
+                        return Err(self.sc.err_at(
+                            lt,
+                            format!("tag <{}> is not closed; fix: the file is truncated", short(&name)),
+                        ))
+                    }
+                    Some(b'>') => {
+                        self.sc.pos = p + 1;
+                        if close {
+                            return Ok(Some(Ev::End(name)));
+                        }
+                        return Ok(Some(Ev::Start(Tag {
+                            name,
+                            attrs,
+                            pos: lt,
+                            end: p + 1,
+                            self_closing: false,
+                        })));
+                    }
+                    Some(b'/') if b.get(p + 1) == Some(&b'>') => {
+                        self.sc.pos = p + 2;
+                        return Ok(Some(Ev::Start(Tag {
+                            name,
+                            attrs,
+                            pos: lt,
+                            end: p + 2,
+                            self_closing: true,
+                        })));
+                    }
+                    Some(_) => {
+                        let ks = p;
+                        while p < b.len() && b[p] != b'=' && b[p] != b'>' && !b[p].is_ascii_whitespace() {
+                            p += 1;
+                        }
+                        let key = String::from_utf8_lossy(&b[ks..p]).to_string();
+                        while p < b.len() && b[p].is_ascii_whitespace() {
+                            p += 1;
+                        }
+                        if b.get(p) != Some(&b'=') {
+                            return Err(self.sc.err_at(
+                                p,
+                                format!("attribute `{}` without a value; fix: the XML is malformed", short(&key)),
+                            ));
+                        }
+                        p += 1;
+                        while p < b.len() && b[p].is_ascii_whitespace() {
+                            p += 1;
+                        }
+                        let q = match b.get(p) {
+                            Some(&c) if c == b'"' || c == b'\'' => c,
+                            _ => {
+                                return Err(self.sc.err_at(
+                                    p,
+                                    format!(
+                                        "attribute `{}` value is not quoted; fix: the XML is malformed",
+                                        short(&key)
+                                    ),
+                                ))
+                            }
+                        };
+                        let vs = p + 1;
+                        let ve = b[vs..].iter().position(|&c| c == q).map(|x| x + vs).ok_or_else(|| {
+                            self.sc
+                                .err_at(p, "attribute value not closed; fix: the file is truncated")
+                        })?;
+                        attrs.push((key, String::from_utf8_lossy(&b[vs..ve]).to_string()));
+                        p = ve + 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A streaming base64 decoder over concatenated base64 blocks (each may carry padding).
+struct B64<'a> {
+    s: &'a [u8],
+    pos: usize,
+    pending: Vec<u8>,
+    name: &'a str,
+    base: usize,
+}
+
+fn b64val(c: u8) -> Option<u32> {
+    Some(match c {
+        b'A'..=b'Z' => (c - b'A') as u32,
+        b'a'..=b'z' => (c - b'a' + 26) as u32,
+        b'0'..=b'9' => (c - b'0' + 52) as u32,
+        b'+' => 62,
+        b'/' => 63,
+        _ => return None,
+    })
+}
+
+impl<'a> B64<'a> {
+    fn remaining_bytes(&self) -> usize {
+        self.pending.len() + (self.s.len().saturating_sub(self.pos)) / 4 * 3 + 3
+    }
+    fn take(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
+        if n > self.remaining_bytes() {
+            bail!(
+                "{}: byte {}: base64 data ends while reading {what} ({n} bytes announced); fix: the data is truncated or its header is wrong, export again",
+                self.name,
+                self.base + self.pos
+            );
+        }
+        while self.pending.len() < n {
+            let mut q = [0u8; 4];
+            let mut k = 0;
+            while k < 4 {
+                let Some(&c) = self.s.get(self.pos) else {
+                    bail!("{}: byte {}: base64 data ends while reading {what}; fix: the data is truncated or its header is wrong, export again", self.name, self.base + self.pos);
+                };
+                self.pos += 1;
+                if c.is_ascii_whitespace() {
+                    continue;
+                }
+                q[k] = c;
+                k += 1;
+            }
+            let pad = q.iter().rev().take_while(|&&c| c == b'=').count();
+            if pad > 2 {
+                bail!(
+                    "{}: byte {}: bad base64 padding; fix: the data is corrupt, export again",
+                    self.name,
+                    self.base + self.pos
+                );
+            }
+            let mut v = 0u32;
+            for &c in &q[..4 - pad] {
+                let x = b64val(c).ok_or_else(|| {
+                    anyhow!(
+                        "{}: byte {}: `{}` is not a base64 character; fix: the data is corrupt, export again",
+                        self.name,
+                        self.base + self.pos,
+                        c.escape_ascii()
+                    )
+                })?;
+                v = (v << 6) | x;
+            }
+            v <<= 6 * pad as u32;
+            let bytes = [(v >> 16) as u8, (v >> 8) as u8, v as u8];
+            self.pending.extend_from_slice(&bytes[..3 - pad]);
+        }
+        Ok(self.pending.drain(..n).collect())
+    }
+}
+
+/// Where the bytes of a binary array come from.
+enum Src<'a> {
+    Raw {
+        b: &'a [u8],
+        pos: usize,
+        base: usize,
+        name: &'a str,
+    },
+    B64(B64<'a>),
+}
+
+impl Src<'_> {
+    fn take(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
+        match self {
+            Src::Raw { b, pos, base, name } => {
+                if n > b.len().saturating_sub(*pos) {
+                    bail!(
+                        "{name}: byte {}: appended data ends while reading {what} ({n} bytes announced, {} left); fix: the file is truncated or its header is wrong, export again",
+                        *base + *pos,
+                        b.len().saturating_sub(*pos)
+                    );
+                }
+                let v = b[*pos..*pos + n].to_vec();
+                *pos += n;
+                Ok(v)
+            }
+            Src::B64(d) => d.take(n, what),
+        }
+    }
+}
+
+struct Fmt {
+    big: bool,
+    header: Ty,
+    zlib: bool,
+}
+
+fn uint(b: &[u8], ty: Ty, big: bool) -> u64 {
+    match decode(b, ty, big) {
+        Vals::I(v) => v.first().copied().unwrap_or(0).max(0) as u64,
+        Vals::F(_) => 0,
+    }
+}
+
+/// Reads one binary array (header + data, possibly zlib blocks) from `src`.
+fn read_binary(src: &mut Src, f: &Fmt, what: &str, name: &str) -> Result<Vec<u8>> {
+    let hs = f.header.size();
+    if !f.zlib {
+        let n = uint(&src.take(hs, what)?, f.header, f.big);
+        let n = usize::try_from(n)
+            .map_err(|_| anyhow!("{name}: {what}: size {n} too large; fix: the header is corrupt"))?;
+        return src.take(n, what);
+    }
+    let h = src.take(3 * hs, what)?;
+    let nblocks = uint(&h[..hs], f.header, f.big) as usize;
+    let bsize = uint(&h[hs..2 * hs], f.header, f.big) as usize;
+    let last = uint(&h[2 * hs..], f.header, f.big) as usize;
+    let sizes_len = nblocks
+        .checked_mul(hs)
+        .ok_or_else(|| anyhow!("{name}: {what}: {nblocks} compressed blocks announced; fix: the header is corrupt"))?;
+    let sizes = src.take(sizes_len, what)?;
+    let mut out = Vec::new();
+    for (k, cs) in sizes.chunks_exact(hs).enumerate() {
+        let cs = uint(cs, f.header, f.big) as usize;
+        let want = if k + 1 == nblocks && last != 0 { last } else { bsize };
+        // zlib cannot expand more than about 1032:1; larger claims are corrupt headers
+        if want / 1100 > cs.saturating_add(64) {
+            bail!("{name}: {what}: block {k} claims {want} bytes from {cs} compressed bytes; fix: the compression header is corrupt, export again");
+        }
+        let comp = src.take(cs, what)?;
+        let mut dec = flate2::read::ZlibDecoder::new(&comp[..]).take(want as u64 + 1);
+        let before = out.len();
+        dec.read_to_end(&mut out).map_err(|e| {
             anyhow!(
-                "{name}:{}: unterminated tag; fix: the file is truncated",
-                line_of(b, start)
+                "{name}: {what}: zlib block {k} cannot be decompressed ({e}); fix: the data is corrupt, export again"
             )
         })?;
-        let inner = std::str::from_utf8(&b[start + 1..close])
-            .map_err(|_| anyhow!("{name}:{}: a tag is not UTF-8", line_of(b, start)))?;
-        let inner = inner.trim_end_matches('/');
-        let mut parts = inner.splitn(2, char::is_whitespace);
-        let tname = parts.next().unwrap_or("").to_string();
-        let attrs = parse_attrs(parts.next().unwrap_or(""));
-        if tname == "AppendedData" {
-            return Ok((tags, Some((close + 1, attrs))));
-        }
-        let cend = b[close + 1..]
-            .iter()
-            .position(|&c| c == b'<')
-            .map_or(b.len(), |p| close + 1 + p);
-        tags.push(Tag {
-            name: tname,
-            attrs,
-            content: close + 1..cend,
-            line: line_of(b, start),
-        });
-        i = close + 1;
-    }
-    Ok((tags, None))
-}
-
-fn find(b: &[u8], from: usize, pat: &[u8]) -> Option<usize> {
-    b[from..].windows(pat.len()).position(|w| w == pat).map(|p| from + p)
-}
-
-fn parse_attrs(s: &str) -> HashMap<String, String> {
-    let mut m = HashMap::new();
-    let mut rest = s;
-    while let Some(eq) = rest.find('=') {
-        let key = rest[..eq].trim().to_string();
-        let after = rest[eq + 1..].trim_start();
-        let Some(q) = after.chars().next().filter(|c| *c == '"' || *c == '\'') else {
-            break;
-        };
-        let Some(end) = after[1..].find(q) else { break };
-        m.insert(key, after[1..1 + end].to_string());
-        rest = &after[end + 2..];
-    }
-    m
-}
-
-#[derive(Clone, Copy, PartialEq)]
-enum Ty {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    I64,
-    U64,
-    F32,
-    F64,
-}
-
-impl Ty {
-    fn of(s: &str) -> Option<Ty> {
-        Some(match s {
-            "Int8" => Ty::I8,
-            "UInt8" => Ty::U8,
-            "Int16" => Ty::I16,
-            "UInt16" => Ty::U16,
-            "Int32" => Ty::I32,
-            "UInt32" => Ty::U32,
-            "Int64" => Ty::I64,
-            "UInt64" => Ty::U64,
-            "Float32" => Ty::F32,
-            "Float64" => Ty::F64,
-            _ => return None,
-        })
-    }
-    fn size(self) -> usize {
-        match self {
-            Ty::I8 | Ty::U8 => 1,
-            Ty::I16 | Ty::U16 => 2,
-            Ty::I32 | Ty::U32 | Ty::F32 => 4,
-            _ => 8,
-        }
-    }
-    fn is_int(self) -> bool {
-        !matches!(self, Ty::F32 | Ty::F64)
-    }
-}
-
-/// Decodes raw bytes of `ty` into f64 (integers up to 2^53 are exact).
-fn decode(ty: Ty, raw: &[u8], big: bool) -> Vec<f64> {
-    let n = ty.size();
-    raw.chunks_exact(n)
-        .map(|c| {
-            let mut b = [0u8; 8];
-            b[..n].copy_from_slice(c);
-            if big {
-                b[..n].reverse();
-            }
-            match ty {
-                Ty::I8 => b[0] as i8 as f64,
-                Ty::U8 => b[0] as f64,
-                Ty::I16 => i16::from_le_bytes([b[0], b[1]]) as f64,
-                Ty::U16 => u16::from_le_bytes([b[0], b[1]]) as f64,
-                Ty::I32 => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-                Ty::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-                Ty::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-                Ty::I64 => i64::from_le_bytes(b) as f64,
-                Ty::U64 => u64::from_le_bytes(b) as f64,
-                Ty::F64 => f64::from_le_bytes(b),
-            }
-        })
-        .collect()
-}
-
-struct Ctx<'a> {
-    big: bool,
-    header64: bool,
-    zlib: bool,
-    appended: Option<(&'a [u8], bool)>, // data after '_', base64?
-}
-
-fn b64(s: &[u8]) -> Result<Vec<u8>> {
-    let clean: Vec<u8> = s.iter().copied().filter(|c| !c.is_ascii_whitespace()).collect();
-    base64::engine::general_purpose::STANDARD
-        .decode(&clean)
-        .map_err(|e| anyhow!("bad base64 ({e})"))
-}
-
-fn header_int(h: &[u8], k: usize, ctx: &Ctx) -> Result<usize> {
-    let w = if ctx.header64 { 8 } else { 4 };
-    let c = h
-        .get(k * w..(k + 1) * w)
-        .ok_or_else(|| anyhow!("a binary block header is truncated"))?;
-    let mut b = [0u8; 8];
-    b[..w].copy_from_slice(c);
-    if ctx.big {
-        b[..w].reverse();
-    }
-    Ok(u64::from_le_bytes(b) as usize)
-}
-
-/// Inflates VTK's zlib block layout: [nblocks, blocksize, lastsize, csize_1..csize_n] then data.
-fn inflate_blocks(header: &[u8], data: &[u8], ctx: &Ctx, limit: usize) -> Result<Vec<u8>> {
-    let nb = header_int(header, 0, ctx)?;
-    let bs = header_int(header, 1, ctx)?;
-    let last = header_int(header, 2, ctx)?;
-    if nb > data.len() + 1 || bs.saturating_mul(nb) > limit.saturating_add(bs) {
-        bail!("a compressed block header announces more data than the file can hold");
-    }
-    let mut out = Vec::with_capacity((bs * nb).min(limit));
-    let mut at = 0usize;
-    for k in 0..nb {
-        let cs = header_int(header, 3 + k, ctx)?;
-        let chunk = data
-            .get(at..at + cs)
-            .ok_or_else(|| anyhow!("compressed data is truncated"))?;
-        at += cs;
-        let want = if k + 1 == nb && last > 0 { last } else { bs };
-        let mut d = flate2::read::ZlibDecoder::new(chunk).take(want as u64);
-        let before = out.len();
-        d.read_to_end(&mut out).map_err(|e| anyhow!("bad zlib data ({e})"))?;
         if out.len() - before != want {
-            bail!("a zlib block inflates to {} bytes, expected {want}", out.len() - before);
+            bail!(
+                "{name}: {what}: zlib block {k} holds {} bytes, its header says {want}; fix: the data is corrupt, export again",
+                out.len() - before
+            );
         }
     }
     Ok(out)
 }
 
-fn header_len(ctx: &Ctx) -> usize {
-    if ctx.header64 {
-        8
-    } else {
-        4
-    }
+/// A `<DataArray>` as found in the file.
+struct Arr {
+    parent: String,
+    tag: Tag,
+    /// The text between the start and end tags.
+    text: (usize, usize),
 }
 
-/// The values of one DataArray.
-fn values(b: &[u8], t: &Tag, ctx: &Ctx, limit: usize) -> Result<(Ty, Vec<f64>)> {
-    let ty_s = t.attrs.get("type").map(String::as_str).unwrap_or("");
-    let ty = Ty::of(ty_s).ok_or_else(|| anyhow!("DataArray type `{ty_s}` is not supported"))?;
-    let format = t.attrs.get("format").map(String::as_str).unwrap_or("ascii");
-    let raw: Vec<u8> = match format {
-        "ascii" => {
-            let text = std::str::from_utf8(&b[t.content.clone()]).map_err(|_| anyhow!("ascii data is not text"))?;
-            let mut v = Vec::new();
-            for w in text.split_ascii_whitespace() {
-                let x: f64 = w.parse().map_err(|_| anyhow!("`{w}` is not a number"))?;
-                v.push(x);
-            }
-            return Ok((ty, v));
-        }
-        "binary" => {
-            let s = &b[t.content.clone()];
-            let clean: Vec<u8> = s.iter().copied().filter(|c| !c.is_ascii_whitespace()).collect();
-            if ctx.zlib {
-                // the header is encoded on its own: 3 + nblocks integers
-                let hl = header_len(ctx);
-                let first = b64(&clean[..clean.len().min((3 * hl).div_ceil(3) * 4)])?;
-                let nb = header_int(&first, 0, ctx)?;
-                let hbytes = (3 + nb).checked_mul(hl).ok_or_else(|| anyhow!("bad block count"))?;
-                let henc = hbytes.div_ceil(3) * 4;
-                if henc > clean.len() {
-                    bail!("a compressed header is truncated");
-                }
-                let header = b64(&clean[..henc])?;
-                let data = b64(&clean[henc..])?;
-                inflate_blocks(&header, &data, ctx, limit)?
-            } else {
-                let all = b64(&clean)?;
-                let hl = header_len(ctx);
-                let nbytes = header_int(&all, 0, ctx)?;
-                all.get(hl..hl + nbytes)
-                    .ok_or_else(|| anyhow!("binary data is shorter than its header says"))?
-                    .to_vec()
-            }
-        }
-        "appended" => {
-            let (data, enc64) = ctx
-                .appended
-                .ok_or_else(|| anyhow!("appended array but no <AppendedData>"))?;
-            let off: usize = t
-                .attrs
-                .get("offset")
-                .and_then(|o| o.trim().parse().ok())
-                .ok_or_else(|| anyhow!("appended DataArray without a valid offset"))?;
-            let hl = header_len(ctx);
-            if enc64 {
-                // base64 appended: each array is encoded separately from its offset
-                let rest = data
-                    .get(off..)
-                    .ok_or_else(|| anyhow!("offset {off} is past the appended data"))?;
-                let end = rest.iter().position(|&c| c == b'<').unwrap_or(rest.len());
-                let clean: Vec<u8> = rest[..end]
-                    .iter()
-                    .copied()
-                    .filter(|c| !c.is_ascii_whitespace())
-                    .collect();
-                let piece = |r: std::ops::Range<usize>| -> Result<Vec<u8>> {
-                    b64(clean.get(r).ok_or_else(|| anyhow!("appended data is truncated"))?)
-                };
-                if ctx.zlib {
-                    let first = piece(0..(3 * hl).div_ceil(3) * 4)?;
-                    let nb = header_int(&first, 0, ctx)?;
-                    let henc = 3usize.saturating_add(nb).saturating_mul(hl).div_ceil(3) * 4;
-                    let header = piece(0..henc)?;
-                    let mut total = 0usize;
-                    for k in 0..nb {
-                        total = total.saturating_add(header_int(&header, 3 + k, ctx)?);
+/// Parses the bytes of a `.vtu` file.
+pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let mut x = Xml {
+        sc: Scan::new(name, bytes),
+    };
+    let mut stack: Vec<String> = Vec::new();
+    let mut fmt = Fmt {
+        big: false,
+        header: Ty::U32,
+        zlib: false,
+    };
+    let mut arrays: Vec<Arr> = Vec::new();
+    let mut pieces = 0usize;
+    let mut npoints: Option<usize> = None;
+    let mut ncells: Option<usize> = None;
+    let mut appended: Option<(usize, bool)> = None; // (start of data after `_`, base64)
+    let mut saw_root = false;
+    while let Some(ev) = x.next()? {
+        match ev {
+            Ev::Start(t) => {
+                match t.name.as_str() {
+                    "VTKFile" => {
+                        saw_root = true;
+                        if let Some(ty) = t.attr("type") {
+                            if ty != "UnstructuredGrid" {
+                                return Err(x.sc.err_at(t.pos, format!("VTK XML type {} is not a volume mesh (UnstructuredGrid is read); fix: save as .vtu (unstructured grid)", short(ty))));
+                            }
+                        }
+                        fmt.big = match t.attr("byte_order") {
+                            Some("BigEndian") => true,
+                            Some("LittleEndian") | None => false,
+                            Some(o) => {
+                                return Err(x.sc.err_at(
+                                    t.pos,
+                                    format!("unknown byte_order `{}`; fix: use LittleEndian or BigEndian", short(o)),
+                                ))
+                            }
+                        };
+                        fmt.header = match t.attr("header_type") {
+                            None | Some("UInt32") => Ty::U32,
+                            Some("UInt64") => Ty::U64,
+                            Some(h) => {
+                                return Err(x.sc.err_at(
+                                    t.pos,
+                                    format!("unknown header_type `{}`; fix: use UInt32 or UInt64", short(h)),
+                                ))
+                            }
+                        };
+                        fmt.zlib = match t.attr("compressor") {
+                            None | Some("") => false,
+                            Some("vtkZLibDataCompressor") => true,
+                            Some(c) => {
+                                return Err(x.sc.err_at(
+                                    t.pos,
+                                    format!(
+                                        "compressor {} is not supported; fix: save with zlib compression or none",
+                                        short(c)
+                                    ),
+                                ))
+                            }
+                        };
                     }
-                    let d = piece(henc..henc.saturating_add(total.div_ceil(3) * 4))?;
-                    inflate_blocks(&header, &d, ctx, limit)?
-                } else {
-                    let first = piece(0..hl.div_ceil(3) * 4)?;
-                    let nbytes = header_int(&first, 0, ctx)?;
-                    let all = piece(0..hl.saturating_add(nbytes).div_ceil(3) * 4)?;
-                    all.get(hl..hl + nbytes)
-                        .ok_or_else(|| anyhow!("appended data is truncated"))?
-                        .to_vec()
+                    "Piece" => {
+                        pieces += 1;
+                        if pieces > 1 {
+                            return Err(x.sc.err_at(t.pos, "more than one <Piece>; fix: merge the pieces into one (e.g. ParaView Merge Blocks) and save again"));
+                        }
+                        let num = |k: &str| -> Result<usize> {
+                            t.attr(k)
+                                .ok_or_else(|| x.sc.err_at(t.pos, format!("<Piece> has no {k}; fix: repair the file")))?
+                                .trim()
+                                .parse::<usize>()
+                                .map_err(|_| {
+                                    x.sc.err_at(t.pos, format!("<Piece> {k} is not a count; fix: repair the file"))
+                                })
+                        };
+                        npoints = Some(num("NumberOfPoints")?);
+                        ncells = Some(num("NumberOfCells")?);
+                    }
+                    "DataArray" => {
+                        let parent = stack.last().cloned().unwrap_or_default();
+                        let text = if t.self_closing {
+                            (t.end, t.end)
+                        } else {
+                            let e = x.find(t.end, b"<").unwrap_or(bytes.len());
+                            (t.end, e)
+                        };
+                        arrays.push(Arr { parent, tag: t, text });
+                        continue; // its end tag pops nothing
+                    }
+                    "AppendedData" => {
+                        let enc = t.attr("encoding").unwrap_or("raw");
+                        let b64 = match enc {
+                            "raw" => false,
+                            "base64" => true,
+                            _ => {
+                                return Err(x.sc.err_at(
+                                    t.pos,
+                                    format!("appended encoding `{}` is unknown; fix: use raw or base64", short(enc)),
+                                ))
+                            }
+                        };
+                        let us = x.find(t.end, b"_").ok_or_else(|| {
+                            x.sc.err_at(t.pos, "<AppendedData> has no `_` marker; fix: the file is truncated")
+                        })?;
+                        appended = Some((us + 1, b64));
+                        break;
+                    }
+                    _ => {}
                 }
-            } else {
-                let rest = data
-                    .get(off..)
-                    .ok_or_else(|| anyhow!("offset {off} is past the appended data"))?;
-                if ctx.zlib {
-                    let nb = header_int(rest, 0, ctx)?;
-                    let hbytes = (3usize).saturating_add(nb).saturating_mul(hl);
-                    let header = rest
-                        .get(..hbytes)
-                        .ok_or_else(|| anyhow!("appended header is truncated"))?;
-                    inflate_blocks(header, &rest[hbytes..], ctx, limit)?
-                } else {
-                    let nbytes = header_int(rest, 0, ctx)?;
-                    rest.get(hl..hl.saturating_add(nbytes))
-                        .ok_or_else(|| anyhow!("appended data is truncated"))?
-                        .to_vec()
+                if !t.self_closing {
+                    stack.push(t.name);
+                }
+            }
+            Ev::End(n) => {
+                if n == "DataArray" {
+                    continue;
+                }
+                match stack.pop() {
+                    Some(open) if open == n => {}
+                    other => {
+                        return Err(x.sc.err(format!(
+                            "</{}> closes <{}>; fix: the XML is malformed",
+                            short(&n),
+                            other.unwrap_or_default()
+                        )))
+                    }
                 }
             }
         }
-        f => bail!("DataArray format `{f}` is not known"),
+    }
+    if !saw_root {
+        bail!("{name}: no <VTKFile> element; fix: check that this is a VTK XML file");
+    }
+    let (Some(np), Some(nc)) = (npoints, ncells) else {
+        bail!("{name}: no <Piece>; fix: the file holds no unstructured grid");
     };
-    if !raw.len().is_multiple_of(ty.size()) {
-        bail!("{} bytes do not make whole {ty_s} values", raw.len());
-    }
-    Ok((ty, decode(ty, &raw, ctx.big)))
-}
-
-/// Parses a `.vtu` file's bytes.
-pub fn parse(name: &str, b: &[u8]) -> Result<Mesh> {
-    let (tags, app) = scan(name, b)?;
-    let root = tags
-        .iter()
-        .find(|t| t.name == "VTKFile")
-        .ok_or_else(|| anyhow!("{name}: no <VTKFile> element; fix: this is not a VTK XML file"))?;
-    let ty = root.attrs.get("type").map(String::as_str).unwrap_or("");
-    if ty != "UnstructuredGrid" {
-        bail!(
-            "{name}: VTKFile type `{ty}`; fix: eprop reads UnstructuredGrid (.vtu) files; save the volume mesh as one"
-        );
-    }
-    let big = root.attrs.get("byte_order").map(String::as_str) == Some("BigEndian");
-    let header64 = root.attrs.get("header_type").map(String::as_str) == Some("UInt64");
-    let zlib = match root.attrs.get("compressor").map(String::as_str) {
-        None | Some("") => false,
-        Some("vtkZLibDataCompressor") => true,
-        Some(c) => bail!("{name}: compressor `{c}` is not supported; fix: save with zlib or without compression"),
-    };
-    let appended = match &app {
-        Some((at, attrs)) => {
-            let enc64 = attrs.get("encoding").map(String::as_str) == Some("base64");
-            let us = b[*at..]
-                .iter()
-                .position(|&c| c == b'_')
-                .ok_or_else(|| anyhow!("{name}: <AppendedData> without its `_` marker; fix: the file is damaged"))?;
-            Some((&b[at + us + 1..], enc64))
-        }
-        None => None,
-    };
-    let ctx = Ctx {
-        big,
-        header64,
-        zlib,
-        appended,
-    };
-    let piece = tags
-        .iter()
-        .find(|t| t.name == "Piece")
-        .ok_or_else(|| anyhow!("{name}: no <Piece>; fix: the file holds no grid"))?;
-    if tags.iter().filter(|t| t.name == "Piece").count() > 1 {
-        bail!("{name}: several <Piece> elements; fix: merge the pieces (ParaView: Merge Blocks) and save again");
-    }
-    let count = |k: &str| -> Result<usize> {
-        piece.attrs.get(k).and_then(|v| v.trim().parse().ok()).ok_or_else(|| {
-            anyhow!(
-                "{name}:{}: <Piece> lacks a valid {k}; fix: repair the header",
-                piece.line
-            )
-        })
-    };
-    let (np, nc) = (count("NumberOfPoints")?, count("NumberOfCells")?);
-    let limit = b.len().saturating_mul(1100).max(1 << 20); // zlib expands at most ~1000x
-    if np.saturating_mul(3) > limit || nc > limit {
-        bail!("{name}: the header announces {np} points and {nc} cells, more than the file can hold; fix: repair the header");
-    }
-    // the section each DataArray belongs to
-    let mut section = "";
-    let mut arrays: Vec<(&str, &Tag)> = Vec::new();
-    for t in &tags {
-        match t.name.as_str() {
-            "Points" | "Cells" | "CellData" | "PointData" => section = t.name.as_str(),
-            "DataArray" => arrays.push((section, t)),
-            _ => {}
-        }
-    }
-    let get = |sec: &str, pick: &dyn Fn(&Tag) -> bool, what: &str| -> Result<(Ty, Vec<f64>)> {
-        let t = arrays
-            .iter()
-            .find(|(s, t)| *s == sec && pick(t))
-            .map(|(_, t)| *t)
-            .ok_or_else(|| anyhow!("{name}: no {what} array; fix: the file is incomplete"))?;
-        values(b, t, &ctx, limit)
-            .map_err(|e| anyhow!("{name}:{}: {what}: {e}; fix: the data is damaged or truncated", t.line))
-    };
-    let named = |n: &'static str| move |t: &Tag| t.attrs.get("Name").map(String::as_str) == Some(n);
-    let (_, pts) = get("Points", &|_| true, "Points")?;
-    if pts.len() != 3 * np {
-        bail!(
-            "{name}: Points holds {} values, expected 3 x {np}; fix: the counts disagree",
-            pts.len()
-        );
-    }
-    let (_, conn) = get("Cells", &named("connectivity"), "connectivity")?;
-    let (_, offs) = get("Cells", &named("offsets"), "offsets")?;
-    let (_, types) = get("Cells", &named("types"), "types")?;
-    if offs.len() != nc || types.len() != nc {
-        bail!(
-            "{name}: {nc} cells but {} offsets and {} types; fix: the counts disagree",
-            offs.len(),
-            types.len()
-        );
-    }
-    // an integer cell-data array as tags
-    let prefer = [
-        "tissue",
-        "tag",
-        "gmsh:physical",
-        "CellEntityIds",
-        "label",
-        "region",
-        "material",
-    ];
-    let mut tag_arr: Option<(&str, Vec<f64>)> = None;
-    let mut candidates: Vec<&Tag> = arrays
-        .iter()
-        .filter(|(s, t)| *s == "CellData" && t.attrs.get("NumberOfComponents").is_none_or(|c| c.trim() == "1"))
-        .map(|(_, t)| *t)
-        .collect();
-    candidates.sort_by_key(|t| {
-        let n = t.attrs.get("Name").map(String::as_str).unwrap_or("");
-        prefer
-            .iter()
-            .position(|p| p.eq_ignore_ascii_case(n))
-            .unwrap_or(prefer.len())
+    // the end of appended data is the closing tag, when present
+    let app_end = appended.map(|(s, _)| {
+        bytes[s..]
+            .windows(16)
+            .rposition(|w| w == b"</AppendedData>\n" || w.starts_with(b"</AppendedData>"))
+            .map(|p| p + s)
+            .unwrap_or(bytes.len())
     });
-    for t in candidates {
-        let (ty, v) = values(b, t, &ctx, limit).map_err(|e| anyhow!("{name}:{}: cell data: {e}", t.line))?;
-        if v.len() == nc && (ty.is_int() || v.iter().all(|x| x.fract() == 0.0 && x.abs() < 2e9)) {
-            tag_arr = Some((t.attrs.get("Name").map(String::as_str).unwrap_or("?"), v));
-            break;
-        }
-    }
-    let mut mesh = Mesh::new(name);
-    mesh.points = pts.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    if mesh.points.iter().flatten().any(|x| !x.is_finite()) {
-        let k = mesh
-            .points
-            .iter()
-            .position(|p| p.iter().any(|x| !x.is_finite()))
-            .unwrap_or(0);
-        bail!("{name}: point {k} has a NaN or infinite coordinate; fix: repair or re-export the mesh");
-    }
-    mesh.node_ids = (0..np as u64).collect();
-    if let Some((_, t)) = arrays
-        .iter()
-        .find(|(s, t)| *s == "PointData" && t.attrs.get("Name").map(String::as_str) == Some("node_ids"))
-    {
-        let (_, ids) = values(b, t, &ctx, limit).map_err(|e| anyhow!("{name}:{}: node_ids: {e}", t.line))?;
-        if ids.len() == np && ids.iter().all(|&x| x >= 0.0 && x.fract() == 0.0) {
-            mesh.node_ids = ids.iter().map(|&x| x as u64).collect();
-        }
-    }
-    let mut start = 0usize;
-    let mut buf: Vec<u32> = Vec::with_capacity(8);
-    let mut skipped = 0usize;
-    for c in 0..nc {
-        let end = offs[c];
-        if !(end >= start as f64 && end <= conn.len() as f64) {
-            bail!("{name}: cell {c}: offset {end} is out of order or past the connectivity; fix: the cell arrays are damaged");
-        }
-        let end = end as usize;
-        buf.clear();
-        for &v in &conn[start..end] {
-            if !(v >= 0.0 && (v as usize) < np) {
-                bail!("{name}: cell {c} names point {v}, outside 0..{np}; fix: the connectivity is damaged");
+    let sc = &x.sc;
+    let read = |a: &Arr, count_hint: Option<usize>| -> Result<Vals> {
+        let t = &a.tag;
+        let aname = t.attr("Name").unwrap_or("");
+        let what = format!("DataArray `{}`", short(aname));
+        let ty_s = t.attr("type").unwrap_or("");
+        let ty = Ty::from_xml(ty_s).ok_or_else(|| {
+            sc.err_at(
+                t.pos,
+                format!(
+                    "{what} has unknown type `{}`; fix: use Int32, Int64, UInt8, Float32 or Float64",
+                    short(ty_s)
+                ),
+            )
+        })?;
+        let format = t.attr("format").unwrap_or("ascii");
+        let bytes_out = match format {
+            "ascii" => {
+                let mut s = Scan::new(name, &bytes[..a.text.1]);
+                s.pos = a.text.0;
+                let mut n = 0usize;
+                {
+                    let mut c = Scan::new(name, &bytes[..a.text.1]);
+                    c.pos = a.text.0;
+                    while c.token().is_some() {
+                        n += 1;
+                    }
+                }
+                if let Some(h) = count_hint {
+                    if n != h {
+                        return Err(sc.err_at(
+                            t.pos,
+                            format!("{what} holds {n} values, expected {h}; fix: the counts disagree, export again"),
+                        ));
+                    }
+                }
+                return parse_text(&mut s, n, ty, &what);
             }
-            buf.push(v as u32);
-        }
-        start = end;
-        let tag = tag_arr.as_ref().map_or(0, |(_, v)| v[c] as i32);
-        let vt = types[c] as i64;
-        let want = |k: usize| -> Result<()> {
-            if buf.len() != k {
-                bail!(
-                    "{name}: cell {c} (VTK type {vt}) has {} points, expected {k}; fix: the cell arrays are damaged",
-                    buf.len()
-                );
+            "binary" => {
+                let mut src = Src::B64(B64 {
+                    s: &bytes[a.text.0..a.text.1],
+                    pos: 0,
+                    pending: Vec::new(),
+                    name,
+                    base: a.text.0,
+                });
+                read_binary(&mut src, &fmt, &what, name)?
             }
-            Ok(())
+            "appended" => {
+                let Some((start, b64)) = appended else {
+                    return Err(sc.err_at(
+                        t.pos,
+                        format!("{what} is appended but the file has no <AppendedData>; fix: the file is truncated"),
+                    ));
+                };
+                let end = app_end.unwrap_or(bytes.len()).max(start);
+                let off: usize = t
+                    .attr("offset")
+                    .and_then(|o| o.trim().parse().ok())
+                    .ok_or_else(|| sc.err_at(t.pos, format!("{what} has no valid offset; fix: repair the file")))?;
+                let region = &bytes[start..end];
+                if off > region.len() {
+                    return Err(sc.err_at(t.pos, format!("{what}: offset {off} is past the end of the appended data ({} bytes); fix: the file is truncated", region.len())));
+                }
+                let mut src = if b64 {
+                    Src::B64(B64 {
+                        s: &region[off..],
+                        pos: 0,
+                        pending: Vec::new(),
+                        name,
+                        base: start + off,
+                    })
+                } else {
+                    Src::Raw {
+                        b: region,
+                        pos: off,
+                        base: start,
+                        name,
+                    }
+                };
+                read_binary(&mut src, &fmt, &what, name)?
+            }
+            f => {
+                return Err(sc.err_at(
+                    t.pos,
+                    format!(
+                        "{what} has unknown format `{}`; fix: use ascii, binary or appended",
+                        short(f)
+                    ),
+                ))
+            }
         };
-        match vt {
-            10 => {
-                want(4)?;
-                mesh.push_cell(CellKind::Tet, &buf, tag);
+        if bytes_out.len() % ty.size() != 0 {
+            return Err(sc.err_at(t.pos, format!("{what} holds {} bytes, not a whole number of {ty_s} values; fix: the data is corrupt, export again", bytes_out.len())));
+        }
+        let v = decode(&bytes_out, ty, fmt.big);
+        if let Some(h) = count_hint {
+            if v.len() != h {
+                return Err(sc.err_at(
+                    t.pos,
+                    format!(
+                        "{what} holds {} values, expected {h}; fix: the counts disagree, export again",
+                        v.len()
+                    ),
+                ));
             }
-            12 => {
-                want(8)?;
-                mesh.push_cell(CellKind::Hex, &buf, tag);
-            }
-            13 => {
-                want(6)?;
-                // VTK wedges wind their first triangle the other way round from Gmsh's
-                let w = [buf[0], buf[2], buf[1], buf[3], buf[5], buf[4]];
-                mesh.push_cell(CellKind::Wedge, &w, tag);
-            }
-            14 => {
-                want(5)?;
-                mesh.push_cell(CellKind::Pyramid, &buf, tag);
-            }
-            5 | 9 => mesh.facets.push(2, tag, &buf),
-            3 => mesh.facets.push(1, tag, &buf),
-            1 => mesh.facets.push(0, tag, &buf),
-            24 | 25 | 26 | 27 | 29 | 32 => {
-                bail!("{name}: cell {c} is a second-order cell (VTK type {vt}); fix: re-mesh with first-order elements")
-            }
-            _ => skipped += 1,
+        }
+        Ok(v)
+    };
+    let find = |parent: &str, nm: Option<&str>| {
+        arrays
+            .iter()
+            .find(|a| a.parent == parent && (nm.is_none() || a.tag.attr("Name") == nm))
+    };
+    let pts_a =
+        find("Points", None).ok_or_else(|| anyhow!("{name}: no <Points> array; fix: the file holds no mesh"))?;
+    let ncomp: usize = pts_a
+        .tag
+        .attr("NumberOfComponents")
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(1);
+    if ncomp != 3 {
+        return Err(sc.err_at(
+            pts_a.tag.pos,
+            format!("points have {ncomp} components, expected 3; fix: export 3D points"),
+        ));
+    }
+    let np3 = np
+        .checked_mul(3)
+        .ok_or_else(|| anyhow!("{name}: NumberOfPoints {np} too large; fix: repair the file"))?;
+    let points = read(pts_a, Some(np3))?.to_f64();
+    let cell = |n: &str| {
+        find("Cells", Some(n))
+            .ok_or_else(|| anyhow!("{name}: no `{n}` array in <Cells>; fix: the file is incomplete, export again"))
+    };
+    let ints = |a: &Arr, hint: Option<usize>| -> Result<Vec<i64>> {
+        read(a, hint)?
+            .to_i64()
+            .ok_or_else(|| sc.err_at(a.tag.pos, "cell array holds non-integers; fix: repair the file"))
+    };
+    let types = ints(cell("types")?, Some(nc))?;
+    let offsets = ints(cell("offsets")?, Some(nc))?;
+    let conn = ints(cell("connectivity")?, None)?;
+    let mut starts = Vec::with_capacity(nc + 1);
+    starts.push(0i64);
+    starts.extend_from_slice(&offsets);
+    let mut cell_arrays = Vec::new();
+    let mut point_arrays = Vec::new();
+    for a in &arrays {
+        let one = a
+            .tag
+            .attr("NumberOfComponents")
+            .map(|s| s.trim() == "1")
+            .unwrap_or(true);
+        if !one {
+            continue;
+        }
+        let nm = a.tag.attr("Name").unwrap_or("").to_string();
+        if a.parent == "CellData" {
+            cell_arrays.push((nm, read(a, Some(nc))?));
+        } else if a.parent == "PointData" && nm == "node_ids" {
+            point_arrays.push((nm, read(a, Some(np))?));
         }
     }
-    if skipped > 0 {
-        mesh.warnings
-            .push(format!("{skipped} cell(s) of types eprop does not use were skipped"));
-    }
-    if let Some((n, _)) = &tag_arr {
-        mesh.warnings.push(format!("cell tags from the cell-data array `{n}`"));
-    }
-    if mesh.n_cells() == 0 {
-        bail!("{name}: no volume cells (tetrahedra, hexahedra, prisms or pyramids); fix: mesh the volume, not only its surface");
-    }
-    mesh.orient_cells()?;
-    Ok(mesh)
+    build(
+        name,
+        VtkData {
+            points,
+            conn,
+            starts,
+            types,
+            cell_arrays,
+            point_arrays,
+        },
+    )
 }
 
-/// Writes a mesh as VTU (ascii), with the cell tags and the input node ids.
-pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
-    use std::fmt::Write as _;
+/// How to encode the data arrays of a written `.vtu`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Encoding {
+    Ascii,
+    /// Inline base64 (`format="binary"`).
+    Base64,
+    /// Appended raw bytes.
+    AppendedRaw,
+    /// Appended base64.
+    AppendedBase64,
+}
+
+/// Options of the `.vtu` writer.
+#[derive(Clone, Copy, Debug)]
+pub struct VtuOptions {
+    pub encoding: Encoding,
+    pub zlib: bool,
+    pub header64: bool,
+    pub big_endian: bool,
+}
+
+impl Default for VtuOptions {
+    fn default() -> Self {
+        VtuOptions {
+            encoding: Encoding::Base64,
+            zlib: false,
+            header64: true,
+            big_endian: false,
+        }
+    }
+}
+
+fn b64encode(b: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::with_capacity(b.len().div_ceil(3) * 4);
+    for c in b.chunks(3) {
+        let v = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(T[(v >> (18 - 6 * k)) as usize & 63] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+/// Encodes a mesh as `.vtu` bytes.
+pub fn to_bytes(mesh: &Mesh, o: &VtuOptions) -> Vec<u8> {
+    enum A {
+        F(Vec<f64>),
+        I(Vec<i64>),
+        I32(Vec<i32>),
+        U8(Vec<u8>),
+    }
+    let n = mesh.n_nodes();
+    let mut conn = Vec::new();
+    let mut offs = Vec::new();
+    let mut types = Vec::new();
+    let mut tags = Vec::new();
+    for c in 0..mesh.n_cells() {
+        conn.extend(vtk_order(mesh.kinds[c], mesh.cell(c)).into_iter().map(|x| x as i64));
+        offs.push(conn.len() as i64);
+        types.push(mesh.kinds[c].vtk_type());
+        tags.push(mesh.cell_tags[c]);
+    }
+    for f in 0..mesh.facets.len() {
+        let nodes = mesh.facets.nodes(f);
+        let t = match (mesh.facets.dim[f], nodes.len()) {
+            (2, 3) => 5,
+            (2, 4) => 9,
+            (1, 2) => 3,
+            _ => continue,
+        };
+        conn.extend(nodes.iter().map(|&x| x as i64));
+        offs.push(conn.len() as i64);
+        types.push(t);
+        tags.push(mesh.facets.tags[f]);
+    }
+    let ncells = types.len();
+    let ids: Vec<i64> = if mesh.node_ids.len() == n {
+        mesh.node_ids.iter().map(|&i| i as i64).collect()
+    } else {
+        (0..n as i64).collect()
+    };
+    let arrays: Vec<(&str, &str, &str, usize, A)> = vec![
+        (
+            "Points",
+            "Points",
+            "Float64",
+            3,
+            A::F(mesh.points.iter().flatten().copied().collect()),
+        ),
+        ("Cells", "connectivity", "Int64", 1, A::I(conn)),
+        ("Cells", "offsets", "Int64", 1, A::I(offs)),
+        ("Cells", "types", "UInt8", 1, A::U8(types)),
+        ("CellData", "tag", "Int32", 1, A::I32(tags)),
+        ("PointData", "node_ids", "Int64", 1, A::I(ids)),
+    ];
+    let big = o.big_endian;
+    let raw = |a: &A| -> Vec<u8> {
+        let mut v = Vec::new();
+        match a {
+            A::F(x) => x
+                .iter()
+                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
+            A::I(x) => x
+                .iter()
+                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
+            A::I32(x) => x
+                .iter()
+                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
+            A::U8(x) => v.extend_from_slice(x),
+        }
+        v
+    };
+    let hdr = |x: usize| -> Vec<u8> {
+        match (o.header64, big) {
+            (true, true) => (x as u64).to_be_bytes().to_vec(),
+            (true, false) => (x as u64).to_le_bytes().to_vec(),
+            (false, true) => (x as u32).to_be_bytes().to_vec(),
+            (false, false) => (x as u32).to_le_bytes().to_vec(),
+        }
+    };
+    // header + payload, each base64-encoded separately as VTK does
+    let block = |data: Vec<u8>| -> (Vec<u8>, Vec<u8>) {
+        if !o.zlib {
+            return (hdr(data.len()), data);
+        }
+        const BS: usize = 1 << 15;
+        let chunks: Vec<&[u8]> = if data.is_empty() {
+            vec![]
+        } else {
+            data.chunks(BS).collect()
+        };
+        let mut comp = Vec::new();
+        let mut h = hdr(chunks.len());
+        h.extend(hdr(BS));
+        h.extend(hdr(chunks.last().map(|c| c.len() % BS).unwrap_or(0)));
+        for c in &chunks {
+            let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+            let _ = e.write_all(c);
+            let z = e.finish().unwrap_or_default();
+            h.extend(hdr(z.len()));
+            comp.extend(z);
+        }
+        (h, comp)
+    };
     let mut s = String::new();
-    let _ = writeln!(s, "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\">\n<UnstructuredGrid>");
-    let _ = writeln!(
-        s,
-        "<Piece NumberOfPoints=\"{}\" NumberOfCells=\"{}\">",
-        mesh.n_nodes(),
-        mesh.n_cells()
-    );
-    s.push_str("<PointData>\n<DataArray type=\"Int64\" Name=\"node_ids\" format=\"ascii\">\n");
-    for id in &mesh.node_ids {
-        let _ = writeln!(s, "{id}");
+    let mut app: Vec<u8> = Vec::new();
+    s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\"");
+    s.push_str(if big {
+        " byte_order=\"BigEndian\""
+    } else {
+        " byte_order=\"LittleEndian\""
+    });
+    s.push_str(if o.header64 {
+        " header_type=\"UInt64\""
+    } else {
+        " header_type=\"UInt32\""
+    });
+    if o.zlib && o.encoding != Encoding::Ascii {
+        s.push_str(" compressor=\"vtkZLibDataCompressor\"");
     }
-    s.push_str("</DataArray>\n</PointData>\n<CellData>\n<DataArray type=\"Int32\" Name=\"tag\" format=\"ascii\">\n");
-    for t in &mesh.cell_tags {
-        let _ = writeln!(s, "{t}");
+    s.push_str(">\n<!-- written by eprop -->\n<UnstructuredGrid>\n");
+    s.push_str(&format!("<Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{ncells}\">\n"));
+    let mut open = "";
+    for (parent, nm, ty, nc, a) in &arrays {
+        if *parent != open {
+            if !open.is_empty() {
+                s.push_str(&format!("</{open}>\n"));
+            }
+            s.push_str(&format!("<{parent}>\n"));
+            open = parent;
+        }
+        let fmt = match o.encoding {
+            Encoding::Ascii => "ascii",
+            Encoding::Base64 => "binary",
+            _ => "appended",
+        };
+        s.push_str(&format!(
+            "<DataArray type=\"{ty}\" Name=\"{nm}\" NumberOfComponents=\"{nc}\" format=\"{fmt}\""
+        ));
+        match o.encoding {
+            Encoding::Ascii => {
+                s.push_str(">\n");
+                let t: Vec<String> = match a {
+                    A::F(x) => x.iter().map(|v| format!("{v:?}")).collect(),
+                    A::I(x) => x.iter().map(|v| v.to_string()).collect(),
+                    A::I32(x) => x.iter().map(|v| v.to_string()).collect(),
+                    A::U8(x) => x.iter().map(|v| v.to_string()).collect(),
+                };
+                for line in t.chunks(12) {
+                    s.push_str(&line.join(" "));
+                    s.push('\n');
+                }
+                s.push_str("</DataArray>\n");
+            }
+            Encoding::Base64 => {
+                let (h, d) = block(raw(a));
+                s.push_str(">\n");
+                s.push_str(&b64encode(&h));
+                s.push_str(&b64encode(&d));
+                s.push_str("\n</DataArray>\n");
+            }
+            Encoding::AppendedRaw | Encoding::AppendedBase64 => {
+                s.push_str(&format!(" offset=\"{}\"/>\n", app.len()));
+                let (h, d) = block(raw(a));
+                if o.encoding == Encoding::AppendedRaw {
+                    app.extend(h);
+                    app.extend(d);
+                } else {
+                    app.extend(b64encode(&h).bytes());
+                    app.extend(b64encode(&d).bytes());
+                }
+            }
+        }
     }
-    s.push_str(
-        "</DataArray>\n</CellData>\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n",
-    );
-    for p in &mesh.points {
-        let _ = writeln!(s, "{:?} {:?} {:?}", p[0], p[1], p[2]);
+    s.push_str(&format!("</{open}>\n</Piece>\n</UnstructuredGrid>\n"));
+    let mut out = s.into_bytes();
+    if matches!(o.encoding, Encoding::AppendedRaw | Encoding::AppendedBase64) {
+        let enc = if o.encoding == Encoding::AppendedRaw {
+            "raw"
+        } else {
+            "base64"
+        };
+        out.extend(format!("<AppendedData encoding=\"{enc}\">\n_").bytes());
+        out.extend(app);
+        out.extend(b"\n</AppendedData>\n");
     }
-    s.push_str("</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n");
-    for c in 0..mesh.n_cells() {
-        let v = crate::vtkhdf::vtk_order(mesh.kinds[c], mesh.cell(c));
-        let line: Vec<String> = v.iter().map(|x| x.to_string()).collect();
-        let _ = writeln!(s, "{}", line.join(" "));
+    out.extend(b"</VTKFile>\n");
+    out
+}
+
+/// Writes a mesh as `.vtu` (inline base64, UInt64 headers).
+pub fn write(mesh: &Mesh, path: &Path) -> Result<()> {
+    std::fs::write(path, to_bytes(mesh, &VtuOptions::default()))
+        .map_err(|e| anyhow!("{}: cannot write: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_stream_reads_across_padded_blocks() {
+        // header and payload encoded separately, as VTK does
+        let s = format!("{}{}", b64encode(&[4, 0, 0, 0]), b64encode(b"abcd"));
+        let mut d = B64 {
+            s: s.as_bytes(),
+            pos: 0,
+            pending: Vec::new(),
+            name: "t",
+            base: 0,
+        };
+        assert_eq!(d.take(4, "h").unwrap(), vec![4, 0, 0, 0]);
+        assert_eq!(d.take(4, "d").unwrap(), b"abcd".to_vec());
+        assert!(d.take(1, "x").is_err());
+        let mut bad = B64 {
+            s: b"AB!D",
+            pos: 0,
+            pending: Vec::new(),
+            name: "t",
+            base: 0,
+        };
+        assert!(format!("{:#}", bad.take(2, "x").unwrap_err()).contains("not a base64 character"));
     }
-    s.push_str("</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n");
-    let mut at = 0;
-    for c in 0..mesh.n_cells() {
-        at += mesh.cell(c).len();
-        let _ = writeln!(s, "{at}");
+
+    #[test]
+    fn zlib_header_claiming_huge_blocks_is_refused() {
+        // one block of 2^40 bytes from 10 compressed bytes
+        let mut h = Vec::new();
+        for v in [1u64, 1 << 40, 1 << 40, 10] {
+            h.extend(v.to_le_bytes());
+        }
+        h.extend([0u8; 10]);
+        let mut src = Src::Raw {
+            b: &h,
+            pos: 0,
+            base: 0,
+            name: "t",
+        };
+        let f = Fmt {
+            big: false,
+            header: Ty::U64,
+            zlib: true,
+        };
+        let e = format!("{:#}", read_binary(&mut src, &f, "a", "t").unwrap_err());
+        assert!(e.contains("compression header is corrupt"), "{e}");
     }
-    s.push_str("</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n");
-    for k in &mesh.kinds {
-        let _ = writeln!(s, "{}", k.vtk_type());
-    }
-    s.push_str("</DataArray>\n</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
-    std::fs::write(path, s).map_err(|e| anyhow!("{}: cannot write: {e}; fix: check the directory", path.display()))
 }

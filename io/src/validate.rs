@@ -1,0 +1,285 @@
+//! One validation pass applied to every mesh read, whatever its format.
+//!
+//! Errors (each names the file, the node or cell, and a fix): non-finite coordinates, node
+//! indices out of range, no volume cells, zero-volume cells, duplicate cells, faces shared by
+//! more than two cells. Repairs (each leaves a warning): inverted cells are reoriented (an
+//! error when `strict`), nodes that no cell uses are dropped (the kept nodes keep their input
+//! ids). Several disconnected components are reported as a warning.
+
+use crate::mesh::{face_key, Mesh};
+use anyhow::{bail, Result};
+use std::collections::HashMap;
+
+/// Options of `validate`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ReadOptions {
+    /// Refuse inverted cells instead of reorienting them.
+    pub strict: bool,
+}
+
+/// Checks and repairs a mesh in place.
+pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
+    let src = mesh.source.clone();
+    let np = mesh.n_nodes();
+    if mesh.node_ids.len() != np {
+        mesh.node_ids = (1..=np as u64).collect();
+    }
+    for (n, p) in mesh.points.iter().enumerate() {
+        if p.iter().any(|x| !x.is_finite()) {
+            bail!(
+                "{src}: node {} has a non-finite coordinate ({}, {}, {}); fix: repair or remove the node",
+                mesh.node_id(n),
+                p[0],
+                p[1],
+                p[2]
+            );
+        }
+    }
+    if mesh.n_cells() == 0 {
+        bail!("{src}: no volume cells (tetrahedra, hexahedra, prisms or pyramids); fix: mesh the volume (e.g. gmsh -3 or tetgen), not only its surface");
+    }
+    if mesh.offsets.len() != mesh.n_cells() + 1 || mesh.cell_tags.len() != mesh.n_cells() {
+        bail!("{src}: inconsistent cell arrays; fix: this is a reader bug, report it with the file");
+    }
+    for c in 0..mesh.n_cells() {
+        let (s, e) = (mesh.offsets[c], mesh.offsets[c + 1]);
+        if e < s || e > mesh.conn.len() || e - s != mesh.kinds[c].n_nodes() {
+            bail!(
+                "{src}: cell {} has a wrong node count; fix: repair the cell",
+                mesh.cell_id(c)
+            );
+        }
+        if let Some(&bad) = mesh.conn[s..e].iter().find(|&&n| n as usize >= np) {
+            bail!(
+                "{src}: cell {} names node index {bad}, but the mesh has {np} nodes; fix: repair the cell",
+                mesh.cell_id(c)
+            );
+        }
+    }
+    for f in 0..mesh.facets.len() {
+        let ok = mesh
+            .facets
+            .offsets
+            .get(f + 1)
+            .is_some_and(|&e| e <= mesh.facets.conn.len() && mesh.facets.offsets[f] <= e);
+        if !ok || mesh.facets.nodes(f).iter().any(|&n| n as usize >= np) {
+            bail!(
+                "{src}: boundary element {} names a node out of range; fix: repair the element",
+                f + 1
+            );
+        }
+    }
+    // duplicate cells: the same node set
+    let mut seen: HashMap<Vec<u32>, usize> = HashMap::with_capacity(mesh.n_cells());
+    for c in 0..mesh.n_cells() {
+        let mut k = mesh.cell(c).to_vec();
+        k.sort_unstable();
+        if k.windows(2).any(|w| w[0] == w[1]) {
+            let ids: Vec<u64> = mesh.cell(c).iter().map(|&n| mesh.node_id(n as usize)).collect();
+            bail!(
+                "{src}: cell {} ({}) repeats a node (nodes {ids:?}) and has zero volume; fix: remove the degenerate cell or re-mesh",
+                mesh.cell_id(c),
+                mesh.kinds[c].name()
+            );
+        }
+        if let Some(&d) = seen.get(&k) {
+            bail!(
+                "{src}: cells {} and {} are duplicates (same nodes); fix: remove one of them",
+                mesh.cell_id(d),
+                mesh.cell_id(c)
+            );
+        }
+        seen.insert(k, c);
+    }
+    drop(seen);
+    // orientation and zero volume
+    let mut flipped = 0usize;
+    let mut first = 0u64;
+    for c in 0..mesh.n_cells() {
+        let kind = mesh.kinds[c];
+        let r = mesh.offsets[c]..mesh.offsets[c + 1];
+        let nodes: Vec<u32> = mesh.conn[r.clone()].to_vec();
+        let v = crate::geom::cell_volume(kind, &nodes, &mesh.points);
+        let scale = crate::geom::cell_size(kind, &nodes, &mesh.points);
+        if !(v.abs() > 1e-14 * scale.powi(3)) {
+            let ids: Vec<u64> = nodes.iter().map(|&n| mesh.node_id(n as usize)).collect();
+            bail!(
+                "{src}: cell {} ({}) has zero volume (nodes {ids:?}); fix: remove the degenerate cell or re-mesh",
+                mesh.cell_id(c),
+                kind.name()
+            );
+        }
+        if v < 0.0 {
+            if opts.strict {
+                bail!(
+                    "{src}: cell {} ({}) is inverted (negative volume); fix: reorder its nodes, or read without --strict to reorient it",
+                    mesh.cell_id(c),
+                    kind.name()
+                );
+            }
+            for (k, &p) in kind.flip().iter().enumerate() {
+                mesh.conn[r.start + k] = nodes[p];
+            }
+            if flipped == 0 {
+                first = mesh.cell_id(c);
+            }
+            flipped += 1;
+        }
+    }
+    if flipped > 0 {
+        mesh.warnings
+            .push(format!("{flipped} inverted cell(s) reoriented (first: cell {first})"));
+    }
+    // faces shared by more than two cells
+    let mut faces: Vec<([u32; 4], u32)> = Vec::with_capacity(mesh.n_cells() * 4);
+    for c in 0..mesh.n_cells() {
+        let nodes = mesh.cell(c);
+        for face in mesh.kinds[c].faces() {
+            faces.push((face_key(nodes, face), c as u32));
+        }
+    }
+    faces.sort_unstable();
+    let mut i = 0;
+    while i < faces.len() {
+        let mut j = i + 1;
+        while j < faces.len() && faces[j].0 == faces[i].0 {
+            j += 1;
+        }
+        if j - i > 2 {
+            let ids: Vec<u64> = faces[i]
+                .0
+                .iter()
+                .filter(|&&n| n != u32::MAX)
+                .map(|&n| mesh.node_id(n as usize))
+                .collect();
+            let cells: Vec<u64> = faces[i..j].iter().map(|f| mesh.cell_id(f.1 as usize)).collect();
+            bail!(
+                "{src}: the face with nodes {ids:?} is shared by {} cells ({cells:?}); a face may bound at most two cells (non-manifold); fix: remove the overlapping cells or re-mesh",
+                j - i
+            );
+        }
+        i = j;
+    }
+    drop(faces);
+    // unreferenced nodes: drop them, keep input ids of the rest
+    let mut used = vec![false; np];
+    for &n in &mesh.conn {
+        used[n as usize] = true;
+    }
+    let unused = used.iter().filter(|&&u| !u).count();
+    if unused > 0 {
+        let mut map = vec![u32::MAX; np];
+        let mut k = 0u32;
+        for n in 0..np {
+            if used[n] {
+                map[n] = k;
+                k += 1;
+            }
+        }
+        let first = (0..np).find(|&n| !used[n]).map(|n| mesh.node_id(n)).unwrap_or(0);
+        mesh.points = (0..np).filter(|&n| used[n]).map(|n| mesh.points[n]).collect();
+        mesh.node_ids = (0..np).filter(|&n| used[n]).map(|n| mesh.node_ids[n]).collect();
+        for n in &mut mesh.conn {
+            *n = map[*n as usize];
+        }
+        let old = std::mem::replace(&mut mesh.facets, crate::mesh::Facets::new());
+        let mut lost = 0usize;
+        for f in 0..old.len() {
+            let nodes: Vec<u32> = old.nodes(f).iter().map(|&n| map[n as usize]).collect();
+            if nodes.contains(&u32::MAX) {
+                lost += 1;
+            } else {
+                mesh.facets.push(old.dim[f], old.tags[f], &nodes);
+            }
+        }
+        let extra = if lost > 0 {
+            format!("; {lost} boundary element(s) on them dropped too")
+        } else {
+            String::new()
+        };
+        mesh.warnings.push(format!(
+            "{unused} node(s) used by no cell dropped (first: node {first}); the others keep their ids{extra}"
+        ));
+    }
+    // connected components over shared nodes
+    let n = mesh.n_nodes();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn root(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    for c in 0..mesh.n_cells() {
+        let nodes = mesh.cell(c);
+        let a = root(&mut parent, nodes[0]);
+        for &m in &nodes[1..] {
+            let b = root(&mut parent, m);
+            if a != b {
+                parent[b as usize] = a;
+            }
+        }
+    }
+    let comps = (0..n as u32).filter(|&x| root(&mut parent, x) == x).count();
+    if comps > 1 {
+        mesh.warnings.push(format!(
+            "the mesh has {comps} disconnected components; each needs its own fixed set (a free component drifts)"
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::CellKind;
+
+    fn two_tets() -> Mesh {
+        let mut m = Mesh::new("t");
+        m.points = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [9.0; 3],
+        ];
+        m.node_ids = vec![10, 20, 30, 40, 50, 60];
+        m.push_cell(CellKind::Tet, &[0, 1, 2, 3], 1);
+        m.push_cell(CellKind::Tet, &[0, 1, 2, 4], 1); // inverted
+        m
+    }
+
+    #[test]
+    fn repairs_keep_input_ids() {
+        let mut m = two_tets();
+        validate(&mut m, &ReadOptions::default()).unwrap();
+        assert_eq!(m.node_ids, vec![10, 20, 30, 40, 50]);
+        assert_eq!(m.cell(1), &[0, 2, 1, 4]);
+        assert_eq!(m.warnings.len(), 2, "{:?}", m.warnings);
+        let e = validate(&mut two_tets(), &ReadOptions { strict: true })
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("cell 2") && e.contains("inverted") && e.contains("fix:"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn defects_name_nodes_and_cells() {
+        let mut m = two_tets();
+        m.points[3][1] = f64::NAN;
+        let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("node 40") && e.contains("non-finite"), "{e}");
+        let mut m = two_tets();
+        m.push_cell(CellKind::Tet, &[3, 2, 1, 0], 1);
+        let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("cells 1 and 3 are duplicates"), "{e}");
+        let mut m = two_tets();
+        m.conn[7] = 99;
+        let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("cell 2 names node index 99"), "{e}");
+    }
+}
