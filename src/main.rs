@@ -32,7 +32,8 @@ enum Cmd {
     /// Run a scenario to its stop condition and write the HDF5 series.
     #[command(long_about = "Run a scenario to its stop condition and write the HDF5 series.\n\n\
 Scenario keys (all but [mesh] file and [time] have defaults):\n\
-  [mesh]      file = \"organ.msh\"             (relative to the scenario file)\n\
+  [mesh]      file = \"organ.msh\"             (relative to the scenario file; .msh .vtk .vtu .ele .mesh)\n\
+              scale = 1.0 (coordinates multiplied on reading), strict = false (refuse inverted cells)\n\
   [material]  mass = 1.0, damping = 2.0, conductivity = 0.05 | [rx, ry, rz] | 3x3 table\n\
   [[material.region]]  box | sphere | halfspace | tag | group, and conductivity / mass / damping\n\
   [model]     scheme = \"compact\" | \"paper\", paper_correction = true, operator_precision = \"float64\" | \"float32\",\n\

@@ -32,6 +32,12 @@ pub struct ScenarioFile {
 #[serde(deny_unknown_fields)]
 pub struct MeshSec {
     pub file: String,
+    /// Every coordinate is multiplied by this on reading (1000 reads a mesh in metres as mm).
+    #[serde(default = "one")]
+    pub scale: f64,
+    /// Refuse inverted cells instead of reorienting them (as `eprop info --strict`).
+    #[serde(default)]
+    pub strict: bool,
 }
 
 /// A conductivity: a scalar, three diagonal values, a full symmetric 3x3 table, or diagonal
@@ -466,8 +472,20 @@ fn finite3(v: &[f64; 3]) -> bool {
 impl Setup {
     /// Reads the mesh named by the scenario and resolves everything.
     pub fn new(scenario: Scenario) -> Result<Setup> {
-        let mesh = eprop_io::read_mesh(&scenario.mesh_path())
+        let ms = &scenario.file.mesh;
+        if !(ms.scale > 0.0 && ms.scale.is_finite()) {
+            return Err(scenario.err("mesh", 0, "scale", format!("{} must be a positive number; fix: the factor from the mesh's length unit to the scenario's (1000 turns metres into mm)", ms.scale)));
+        }
+        let opts = eprop_io::ReadOptions { strict: ms.strict };
+        let mut mesh = eprop_io::read_mesh_with(&scenario.mesh_path(), &opts)
             .map_err(|e| anyhow!("{e}\n  (mesh named by {} [mesh] file)", scenario.path.display()))?;
+        if ms.scale != 1.0 {
+            for p in mesh.points.iter_mut() {
+                for x in p.iter_mut() {
+                    *x *= ms.scale;
+                }
+            }
+        }
         Self::with_mesh(scenario, mesh)
     }
 

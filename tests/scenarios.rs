@@ -21,15 +21,31 @@ fn scenarios() -> Vec<PathBuf> {
 }
 
 fn needs_shared(p: &Path) -> bool {
-    std::fs::read_to_string(p).unwrap().contains("shared/meshes")
+    let t = std::fs::read_to_string(p).unwrap();
+    t.contains("shared/meshes") || t.contains("organ_meshes.sh")
 }
 
+/// Whether `../shared/meshes` is beside the checkout; when it is, the tetgen meshes of the
+/// kidney, heart and prostate scenarios are made once (scripts/organ_meshes.sh).
 fn shared_present() -> bool {
-    let ok = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes").is_dir();
+    static MADE: std::sync::Once = std::sync::Once::new();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ok = root.join("../shared/meshes").is_dir();
     if !ok {
         eprintln!("skipped: the shared organ meshes are not beside this checkout");
+        return false;
     }
-    ok
+    MADE.call_once(|| {
+        let out = std::process::Command::new(root.join("scripts/organ_meshes.sh"))
+            .output()
+            .expect("scripts/organ_meshes.sh runs");
+        assert!(
+            out.status.success(),
+            "scripts/organ_meshes.sh: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    });
+    true
 }
 
 #[test]
@@ -97,4 +113,57 @@ fn organ_scenarios_run_on_one_and_two_ranks() {
         }
         common::assert_same(&last[0], &last[1]);
     }
+}
+
+/// Every mesh in `../shared/meshes/tet/` runs 20 steps of a generic scenario: fixed on its
+/// lowest 15 % in x, pressed at the surface node nearest the middle of its top (largest y).
+#[test]
+fn every_shared_tet_mesh_runs_twenty_steps() {
+    let Some(dir) = common::shared_mesh("").filter(|d| d.is_dir()) else {
+        eprintln!("skipped: the shared organ meshes are not beside this checkout");
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let mut n = 0;
+    for e in std::fs::read_dir(&dir).unwrap().flatten() {
+        let p = e.path();
+        let m = eprop_io::read_mesh(&p).unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
+        let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
+        for q in &m.points {
+            for k in 0..3 {
+                lo[k] = lo[k].min(q[k]);
+                hi[k] = hi[k].max(q[k]);
+            }
+        }
+        let x = lo[0] + 0.15 * (hi[0] - lo[0]);
+        let (cx, cz) = ((lo[0] + hi[0]) / 2.0, (lo[2] + hi[2]) / 2.0);
+        let s = d.path().join(format!("s{n}.toml"));
+        std::fs::write(
+            &s,
+            format!(
+                "[mesh]\nfile = {:?}\n[[fixed]]\nhalfspace = {{ point = [{x:?}, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }}\n\
+                 [[load]]\nnearest = [{cx:?}, {:?}, {cz:?}]\nnormal = 1.0\n[time]\nsteps = 20\n[output]\nevery = 10\n",
+                p.to_str().unwrap(),
+                hi[1]
+            ),
+        )
+        .unwrap();
+        let h5 = d.path().join(format!("s{n}.h5"));
+        let out = common::serial(
+            &["run", s.to_str().unwrap(), "-q", "--json", "-o", h5.to_str().unwrap()],
+            1,
+        );
+        assert!(
+            out.status.success(),
+            "{}: {}",
+            p.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(v["steps"].as_u64(), Some(20), "{}", p.display());
+        let u = v["max_displacement"].as_f64().unwrap();
+        assert!(u > 0.0 && u.is_finite(), "{}: max |u| = {u}", p.display());
+        n += 1;
+    }
+    assert!(n >= 5, "expected the five shared tet meshes, found {n}");
 }
