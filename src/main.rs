@@ -169,6 +169,8 @@ enum Kind {
     Tet,
     Hex,
     Prism,
+    /// Six pyramids per hexahedron around a centre node; tetrahedra on the boundary
+    Pyramid,
 }
 
 #[derive(Subcommand)]
@@ -433,6 +435,7 @@ fn real_main(cli: Cli) -> Result<()> {
                         Kind::Tet => BoxCells::Tet,
                         Kind::Hex => BoxCells::Hex,
                         Kind::Prism => BoxCells::Wedge,
+                        Kind::Pyramid => BoxCells::PyramidTet,
                     };
                     if size.len() != 3 || cells.len() != 3 {
                         bail!("--size and --cells take three comma-separated values");

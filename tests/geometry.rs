@@ -63,18 +63,24 @@ fn identities_on_generated_tetrahedral_meshes() {
 }
 
 #[test]
-fn identities_on_hexahedra_and_prisms() {
+fn identities_on_hexahedra_prisms_and_pyramids() {
     check_identities(&box_mesh([1.0, 1.0, 1.0], [3, 4, 2], BoxCells::Hex).unwrap());
     check_identities(&box_mesh([1.0, 0.5, 2.0], [3, 2, 4], BoxCells::Wedge).unwrap());
-    // a distorted (non-affine) hexahedral mesh: dual volumes are exact, not 1/8 fractions
-    let mut m = box_mesh([1.0, 1.0, 1.0], [3, 3, 3], BoxCells::Hex).unwrap();
-    for p in m.points.iter_mut() {
-        let (x, y, z) = (p[0], p[1], p[2]);
-        p[0] += 0.07 * (3.0 * y).sin() * z;
-        p[1] += 0.05 * (2.0 * z).cos() * x;
-        p[2] += 0.06 * (x * y);
+    let pt = box_mesh([1.0, 0.8, 1.2], [3, 2, 2], BoxCells::PyramidTet).unwrap();
+    let kinds: std::collections::BTreeSet<_> = pt.kinds.iter().collect();
+    assert_eq!(kinds.len(), 2, "a pyramid + tetrahedron mesh: {kinds:?}");
+    check_identities(&pt);
+    // distorted (non-affine) meshes: dual volumes are exact, not 1/8 (1/5, 1/6) fractions
+    for cells in [BoxCells::Hex, BoxCells::Wedge, BoxCells::PyramidTet] {
+        let mut m = box_mesh([1.0, 1.0, 1.0], [3, 3, 3], cells).unwrap();
+        for p in m.points.iter_mut() {
+            let (x, y, z) = (p[0], p[1], p[2]);
+            p[0] += 0.07 * (3.0 * y).sin() * z;
+            p[1] += 0.05 * (2.0 * z).cos() * x;
+            p[2] += 0.06 * (x * y);
+        }
+        check_identities(&m);
     }
-    check_identities(&m);
 }
 
 #[test]

@@ -11,6 +11,9 @@ pub enum BoxCells {
     Tet,
     Hex,
     Wedge,
+    /// Each hexahedron split into six pyramids around a centre node; a pyramid whose base is on
+    /// the box boundary is split further into two tetrahedra (a pyramid + tetrahedron mesh).
+    PyramidTet,
 }
 
 /// Pushes a cell, reordering it to positive orientation.
@@ -30,7 +33,13 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
     if n.contains(&0) || size.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
         bail!("box: every size must be positive and every cell count at least 1");
     }
-    let np = (n[0] + 1) * (n[1] + 1) * (n[2] + 1);
+    let lattice = (n[0] + 1) * (n[1] + 1) * (n[2] + 1);
+    let np = lattice
+        + if cells == BoxCells::PyramidTet {
+            n[0] * n[1] * n[2]
+        } else {
+            0
+        };
     if np > u32::MAX as usize / 2 {
         bail!("box: {np} nodes is more than eprop indexes (2^31)");
     }
@@ -47,7 +56,6 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
             }
         }
     }
-    mesh.node_ids = (1..=np as u64).collect();
     let id = |i: usize, j: usize, k: usize| (i + (n[0] + 1) * (j + (n[1] + 1) * k)) as u32;
     for k in 0..n[2] {
         for j in 0..n[1] {
@@ -73,6 +81,32 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
                         push_oriented(&mut mesh, CellKind::Wedge, &w1, 1);
                         push_oriented(&mut mesh, CellKind::Wedge, &w2, 1);
                     }
+                    BoxCells::PyramidTet => {
+                        let c = mesh.points.len() as u32;
+                        let (a, b) = (mesh.points[v(0, 0, 0) as usize], mesh.points[v(1, 1, 1) as usize]);
+                        mesh.points
+                            .push([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0, (a[2] + b[2]) / 2.0]);
+                        let (lo, hi) = ([i == 0, j == 0, k == 0], [i + 1 == n[0], j + 1 == n[1], k + 1 == n[2]]);
+                        // the two faces normal to each axis, as quads in cyclic order
+                        for axis in 0..3 {
+                            for side in 0..2 {
+                                let corner = |s: usize, t: usize| {
+                                    let mut o = [0usize; 3];
+                                    o[axis] = side;
+                                    o[(axis + 1) % 3] = s;
+                                    o[(axis + 2) % 3] = t;
+                                    v(o[0], o[1], o[2])
+                                };
+                                let q = [corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1)];
+                                if [lo, hi][side][axis] {
+                                    push_oriented(&mut mesh, CellKind::Tet, &[q[0], q[1], q[2], c], 1);
+                                    push_oriented(&mut mesh, CellKind::Tet, &[q[0], q[2], q[3], c], 1);
+                                } else {
+                                    push_oriented(&mut mesh, CellKind::Pyramid, &[q[0], q[1], q[2], q[3], c], 1);
+                                }
+                            }
+                        }
+                    }
                     BoxCells::Tet => {
                         const PERMS: [[usize; 3]; 6] =
                             [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
@@ -90,6 +124,7 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
             }
         }
     }
+    mesh.node_ids = (1..=mesh.points.len() as u64).collect();
     mesh.group_names.insert((3, 1), "tissue".into());
     for (t, name) in ["xmin", "xmax", "ymin", "ymax", "zmin", "zmax"].iter().enumerate() {
         mesh.group_names.insert((2, t as i32 + 1), name.to_string());
