@@ -12,11 +12,13 @@ pub trait Comm {
     fn size(&self) -> usize;
     /// Overwrites the halo entries of `data` (items of `stride` f64) with their owners' values.
     fn exchange(&self, data: &mut [f64], stride: usize) {
-        self.exchange_overlapped(data, stride, &mut |_| {});
+        self.exchange_overlapped(data, stride, &mut |_, _| {});
     }
     /// Like `exchange`, running `during` on the old values while the messages are in flight
-    /// (work that reads owned entries only: the interior rows).
-    fn exchange_overlapped(&self, data: &mut [f64], stride: usize, during: &mut dyn FnMut(&[f64]));
+    /// (work that reads owned entries only: the interior rows). `during` gets a `progress`
+    /// callback to call between pieces of its work: it lets MPI move messages that need the
+    /// receiver's help (rendezvous-size messages over shared memory) before the wait.
+    fn exchange_overlapped(&self, data: &mut [f64], stride: usize, during: &mut Overlapped);
     fn max(&self, x: f64) -> f64;
     fn min(&self, x: f64) -> f64;
     /// Sums the integer parts of every process in rank order (exact).
@@ -35,6 +37,9 @@ pub trait Comm {
     /// Ends every process after an error on this one.
     fn abort(&self, code: i32) -> !;
 }
+
+/// The work done while halo messages are in flight: the old values and a progress callback.
+pub type Overlapped<'a> = dyn FnMut(&[f64], &mut dyn FnMut()) + 'a;
 
 /// An exact, order-independent sum of f64 values spread over processes: every value is
 /// rounded to a fixed-point grid set by the global largest magnitude, and integers add
@@ -74,8 +79,8 @@ impl Comm for Serial {
     fn size(&self) -> usize {
         1
     }
-    fn exchange_overlapped(&self, data: &mut [f64], _: usize, during: &mut dyn FnMut(&[f64])) {
-        during(data)
+    fn exchange_overlapped(&self, data: &mut [f64], _: usize, during: &mut Overlapped) {
+        during(data, &mut || {})
     }
     fn max(&self, x: f64) -> f64 {
         x
@@ -131,7 +136,7 @@ impl Comm for Mpi {
     fn size(&self) -> usize {
         self.world.size() as usize
     }
-    fn exchange_overlapped(&self, data: &mut [f64], stride: usize, during: &mut dyn FnMut(&[f64])) {
+    fn exchange_overlapped(&self, data: &mut [f64], stride: usize, during: &mut Overlapped) {
         let nbs = &self.plan.neighbours;
         let mut bufs = self.bufs.borrow_mut();
         let (sends, recvs) = &mut *bufs;
@@ -163,12 +168,16 @@ impl Comm for Mpi {
                         .immediate_send(scope, &buf[..]),
                 );
             }
-            during(data);
+            let mut pending: Vec<_> = reqs.into_iter().chain(sreqs).map(Some).collect();
+            during(data, &mut || {
+                for slot in pending.iter_mut() {
+                    if let Some(r) = slot.take() {
+                        *slot = r.test().err();
+                    }
+                }
+            });
             let t = std::time::Instant::now();
-            for r in reqs {
-                r.wait();
-            }
-            for r in sreqs {
+            for r in pending.into_iter().flatten() {
                 r.wait();
             }
             self.waited.set(self.waited.get() + t.elapsed().as_secs_f64());

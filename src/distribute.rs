@@ -384,6 +384,30 @@ pub fn decode(bytes: &[u8]) -> Result<Part> {
 }
 
 /// Peak resident memory of this process so far, in bytes (Linux; 0 elsewhere).
+/// Logs (at -vv) the resident and peak memory of this process after a setup phase.
+pub fn log_memory(phase: &str) {
+    if tracing::enabled!(tracing::Level::DEBUG) {
+        let now = status_kb("VmRSS:") * 1024;
+        tracing::debug!(
+            "memory after {phase}: {:.1} MiB resident, peak {:.1} MiB",
+            now as f64 / 1048576.0,
+            peak_rss() as f64 / 1048576.0
+        );
+    }
+}
+
+fn status_kb(key: &str) -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with(key))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|v| v.parse::<u64>().ok())
+        })
+        .unwrap_or(0)
+}
+
 pub fn peak_rss() -> u64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()

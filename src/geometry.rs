@@ -166,29 +166,38 @@ pub fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64)
 /// `gid` orders neighbours (global ids); None means local index order.
 pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
     let key = |j: u32| gid.map_or(j as u64, |g| g[j as usize]);
-    let lists: Vec<Vec<u32>> = (0..n_rows)
-        .into_par_iter()
-        .map(|i| {
-            let mut v: Vec<u32> = Vec::with_capacity(24);
+    thread_local! {
+        static SCRATCH: std::cell::RefCell<Vec<u32>> = const { std::cell::RefCell::new(Vec::new()) };
+    }
+    // the sorted, distinct neighbours of row i in a reused buffer
+    let with_row = |i: usize, f: &mut dyn FnMut(&[u32])| {
+        SCRATCH.with(|v| {
+            let mut v = v.borrow_mut();
+            v.clear();
             for &c in inc.of(i) {
-                for &j in mesh.cell(c as usize) {
-                    if j as usize != i {
-                        v.push(j);
-                    }
-                }
+                v.extend(mesh.cell(c as usize).iter().filter(|&&j| j as usize != i));
             }
             v.sort_unstable_by_key(|&j| key(j));
             v.dedup();
-            v
+            f(&v)
+        })
+    };
+    // two passes (count, then fill in place): no per-row allocation at the peak of the setup
+    let counts: Vec<usize> = (0..n_rows)
+        .into_par_iter()
+        .map(|i| {
+            let mut n = 0;
+            with_row(i, &mut |v| n = v.len());
+            n
         })
         .collect();
     let mut ptr = Vec::with_capacity(n_rows + 1);
     ptr.push(0);
-    let mut col = Vec::with_capacity(lists.iter().map(|l| l.len()).sum());
-    for l in lists {
-        col.extend_from_slice(&l);
-        ptr.push(col.len());
+    for c in counts {
+        ptr.push(ptr[ptr.len() - 1] + c);
     }
+    let mut col = vec![0u32; ptr[n_rows]];
+    par_rows(&mut col, &ptr, |i, row| with_row(i, &mut |v| row.copy_from_slice(v)));
     (ptr, col)
 }
 
@@ -201,69 +210,94 @@ pub fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
     mask
 }
 
+/// Runs `f(row, values of the row)` over the rows of a CSR array in parallel, filling `data`
+/// in place (no per-row allocation, so the peak memory is the array itself).
+pub fn par_rows<T: Send, R: Send>(
+    data: &mut [T],
+    row_ptr: &[usize],
+    f: impl Fn(usize, &mut [T]) -> R + Sync + Send,
+) -> Vec<R> {
+    const BLOCK: usize = 1024;
+    let n = row_ptr.len() - 1;
+    let mut blocks = Vec::with_capacity(n.div_ceil(BLOCK));
+    let mut rest = data;
+    for b in 0..n.div_ceil(BLOCK) {
+        let (r0, r1) = (b * BLOCK, ((b + 1) * BLOCK).min(n));
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(row_ptr[r1] - row_ptr[r0]);
+        blocks.push((r0, r1, head));
+        rest = tail;
+    }
+    let out: Vec<Vec<R>> = blocks
+        .into_par_iter()
+        .map(|(r0, r1, block)| {
+            let base = row_ptr[r0];
+            let mut block = block;
+            let mut out = Vec::with_capacity(r1 - r0);
+            for i in r0..r1 {
+                let (row, tail) = std::mem::take(&mut block).split_at_mut(row_ptr[i + 1] - row_ptr[i]);
+                debug_assert!(row_ptr[i] >= base);
+                out.push(f(i, row));
+                block = tail;
+            }
+            out
+        })
+        .collect();
+    out.into_iter().flatten().collect()
+}
+
 impl Dual {
     /// Median-dual geometry of rows `0..n_rows`. Every cell incident to a row must be present.
     pub fn build(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> Dual {
         let (row_ptr, col) = pair_graph(mesh, inc, n_rows, gid);
         let mask = boundary_mask(mesh);
         let pts = &mesh.points;
-        let rows: Vec<(Vec<[f64; 3]>, f64, [f64; 3], f64)> = (0..n_rows)
-            .into_par_iter()
-            .map(|i| {
-                let cols = &col[row_ptr[i]..row_ptr[i + 1]];
-                let mut s = vec![[0.0; 3]; cols.len()];
-                let mut v = 0.0;
-                let mut a = [0.0; 3];
-                for &c in inc.of(i) {
-                    let c = c as usize;
-                    let kind = mesh.kinds[c];
-                    let nodes = mesh.cell(c);
-                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                    let cd = cell_dual(kind, nodes, pts);
-                    v += cd.vol[li];
-                    for (e, edge) in kind.edges().iter().enumerate() {
-                        let (other, sign) = if edge[0] == li {
-                            (edge[1], 1.0)
-                        } else if edge[1] == li {
-                            (edge[0], -1.0)
-                        } else {
+        let mut s = vec![[0.0; 3]; col.len()];
+        let rows: Vec<(f64, [f64; 3], f64)> = par_rows(&mut s, &row_ptr[..=n_rows], |i, s| {
+            let cols = &col[row_ptr[i]..row_ptr[i + 1]];
+            let mut v = 0.0;
+            let mut a = [0.0; 3];
+            for &c in inc.of(i) {
+                let c = c as usize;
+                let kind = mesh.kinds[c];
+                let nodes = mesh.cell(c);
+                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                let cd = cell_dual(kind, nodes, pts);
+                v += cd.vol[li];
+                for (e, edge) in kind.edges().iter().enumerate() {
+                    let (other, sign) = if edge[0] == li {
+                        (edge[1], 1.0)
+                    } else if edge[1] == li {
+                        (edge[0], -1.0)
+                    } else {
+                        continue;
+                    };
+                    let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
+                    s[p] = add(s[p], scale(cd.s[e], sign));
+                }
+                if mask[c] != 0 {
+                    for (f, face) in kind.faces().iter().enumerate() {
+                        if mask[c] & (1 << f) == 0 {
                             continue;
-                        };
-                        let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
-                        s[p] = add(s[p], scale(cd.s[e], sign));
-                    }
-                    if mask[c] != 0 {
-                        for (f, face) in kind.faces().iter().enumerate() {
-                            if mask[c] & (1 << f) == 0 {
-                                continue;
-                            }
-                            if let Some(k) = face.iter().position(|&l| l == li) {
-                                let nf = face.len();
-                                let next = nodes[face[(k + 1) % nf]] as usize;
-                                let prev = nodes[face[(k + nf - 1) % nf]] as usize;
-                                let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
-                                let fcn = centroid(&fnodes, pts);
-                                let xi = pts[i];
-                                let quad = [xi, scale(add(xi, pts[next]), 0.5), fcn, scale(add(xi, pts[prev]), 0.5)];
-                                a = add(a, loop_area(&quad));
-                            }
+                        }
+                        if let Some(k) = face.iter().position(|&l| l == li) {
+                            let nf = face.len();
+                            let next = nodes[face[(k + 1) % nf]] as usize;
+                            let prev = nodes[face[(k + nf - 1) % nf]] as usize;
+                            let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
+                            let fcn = centroid(&fnodes, pts);
+                            let xi = pts[i];
+                            let quad = [xi, scale(add(xi, pts[next]), 0.5), fcn, scale(add(xi, pts[prev]), 0.5)];
+                            a = add(a, loop_area(&quad));
                         }
                     }
                 }
-                let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
-                (s, v, a, da)
-            })
-            .collect();
-        let mut s = Vec::with_capacity(col.len());
-        let mut vol = Vec::with_capacity(n_rows);
-        let mut area = Vec::with_capacity(n_rows);
-        let mut dual_area = Vec::with_capacity(n_rows);
-        for (rs, v, a, da) in rows {
-            s.extend(rs);
-            vol.push(v);
-            area.push(a);
-            dual_area.push(da);
-        }
+            }
+            let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
+            (v, a, da)
+        });
+        let vol = rows.iter().map(|r| r.0).collect();
+        let area = rows.iter().map(|r| r.1).collect();
+        let dual_area = rows.iter().map(|r| r.2).collect();
         Dual {
             n_rows,
             row_ptr,
@@ -273,6 +307,13 @@ impl Dual {
             area,
             dual_area,
         }
+    }
+
+    /// Frees the dual-face vectors S_ij (and the closure scale) once the operator is built;
+    /// the control volumes and boundary areas stay.
+    pub fn release_pairs(&mut self) {
+        self.s = Vec::new();
+        self.dual_area = Vec::new();
     }
 
     /// Largest |sum_j S_ij + A_i| / (dual area of i) over the rows.
@@ -299,60 +340,56 @@ impl Dual {
 /// volume of i. `r` gives the tensor of every local node; a cell uses the mean of its nodes'.
 pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &[Tensor]) -> Vec<f64> {
     let pts = &mesh.points;
-    let rows: Vec<Vec<f64>> = (0..dual.n_rows)
-        .into_par_iter()
-        .map(|i| {
-            let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
-            let mut w = vec![0.0; cols.len()];
-            for &c in inc.of(i) {
-                let c = c as usize;
-                let kind = mesh.kinds[c];
-                let nodes = mesh.cell(c);
-                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                let mut rc = Matrix3::zeros();
-                for &n in nodes {
-                    rc += r[n as usize];
+    let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
+    par_rows(&mut out, &dual.row_ptr[..=dual.n_rows], |i, w| {
+        let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
+        for &c in inc.of(i) {
+            let c = c as usize;
+            let kind = mesh.kinds[c];
+            let nodes = mesh.cell(c);
+            let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+            let mut rc = Matrix3::zeros();
+            for &n in nodes {
+                rc += r[n as usize];
+            }
+            rc /= nodes.len() as f64;
+            if kind == CellKind::Tet {
+                // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
+                // that a_ab == a_ba bitwise
+                let (g, v) = tet_gradients(nodes, pts);
+                for lk in 0..4 {
+                    if lk == li {
+                        continue;
+                    }
+                    let (lo, hi) = (li.min(lk), li.max(lk));
+                    let rg = rc * Vector3::from(g[hi]);
+                    let val = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
+                    let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
+                    w[p] += val;
                 }
-                rc /= nodes.len() as f64;
-                if kind == CellKind::Tet {
-                    // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
-                    // that a_ab == a_ba bitwise
-                    let (g, v) = tet_gradients(nodes, pts);
-                    for lk in 0..4 {
-                        if lk == li {
-                            continue;
-                        }
-                        let (lo, hi) = (li.min(lk), li.max(lk));
-                        let rg = rc * Vector3::from(g[hi]);
-                        let val = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
-                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
-                        w[p] += val;
+            } else {
+                let cd = cell_dual(kind, nodes, pts);
+                let gg = green_gauss(kind, nodes, pts, cd.volume);
+                // total outward dual-face vector of node li in this cell
+                let mut sum_s = [0.0; 3];
+                for (e, edge) in kind.edges().iter().enumerate() {
+                    if edge[0] == li {
+                        sum_s = add(sum_s, cd.s[e]);
+                    } else if edge[1] == li {
+                        sum_s = sub(sum_s, cd.s[e]);
                     }
-                } else {
-                    let cd = cell_dual(kind, nodes, pts);
-                    let gg = green_gauss(kind, nodes, pts, cd.volume);
-                    // total outward dual-face vector of node li in this cell
-                    let mut sum_s = [0.0; 3];
-                    for (e, edge) in kind.edges().iter().enumerate() {
-                        if edge[0] == li {
-                            sum_s = add(sum_s, cd.s[e]);
-                        } else if edge[1] == li {
-                            sum_s = sub(sum_s, cd.s[e]);
-                        }
+                }
+                let rs = rc * Vector3::from(sum_s);
+                for (lk, gk) in gg.iter().enumerate() {
+                    if lk == li {
+                        continue;
                     }
-                    let rs = rc * Vector3::from(sum_s);
-                    for (lk, gk) in gg.iter().enumerate() {
-                        if lk == li {
-                            continue;
-                        }
-                        let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
-                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
-                        w[p] += val;
-                    }
+                    let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
+                    let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
+                    w[p] += val;
                 }
             }
-            w
-        })
-        .collect();
-    rows.into_iter().flatten().collect()
+        }
+    });
+    out
 }

@@ -223,6 +223,7 @@ impl std::error::Error for Collective {}
 /// Rank 0's split of the whole mesh: the METIS part of every node and the locality keys.
 fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let mesh = &setup.mesh;
+    crate::distribute::log_memory("reading the scenario and mesh");
     tracing::info!("splitting {} nodes into {size} parts (METIS)", mesh.n_nodes());
     let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
     let weights = eprop_partition::degree_weights(&xadj);
@@ -409,7 +410,9 @@ pub fn run_simulation(
         (out, 0.0)
     } else {
         let mut out = SeriesWriter::create(&sim.setup.output, layout, sim.global.as_ref(), &spec, io_comm)?;
+        crate::distribute::log_memory("the static output");
         let t = write(&sim, &mut out)?;
+        crate::distribute::log_memory("the first output step");
         (out, t)
     };
     let restarted_at = sim.step;

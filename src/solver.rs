@@ -34,6 +34,13 @@ pub fn hash_unit(mut x: u64) -> f64 {
     (x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
 }
 
+/// The interior rows `0..n` in pieces of at least 16k rows, at most 16 of them: between two
+/// pieces MPI gets a chance to move the halo messages (see `Comm::exchange_overlapped`).
+fn pieces(n: usize) -> impl Iterator<Item = std::ops::Range<usize>> {
+    let size = n.div_ceil(16).max(16 * 1024);
+    (0..n.div_ceil(size)).map(move |k| k * size..((k + 1) * size).min(n))
+}
+
 /// The propagation state and operator of one process. Rows `0..n_interior` read owned
 /// values only; rows `n_interior..n_rows` also read halo values.
 pub struct Propagation {
@@ -64,18 +71,27 @@ impl Propagation {
             op, phi, next, grad, ..
         } = self;
         if op.needs_gradients() {
-            comm.exchange_overlapped(phi.as_flattened_mut(), 3, &mut |x| {
-                op.gradients(as_v3(x), grad, 0..ni);
+            comm.exchange_overlapped(phi.as_flattened_mut(), 3, &mut |x, progress| {
+                for r in pieces(ni) {
+                    op.gradients(as_v3(x), grad, r);
+                    progress();
+                }
             });
             op.gradients(phi, grad, ni..n);
             let phi: &[V3] = phi;
-            comm.exchange_overlapped(grad.as_flattened_mut(), 9, &mut |g| {
-                op.step_rows(phi, g.as_chunks::<9>().0, next, h, 0..ni);
+            comm.exchange_overlapped(grad.as_flattened_mut(), 9, &mut |g, progress| {
+                for r in pieces(ni) {
+                    op.step_rows(phi, g.as_chunks::<9>().0, next, h, r);
+                    progress();
+                }
             });
             op.step_rows(phi, grad, next, h, ni..n);
         } else {
-            comm.exchange_overlapped(phi.as_flattened_mut(), 3, &mut |x| {
-                op.step_rows(as_v3(x), &[], next, h, 0..ni);
+            comm.exchange_overlapped(phi.as_flattened_mut(), 3, &mut |x, progress| {
+                for r in pieces(ni) {
+                    op.step_rows(as_v3(x), &[], next, h, r);
+                    progress();
+                }
             });
             op.step_rows(phi, &[], next, h, ni..n);
         }
@@ -390,7 +406,8 @@ impl Simulation {
         let part = vec![0u32; m.n_nodes()];
         let plan = Plan::new(m.n_nodes(), &m.offsets, &m.conn, &part, 0, Some(&morton_keys(m)));
         let local = setup.restrict(&plan);
-        Self::new_with(local, Box::new(Serial), plan, Some(setup.mesh))
+        let Setup { mesh, .. } = setup; // the global per-node arrays go before the build
+        Self::new_with(local, Box::new(Serial), plan, Some(mesh))
     }
 
     /// A simulation of this process's part: `setup` is its local view (`Setup::restrict`),
@@ -402,7 +419,9 @@ impl Simulation {
         let (n_owned, n_interior) = (plan.n_owned, plan.n_interior);
         let n_global = comm.sum_i128(n_owned as i128) as usize;
         let inc = Incidence::new(mesh);
-        let dual = Dual::build(mesh, &inc, n_owned, Some(gid.as_slice()));
+        crate::distribute::log_memory("the local mesh and plan");
+        let mut dual = Dual::build(mesh, &inc, n_owned, Some(gid.as_slice()));
+        crate::distribute::log_memory("the dual geometry");
         let inactive_nodes = comm.sum_i128(dual.vol.iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
         // activity of halo nodes comes from their owners; only fixedness matters there
         let active: Vec<bool> = (0..nl)
@@ -412,8 +431,11 @@ impl Simulation {
         let r = &setup.r;
         let op = match setup.scheme {
             Scheme::Compact => {
+                dual.release_pairs(); // S_ij are not needed by compact: free them first
                 let a = compact_coefficients(mesh, &inc, &dual, r);
-                let c = Compact::new(&dual, &a, &active);
+                crate::distribute::log_memory("the coefficients");
+                let col = std::mem::take(&mut dual.col);
+                let c = Compact::from_pairs(&dual.row_ptr[..=n_owned], col, a, &dual.vol, &active);
                 if setup.scenario.file.model.operator_precision == "float32" {
                     Operator::Compact(c.into_f32())
                 } else {
@@ -423,6 +445,10 @@ impl Simulation {
             Scheme::Paper { correction } => Operator::Paper(Paper::new(&dual, &mesh.points, r, &active, correction)),
         };
         drop(inc);
+        dual.release_pairs();
+        dual.col = Vec::new();
+        dual.row_ptr = Vec::new();
+        crate::distribute::log_memory("the operator");
         let mut prop = Propagation::new(op, nl, n_interior);
         tracing::info!(
             "geometry and operator built ({} rows); searching the stable substep",
