@@ -57,6 +57,24 @@ fn bitwise_identical_on_1_to_4_ranks_generated_mesh() {
     );
 }
 
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_mixed_elements() {
+    use eprop_io::generate::{box_mesh, BoxCells};
+    let d = tempfile::tempdir().unwrap();
+    let box_case =
+        "[[fixed]]\nhalfspace = { point = [0.0, 0.0, 0.001], normal = [0.0, 0.0, -1.0] }\n[[load]]\npatch = { center = [0.5, 0.5, 1.0], radius = 0.3 }\nnormal = 1.0\n";
+    for (cells, file) in [(BoxCells::PyramidTet, "pyr.vtu"), (BoxCells::Hex, "hex.msh")] {
+        let mesh = d.path().join(file);
+        eprop_io::write_mesh(&box_mesh([1.0, 1.0, 1.0], [5, 4, 6], cells).unwrap(), &mesh).unwrap();
+        check_ranks(&mesh, box_case, file);
+        check_ranks(
+            &mesh,
+            &format!("[model]\nscheme = \"paper\"\n{box_case}"),
+            &format!("{file}-paper"),
+        );
+    }
+}
+
 /// Both schemes on a shared organ mesh (skipped without the shared data).
 fn organ(name: &str, setting: &str, tag: &str) {
     let Some(mesh) = common::shared_mesh(name) else {
