@@ -8,7 +8,6 @@
 
 use crate::mesh::{face_key, Mesh};
 use anyhow::{bail, Result};
-use std::collections::HashMap;
 
 /// Options of `validate`.
 #[derive(Clone, Copy, Debug, Default)]
@@ -69,12 +68,16 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
             );
         }
     }
-    // duplicate cells: the same node set
-    let mut seen: HashMap<Vec<u32>, usize> = HashMap::with_capacity(mesh.n_cells());
+    if mesh.n_cells() >= 1 << 29 {
+        bail!(
+            "{src}: {} cells is more than eprop handles (2^29); fix: split the mesh",
+            mesh.n_cells()
+        );
+    }
+    // a node repeated inside one cell
     for c in 0..mesh.n_cells() {
-        let mut k = mesh.cell(c).to_vec();
-        k.sort_unstable();
-        if k.windows(2).any(|w| w[0] == w[1]) {
+        let k = sorted_key(mesh.cell(c));
+        if k.windows(2).any(|w| w[0] == w[1] && w[0] != u32::MAX) {
             let ids: Vec<u64> = mesh.cell(c).iter().map(|&n| mesh.node_id(n as usize)).collect();
             bail!(
                 "{src}: cell {} ({}) repeats a node (nodes {ids:?}) and has zero volume; fix: remove the degenerate cell or re-mesh",
@@ -82,16 +85,29 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
                 mesh.kinds[c].name()
             );
         }
-        if let Some(&d) = seen.get(&k) {
-            bail!(
-                "{src}: cells {} and {} are duplicates (same nodes); fix: remove one of them",
-                mesh.cell_id(d),
-                mesh.cell_id(c)
-            );
-        }
-        seen.insert(k, c);
     }
-    drop(seen);
+    // duplicate cells (the same node set): cells grouped by their smallest node, compared
+    // within each group (no table of every cell's key)
+    {
+        let (ptr, cells) = group_by_node(np, mesh.n_cells(), 1, |c, _| mesh.cell(c).iter().min().copied());
+        let mut keys: Vec<([u32; 8], u32)> = Vec::new();
+        for n in 0..np {
+            let g = &cells[ptr[n] as usize..ptr[n + 1] as usize];
+            if g.len() < 2 {
+                continue;
+            }
+            keys.clear();
+            keys.extend(g.iter().map(|&c| (sorted_key(mesh.cell(c as usize)), c)));
+            keys.sort_unstable();
+            if let Some(w) = keys.windows(2).find(|w| w[0].0 == w[1].0) {
+                bail!(
+                    "{src}: cells {} and {} are duplicates (same nodes); fix: remove one of them",
+                    mesh.cell_id(w[0].1 as usize),
+                    mesh.cell_id(w[1].1 as usize)
+                );
+            }
+        }
+    }
     // orientation and zero volume
     let mut flipped = 0usize;
     let mut first = 0u64;
@@ -130,37 +146,48 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
         mesh.warnings
             .push(format!("{flipped} inverted cell(s) reoriented (first: cell {first})"));
     }
-    // faces shared by more than two cells
-    let mut faces: Vec<([u32; 4], u32)> = Vec::with_capacity(mesh.n_cells() * 4);
-    for c in 0..mesh.n_cells() {
-        let nodes = mesh.cell(c);
-        for face in mesh.kinds[c].faces() {
-            faces.push((face_key(nodes, face), c as u32));
+    // faces shared by more than two cells: faces grouped by their smallest node
+    {
+        let faces_of = |c: usize| mesh.kinds[c].faces();
+        let (ptr, items) = group_by_node(np, mesh.n_cells(), 8, |c, f| {
+            let face = faces_of(c).get(f)?;
+            Some(face_key(mesh.cell(c), face)[0])
+        });
+        let mut keys: Vec<([u32; 4], u32)> = Vec::new();
+        for n in 0..np {
+            let g = &items[ptr[n] as usize..ptr[n + 1] as usize];
+            if g.len() < 3 {
+                continue;
+            }
+            keys.clear();
+            keys.extend(g.iter().map(|&it| {
+                let (c, f) = ((it >> 3) as usize, (it & 7) as usize);
+                (face_key(mesh.cell(c), faces_of(c)[f]), c as u32)
+            }));
+            keys.sort_unstable();
+            let mut i = 0;
+            while i < keys.len() {
+                let mut j = i + 1;
+                while j < keys.len() && keys[j].0 == keys[i].0 {
+                    j += 1;
+                }
+                if j - i > 2 {
+                    let ids: Vec<u64> = keys[i]
+                        .0
+                        .iter()
+                        .filter(|&&n| n != u32::MAX)
+                        .map(|&n| mesh.node_id(n as usize))
+                        .collect();
+                    let cells: Vec<u64> = keys[i..j].iter().map(|f| mesh.cell_id(f.1 as usize)).collect();
+                    bail!(
+                        "{src}: the face with nodes {ids:?} is shared by {} cells ({cells:?}); a face may bound at most two cells (non-manifold); fix: remove the overlapping cells or re-mesh",
+                        j - i
+                    );
+                }
+                i = j;
+            }
         }
     }
-    faces.sort_unstable();
-    let mut i = 0;
-    while i < faces.len() {
-        let mut j = i + 1;
-        while j < faces.len() && faces[j].0 == faces[i].0 {
-            j += 1;
-        }
-        if j - i > 2 {
-            let ids: Vec<u64> = faces[i]
-                .0
-                .iter()
-                .filter(|&&n| n != u32::MAX)
-                .map(|&n| mesh.node_id(n as usize))
-                .collect();
-            let cells: Vec<u64> = faces[i..j].iter().map(|f| mesh.cell_id(f.1 as usize)).collect();
-            bail!(
-                "{src}: the face with nodes {ids:?} is shared by {} cells ({cells:?}); a face may bound at most two cells (non-manifold); fix: remove the overlapping cells or re-mesh",
-                j - i
-            );
-        }
-        i = j;
-    }
-    drop(faces);
     // unreferenced nodes: drop them, keep input ids of the rest
     let mut used = vec![false; np];
     for &n in &mesh.conn {
@@ -228,6 +255,47 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// The nodes of a cell, sorted, padded with `u32::MAX` (cells have at most 8 nodes).
+fn sorted_key(nodes: &[u32]) -> [u32; 8] {
+    let mut k = [u32::MAX; 8];
+    for (d, &n) in k.iter_mut().zip(nodes) {
+        *d = n;
+    }
+    k.sort_unstable();
+    k
+}
+
+/// Items `(cell, slot)` for `slot < per_cell`, grouped by the node `key` gives them (`None`:
+/// no such item), as CSR: `ptr` per node, items encoded `cell * per_cell + slot` (`per_cell`
+/// is 1 or 8). Two passes, so the memory is 4 bytes per item.
+fn group_by_node(
+    np: usize,
+    n_cells: usize,
+    per_cell: usize,
+    key: impl Fn(usize, usize) -> Option<u32>,
+) -> (Vec<u32>, Vec<u32>) {
+    let key = &key;
+    let keys = |c: usize| (0..per_cell).filter_map(move |f| key(c, f).map(|n| (f, n)));
+    let mut ptr = vec![0u32; np + 1];
+    for c in 0..n_cells {
+        for (_, n) in keys(c) {
+            ptr[n as usize + 1] += 1;
+        }
+    }
+    for n in 0..np {
+        ptr[n + 1] += ptr[n];
+    }
+    let mut at: Vec<u32> = ptr[..np].to_vec();
+    let mut items = vec![0u32; ptr[np] as usize];
+    for c in 0..n_cells {
+        for (f, n) in keys(c) {
+            items[at[n as usize] as usize] = (c * per_cell + f) as u32;
+            at[n as usize] += 1;
+        }
+    }
+    (ptr, items)
 }
 
 #[cfg(test)]
