@@ -376,6 +376,10 @@ impl Scenario {
         let line = locate(&self.text, section, index, key)
             .map(|l| format!(":{l}"))
             .unwrap_or_default();
+        let mut msg = msg.to_string();
+        if !msg.contains("fix:") {
+            msg += &format!("; fix: change `{key}` in [{section}] (`eprop run --help` lists every scenario key)");
+        }
         anyhow!("{}{line}: [{section}] {key}: {msg}", self.path.display())
     }
 }
@@ -1012,7 +1016,7 @@ pub fn select(sc: &Scenario, mesh: &Mesh, s: &SelectSec, section: &str, k: usize
                     k,
                     "group",
                     format!(
-                        "no physical group `{name}` in {}; known groups: {:?}",
+                        "no physical group `{name}` in {}; known groups: {:?}; fix: name one of those, or select by `tag = N`, `box`, `sphere` or `halfspace` (.vtu, .vtk and TetGen files carry tags but no group names)",
                         mesh.source, known
                     ),
                 ));

@@ -74,6 +74,7 @@ fn expect_failure(dir: &Path, scenario: &str, needles: &[&str]) {
         err.contains("bad.toml") || err.contains(".msh") || err.contains(".h5"),
         "message names no file: {err}"
     );
+    assert!(err.contains("fix:"), "message gives no fix: {err}");
 }
 
 #[test]
