@@ -217,6 +217,17 @@ pub fn par_rows<T: Send, R: Send>(
     row_ptr: &[usize],
     f: impl Fn(usize, &mut [T]) -> R + Sync + Send,
 ) -> Vec<R> {
+    par_rows_with(data, row_ptr, |_, _| (), |_, i, row| f(i, row))
+}
+
+/// `par_rows` with a context built once per block of rows (`init(first row, end row)`), shared
+/// by the rows of that block.
+pub fn par_rows_with<T: Send, R: Send, C>(
+    data: &mut [T],
+    row_ptr: &[usize],
+    init: impl Fn(usize, usize) -> C + Sync + Send,
+    f: impl Fn(&C, usize, &mut [T]) -> R + Sync + Send,
+) -> Vec<R> {
     const BLOCK: usize = 1024;
     let n = row_ptr.len() - 1;
     let mut blocks = Vec::with_capacity(n.div_ceil(BLOCK));
@@ -230,13 +241,12 @@ pub fn par_rows<T: Send, R: Send>(
     let out: Vec<Vec<R>> = blocks
         .into_par_iter()
         .map(|(r0, r1, block)| {
-            let base = row_ptr[r0];
+            let ctx = init(r0, r1);
             let mut block = block;
             let mut out = Vec::with_capacity(r1 - r0);
             for i in r0..r1 {
                 let (row, tail) = std::mem::take(&mut block).split_at_mut(row_ptr[i + 1] - row_ptr[i]);
-                debug_assert!(row_ptr[i] >= base);
-                out.push(f(i, row));
+                out.push(f(&ctx, i, row));
                 block = tail;
             }
             out
@@ -252,16 +262,29 @@ impl Dual {
         let mask = boundary_mask(mesh);
         let pts = &mesh.points;
         let mut s = vec![[0.0; 3]; col.len()];
-        let rows: Vec<(f64, [f64; 3], f64)> = par_rows(&mut s, &row_ptr[..=n_rows], |i, s| {
+        // the dual of each cell of a block of rows, computed once for the block (the rows of a
+        // block are near each other, so few cells are computed in two blocks)
+        let cell_duals = |r0: usize, r1: usize| {
+            let mut cells: Vec<u32> = (r0..r1).flat_map(|i| inc.of(i).iter().copied()).collect();
+            cells.sort_unstable();
+            cells.dedup();
+            let duals: Vec<CellDual> = cells
+                .iter()
+                .map(|&c| cell_dual(mesh.kinds[c as usize], mesh.cell(c as usize), pts))
+                .collect();
+            (cells, duals)
+        };
+        let rows: Vec<(f64, [f64; 3], f64)> = par_rows_with(&mut s, &row_ptr[..=n_rows], cell_duals, |ctx, i, s| {
+            let (cells, duals) = ctx;
             let cols = &col[row_ptr[i]..row_ptr[i + 1]];
             let mut v = 0.0;
             let mut a = [0.0; 3];
             for &c in inc.of(i) {
+                let cd = &duals[cells.binary_search(&c).unwrap()];
                 let c = c as usize;
                 let kind = mesh.kinds[c];
                 let nodes = mesh.cell(c);
                 let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                let cd = cell_dual(kind, nodes, pts);
                 v += cd.vol[li];
                 for (e, edge) in kind.edges().iter().enumerate() {
                     let (other, sign) = if edge[0] == li {

@@ -277,28 +277,71 @@ impl Mesh {
 /// Boundary faces of the volume cells: faces that belong to exactly one cell, wound outward.
 /// Returned as (cell index, local face index) in cell order.
 pub fn boundary_faces(mesh: &Mesh) -> Vec<(u32, u8)> {
-    let mut keys: Vec<([u32; 4], u32, u8)> = Vec::with_capacity(mesh.n_cells() * 4);
-    for c in 0..mesh.n_cells() {
-        let nodes = mesh.cell(c);
-        for (f, face) in mesh.kinds[c].faces().iter().enumerate() {
-            keys.push((face_key(nodes, face), c as u32, f as u8));
-        }
-    }
-    keys.sort_unstable_by_key(|a| a.0);
+    // faces grouped by their smallest node: 4 bytes per face, not a table of every face's key
+    let faces_of = |c: usize| mesh.kinds[c].faces();
+    let (ptr, items) = group_by_node(mesh.n_nodes(), mesh.n_cells(), 8, |c, f| {
+        let face = faces_of(c).get(f)?;
+        Some(face_key(mesh.cell(c), face)[0])
+    });
     let mut out = Vec::new();
-    let mut i = 0;
-    while i < keys.len() {
-        let mut j = i + 1;
-        while j < keys.len() && keys[j].0 == keys[i].0 {
-            j += 1;
+    let mut keys: Vec<([u32; 4], u32)> = Vec::new();
+    for n in 0..mesh.n_nodes() {
+        let g = &items[ptr[n] as usize..ptr[n + 1] as usize];
+        keys.clear();
+        keys.extend(g.iter().map(|&it| {
+            let (c, f) = ((it >> 3) as usize, (it & 7) as usize);
+            (face_key(mesh.cell(c), faces_of(c)[f]), it)
+        }));
+        keys.sort_unstable_by_key(|k| k.0);
+        let mut i = 0;
+        while i < keys.len() {
+            let mut j = i + 1;
+            while j < keys.len() && keys[j].0 == keys[i].0 {
+                j += 1;
+            }
+            if j - i == 1 {
+                out.push((keys[i].1 >> 3, (keys[i].1 & 7) as u8));
+            }
+            i = j;
         }
-        if j - i == 1 {
-            out.push((keys[i].1, keys[i].2));
-        }
-        i = j;
     }
     out.sort_unstable();
     out
+}
+
+/// Items `(cell, slot)` for `slot < per_cell`, grouped by the node `key` gives them (`None`:
+/// no such item), as CSR: `ptr` per node, items encoded `cell * per_cell + slot` (`per_cell`
+/// is 1 or 8). Two passes, so the memory is 4 bytes per item.
+pub(crate) fn group_by_node(
+    np: usize,
+    n_cells: usize,
+    per_cell: usize,
+    key: impl Fn(usize, usize) -> Option<u32>,
+) -> (Vec<u32>, Vec<u32>) {
+    assert!(
+        (n_cells as u64) * (per_cell as u64) < u32::MAX as u64,
+        "more than 2^32 cell items: {n_cells} cells"
+    );
+    let key = &key;
+    let keys = |c: usize| (0..per_cell).filter_map(move |f| key(c, f).map(|n| (f, n)));
+    let mut ptr = vec![0u32; np + 1];
+    for c in 0..n_cells {
+        for (_, n) in keys(c) {
+            ptr[n as usize + 1] += 1;
+        }
+    }
+    for n in 0..np {
+        ptr[n + 1] += ptr[n];
+    }
+    let mut at: Vec<u32> = ptr[..np].to_vec();
+    let mut items = vec![0u32; ptr[np] as usize];
+    for c in 0..n_cells {
+        for (f, n) in keys(c) {
+            items[at[n as usize] as usize] = (c * per_cell + f) as u32;
+            at[n as usize] += 1;
+        }
+    }
+    (ptr, items)
 }
 
 /// Sorted node ids of a face, padded with u32::MAX.

@@ -6,7 +6,7 @@
 //! error when `strict`), nodes that no cell uses are dropped (the kept nodes keep their input
 //! ids). Several disconnected components are reported as a warning.
 
-use crate::mesh::{face_key, Mesh};
+use crate::mesh::{face_key, group_by_node, Mesh};
 use anyhow::{bail, Result};
 
 /// Options of `validate`.
@@ -265,37 +265,6 @@ fn sorted_key(nodes: &[u32]) -> [u32; 8] {
     }
     k.sort_unstable();
     k
-}
-
-/// Items `(cell, slot)` for `slot < per_cell`, grouped by the node `key` gives them (`None`:
-/// no such item), as CSR: `ptr` per node, items encoded `cell * per_cell + slot` (`per_cell`
-/// is 1 or 8). Two passes, so the memory is 4 bytes per item.
-fn group_by_node(
-    np: usize,
-    n_cells: usize,
-    per_cell: usize,
-    key: impl Fn(usize, usize) -> Option<u32>,
-) -> (Vec<u32>, Vec<u32>) {
-    let key = &key;
-    let keys = |c: usize| (0..per_cell).filter_map(move |f| key(c, f).map(|n| (f, n)));
-    let mut ptr = vec![0u32; np + 1];
-    for c in 0..n_cells {
-        for (_, n) in keys(c) {
-            ptr[n as usize + 1] += 1;
-        }
-    }
-    for n in 0..np {
-        ptr[n + 1] += ptr[n];
-    }
-    let mut at: Vec<u32> = ptr[..np].to_vec();
-    let mut items = vec![0u32; ptr[np] as usize];
-    for c in 0..n_cells {
-        for (f, n) in keys(c) {
-            items[at[n as usize] as usize] = (c * per_cell + f) as u32;
-            at[n as usize] += 1;
-        }
-    }
-    (ptr, items)
 }
 
 #[cfg(test)]
