@@ -94,13 +94,44 @@ fn short(s: &str) -> String {
     }
 }
 
-/// A raw element before node ids are resolved.
-struct RawElem {
-    line: usize,
-    id: u64,
-    gtype: u32,
-    tag: i32,
+/// Raw elements before node ids are resolved, in flat arrays (no allocation per element).
+#[derive(Default)]
+struct RawElems {
+    line: Vec<usize>,
+    id: Vec<u64>,
+    gtype: Vec<u32>,
+    tag: Vec<i32>,
+    offsets: Vec<usize>,
     nodes: Vec<u64>,
+}
+
+impl RawElems {
+    fn push(&mut self, line: usize, id: u64, gtype: u32, tag: i32, nodes: &[u64]) {
+        if self.offsets.is_empty() {
+            self.offsets.push(0);
+        }
+        self.line.push(line);
+        self.id.push(id);
+        self.gtype.push(gtype);
+        self.tag.push(tag);
+        self.nodes.extend_from_slice(nodes);
+        self.offsets.push(self.nodes.len());
+    }
+    /// Room for `n` more elements of up to four nodes (callers bound `n` by the data left).
+    fn reserve(&mut self, n: usize) {
+        self.line.reserve(n);
+        self.id.reserve(n);
+        self.gtype.reserve(n);
+        self.tag.reserve(n);
+        self.offsets.reserve(n + 1);
+        self.nodes.reserve(4 * n);
+    }
+    fn len(&self) -> usize {
+        self.id.len()
+    }
+    fn nodes(&self, e: usize) -> &[u64] {
+        &self.nodes[self.offsets[e]..self.offsets[e + 1]]
+    }
 }
 
 fn nodes_per_type(t: u32) -> Option<(usize, u8)> {
@@ -204,7 +235,7 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
     }
     read_nodes_lines(&mut rd, n[0], &mut ids, &mut pts)?;
     rd.expect("$ENDNOD")?;
-    let mut elems = Vec::new();
+    let mut elems = RawElems::default();
     loop {
         let (ln, l) = match rd.next("$ELM") {
             Ok(x) => x,
@@ -220,13 +251,8 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
                 if v.len() < 5 || v[4] < 0 || (v.len() - 5) as u64 != v[4] as u64 {
                     return Err(rd.err(ln3, format!("element line has {} numbers; expected `id type phys elem n` and n node ids; fix: the count disagrees with the $ELM header or the line is cut", v.len())));
                 }
-                elems.push(RawElem {
-                    line: ln3,
-                    id: v[0] as u64,
-                    gtype: v[1] as u32,
-                    tag: v[2] as i32,
-                    nodes: v[5..].iter().map(|&x| x as u64).collect(),
-                });
+                let nodes: Vec<u64> = v[5..].iter().map(|&x| x as u64).collect();
+                elems.push(ln3, v[0] as u64, v[1] as u32, v[2] as i32, &nodes);
             }
             rd.expect("$ENDELM")?;
         } else {
@@ -303,7 +329,7 @@ fn read_physical_names(rd: &mut Lines) -> Result<BTreeMap<(u8, i32), String>> {
 fn parse_v2(mut rd: Lines) -> Result<Mesh> {
     let mut ids = Vec::new();
     let mut pts = Vec::new();
-    let mut elems = Vec::new();
+    let mut elems = RawElems::default();
     let mut names = BTreeMap::new();
     let mut saw_nodes = false;
     loop {
@@ -349,13 +375,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
                             ));
                         }
                     }
-                    elems.push(RawElem {
-                        line: ln3,
-                        id: v[0] as u64,
-                        gtype,
-                        tag,
-                        nodes,
-                    });
+                    elems.push(ln3, v[0] as u64, gtype, tag, &nodes);
                 }
                 rd.expect("$EndElements")?;
             }
@@ -375,7 +395,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
 fn parse_v41(mut rd: Lines) -> Result<Mesh> {
     let mut ids = Vec::new();
     let mut pts = Vec::new();
-    let mut elems = Vec::new();
+    let mut elems = RawElems::default();
     let mut names = BTreeMap::new();
     // (dim, entity tag) -> first physical tag
     let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
@@ -492,13 +512,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                                 return Err(rd.err(ln4, format!("element {} of type {gtype} has {} node ids, expected {nn}; fix: the block count disagrees with its lines", v[0], v.len() - 1)));
                             }
                         }
-                        elems.push(RawElem {
-                            line: ln4,
-                            id: v[0],
-                            gtype,
-                            tag,
-                            nodes: v[1..].to_vec(),
-                        });
+                        elems.push(ln4, v[0], gtype, tag, &v[1..]);
                         count += 1;
                     }
                 }
@@ -530,7 +544,7 @@ fn build(
     source: String,
     ids: Vec<u64>,
     pts: Vec<[f64; 3]>,
-    elems: Vec<RawElem>,
+    elems: RawElems,
     names: BTreeMap<(u8, i32), String>,
     rd: &Lines,
 ) -> Result<Mesh> {
@@ -544,7 +558,7 @@ fn build_at(
     source: String,
     ids: Vec<u64>,
     pts: Vec<[f64; 3]>,
-    elems: Vec<RawElem>,
+    elems: RawElems,
     names: BTreeMap<(u8, i32), String>,
     loc: &dyn Fn(usize) -> String,
 ) -> Result<Mesh> {
@@ -559,32 +573,34 @@ fn build_at(
     mesh.node_ids = ids;
     mesh.group_names = names;
     let mut buf = Vec::with_capacity(8);
-    for e in &elems {
-        let Some((nn, dim)) = nodes_per_type(e.gtype) else {
-            return Err(anyhow!("{}: element {}: {}", loc(e.line), e.id, type_problem(e.gtype)));
+    for e in 0..elems.len() {
+        let (line, id, gtype, tag, nodes) = (elems.line[e], elems.id[e], elems.gtype[e], elems.tag[e], elems.nodes(e));
+        let Some((nn, dim)) = nodes_per_type(gtype) else {
+            return Err(anyhow!("{}: element {}: {}", loc(line), id, type_problem(gtype)));
         };
-        if e.nodes.len() != nn {
+        if nodes.len() != nn {
             return Err(anyhow!(
                 "{}: element {} has {} node ids, expected {nn}; fix: repair the element",
-                loc(e.line),
-                e.id,
-                e.nodes.len()
+                loc(line),
+                id,
+                nodes.len()
             ));
         }
         buf.clear();
-        for &n in &e.nodes {
+        for &n in nodes {
             let Some(&k) = index.get(&n) else {
-                return Err(anyhow!("{}: element {} names node {n}, which the file does not define; fix: repair the element or add the node", loc(e.line), e.id));
+                return Err(anyhow!("{}: element {} names node {n}, which the file does not define; fix: repair the element or add the node", loc(line), id));
             };
             buf.push(k);
         }
-        if let (3, Some(kind)) = (dim, CellKind::from_gmsh(e.gtype)) {
-            mesh.push_cell(kind, &buf, e.tag);
-            mesh.cell_ids.push(e.id);
+        if let (3, Some(kind)) = (dim, CellKind::from_gmsh(gtype)) {
+            mesh.push_cell(kind, &buf, tag);
+            mesh.cell_ids.push(id);
         } else {
-            mesh.facets.push(dim, e.tag, &buf);
+            mesh.facets.push(dim, tag, &buf);
         }
     }
+    drop(elems);
     if mesh.n_cells() == 0 {
         bail!("{source}: no volume cells (tetrahedra, hexahedra, prisms or pyramids); fix: mesh the volume (gmsh -3), not only its surface");
     }
@@ -821,7 +837,7 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
     b.expect("$EndMeshFormat")?;
     let mut ids: Vec<u64> = Vec::new();
     let mut pts: Vec<[f64; 3]> = Vec::new();
-    let mut elems: Vec<RawElem> = Vec::new();
+    let mut elems = RawElems::default();
     let mut names = BTreeMap::new();
     let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
     let mut saw_nodes = false;
@@ -965,13 +981,7 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
                         for _ in 0..nn {
                             nodes.push(b.i32("an element node")? as u32 as u64);
                         }
-                        elems.push(RawElem {
-                            line: p,
-                            id,
-                            gtype,
-                            tag,
-                            nodes,
-                        });
+                        elems.push(p, id, gtype, tag, &nodes);
                     }
                     done += follow;
                 }
@@ -1006,13 +1016,7 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
                         for _ in 0..nn {
                             nodes.push(b.size("an element node")?);
                         }
-                        elems.push(RawElem {
-                            line: p,
-                            id,
-                            gtype,
-                            tag,
-                            nodes,
-                        });
+                        elems.push(p, id, gtype, tag, &nodes);
                     }
                 }
                 if elems.len() != n {
