@@ -645,7 +645,7 @@ impl Setup {
         }
 
         // every piece of the mesh needs its own fixed node, else its energy never leaves
-        let (comp, ncomp) = components(&mesh);
+        let (comp, ncomp) = eprop_io::mesh::components(&mesh);
         if ncomp > 1 {
             let mut has_cells = vec![false; ncomp];
             let mut held = vec![false; ncomp];
@@ -1060,42 +1060,6 @@ pub fn surface_node_areas(mesh: &Mesh) -> Vec<f64> {
         }
     }
     area
-}
-
-/// Connected components of the cells (nodes sharing a cell): a component id per node, and
-/// the number of components (cell-less nodes get their own ids).
-pub fn components(mesh: &Mesh) -> (Vec<u32>, usize) {
-    let n = mesh.n_nodes();
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn root(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
-    }
-    for c in 0..mesh.n_cells() {
-        let cell = mesh.cell(c);
-        let r0 = root(&mut parent, cell[0]);
-        for &v in &cell[1..] {
-            let r = root(&mut parent, v);
-            if r != r0 {
-                parent[r as usize] = r0;
-            }
-        }
-    }
-    let mut id = vec![u32::MAX; n];
-    let mut comp = vec![0u32; n];
-    let mut count = 0usize;
-    for i in 0..n {
-        let r = root(&mut parent, i as u32) as usize;
-        if id[r] == u32::MAX {
-            id[r] = count as u32;
-            count += 1;
-        }
-        comp[i] = id[r];
-    }
-    (comp, count)
 }
 
 pub fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {

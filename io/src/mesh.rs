@@ -277,36 +277,42 @@ impl Mesh {
 /// Boundary faces of the volume cells: faces that belong to exactly one cell, wound outward.
 /// Returned as (cell index, local face index) in cell order.
 pub fn boundary_faces(mesh: &Mesh) -> Vec<(u32, u8)> {
-    // faces grouped by their smallest node: 4 bytes per face, not a table of every face's key
+    let mut out = Vec::new();
+    let _ = for_each_face(mesh, |_, cells| {
+        if let [one] = cells {
+            out.push(*one);
+        }
+        Ok::<(), ()>(())
+    });
+    out.sort_unstable();
+    out
+}
+
+/// Calls `f(key, cells)` for every distinct face of the mesh: its sorted node ids (`face_key`)
+/// and the (cell, local face) pairs that have it, in cell order. Faces are grouped by their
+/// smallest node (4 bytes per face, not a table of every face's key). Stops at the first error.
+pub fn for_each_face<E>(mesh: &Mesh, mut f: impl FnMut(&[u32; 4], &[(u32, u8)]) -> Result<(), E>) -> Result<(), E> {
     let faces_of = |c: usize| mesh.kinds[c].faces();
     let (ptr, items) = group_by_node(mesh.n_nodes(), mesh.n_cells(), 8, |c, f| {
         let face = faces_of(c).get(f)?;
         Some(face_key(mesh.cell(c), face)[0])
     });
-    let mut out = Vec::new();
-    let mut keys: Vec<([u32; 4], u32)> = Vec::new();
+    let mut keys: Vec<([u32; 4], u32, u8)> = Vec::new();
+    let mut run: Vec<(u32, u8)> = Vec::new();
     for n in 0..mesh.n_nodes() {
-        let g = &items[ptr[n] as usize..ptr[n + 1] as usize];
         keys.clear();
-        keys.extend(g.iter().map(|&it| {
-            let (c, f) = ((it >> 3) as usize, (it & 7) as usize);
-            (face_key(mesh.cell(c), faces_of(c)[f]), it)
+        keys.extend(items[ptr[n] as usize..ptr[n + 1] as usize].iter().map(|&it| {
+            let (c, lf) = ((it >> 3) as usize, (it & 7) as usize);
+            (face_key(mesh.cell(c), faces_of(c)[lf]), c as u32, lf as u8)
         }));
-        keys.sort_unstable_by_key(|k| k.0);
-        let mut i = 0;
-        while i < keys.len() {
-            let mut j = i + 1;
-            while j < keys.len() && keys[j].0 == keys[i].0 {
-                j += 1;
-            }
-            if j - i == 1 {
-                out.push((keys[i].1 >> 3, (keys[i].1 & 7) as u8));
-            }
-            i = j;
+        keys.sort_unstable();
+        for group in keys.chunk_by(|a, b| a.0 == b.0) {
+            run.clear();
+            run.extend(group.iter().map(|k| (k.1, k.2)));
+            f(&group[0].0, &run)?;
         }
     }
-    out.sort_unstable();
-    out
+    Ok(())
 }
 
 /// Items `(cell, slot)` for `slot < per_cell`, grouped by the node `key` gives them (`None`:
@@ -352,4 +358,40 @@ pub fn face_key(nodes: &[u32], face: &[usize]) -> [u32; 4] {
     }
     k.sort_unstable();
     k
+}
+
+/// Connected components of the cells (nodes sharing a cell): a component id per node, and
+/// the number of components (cell-less nodes get their own ids).
+pub fn components(mesh: &Mesh) -> (Vec<u32>, usize) {
+    let n = mesh.n_nodes();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn root(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    for c in 0..mesh.n_cells() {
+        let cell = mesh.cell(c);
+        let r0 = root(&mut parent, cell[0]);
+        for &v in &cell[1..] {
+            let r = root(&mut parent, v);
+            if r != r0 {
+                parent[r as usize] = r0;
+            }
+        }
+    }
+    let mut id = vec![u32::MAX; n];
+    let mut comp = vec![0u32; n];
+    let mut count = 0usize;
+    for i in 0..n {
+        let r = root(&mut parent, i as u32) as usize;
+        if id[r] == u32::MAX {
+            id[r] = count as u32;
+            count += 1;
+        }
+        comp[i] = id[r];
+    }
+    (comp, count)
 }

@@ -6,7 +6,7 @@
 //! error when `strict`), nodes that no cell uses are dropped (the kept nodes keep their input
 //! ids). Several disconnected components are reported as a warning.
 
-use crate::mesh::{face_key, group_by_node, Mesh};
+use crate::mesh::{group_by_node, Mesh};
 use anyhow::{bail, Result};
 
 /// Options of `validate`.
@@ -146,48 +146,22 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
         mesh.warnings
             .push(format!("{flipped} inverted cell(s) reoriented (first: cell {first})"));
     }
-    // faces shared by more than two cells: faces grouped by their smallest node
-    {
-        let faces_of = |c: usize| mesh.kinds[c].faces();
-        let (ptr, items) = group_by_node(np, mesh.n_cells(), 8, |c, f| {
-            let face = faces_of(c).get(f)?;
-            Some(face_key(mesh.cell(c), face)[0])
-        });
-        let mut keys: Vec<([u32; 4], u32)> = Vec::new();
-        for n in 0..np {
-            let g = &items[ptr[n] as usize..ptr[n + 1] as usize];
-            if g.len() < 3 {
-                continue;
-            }
-            keys.clear();
-            keys.extend(g.iter().map(|&it| {
-                let (c, f) = ((it >> 3) as usize, (it & 7) as usize);
-                (face_key(mesh.cell(c), faces_of(c)[f]), c as u32)
-            }));
-            keys.sort_unstable();
-            let mut i = 0;
-            while i < keys.len() {
-                let mut j = i + 1;
-                while j < keys.len() && keys[j].0 == keys[i].0 {
-                    j += 1;
-                }
-                if j - i > 2 {
-                    let ids: Vec<u64> = keys[i]
-                        .0
-                        .iter()
-                        .filter(|&&n| n != u32::MAX)
-                        .map(|&n| mesh.node_id(n as usize))
-                        .collect();
-                    let cells: Vec<u64> = keys[i..j].iter().map(|f| mesh.cell_id(f.1 as usize)).collect();
-                    bail!(
-                        "{src}: the face with nodes {ids:?} is shared by {} cells ({cells:?}); a face may bound at most two cells (non-manifold); fix: remove the overlapping cells or re-mesh",
-                        j - i
-                    );
-                }
-                i = j;
-            }
+    // faces shared by more than two cells
+    crate::mesh::for_each_face(mesh, |key, cells| {
+        if cells.len() > 2 {
+            let ids: Vec<u64> = key
+                .iter()
+                .filter(|&&n| n != u32::MAX)
+                .map(|&n| mesh.node_id(n as usize))
+                .collect();
+            let cells: Vec<u64> = cells.iter().map(|f| mesh.cell_id(f.0 as usize)).collect();
+            bail!(
+                "{src}: the face with nodes {ids:?} is shared by {} cells ({cells:?}); a face may bound at most two cells (non-manifold); fix: remove the overlapping cells or re-mesh",
+                cells.len()
+            );
         }
-    }
+        Ok(())
+    })?;
     // unreferenced nodes: drop them, keep input ids of the rest
     let mut used = vec![false; np];
     for &n in &mesh.conn {
@@ -228,27 +202,8 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
             "{unused} node(s) used by no cell dropped (first: node {first}); the others keep their ids{extra}"
         ));
     }
-    // connected components over shared nodes
-    let n = mesh.n_nodes();
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn root(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
-    }
-    for c in 0..mesh.n_cells() {
-        let nodes = mesh.cell(c);
-        let a = root(&mut parent, nodes[0]);
-        for &m in &nodes[1..] {
-            let b = root(&mut parent, m);
-            if a != b {
-                parent[b as usize] = a;
-            }
-        }
-    }
-    let comps = (0..n as u32).filter(|&x| root(&mut parent, x) == x).count();
+    // connected components over shared nodes (every node is in a cell by now)
+    let (_, comps) = crate::mesh::components(mesh);
     if comps > 1 {
         mesh.warnings.push(format!(
             "the mesh has {comps} disconnected components; each needs its own fixed set (a free component drifts)"
