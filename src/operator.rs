@@ -95,33 +95,9 @@ impl Compact {
 
     /// `a` holds a_ij on the pair graph of `dual`; rows with `update[i] == false` are emptied.
     pub fn new(dual: &Dual, a: &[f64], update: &[bool]) -> Compact {
-        let mut row_ptr = Vec::with_capacity(dual.n_rows + 1);
-        let mut col = Vec::new();
-        let mut coef = Vec::new();
-        row_ptr.push(0u32);
-        for i in 0..dual.n_rows {
-            if update[i] {
-                let inv = 1.0 / dual.vol[i];
-                for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
-                    col.push(dual.col[p]);
-                    coef.push(a[p] * inv);
-                }
-            }
-            assert!(
-                col.len() < u32::MAX as usize,
-                "more than 2^32 stored pairs in one process"
-            );
-            row_ptr.push(col.len() as u32);
-        }
-        let n_cols = col.iter().map(|&j| j as usize + 1).max().unwrap_or(0).max(dual.n_rows);
-        Compact {
-            row_ptr,
-            col,
-            coef,
-            coef32: vec![],
-            n_cols,
-            kernel: Kernel::default(),
-        }
+        let pairs = dual.row_ptr[dual.n_rows];
+        let rows = &dual.row_ptr[..=dual.n_rows];
+        Self::from_pairs(rows, dual.col[..pairs].to_vec(), a[..pairs].to_vec(), &dual.vol, update)
     }
 
     /// Stores the coefficients in float32 (a third fewer bytes per substep; the rounded
@@ -182,9 +158,10 @@ impl Compact {
         [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
     }
 
-    /// y_i = x_i + h (L x)_i for the rows `start..start + y.len()`.
+    /// y_i = x_i + h (L x)_i for the rows `start..start + y.len()` with the vector kernel, when
+    /// it is chosen and this CPU has it; false (nothing done) otherwise.
     #[inline]
-    fn step_chunk(&self, x: &[V3], y: &mut [V3], h: f64, start: usize) {
+    fn vector_step(&self, x: &[V3], y: &mut [V3], h: f64, start: usize) -> bool {
         #[cfg(target_arch = "x86_64")]
         if self.kernel.vector && simd_available() {
             let pf = self.kernel.prefetch;
@@ -197,14 +174,10 @@ impl Compact {
                     avx::step_rows(&self.row_ptr, &self.col, &self.coef32, x, y, h, start, pf)
                 }
             }
-            return;
+            return true;
         }
-        for (k, yi) in y.iter_mut().enumerate() {
-            let i = start + k;
-            let l = self.row(i, x);
-            let xi = x[i];
-            *yi = [xi[0] + h * l[0], xi[1] + h * l[1], xi[2] + h * l[2]];
-        }
+        let _ = (x, y, h, start);
+        false
     }
 
     /// Gershgorin bound of the spectral radius of L.
@@ -487,12 +460,13 @@ impl Operator {
         if let Operator::Compact(c) = self {
             // the vector kernel reads x without bounds checks: every index is below n_cols
             assert!(x.len() >= c.n_cols, "potential shorter than the operator's columns");
-            y[range].par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
-                c.step_chunk(x, chunk, h, start + b * CHUNK);
-            });
-            return;
         }
         y[range].par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
+            if let Operator::Compact(c) = self {
+                if c.vector_step(x, chunk, h, start + b * CHUNK) {
+                    return;
+                }
+            }
             for (k, yi) in chunk.iter_mut().enumerate() {
                 let i = start + b * CHUNK + k;
                 let l = match self {
