@@ -125,6 +125,26 @@ fn cylinder_scenario(dir: &Path, rings: usize, layers: usize, steps: u64) -> std
     sc
 }
 
+/// A one-cube box (8 nodes, 6 tetrahedra) in `dir` and a one-step scenario on it.
+fn tiny_box_scenario(dir: &Path) -> std::path::PathBuf {
+    let tiny = dir.join("tiny.msh");
+    eprop_io::write_mesh(
+        &eprop_io::generate::box_mesh([1.0; 3], [1, 1, 1], eprop_io::generate::BoxCells::Tet).unwrap(),
+        &tiny,
+    )
+    .unwrap();
+    let sc = dir.join("tiny.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+            tiny.display()
+        ),
+    )
+    .unwrap();
+    sc
+}
+
 #[test]
 fn a_failing_rank_ends_the_job_quickly() {
     let d = tempfile::tempdir().unwrap();
@@ -136,20 +156,7 @@ fn a_failing_rank_ends_the_job_quickly() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("output directory"));
     assert!(t.elapsed() < Duration::from_secs(30));
     // more ranks than nodes of a tiny mesh
-    let tiny = d.path().join("tiny.msh");
-    eprop_io::write_mesh(
-        &eprop_io::generate::box_mesh([1.0; 3], [1, 1, 1], eprop_io::generate::BoxCells::Tet).unwrap(),
-        &tiny,
-    )
-    .unwrap();
-    std::fs::write(
-        &sc,
-        format!(
-            "[mesh]\nfile = \"{}\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
-            tiny.display()
-        ),
-    )
-    .unwrap();
+    let sc = tiny_box_scenario(d.path());
     let t = Instant::now();
     let out = mpirun(
         2,
@@ -257,21 +264,7 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
 #[test]
 fn more_ranks_than_nodes_is_a_clear_error() {
     let d = tempfile::tempdir().unwrap();
-    let tiny = d.path().join("tiny.msh");
-    eprop_io::write_mesh(
-        &eprop_io::generate::box_mesh([1.0; 3], [1, 1, 1], eprop_io::generate::BoxCells::Tet).unwrap(),
-        &tiny,
-    )
-    .unwrap();
-    let sc = d.path().join("s.toml");
-    std::fs::write(
-        &sc,
-        format!(
-            "[mesh]\nfile = \"{}\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
-            tiny.display()
-        ),
-    )
-    .unwrap();
+    let sc = tiny_box_scenario(d.path());
     let out = mpirun(
         9,
         &[

@@ -48,6 +48,12 @@ fn shared_present() -> bool {
     true
 }
 
+/// The JSON an eprop command printed; the command must have succeeded.
+fn json_of(out: std::process::Output, what: impl std::fmt::Display) -> serde_json::Value {
+    assert!(out.status.success(), "{what}: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 #[test]
 fn every_shipped_scenario_passes_check() {
     let all = scenarios();
@@ -57,13 +63,7 @@ fn every_shipped_scenario_passes_check() {
             continue;
         }
         let out = common::serial(&["check", p.to_str().unwrap(), "--json"], 1);
-        assert!(
-            out.status.success(),
-            "{}: {}",
-            p.display(),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let v = json_of(out, p.display());
         assert!(v["substeps"].as_u64().unwrap() >= 1);
         assert!(v["fixed_nodes"].as_u64().unwrap() >= 1);
         let text = std::fs::read_to_string(&p).unwrap();
@@ -100,13 +100,7 @@ fn organ_scenarios_run_on_one_and_two_ranks() {
             } else {
                 common::mpirun(n, &args)
             };
-            assert!(
-                out.status.success(),
-                "{} on {n}: {}",
-                p.display(),
-                String::from_utf8_lossy(&out.stderr)
-            );
-            let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            let v = json_of(out, format!("{} on {n}", p.display()));
             let m = v["max_displacement"].as_f64().unwrap();
             assert!(m > 0.0 && m.is_finite(), "{}: max |u| = {m}", p.display());
             last.push(h5);
@@ -153,13 +147,7 @@ fn every_shared_tet_mesh_runs_twenty_steps() {
             &["run", s.to_str().unwrap(), "-q", "--json", "-o", h5.to_str().unwrap()],
             1,
         );
-        assert!(
-            out.status.success(),
-            "{}: {}",
-            p.display(),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let v = json_of(out, p.display());
         assert_eq!(v["steps"].as_u64(), Some(20), "{}", p.display());
         let u = v["max_displacement"].as_f64().unwrap();
         assert!(u > 0.0 && u.is_finite(), "{}: max |u| = {u}", p.display());
