@@ -32,9 +32,11 @@ make() {
   fi
   cp "$shared/surface/$surf" "$work/$name.off"
   (cd "$work" && tetgen "-$switches" -Q "$name.off" >/dev/null)
-  for ext in node face ele; do # .ele last: the mesh is complete once it is there
-    mv "$work/$name.1.$ext" "$work/$name.$ext"
-    mv "$work/$name.$ext" "$out/$name.$ext"
+  # each file copied under a temporary name, then renamed in place (atomic); .ele last: the
+  # mesh is complete once it is there
+  for ext in node face ele; do
+    mv "$work/$name.1.$ext" "$out/.$name.$ext.part"
+    mv "$out/.$name.$ext.part" "$out/$name.$ext"
   done
   echo "organ_meshes: wrote $out/$name.ele ($(head -1 "$out/$name.node" | cut -d' ' -f1) nodes)"
 }
