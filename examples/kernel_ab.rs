@@ -12,7 +12,7 @@ fn main() -> anyhow::Result<()> {
     let scheme = a.get(3).cloned().unwrap_or("compact".into());
     let setup = eprop::bench::box_setup(cells, &scheme)?;
     let mut sim = eprop::solver::Simulation::new(setup)?;
-    let n = sim.n_owned;
+    let n = sim.n_owned();
     let variants: Vec<(String, Kernel)> = vec![
         (
             "portable".into(),
@@ -51,7 +51,7 @@ fn main() -> anyhow::Result<()> {
         ),
     ];
     let q = vec![(0u32, [1.0, 0.0, 0.0])];
-    let h = sim.h;
+    let h = sim.step_plan().h;
     let mut times: Vec<Vec<f64>> = vec![vec![]; variants.len()];
     let burst = (2e7 / n as f64).ceil() as usize; // about 0.4 s
     let t0 = Instant::now();

@@ -104,43 +104,41 @@ pub fn measure(
     tmp: &Path,
 ) -> Result<Case> {
     let n = sizes.nodes;
-    let q: Vec<(u32, [f64; 3])> = (0..sim.n_owned.min(1)).map(|i| (i as u32, [1.0, 0.0, 0.0])).collect();
-    let h = sim.h;
+    let q: Vec<(u32, [f64; 3])> = (0..sim.n_owned().min(1)).map(|i| (i as u32, [1.0, 0.0, 0.0])).collect();
+    let h = sim.step_plan().h;
     // calibrate: about 2 s of substeps, the same count on every process
     for _ in 0..3 {
-        sim.prop.substep(h, &q, sim.comm.as_ref());
+        sim.prop.substep(h, &q);
     }
     let t = Instant::now();
     for _ in 0..5 {
-        sim.prop.substep(h, &q, sim.comm.as_ref());
+        sim.prop.substep(h, &q);
     }
     let t5 = sim.comm.max(t.elapsed().as_secs_f64()) / 5.0;
     let k = ((2.0 / t5.max(1e-9)) as usize).clamp(10, 20_000);
-    let wait0 = sim.comm.halo_wait_seconds();
+    let wait0 = sim.prop.halo.wait_seconds();
     let mut times = Vec::new();
     let chunk = (k / 10).max(1);
     for _ in 0..10 {
         sim.comm.max(0.0); // line the processes up
         let t = Instant::now();
         for _ in 0..chunk {
-            sim.prop.substep(h, &q, sim.comm.as_ref());
+            sim.prop.substep(h, &q);
         }
         times.push(sim.comm.max(t.elapsed().as_secs_f64()) / chunk as f64);
     }
     let per_substep = median(times);
-    let waited = sim.comm.max(sim.comm.halo_wait_seconds() - wait0) / (10 * chunk) as f64;
+    let waited = sim.comm.max(sim.prop.halo.wait_seconds() - wait0) / (10 * chunk) as f64;
     let bytes = sim.comm.sum_i128(sim.prop.op.stream_bytes() as i128) as f64 / n as f64;
     // full steps with one substep each (dt = h)
-    sim.dt = sim.dt.min(sim.h);
-    sim.h = sim.dt;
-    sim.substeps = 1;
+    sim.set_dt(sim.dt.min(h))?;
     let mut steps = Vec::new();
     for _ in 0..5 {
         sim.comm.max(0.0);
         let t = Instant::now();
         let m = (chunk / 2).max(1);
         for _ in 0..m {
-            sim.advance();
+            sim.advance()?;
         }
         steps.push(sim.comm.max(t.elapsed().as_secs_f64()) / m as f64);
     }
@@ -173,7 +171,7 @@ pub fn measure(
     let mut writes = Vec::new();
     for _ in 0..5 {
         let t = Instant::now();
-        let no = sim.n_owned;
+        let no = sim.n_owned();
         let cm = sim.comm.as_ref();
         let u = sim.blocks.collect(sim.u[..no].as_flattened(), 3, cm);
         let v = sim.blocks.collect(sim.v[..no].as_flattened(), 3, cm);

@@ -1,24 +1,13 @@
-//! Communication between the processes of a run: halo exchange, reductions, gathers.
+//! Collective communication between the processes of a run: reductions, broadcasts, gathers
+//! and the all-to-all of the output scatter. (Point-to-point halo messages are `scatter::Halo`.)
 //!
-//! `Serial` is the one-process case; `Mpi` uses rsmpi point-to-point messages for halos and
-//! collectives for the rest. Every reduction whose result feeds the computation is exact
-//! (max, min, or a fixed-point sum), so the result does not depend on how many processes
-//! there are or how the mesh was split.
-
-use eprop_partition::Plan;
+//! `Serial` is the one-process case; `Mpi` uses rsmpi collectives. Every reduction whose
+//! result feeds the computation is exact (max, min, or a fixed-point sum), so the result does
+//! not depend on how many processes there are or how the mesh was split.
 
 pub trait Comm {
     fn rank(&self) -> usize;
     fn size(&self) -> usize;
-    /// Overwrites the halo entries of `data` (items of `stride` f64) with their owners' values.
-    fn exchange(&self, data: &mut [f64], stride: usize) {
-        self.exchange_overlapped(data, stride, &mut |_, _| {});
-    }
-    /// Like `exchange`, running `during` on the old values while the messages are in flight
-    /// (work that reads owned entries only: the interior rows). `during` gets a `progress`
-    /// callback to call between pieces of its work: it lets MPI move messages that need the
-    /// receiver's help (rendezvous-size messages over shared memory) before the wait.
-    fn exchange_overlapped(&self, data: &mut [f64], stride: usize, during: &mut Overlapped);
     fn max(&self, x: f64) -> f64;
     fn min(&self, x: f64) -> f64;
     /// Sums the integer parts of every process in rank order (exact).
@@ -30,16 +19,9 @@ pub trait Comm {
     fn all_to_all(&self, send: &[f64], counts: &[usize]) -> Vec<f64>;
     /// Every process's `x`, in rank order.
     fn all_gather(&self, x: &[f64]) -> Vec<f64>;
-    /// Seconds spent waiting for halo messages so far.
-    fn halo_wait_seconds(&self) -> f64 {
-        0.0
-    }
     /// Ends every process after an error on this one.
     fn abort(&self, code: i32) -> !;
 }
-
-/// The work done while halo messages are in flight: the old values and a progress callback.
-pub type Overlapped<'a> = dyn FnMut(&[f64], &mut dyn FnMut()) + 'a;
 
 /// An exact, order-independent sum of f64 values spread over processes: every value is
 /// rounded to a fixed-point grid set by the global largest magnitude, and integers add
@@ -79,9 +61,6 @@ impl Comm for Serial {
     fn size(&self) -> usize {
         1
     }
-    fn exchange_overlapped(&self, data: &mut [f64], _: usize, during: &mut Overlapped) {
-        during(data, &mut || {})
-    }
     fn max(&self, x: f64) -> f64 {
         x
     }
@@ -106,26 +85,16 @@ impl Comm for Serial {
 /// Several processes under MPI.
 pub struct Mpi {
     pub world: mpi::topology::SimpleCommunicator,
-    pub plan: Plan,
-    /// Reusable message buffers of the halo exchange (per neighbour).
-    bufs: std::cell::RefCell<(Vec<Vec<f64>>, Vec<Vec<f64>>)>,
-    waited: std::cell::Cell<f64>,
 }
 
 use mpi::collective::SystemOperation;
 use mpi::datatype::PartitionMut;
-use mpi::point_to_point::{Destination, Source};
 use mpi::topology::Communicator;
 use mpi::traits::*;
 
 impl Mpi {
-    pub fn new(world: mpi::topology::SimpleCommunicator, plan: Plan) -> Mpi {
-        Mpi {
-            world,
-            plan,
-            bufs: Default::default(),
-            waited: Default::default(),
-        }
+    pub fn new(world: mpi::topology::SimpleCommunicator) -> Mpi {
+        Mpi { world }
     }
 }
 
@@ -135,62 +104,6 @@ impl Comm for Mpi {
     }
     fn size(&self) -> usize {
         self.world.size() as usize
-    }
-    fn exchange_overlapped(&self, data: &mut [f64], stride: usize, during: &mut Overlapped) {
-        let nbs = &self.plan.neighbours;
-        let mut bufs = self.bufs.borrow_mut();
-        let (sends, recvs) = &mut *bufs;
-        sends.resize_with(nbs.len(), Vec::new);
-        recvs.resize_with(nbs.len(), Vec::new);
-        for (nb, b) in nbs.iter().zip(sends.iter_mut()) {
-            b.clear();
-            for &l in &nb.send {
-                b.extend_from_slice(&data[l as usize * stride..(l as usize + 1) * stride]);
-            }
-        }
-        for (nb, b) in nbs.iter().zip(recvs.iter_mut()) {
-            b.resize(nb.recv.len() * stride, 0.0);
-        }
-        mpi::request::scope(|scope| {
-            let mut reqs = Vec::with_capacity(nbs.len());
-            for (nb, buf) in nbs.iter().zip(recvs.iter_mut()) {
-                reqs.push(
-                    self.world
-                        .process_at_rank(nb.rank as i32)
-                        .immediate_receive_into(scope, &mut buf[..]),
-                );
-            }
-            let mut sreqs = Vec::with_capacity(nbs.len());
-            for (nb, buf) in nbs.iter().zip(sends.iter()) {
-                sreqs.push(
-                    self.world
-                        .process_at_rank(nb.rank as i32)
-                        .immediate_send(scope, &buf[..]),
-                );
-            }
-            let mut pending: Vec<_> = reqs.into_iter().chain(sreqs).map(Some).collect();
-            during(data, &mut || {
-                for slot in pending.iter_mut() {
-                    if let Some(r) = slot.take() {
-                        *slot = r.test().err();
-                    }
-                }
-            });
-            let t = std::time::Instant::now();
-            for r in pending.into_iter().flatten() {
-                r.wait();
-            }
-            self.waited.set(self.waited.get() + t.elapsed().as_secs_f64());
-        });
-        for (nb, buf) in nbs.iter().zip(recvs.iter()) {
-            for (k, &l) in nb.recv.iter().enumerate() {
-                data[l as usize * stride..(l as usize + 1) * stride]
-                    .copy_from_slice(&buf[k * stride..(k + 1) * stride]);
-            }
-        }
-    }
-    fn halo_wait_seconds(&self) -> f64 {
-        self.waited.get()
     }
     fn all_to_all(&self, send: &[f64], counts: &[usize]) -> Vec<f64> {
         let sc: Vec<i32> = counts.iter().map(|&c| c as i32).collect();

@@ -6,7 +6,7 @@ use crate::material::{Tensor, TissueLaw};
 use crate::scenario::{Load, Scenario, Scheme, Setup, Stop};
 use anyhow::{anyhow, Result};
 use eprop_io::{CellKind, Mesh};
-use eprop_partition::{Neighbour, Plan};
+use eprop_partition::{HaloPattern, LocalNumbering, Neighbour, Plan};
 use std::path::PathBuf;
 
 /// Sizes of the whole mesh that every process needs to lay out the output file.
@@ -181,12 +181,12 @@ pub fn encode(setup: &Setup, plan: &Plan, sizes: GlobalSizes) -> Vec<u8> {
     w.u64(sizes.mesh_hash);
     // plan
     w.u64(plan.rank as u64);
-    w.u32s(&plan.global);
-    w.u64(plan.n_interior as u64);
-    w.u64(plan.n_owned as u64);
+    w.u32s(&plan.numbering.global);
+    w.u64(plan.numbering.n_interior as u64);
+    w.u64(plan.numbering.n_owned as u64);
     w.u32s(&plan.cells);
-    w.u64(plan.neighbours.len() as u64);
-    for nb in &plan.neighbours {
+    w.u64(plan.pattern.neighbours.len() as u64);
+    for nb in &plan.pattern.neighbours {
         w.u64(nb.rank as u64);
         w.u32s(&nb.send);
         w.u32s(&nb.recv);
@@ -286,11 +286,13 @@ pub fn decode(bytes: &[u8]) -> Result<Part> {
     }
     let plan = Plan {
         rank,
-        global,
-        n_interior,
-        n_owned,
+        numbering: LocalNumbering {
+            global,
+            n_interior,
+            n_owned,
+        },
+        pattern: HaloPattern { neighbours },
         cells,
-        neighbours,
     };
     let path = PathBuf::from(r.str()?);
     let text = r.str()?;

@@ -8,10 +8,14 @@
 pub mod bench;
 pub mod comm;
 pub mod distribute;
+pub mod field;
 pub mod geometry;
+pub mod integrate;
 pub mod material;
 pub mod operator;
+pub mod propagation;
 pub mod run;
+pub mod scatter;
 pub mod scenario;
 pub mod solver;
 

@@ -367,7 +367,7 @@ fn real_main(cli: Cli) -> Result<()> {
                     scenario.display()
                 );
             };
-            let n = sim.n_owned;
+            let n = sim.n_owned();
             let mut rows: Vec<Vec<(i64, f64)>> = vec![vec![]; n];
             for i in 0..n {
                 let g = sim.gid[i] as usize;
@@ -395,13 +395,19 @@ fn real_main(cli: Cli) -> Result<()> {
                 }
                 row_ptr.push(col.len() as i64);
             }
-            eprop_io::vtkhdf::write_csr(&output, &row_ptr, &col, &val, &[("h", sim.h), ("nodes", n as f64)])?;
+            eprop_io::vtkhdf::write_csr(
+                &output,
+                &row_ptr,
+                &col,
+                &val,
+                &[("h", sim.step_plan().h), ("nodes", n as f64)],
+            )?;
             println!(
                 "{}: {} rows, {} entries, h = {:.6e}",
                 output.display(),
                 n,
                 col.len(),
-                sim.h
+                sim.step_plan().h
             );
         }
         Cmd::Check { scenario, steps, json } => {

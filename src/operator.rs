@@ -443,10 +443,14 @@ impl Operator {
     }
     /// y_i = (L x)_i for rows `0..n_rows` (`g` holds gradients of x for the paper scheme).
     pub fn apply(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3]) {
-        let n = self.n_rows();
-        y[..n].par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
+        self.apply_rows(x, g, y, 0..self.n_rows());
+    }
+    /// y_i = (L x)_i for the rows in `range`.
+    pub fn apply_rows(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3], range: std::ops::Range<usize>) {
+        let start = range.start;
+        y[range].par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
             for (k, yi) in chunk.iter_mut().enumerate() {
-                let i = b * CHUNK + k;
+                let i = start + b * CHUNK + k;
                 *yi = match self {
                     Operator::Compact(c) => c.row(i, x),
                     Operator::Paper(p) => p.row(i, x, g),

@@ -5,7 +5,7 @@ use crate::geometry::{compact_coefficients, Dual, Incidence};
 use crate::material::Tensor;
 use crate::operator::Compact;
 use crate::scenario::{Scenario, Setup, FIELDS};
-use crate::solver::{check_output_dir, morton_keys, scheme_name, Simulation, SAFETY};
+use crate::solver::{check_output_dir, scheme_name, Simulation, SAFETY};
 use anyhow::Result;
 use eprop_io::geom::{cell_quality, cell_volume, norm};
 use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter};
@@ -46,9 +46,14 @@ pub struct Summary {
     pub processes: usize,
     pub fixed_nodes: usize,
     pub scheme: String,
+    /// The integrator of the propagation.
+    pub integrator: String,
     pub h: f64,
     pub h_bound: f64,
+    /// Substeps (or stages) per step as planned.
     pub substeps: usize,
+    /// Operator applications per step of this run: min, median, max.
+    pub applications_per_step: [u32; 3],
     pub dt: f64,
     pub steps: u64,
     pub time: f64,
@@ -91,6 +96,12 @@ impl std::fmt::Display for Summary {
             f,
             "  scheme      {}, h = {:.4e} (bound {:.4e}), {} substeps per step, dt = {:.4e}",
             self.scheme, self.h, self.h_bound, self.substeps, self.dt
+        )?;
+        let [lo, med, hi] = self.applications_per_step;
+        writeln!(
+            f,
+            "  integrator  {}, operator applications per step {lo} / {med} / {hi} (min / median / max)",
+            self.integrator
         )?;
         match self.restarted_from_step {
             Some(k) => writeln!(
@@ -154,6 +165,16 @@ impl std::fmt::Display for Summary {
             writeln!(f, "  warning     {w}")?;
         }
         write!(f, "  output      {} ({} steps)", self.output, self.output_steps)
+    }
+}
+
+/// Min, median and max of a list (zeros when empty).
+fn spread(v: &[u32]) -> [u32; 3] {
+    let mut v = v.to_vec();
+    v.sort_unstable();
+    match (v.first(), v.last()) {
+        (Some(&lo), Some(&hi)) => [lo, v[v.len() / 2], hi],
+        _ => [0; 3],
     }
 }
 
@@ -229,7 +250,7 @@ fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let weights = eprop_partition::degree_weights(&xadj);
     let part = eprop_partition::partition_weighted(&xadj, &adj, size, eprop_partition::Method::Metis, Some(&weights))
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
-    Ok((part, morton_keys(mesh)))
+    Ok((part, eprop_partition::morton_keys(&mesh.points)))
 }
 
 /// Runs a scenario under MPI. Rank 0 reads the scenario and the mesh, splits the node graph
@@ -270,6 +291,7 @@ pub fn build_mpi(
     use mpi::topology::Communicator;
     let (rank, size) = (world.rank() as usize, world.size() as usize);
     let io_comm = world.duplicate();
+    let halo_comm = world.duplicate();
     // message: 1 + encoded part, or 0 + error text; parts are built and sent one at a time
     let (mine, global, sizes) = if rank == 0 {
         match make_setup().and_then(|s| split(&s, size).map(|p| (s, p))) {
@@ -282,9 +304,9 @@ pub fn build_mpi(
                     let plan = plan_of(r);
                     tracing::debug!(
                         "part {r}: {} owned, {} halo, {} neighbours",
-                        plan.n_owned,
+                        plan.numbering.n_owned,
                         plan.n_halo(),
-                        plan.neighbours.len()
+                        plan.pattern.neighbours.len()
                     );
                     let mut msg = vec![1u8];
                     msg.extend_from_slice(&distribute::encode(&setup.restrict(&plan), &plan, sizes));
@@ -319,11 +341,12 @@ pub fn build_mpi(
     let rank0_scatter_peak = if rank == 0 { distribute::peak_rss() } else { 0 };
     tracing::info!(
         "rank {rank}: part received ({} owned, {} halo nodes); building geometry and operator",
-        mine.plan.n_owned,
+        mine.plan.numbering.n_owned,
         mine.plan.n_halo()
     );
-    let comm = crate::comm::Mpi::new(world, mine.plan.clone());
-    let sim = Simulation::new_with(mine.setup, Box::new(comm), mine.plan, global.map(|s| s.mesh))?;
+    let halo = crate::scatter::Halo::new(mine.plan.pattern.clone(), halo_comm);
+    let comm = crate::comm::Mpi::new(world);
+    let sim = Simulation::new_with(mine.setup, Box::new(comm), halo, mine.plan, global.map(|s| s.mesh))?;
     Ok(Built {
         sim,
         sizes,
@@ -371,14 +394,14 @@ pub fn run_simulation(
         control_volumes: &sim.vol_block,
         attrs: vec![
             ("dt", sim.dt),
-            ("h", sim.h),
-            ("substeps", sim.substeps as f64),
+            ("h", sim.step_plan().h),
+            ("substeps", sim.step_plan().per_step as f64),
             ("processes", sim.comm.size() as f64),
         ],
     };
     let write = |sim: &Simulation, out: &mut SeriesWriter| -> Result<f64> {
         let t = Instant::now();
-        let no = sim.n_owned;
+        let no = sim.n_owned();
         let c = sim.comm.as_ref();
         let mut data = Vec::with_capacity(fields.len());
         for (name, _) in &fields {
@@ -398,10 +421,10 @@ pub fn run_simulation(
     };
     tracing::info!(
         "h = {:.4e} (bound {:.4e}), dt = {:.4e}, {} substeps per step; writing {}",
-        sim.h,
-        sim.h_bound,
+        sim.step_plan().h,
+        sim.step_plan().h_bound,
         sim.dt,
-        sim.substeps,
+        sim.step_plan().per_step,
         sim.setup.output.display()
     );
     let (mut out, mut output_seconds) = if opts.restart.is_some() {
@@ -425,7 +448,7 @@ pub fn run_simulation(
     // a progress bar on rank 0 when a person watches (stderr is a terminal) and not --quiet
     let bar = root && !opts.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr());
     while !sim.done() {
-        sim.advance();
+        sim.advance()?;
         let is_last = sim.done();
         if sim.step.is_multiple_of(every) || is_last {
             let t = write(&sim, &mut out)?;
@@ -466,7 +489,7 @@ pub fn run_simulation(
     let (umax, imax) = sim.max_displacement();
     let total = sim.total_energy();
     let probes = sim.probes();
-    let halo_wait = sim.comm.max(sim.comm.halo_wait_seconds());
+    let halo_wait = sim.comm.max(sim.prop.halo.wait_seconds());
     let peak = sim.comm.max(distribute::peak_rss() as f64);
     let Some(mesh) = sim.global.as_ref() else {
         return Ok(None);
@@ -495,9 +518,11 @@ pub fn run_simulation(
         processes: sim.comm.size(),
         fixed_nodes: sim.fixed_nodes,
         scheme: scheme_name(sim.setup.scheme).to_string(),
-        h: sim.h,
-        h_bound: sim.h_bound,
-        substeps: sim.substeps,
+        integrator: sim.step_plan().integrator.to_string(),
+        h: sim.step_plan().h,
+        h_bound: sim.step_plan().h_bound,
+        substeps: sim.step_plan().per_step,
+        applications_per_step: spread(&sim.applications),
         dt: sim.dt,
         steps: sim.step,
         time: sim.time,
@@ -507,7 +532,8 @@ pub fn run_simulation(
         output_append_first100_median_s: append_first,
         output_append_last100_median_s: append_last,
         halo_wait_seconds: halo_wait,
-        node_substeps_per_second: (n as f64 * (sim.step - restarted_at) as f64 * sim.substeps as f64) / wall.max(1e-12),
+        node_substeps_per_second: (n as f64 * sim.applications.iter().map(|&a| a as f64).sum::<f64>())
+            / wall.max(1e-12),
         restarted_from_step: opts.restart.as_ref().map(|_| restarted_at),
         peak_memory_mib: peak / 1048576.0,
         rank0_scatter_peak_mib: rank0_scatter_peak as f64 / 1048576.0,
@@ -746,6 +772,7 @@ pub struct CheckReport {
     /// Per load: contact nodes and contact area.
     pub loads: Vec<(usize, f64)>,
     pub scheme: String,
+    pub integrator: String,
     pub h: f64,
     pub h_bound: f64,
     pub dt: f64,
@@ -769,7 +796,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     let t = Instant::now();
     let reps = 5;
     for _ in 0..reps {
-        sim.prop.substep(sim.h, &q, sim.comm.as_ref());
+        sim.prop.substep(sim.step_plan().h, &q);
     }
     let per_substep = t.elapsed().as_secs_f64() / reps as f64;
     let steps = sim.max_steps();
@@ -807,17 +834,18 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         fixed_nodes: sim.fixed_nodes,
         loads: sim.loads.iter().map(|l| (l.nodes.len(), l.area)).collect(),
         scheme: scheme_name(sim.setup.scheme).to_string(),
-        h: sim.h,
-        h_bound: sim.h_bound,
+        integrator: sim.step_plan().integrator.to_string(),
+        h: sim.step_plan().h,
+        h_bound: sim.step_plan().h_bound,
         dt: sim.dt,
         dt_bound: sim.dt_bound,
-        substeps: sim.substeps,
+        substeps: sim.step_plan().per_step,
         steps,
         output: sim.setup.output.display().to_string(),
         output_steps,
         output_mib: (n * fields) as f64 * width * output_steps as f64 / 1048576.0,
         memory_mib: distribute::peak_rss() as f64 / 1048576.0,
-        estimated_seconds: per_substep * 1.3 * sim.substeps as f64 * steps as f64,
+        estimated_seconds: per_substep * 1.3 * sim.step_plan().per_step as f64 * steps as f64,
         warnings,
     })
 }

@@ -898,13 +898,14 @@ impl Setup {
     /// halo) with their per-node arrays. Loads keep their global node indices.
     pub fn restrict(&self, plan: &eprop_partition::Plan) -> Setup {
         let pick = |g: &u32| *g as usize;
+        let ids = &plan.numbering.global;
         Setup {
             scenario: self.scenario.clone(),
             mesh: crate::solver::local_mesh(&self.mesh, plan),
-            r: plan.global.iter().map(|g| self.r[pick(g)]).collect(),
-            mass: plan.global.iter().map(|g| self.mass[pick(g)]).collect(),
-            damping: plan.global.iter().map(|g| self.damping[pick(g)]).collect(),
-            fixed: plan.global.iter().map(|g| self.fixed[pick(g)]).collect(),
+            r: ids.iter().map(|g| self.r[pick(g)]).collect(),
+            mass: ids.iter().map(|g| self.mass[pick(g)]).collect(),
+            damping: ids.iter().map(|g| self.damping[pick(g)]).collect(),
+            fixed: ids.iter().map(|g| self.fixed[pick(g)]).collect(),
             loads: self.loads.clone(),
             scheme: self.scheme,
             stiffness: self.stiffness,

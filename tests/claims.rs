@@ -19,7 +19,7 @@ fn run(name: &str, steps: u64, edit: &dyn Fn(String) -> String) -> (Vec<V3>, Vec
     setup.stop = eprop::scenario::Stop::Steps(steps);
     let mut sim = Simulation::new(setup).unwrap();
     while !sim.done() {
-        sim.advance();
+        sim.advance().unwrap();
     }
     let u = sim.in_output_order(&sim.u);
     let u: Vec<V3> = u.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
@@ -139,7 +139,7 @@ fn a_contact_patch_is_far_less_mesh_dependent_than_a_node() {
         setup.stop = eprop::scenario::Stop::Steps(60);
         let mut sim = Simulation::new(setup).unwrap();
         while !sim.done() {
-            sim.advance();
+            sim.advance().unwrap();
         }
         norm(sim.probes()[0].1)
     };

@@ -5,9 +5,9 @@ mod common;
 
 use common::{max_abs, sim};
 use eprop::geometry::{compact_coefficients, Dual, Incidence};
+use eprop::integrate::stability::hash_unit;
 use eprop::material::Tensor;
 use eprop::operator::Operator;
-use eprop::solver::hash_unit;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use eprop_io::Mesh;
 use nalgebra::Vector3;
@@ -116,7 +116,7 @@ fn paper_scheme_annihilates_constants() {
             assert!(m < 1e-12, "{what}: paper scheme: L(constant) = {m:e}");
             // and it runs: the load deforms the mesh, nothing blows up
             for _ in 0..5 {
-                s.advance();
+                s.advance().unwrap();
             }
             let u = max_abs(&s.u);
             assert!(u > 0.0 && u.is_finite(), "{what}: max |u| = {u}");
@@ -129,12 +129,12 @@ fn paper_scheme_annihilates_constants() {
 fn check_no_growth(model: &str) {
     let mut s = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &format!("{model}{BASE}"));
     for _ in 0..10 {
-        s.advance();
+        s.advance().unwrap();
     }
     let mut prev = max_abs(&s.prop.phi);
     assert!(prev > 0.0);
     for k in 0..3000 {
-        s.prop.substep_serial(s.h, &[]);
+        s.prop.substep_serial(s.step_plan().h, &[]);
         let m = max_abs(&s.prop.phi);
         assert!(
             m <= prev * (1.0 + 1e-12),
@@ -168,7 +168,7 @@ fn compact_keeps_a_maximum_principle_on_random_data() {
     }
     let mut prev = max_abs(&s.prop.phi);
     for _ in 0..500 {
-        s.prop.substep_serial(s.h, &[]);
+        s.prop.substep_serial(s.step_plan().h, &[]);
         let m = max_abs(&s.prop.phi);
         assert!(m <= prev * (1.0 + 1e-14));
         prev = m;
@@ -181,10 +181,12 @@ fn substep_above_the_bound_is_refused() {
     let base = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), BASE);
     let dir = std::env::temp_dir();
     for (model, bound) in [
-        ("", base.h_bound),
+        ("", base.step_plan().h_bound),
         (
             PAPER,
-            sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &format!("{PAPER}{BASE}")).h_bound,
+            sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &format!("{PAPER}{BASE}"))
+                .step_plan()
+                .h_bound,
         ),
     ] {
         let toml = format!("{model}{BASE}h = {}\n", 1.5 * bound);
@@ -198,7 +200,7 @@ fn substep_above_the_bound_is_refused() {
         let ok = format!("{model}{BASE}h = {}\n", 0.5 * bound);
         let s =
             eprop::solver::Simulation::new(common::setup(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &ok, &dir)).unwrap();
-        assert!(s.h <= 0.5 * bound);
+        assert!(s.step_plan().h <= 0.5 * bound);
     }
 }
 
@@ -245,7 +247,7 @@ fn steady_state_matches_a_direct_solve() {
     loop {
         let before = s.prop.phi.clone();
         for _ in 0..200 {
-            s.prop.substep_serial(s.h, &q);
+            s.prop.substep_serial(s.step_plan().h, &q);
         }
         steps += 200;
         let change = s
@@ -330,7 +332,7 @@ fn vector_and_portable_kernels_agree() {
             c.kernel = k;
         }
         let mut y = vec![[0.0; 3]; n];
-        s.prop.op.step_rows(&x, &[], &mut y, s.h, 0..rows);
+        s.prop.op.step_rows(&x, &[], &mut y, s.step_plan().h, 0..rows);
         out.push(y);
     }
     for y in &out[1..] {

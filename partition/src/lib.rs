@@ -163,30 +163,107 @@ pub fn quality(xadj: &[usize], adj: &[u32], part: &[u32], nparts: usize) -> Qual
     }
 }
 
-/// What one process holds and exchanges. Local numbering: owned interior nodes (no neighbour
-/// on another process), owned border nodes (sent to some neighbour), then halo nodes (copies
-/// of other processes' nodes, by global id). Owned nodes are sorted by an optional locality key
-/// (ties and no key: by global id). Cells: every cell with an owned node, in global order.
-#[derive(Debug, Clone)]
-pub struct Plan {
-    pub rank: usize,
-    /// Global id of each local node (owned first).
+/// The local numbering of one process: owned interior nodes (no neighbour on another
+/// process), owned border nodes (sent to some neighbour), then halo nodes (copies of other
+/// processes' nodes, by increasing global id). Per-node arrays of a process follow it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LocalNumbering {
+    /// Global id of each local node (owned first, then halo).
     pub global: Vec<u32>,
     /// Owned nodes `0..n_interior` need no halo value; `n_interior..n_owned` do.
     pub n_interior: usize,
     pub n_owned: usize,
-    /// Global ids of the local cells, increasing.
-    pub cells: Vec<u32>,
-    /// Per neighbour rank: local indices to send (owned) and to receive into (halo),
-    /// both ordered by global id, so the two sides agree without negotiation.
+}
+
+impl LocalNumbering {
+    /// One process owning `n` nodes in their given order, no halo.
+    pub fn serial(global: Vec<u32>) -> LocalNumbering {
+        let n = global.len();
+        LocalNumbering {
+            global,
+            n_interior: n,
+            n_owned: n,
+        }
+    }
+    pub fn n_local(&self) -> usize {
+        self.global.len()
+    }
+    pub fn n_halo(&self) -> usize {
+        self.global.len() - self.n_owned
+    }
+    /// The ranges of the local numbering, without the ids.
+    pub fn layout(&self) -> Layout {
+        Layout {
+            n_interior: self.n_interior,
+            n_owned: self.n_owned,
+            n_local: self.global.len(),
+        }
+    }
+}
+
+/// The ranges of a local numbering: `interior() ++ border() == owned()`, then `halo()`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Layout {
+    pub n_interior: usize,
+    pub n_owned: usize,
+    pub n_local: usize,
+}
+
+impl Layout {
+    /// One process with `n` nodes, all owned and interior.
+    pub fn serial(n: usize) -> Layout {
+        Layout {
+            n_interior: n,
+            n_owned: n,
+            n_local: n,
+        }
+    }
+    pub fn interior(&self) -> std::ops::Range<usize> {
+        0..self.n_interior
+    }
+    pub fn border(&self) -> std::ops::Range<usize> {
+        self.n_interior..self.n_owned
+    }
+    pub fn owned(&self) -> std::ops::Range<usize> {
+        0..self.n_owned
+    }
+    pub fn halo(&self) -> std::ops::Range<usize> {
+        self.n_owned..self.n_local
+    }
+}
+
+/// Who sends what to whom in a halo exchange: per neighbour process, the local indices of the
+/// owned nodes to send and of the halo nodes to receive into, both ordered by global id, so
+/// the two sides agree without negotiation.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct HaloPattern {
     pub neighbours: Vec<Neighbour>,
 }
 
-#[derive(Debug, Clone)]
+impl HaloPattern {
+    /// Nodes received per exchange.
+    pub fn n_recv(&self) -> usize {
+        self.neighbours.iter().map(|n| n.recv.len()).sum()
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
 pub struct Neighbour {
     pub rank: usize,
     pub send: Vec<u32>,
     pub recv: Vec<u32>,
+}
+
+/// What one process holds and exchanges: its numbering, its halo pattern and its cells
+/// (every cell with an owned node, in global order). Owned nodes are sorted by an optional
+/// locality key (ties and no key: by global id).
+#[derive(Debug, Clone)]
+pub struct Plan {
+    pub rank: usize,
+    pub numbering: LocalNumbering,
+    pub pattern: HaloPattern,
+    /// Global ids of the local cells, increasing.
+    pub cells: Vec<u32>,
 }
 
 impl Plan {
@@ -265,17 +342,56 @@ impl Plan {
         }
         Plan {
             rank,
-            global,
-            n_interior,
-            n_owned,
+            numbering: LocalNumbering {
+                global,
+                n_interior,
+                n_owned,
+            },
+            pattern: HaloPattern { neighbours },
             cells,
-            neighbours,
         }
     }
 
     pub fn n_halo(&self) -> usize {
-        self.global.len() - self.n_owned
+        self.numbering.n_halo()
     }
+}
+
+/// A Morton (Z-order) index of every point inside the points' bounding box: sorting by it
+/// keeps nodes that are close in space close in memory.
+pub fn morton_keys(points: &[[f64; 3]]) -> Vec<u64> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for d in 0..3 {
+            lo[d] = lo[d].min(p[d]);
+            hi[d] = hi[d].max(p[d]);
+        }
+    }
+    let spread = |mut x: u64| {
+        x &= 0x1f_ffff;
+        x = (x | x << 32) & 0x1f00000000ffff;
+        x = (x | x << 16) & 0x1f0000ff0000ff;
+        x = (x | x << 8) & 0x100f00f00f00f00f;
+        x = (x | x << 4) & 0x10c30c30c30c30c3;
+        (x | x << 2) & 0x1249249249249249
+    };
+    points
+        .iter()
+        .map(|p| {
+            let mut k = 0u64;
+            for d in 0..3 {
+                let w = hi[d] - lo[d];
+                let t = if w > 0.0 {
+                    ((p[d] - lo[d]) / w).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                k |= spread((t * 2097151.0) as u64) << d;
+            }
+            k
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -304,26 +420,30 @@ mod tests {
                 let plans: Vec<Plan> = (0..k)
                     .map(|r| Plan::new(n, &off, &conn, &part, r, if r % 2 == 0 { Some(&key) } else { None }))
                     .collect();
-                assert_eq!(plans.iter().map(|p| p.n_owned).sum::<usize>(), n);
+                assert_eq!(plans.iter().map(|p| p.numbering.n_owned).sum::<usize>(), n);
                 for p in &plans {
-                    for nb in &p.neighbours {
-                        let other = plans[nb.rank].neighbours.iter().find(|x| x.rank == p.rank).unwrap();
-                        let sent: Vec<u32> = nb.send.iter().map(|&l| p.global[l as usize]).collect();
-                        let got: Vec<u32> = other.recv.iter().map(|&l| plans[nb.rank].global[l as usize]).collect();
+                    for nb in &p.pattern.neighbours {
+                        let q = &plans[nb.rank];
+                        let other = q.pattern.neighbours.iter().find(|x| x.rank == p.rank).unwrap();
+                        let sent: Vec<u32> = nb.send.iter().map(|&l| p.numbering.global[l as usize]).collect();
+                        let got: Vec<u32> = other.recv.iter().map(|&l| q.numbering.global[l as usize]).collect();
                         assert_eq!(sent, got);
                     }
                     // interior nodes have no neighbour on another process; border nodes do
-                    for l in 0..p.n_owned {
-                        let g = p.global[l];
+                    for l in 0..p.numbering.n_owned {
+                        let g = p.numbering.global[l];
                         let c = (0..off.len() - 1).filter(|&c| conn[off[c]..off[c + 1]].contains(&g));
                         let foreign = c
                             .flat_map(|c| conn[off[c]..off[c + 1]].to_vec())
                             .any(|v| part[v as usize] as usize != p.rank);
-                        assert_eq!(foreign, l >= p.n_interior);
+                        assert_eq!(foreign, l >= p.numbering.n_interior);
                     }
                     // every halo node is received from exactly one neighbour
-                    let received: usize = p.neighbours.iter().map(|x| x.recv.len()).sum();
-                    assert_eq!(received, p.n_halo());
+                    assert_eq!(p.pattern.n_recv(), p.n_halo());
+                    let layout = p.numbering.layout();
+                    assert_eq!(layout.interior().end, layout.border().start);
+                    assert_eq!(layout.owned().end, layout.halo().start);
+                    assert_eq!(layout.halo().end, p.numbering.n_local());
                 }
             }
         }
