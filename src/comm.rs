@@ -10,8 +10,13 @@ pub trait Comm {
     fn size(&self) -> usize;
     fn max(&self, x: f64) -> f64;
     fn min(&self, x: f64) -> f64;
-    /// Sums the integer parts of every process in rank order (exact).
+    /// Sums the integer parts of every process in rank order (exact below 2^127 in all: for
+    /// counts).
     fn sum_i128(&self, x: i128) -> i128;
+    /// Sums 256-bit integers over every process, element by element (exact).
+    fn sum_wide(&self, x: &[Wide]) -> Vec<Wide>;
+    /// The largest of every process's values, element by element.
+    fn max_each(&self, x: &[f64]) -> Vec<f64>;
     /// Broadcasts `x` from `root`.
     fn broadcast(&self, root: usize, x: &mut [f64]);
     /// Personalised all-to-all: `send` holds `counts[q]` values for process q, in rank order;
@@ -23,21 +28,124 @@ pub trait Comm {
     fn abort(&self, code: i32) -> !;
 }
 
-/// An exact, order-independent sum of f64 values spread over processes: every value is
-/// rounded to a fixed-point grid set by the global largest magnitude, and integers add
-/// associatively. Relative accuracy about 2^-100 of the largest term.
-pub fn exact_sum(comm: &dyn Comm, local: impl Iterator<Item = f64> + Clone) -> f64 {
-    let m = comm.max(local.clone().fold(0.0f64, |a, x| a.max(x.abs())));
-    if m == 0.0 || !m.is_finite() {
-        return if m == 0.0 { 0.0 } else { f64::NAN };
+/// A 256-bit two's-complement integer (`hi * 2^128 + lo`): the accumulator of `exact_sum`.
+/// Terms are below 2^100 in magnitude, so about 2^155 of them fit: no node count overflows it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Wide {
+    pub hi: i128,
+    pub lo: u128,
+}
+
+impl Wide {
+    pub fn from_i128(x: i128) -> Wide {
+        Wide {
+            hi: if x < 0 { -1 } else { 0 },
+            lo: x as u128,
+        }
     }
-    let e = m.log2().ceil() as i32;
-    let k = 100 - e; // |x| * 2^k < 2^100
-    let (a, b) = (k / 2, k - k / 2);
-    let (sa, sb) = (2f64.powi(a), 2f64.powi(b));
-    let part: i128 = local.map(|x| (x * sa * sb) as i128).sum();
-    let total = comm.sum_i128(part);
-    (total as f64) / sa / sb
+    pub fn plus(self, o: Wide) -> Wide {
+        let (lo, carry) = self.lo.overflowing_add(o.lo);
+        Wide {
+            hi: self.hi.wrapping_add(o.hi).wrapping_add(carry as i128),
+            lo,
+        }
+    }
+    pub fn add_i128(self, x: i128) -> Wide {
+        self.plus(Wide::from_i128(x))
+    }
+    fn neg(self) -> Wide {
+        let (lo, carry) = (!self.lo).overflowing_add(1);
+        Wide {
+            hi: (!self.hi).wrapping_add(carry as i128),
+            lo,
+        }
+    }
+    /// The value as f64: exactly rounded while it fits in an i128, the nearest or next-nearest
+    /// f64 beyond (a function of the integer alone, so the same on any number of processes).
+    pub fn to_f64(self) -> f64 {
+        if self.hi == (self.lo as i128 >> 127) {
+            return self.lo as i128 as f64;
+        }
+        let (neg, m) = if self.hi < 0 { (true, self.neg()) } else { (false, self) };
+        let v = m.hi as f64 * 2f64.powi(128) + m.lo as f64;
+        if neg {
+            -v
+        } else {
+            v
+        }
+    }
+    /// The four 64-bit words, least significant first (for messages).
+    pub fn words(self) -> [u64; 4] {
+        [
+            self.lo as u64,
+            (self.lo >> 64) as u64,
+            self.hi as u64,
+            (self.hi >> 64) as u64,
+        ]
+    }
+    pub fn from_words(w: &[u64]) -> Wide {
+        Wide {
+            lo: w[0] as u128 | (w[1] as u128) << 64,
+            hi: (w[2] as u128 | (w[3] as u128) << 64) as i128,
+        }
+    }
+}
+
+/// An exact, order-independent sum of f64 values spread over processes.
+///
+/// What it guarantees: with e = ceil(log2 M), M the largest |x| over every process, each term
+/// is truncated to the grid 2^(e-100) and the truncated terms are added exactly (256-bit
+/// integers, which no count of terms overflows). The result is therefore a function of the
+/// multiset of terms only: the same on any number of processes, in any order, on any thread
+/// count. Its error is below N 2^(e-100) for N terms (relative to the largest term, N 2^-100),
+/// plus one rounding of the total to f64. A non-finite term gives NaN.
+pub fn exact_sum(comm: &dyn Comm, local: impl Iterator<Item = f64> + Clone) -> f64 {
+    let [s] = exact_sums(comm, local.map(|x| [x]));
+    s
+}
+
+/// `exact_sum` of K sums at once (one reduction of the maxima, one of the sums).
+pub fn exact_sums<const K: usize>(comm: &dyn Comm, local: impl Iterator<Item = [f64; K]> + Clone) -> [f64; K] {
+    let mut m = [0.0f64; K];
+    for x in local.clone() {
+        for k in 0..K {
+            // a non-finite term makes the largest magnitude infinite (which survives the max
+            // reduction, where NaN might not), and the sum NaN
+            m[k] = if x[k].is_finite() {
+                m[k].max(x[k].abs())
+            } else {
+                f64::INFINITY
+            };
+        }
+    }
+    let m = comm.max_each(&m);
+    let mut out = [0.0; K];
+    let mut scales = [(1.0, 1.0); K];
+    for k in 0..K {
+        if !m[k].is_finite() {
+            out[k] = f64::NAN;
+        } else if m[k] > 0.0 {
+            let e = m[k].log2().ceil() as i32;
+            let q = 100 - e; // |x| * 2^q <= 2^100
+                             // two factors, so neither over- nor underflows for any finite M
+            scales[k] = (2f64.powi(q / 2), 2f64.powi(q - q / 2));
+        }
+    }
+    let mut part = [Wide::default(); K];
+    for x in local {
+        for k in 0..K {
+            let (sa, sb) = scales[k];
+            part[k] = part[k].add_i128((x[k] * sa * sb) as i128);
+        }
+    }
+    let total = comm.sum_wide(&part);
+    for k in 0..K {
+        if m[k].is_finite() && m[k] > 0.0 {
+            let (sa, sb) = scales[k];
+            out[k] = total[k].to_f64() / sa / sb;
+        }
+    }
+    out
 }
 
 /// Exclusive prefix sums of message sizes (MPI displacements).
@@ -69,6 +177,12 @@ impl Comm for Serial {
     }
     fn sum_i128(&self, x: i128) -> i128 {
         x
+    }
+    fn sum_wide(&self, x: &[Wide]) -> Vec<Wide> {
+        x.to_vec()
+    }
+    fn max_each(&self, x: &[f64]) -> Vec<f64> {
+        x.to_vec()
     }
     fn broadcast(&self, _: usize, _: &mut [f64]) {}
     fn all_to_all(&self, send: &[f64], _: &[usize]) -> Vec<f64> {
@@ -141,10 +255,88 @@ impl Comm for Mpi {
             .map(|p| (((p[0] as u128) << 64) | p[1] as u128) as i128)
             .fold(0i128, |a, b| a.wrapping_add(b))
     }
+    fn sum_wide(&self, x: &[Wide]) -> Vec<Wide> {
+        let words: Vec<u64> = x.iter().flat_map(|w| w.words()).collect();
+        let mut all = vec![0u64; words.len() * self.size()];
+        self.world.all_gather_into(&words[..], &mut all[..]);
+        let mut out = vec![Wide::default(); x.len()];
+        for part in all.chunks(words.len().max(1)) {
+            for (k, o) in out.iter_mut().enumerate() {
+                *o = o.plus(Wide::from_words(&part[4 * k..4 * k + 4]));
+            }
+        }
+        out
+    }
+    fn max_each(&self, x: &[f64]) -> Vec<f64> {
+        let mut y = vec![0.0; x.len()];
+        self.world.all_reduce_into(x, &mut y[..], SystemOperation::max());
+        y
+    }
     fn broadcast(&self, root: usize, x: &mut [f64]) {
         self.world.process_at_rank(root as i32).broadcast_into(x);
     }
     fn abort(&self, code: i32) -> ! {
         self.world.abort(code)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wide_integers_add_past_i128() {
+        let mut w = Wide::default();
+        for _ in 0..4 {
+            w = w.add_i128(i128::MAX);
+        }
+        // 4 (2^127 - 1) = 2^129 - 4
+        assert_eq!(
+            w,
+            Wide {
+                hi: 1,
+                lo: u128::MAX - 3
+            }
+        );
+        assert_eq!(w.to_f64(), 2f64.powi(129));
+        for _ in 0..8 {
+            w = w.add_i128(i128::MIN);
+        }
+        // 2^129 - 4 - 2^130 = -2^129 - 4
+        assert_eq!(w.to_f64(), -(2f64.powi(129)));
+        assert_eq!(Wide::from_words(&w.words()), w);
+        assert_eq!(Wide::from_i128(-5).to_f64(), -5.0);
+        assert_eq!(Wide::from_i128(-5).add_i128(5), Wide::default());
+    }
+
+    #[test]
+    fn exact_sum_takes_any_order_and_does_not_overflow() {
+        // 2^28 terms of the largest magnitude would wrap a 128-bit accumulator (2^28 2^100 >
+        // 2^127); in 256 bits they add exactly
+        let n = 1usize << 28;
+        let s = exact_sum(&Serial, (0..n).map(|_| 1.0));
+        assert_eq!(s, n as f64);
+        let s = exact_sum(&Serial, (0..n).map(|i| if i % 3 == 0 { -1e300 } else { 1e300 }));
+        assert_eq!(s, 1e300 * (n as f64 - 2.0 * n.div_ceil(3) as f64));
+        // order does not matter, even with cancellation
+        let x: Vec<f64> = (0..1000)
+            .map(|i| ((i * 7919) % 1000) as f64 * 1e-3 - 0.5 + 1e-17 * i as f64)
+            .collect();
+        let mut y = x.clone();
+        y.reverse();
+        y.rotate_left(317);
+        assert_eq!(
+            exact_sum(&Serial, x.iter().copied()),
+            exact_sum(&Serial, y.iter().copied())
+        );
+        // extreme magnitudes and non-finite terms
+        assert_eq!(exact_sum(&Serial, [f64::MAX, -f64::MAX, 1.0].into_iter()), 0.0);
+        assert_eq!(exact_sum(&Serial, [5e-324, 5e-324].into_iter()), 1e-323);
+        assert!(exact_sum(&Serial, [1.0, f64::NAN].into_iter()).is_nan());
+        assert!(exact_sum(&Serial, [f64::NAN, 1.0].into_iter()).is_nan());
+        assert!(exact_sum(&Serial, [1.0, f64::INFINITY].into_iter()).is_nan());
+        assert_eq!(exact_sum(&Serial, std::iter::empty()), 0.0);
+        let [a, b] = exact_sums(&Serial, [[1.0, 2.0], [3.0, -2.0]].into_iter());
+        assert_eq!((a, b), (4.0, 0.0));
     }
 }
