@@ -7,12 +7,15 @@
 //! a STREAM-like triad measured here; full steps per second with one substep per step (the
 //! haptic configuration: dt = h); peak memory per node; halo waiting share; output cost.
 
-use crate::run::Built;
-use crate::scenario::{Scenario, Setup, FIELDS};
+use crate::diagnostics::{median, peak_rss};
+use crate::launch::{build_mpi, Built};
+use crate::parts::GlobalSizes;
+use crate::scenario::{Field, Scenario, Setup};
+use crate::series::{field_blocks, layout, VERSION};
 use crate::solver::Simulation;
 use anyhow::Result;
 use eprop_io::generate::{box_mesh, BoxCells};
-use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter};
+use eprop_io::vtkhdf::{SeriesSpec, SeriesWriter};
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -89,15 +92,10 @@ pub fn box_setup(cells: usize, scheme: &str) -> Result<Setup> {
     Ok(s)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 /// Measures one built simulation. Every process calls (collectives inside).
 pub fn measure(
     mut sim: Simulation,
-    sizes: crate::distribute::GlobalSizes,
+    sizes: GlobalSizes,
     io: Option<&mpi::topology::SimpleCommunicator>,
     triad_gbs: f64,
     setup_seconds: f64,
@@ -127,7 +125,7 @@ pub fn measure(
         }
         times.push(sim.comm.max(t.elapsed().as_secs_f64()) / chunk as f64);
     }
-    let per_substep = median(times);
+    let per_substep = median(&times);
     let waited = sim.comm.max(sim.prop.halo.wait_seconds() - wait0) / (10 * chunk) as f64;
     let bytes = sim.comm.sum_i128(sim.prop.op.stream_bytes() as i128) as f64 / n as f64;
     // full steps with one substep each (dt = h)
@@ -142,23 +140,18 @@ pub fn measure(
         }
         steps.push(sim.comm.max(t.elapsed().as_secs_f64()) / m as f64);
     }
-    let per_step = median(steps);
+    let per_step = median(&steps);
     // output: a few appends of every field
-    let layout = Layout {
-        nodes: sizes.nodes,
-        cells: sizes.cells,
-        conn: sizes.conn,
-    };
     // one name for every process (rank 0's pid)
     let mut id = [std::process::id() as f64];
     sim.comm.broadcast(0, &mut id);
     let file = tmp.join(format!("eprop-bench-{}.h5", id[0] as u64));
     let spec = SeriesSpec {
-        fields: FIELDS.to_vec(),
+        fields: Field::ALL.iter().map(|f| (f.name(), f.components())).collect(),
         n_loads: 1,
         load_nodes: vec![0],
         scenario: "",
-        version: crate::run::VERSION,
+        version: VERSION,
         block_start: sim.blocks.start,
         block_len: sim.blocks.len,
         control_volumes: &sim.vol_block,
@@ -167,25 +160,20 @@ pub fn measure(
         float32: false,
         compression: 0,
     };
-    let mut out = SeriesWriter::create(&file, layout, sim.global.as_ref(), &spec, io)?;
+    let mut out = SeriesWriter::create(&file, layout(&sizes), sim.global.as_ref(), &spec, io)?;
     let mut writes = Vec::new();
     for _ in 0..5 {
         let t = Instant::now();
-        let no = sim.n_owned();
-        let cm = sim.comm.as_ref();
-        let u = sim.blocks.collect(sim.u[..no].as_flattened(), 3, cm);
-        let v = sim.blocks.collect(sim.v[..no].as_flattened(), 3, cm);
-        let p = sim.blocks.collect(sim.prop.phi[..no].as_flattened(), 3, cm);
-        let e: Vec<f64> = sim.prop.phi[..no].iter().map(|x| eprop_io::geom::norm(*x)).collect();
-        let e = sim.blocks.collect(&e, 1, cm);
-        out.append(sim.time, sim.step, &[&u, &v, &p, &e], &sim.probes())?;
+        let data = field_blocks(&sim, &Field::ALL);
+        let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
+        out.append(sim.time, sim.step, &refs, &sim.probes())?;
         writes.push(sim.comm.max(t.elapsed().as_secs_f64()));
     }
     drop(out);
     if sim.comm.rank() == 0 {
         let _ = std::fs::remove_file(&file);
     }
-    let rss = crate::distribute::peak_rss() as f64;
+    let rss = peak_rss() as f64;
     let peak = sim.comm.max(rss);
     let total_rss = crate::comm::exact_sum(sim.comm.as_ref(), [rss].into_iter());
     let rate = n as f64 / per_substep;
@@ -195,7 +183,7 @@ pub fn measure(
         cells: sizes.cells,
         scheme: match &sim.prop.op {
             crate::operator::Operator::Compact(c) if !c.coef32.is_empty() => "compact32".to_string(),
-            _ => crate::solver::scheme_name(sim.setup.scheme).to_string(),
+            _ => crate::solver::scheme_name(sim.setup.model.scheme()).to_string(),
         },
         processes: sim.comm.size(),
         threads: rayon::current_num_threads(),
@@ -208,7 +196,7 @@ pub fn measure(
         fraction_of_triad: rate * bytes / 1e9 / triad_gbs,
         full_steps_per_second: 1.0 / per_step,
         halo_wait_share: waited / per_substep,
-        output_seconds_per_step: median(writes),
+        output_seconds_per_step: median(&writes),
         peak_mib: peak / 1048576.0,
         bytes_per_node: total_rss / n as f64,
         setup_seconds,
@@ -243,7 +231,7 @@ pub fn bench(
             let case = match &world {
                 None => {
                     let setup = box_setup(nc, scheme)?;
-                    let sizes = crate::distribute::GlobalSizes::of(&setup.mesh);
+                    let sizes = GlobalSizes::of(&setup.mesh);
                     let sim = Simulation::new(setup)?;
                     let s = t0.elapsed().as_secs_f64();
                     measure(sim, sizes, None, triad_gbs, s, tmp)?
@@ -252,7 +240,7 @@ pub fn bench(
                     use mpi::topology::Communicator;
                     let Built {
                         sim, sizes, io_comm, ..
-                    } = crate::run::build_mpi(w.duplicate(), || box_setup(nc, scheme))?;
+                    } = build_mpi(w.duplicate(), || box_setup(nc, scheme))?;
                     let s = t0.elapsed().as_secs_f64();
                     measure(sim, sizes, Some(&io_comm), triad_gbs, s, tmp)?
                 }

@@ -7,16 +7,25 @@
 
 pub mod bench;
 pub mod comm;
-pub mod distribute;
+mod diagnostics;
 pub mod field;
 pub mod geometry;
+pub mod inspect;
 pub mod integrate;
+pub mod launch;
 pub mod material;
 pub mod operator;
+mod parts;
+mod progress;
 pub mod propagation;
 pub mod run;
 pub mod scatter;
 pub mod scenario;
+mod series;
 pub mod solver;
+pub mod summary;
+#[cfg(test)]
+mod testing;
+mod wire;
 
 pub use eprop_io as io;

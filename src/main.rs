@@ -2,7 +2,9 @@
 
 use anyhow::{bail, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use eprop::run::{mesh_info, run, RunOptions};
+use eprop::launch::{is_root, launch};
+use eprop::run::{run_on, RunOptions};
+use eprop::{bench, inspect};
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -234,49 +236,14 @@ fn main() -> ExitCode {
     }
 }
 
-/// True when started by an MPI launcher.
-fn under_mpirun() -> bool {
-    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK", "MPI_LOCALNRANKS"]
-        .iter()
-        .any(|v| std::env::var_os(v).is_some())
-}
-
-/// Runs under MPI. An error that every process knows (bad scenario or mesh, found by rank 0
-/// and sent to all) is printed once and every process exits with status 1; an error on one
-/// process prints its message and ends every process (MPI_Abort), so a batch job never hangs.
-fn run_under_mpi(scenario: &std::path::Path, opts: &RunOptions) -> Option<eprop::run::Summary> {
-    use mpi::topology::Communicator;
-    let Some(universe) = mpi::initialize() else {
-        eprintln!("error: MPI could not be initialised");
-        std::process::exit(1);
-    };
-    let world = universe.world();
-    let (rank, size) = (world.rank(), world.size());
-    let abort_world = universe.world();
-    match eprop::run::run_mpi(world, scenario, opts) {
-        Ok(s) => s,
-        Err(e) if e.is::<eprop::run::ReportedElsewhere>() => {
-            drop(abort_world);
-            drop(universe);
-            std::process::exit(1)
-        }
-        Err(e) if e.is::<eprop::run::Collective>() => {
-            if rank == 0 {
-                eprintln!("error: {e:#}");
-            }
-            drop(abort_world);
-            drop(universe);
-            std::process::exit(1)
-        }
-        Err(e) => {
-            if size > 1 {
-                eprintln!("error (rank {rank} of {size}): {e:#}");
-            } else {
-                eprintln!("error: {e:#}");
-            }
-            abort_world.abort(1)
-        }
+/// Prints a report as JSON or as text.
+fn print<T: serde::Serialize + std::fmt::Display>(report: &T, json: bool) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(report)?);
+    } else {
+        println!("{report}");
     }
+    Ok(())
 }
 
 fn real_main(cli: Cli) -> Result<()> {
@@ -298,18 +265,20 @@ fn real_main(cli: Cli) -> Result<()> {
                 quiet: quiet || json,
                 restart,
             };
-            let summary = if under_mpirun() {
-                run_under_mpi(&scenario, &opts)
-            } else {
-                Some(run(&scenario, &opts)?)
-            };
-            if let Some(s) = summary {
-                if json {
-                    println!("{}", serde_json::to_string_pretty(&s)?);
-                } else {
-                    println!("{s}");
-                }
+            if let Some(s) = launch(|world| run_on(world, &scenario, &opts))? {
+                print(&s, json)?;
             }
+        }
+        Cmd::Check { scenario, steps, json } => {
+            let opts = RunOptions {
+                steps,
+                ..Default::default()
+            };
+            print(&inspect::check(&scenario, &opts)?, json)?;
+        }
+        Cmd::Info { mesh, json, strict } => {
+            let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
+            print(&inspect::mesh_info(&m), json)?;
         }
         Cmd::Convert { input, output, strict } => {
             let m = eprop_io::read_mesh_with(&input, &eprop_io::ReadOptions { strict })?;
@@ -319,39 +288,25 @@ fn real_main(cli: Cli) -> Result<()> {
             eprop_io::write_mesh(&m, &output)?;
             println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
         }
-        Cmd::Info { mesh, json, strict } => {
-            let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
-            let info = mesh_info(&m);
-            if json {
-                println!("{}", serde_json::to_string_pretty(&info)?);
-            } else {
-                println!("{info}");
-            }
-        }
         Cmd::Partition { mesh, parts, json } => {
             let m = eprop_io::read_mesh(&mesh)?;
-            let report = eprop::run::partition_report(&m, parts)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                println!("{report}");
-            }
+            print(&inspect::partition_report(&m, parts)?, json)?;
         }
         Cmd::Bench { cells, schemes, json } => {
-            let tmp = std::env::temp_dir();
-            let universe = if under_mpirun() { mpi::initialize() } else { None };
-            let world = universe.as_ref().map(|u| u.world());
-            let root = world.as_ref().is_none_or(|w| {
-                use mpi::topology::Communicator;
-                w.rank() == 0
-            });
-            if root {
-                println!("{}", eprop::bench::header());
-            }
-            let cases = eprop::bench::bench(world, &cells, &schemes, &tmp, |c| {
+            let (root, cases) = launch(|world| {
+                let root = is_root(world.as_ref());
                 if root {
-                    println!("{}", eprop::bench::row(c));
+                    println!("{}", bench::header());
                 }
+                let report = |c: &bench::Case| {
+                    if root {
+                        println!("{}", bench::row(c));
+                    }
+                };
+                Ok((
+                    root,
+                    bench::bench(world, &cells, &schemes, &std::env::temp_dir(), report)?,
+                ))
             })?;
             if let (true, Some(j)) = (root, json) {
                 std::fs::write(&j, serde_json::to_string_pretty(&cases)?)
@@ -359,68 +314,7 @@ fn real_main(cli: Cli) -> Result<()> {
             }
         }
         Cmd::ExportOperator { scenario, output } => {
-            let setup = eprop::scenario::Setup::new(eprop::scenario::Scenario::load(&scenario)?)?;
-            let sim = eprop::solver::Simulation::new(setup)?;
-            let eprop::operator::Operator::Compact(op) = &sim.prop.op else {
-                bail!(
-                    "{}: export-operator needs [model] scheme = \"compact\"",
-                    scenario.display()
-                );
-            };
-            let n = sim.n_owned();
-            let mut rows: Vec<Vec<(i64, f64)>> = vec![vec![]; n];
-            for i in 0..n {
-                let g = sim.gid[i] as usize;
-                let r = op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize;
-                if r.is_empty() {
-                    continue;
-                }
-                let mut diag = 0.0;
-                let mut row: Vec<(i64, f64)> = r
-                    .map(|p| {
-                        diag -= op.c(p);
-                        (sim.gid[op.col[p] as usize] as i64, op.c(p))
-                    })
-                    .collect();
-                row.push((g as i64, diag));
-                row.sort_by_key(|e| e.0);
-                rows[g] = row;
-            }
-            let mut row_ptr = vec![0i64];
-            let (mut col, mut val) = (vec![], vec![]);
-            for r in &rows {
-                for &(j, v) in r {
-                    col.push(j);
-                    val.push(v);
-                }
-                row_ptr.push(col.len() as i64);
-            }
-            eprop_io::vtkhdf::write_csr(
-                &output,
-                &row_ptr,
-                &col,
-                &val,
-                &[("h", sim.step_plan().h), ("nodes", n as f64)],
-            )?;
-            println!(
-                "{}: {} rows, {} entries, h = {:.6e}",
-                output.display(),
-                n,
-                col.len(),
-                sim.step_plan().h
-            );
-        }
-        Cmd::Check { scenario, steps, json } => {
-            let opts = RunOptions {
-                steps,
-                ..Default::default()
-            };
-            let r = eprop::run::check(&scenario, &opts)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&r)?);
-            } else {
-                println!("{r}");
-            }
+            println!("{}", inspect::export_operator(&scenario, &output)?);
         }
         Cmd::Mesh { shape } => {
             let (mesh, out) = match shape {

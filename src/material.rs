@@ -2,6 +2,7 @@
 //! and the 1-D tissue law that turns a contact stress into an energy density (MODEL.md 1, 4).
 
 use nalgebra::Matrix3;
+use serde::{Deserialize, Serialize};
 
 pub type Tensor = Matrix3<f64>;
 
@@ -21,7 +22,7 @@ pub fn check_spd(r: &Tensor) -> Result<(), String> {
 }
 
 /// The tissue law: sigma = (E/beta)(exp(beta eps) - 1), linear when beta = 0.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TissueLaw {
     pub young: f64,
     pub beta: f64,

@@ -9,8 +9,8 @@ use crate::integrate::{stability, Euler, StepPlan, StepStats, Stepper};
 use crate::operator::{Compact, Operator, Paper, V3};
 use crate::propagation::Propagation;
 use crate::scatter::{BlockScatter, Halo};
-use crate::scenario::{Load, Scheme, Setup, Stop};
-use anyhow::{anyhow, bail, Result};
+use crate::scenario::{Load, Precision, Scheme, Setup, Stop};
+use anyhow::{bail, Result};
 use eprop_io::geom::{dot, norm, scale};
 use eprop_io::Mesh;
 use eprop_partition::{LocalNumbering, Plan};
@@ -20,7 +20,7 @@ pub use crate::integrate::euler::SAFETY;
 
 /// Largest stable mechanics step of one node (semi-implicit Euler), infinite when undamped
 /// and unsprung.
-pub fn dt_bound_node(m: f64, g: f64, k: f64) -> f64 {
+fn dt_bound_node(m: f64, g: f64, k: f64) -> f64 {
     if k > 0.0 {
         (-g + (g * g + 4.0 * m * k).sqrt()) / k
     } else if g > 0.0 {
@@ -46,74 +46,55 @@ pub struct Applied {
 pub struct Simulation {
     /// This process's view of the scenario: its local mesh and per-node arrays in local
     /// numbering (loads keep global node indices).
-    pub setup: Setup,
-    pub comm: Box<dyn Comm>,
+    pub(crate) setup: Setup,
+    pub(crate) comm: Box<dyn Comm>,
     /// The whole mesh, on the process that writes the static part of the output (rank 0).
     pub global: Option<Mesh>,
-    pub n_global: usize,
-    pub numbering: LocalNumbering,
+    pub(crate) n_global: usize,
+    numbering: LocalNumbering,
     /// Global node index of each local node.
-    pub gid: Vec<u64>,
+    pub(crate) gid: Vec<u64>,
     /// Output blocks of the global node order.
-    pub blocks: BlockScatter,
+    pub(crate) blocks: BlockScatter,
     pub dual: Dual,
     pub prop: Propagation,
     /// The integrator of the propagation.
-    pub stepper: Box<dyn Stepper>,
+    stepper: Box<dyn Stepper>,
     /// nodes that move: not fixed and with a control volume
     pub active: Vec<bool>,
     pub u: NodeField<V3>,
     pub v: NodeField<V3>,
-    pub force: NodeField<V3>,
+    force: NodeField<V3>,
     pub loads: Vec<Load>,
     /// owned contact nodes of each load (local index, probe weight, force weight, source weight)
-    pub load_local: Vec<Vec<(u32, f64, f64, f64)>>,
+    load_local: Vec<Vec<(u32, f64, f64, f64)>>,
     /// control volumes of this process's output block
-    pub vol_block: Vec<f64>,
+    pub(crate) vol_block: Vec<f64>,
     /// fixed nodes of the whole mesh
-    pub fixed_nodes: usize,
+    pub(crate) fixed_nodes: usize,
     pub dt: f64,
-    pub dt_bound: f64,
+    pub(crate) dt_bound: f64,
     pub step: u64,
     pub time: f64,
     pub max_speed: f64,
     /// nodes of the whole mesh that belong to no cell
-    pub inactive_nodes: usize,
+    pub(crate) inactive_nodes: usize,
     /// Operator applications of every step this process advanced.
-    pub applications: Vec<u32>,
-}
-
-/// The cells of a plan, renumbered locally.
-pub fn local_mesh(global: &Mesh, plan: &Plan) -> Mesh {
-    let ids = &plan.numbering.global;
-    let mut map = std::collections::HashMap::with_capacity(ids.len());
-    for (l, &g) in ids.iter().enumerate() {
-        map.insert(g, l as u32);
-    }
-    let mut m = Mesh::new(global.source.clone());
-    m.points = ids.iter().map(|&g| global.points[g as usize]).collect();
-    m.node_ids = ids.iter().map(|&g| global.node_ids[g as usize]).collect();
-    let mut buf = Vec::with_capacity(8);
-    for &c in &plan.cells {
-        buf.clear();
-        buf.extend(global.cell(c as usize).iter().map(|g| map[g]));
-        m.push_cell(global.kinds[c as usize], &buf, global.cell_tags[c as usize]);
-    }
-    m
+    pub(crate) applications: Vec<u32>,
 }
 
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
 /// faces before its coefficients are computed and takes the pair columns over).
 fn build_operator(setup: &Setup, inc: &Incidence, dual: &mut Dual, active: &[bool], n_owned: usize) -> Operator {
     let (mesh, r) = (&setup.mesh, &setup.r);
-    match setup.scheme {
+    match setup.model.scheme() {
         Scheme::Compact => {
             dual.release_pairs(); // S_ij are not needed by compact: free them first
             let a = compact_coefficients(mesh, inc, dual, r);
-            crate::distribute::log_memory("the coefficients");
+            crate::diagnostics::log_memory("the coefficients");
             let col = std::mem::take(&mut dual.col);
             let c = Compact::from_pairs(&dual.row_ptr[..=n_owned], col, a, &dual.vol, active);
-            if setup.scenario.file.model.operator_precision == "float32" {
+            if setup.model.operator_precision == Precision::Float32 {
                 Operator::Compact(c.into_f32())
             } else {
                 Operator::Compact(c)
@@ -128,11 +109,11 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
     let dt_bound = comm.min(
         (0..n_owned)
             .filter(|&i| active[i])
-            .map(|i| dt_bound_node(setup.mass[i], setup.damping[i], setup.stiffness))
+            .map(|i| dt_bound_node(setup.mass[i], setup.damping[i], setup.model.stiffness))
             .fold(f64::INFINITY, f64::min),
     );
     let path = setup.scenario.path.display();
-    let dt = match setup.dt {
+    let dt = match setup.time.dt {
         Some(dt) if dt > dt_bound => bail!(
             "{path}: [time] dt = {dt} is above the mechanics stability bound {dt_bound:.6e}; fix: use dt <= {:.6e} or leave dt out (automatic)",
             SAFETY * dt_bound
@@ -151,9 +132,9 @@ fn build_stepper(setup: &Setup, h_bound: f64, dt: f64) -> Result<Box<dyn Stepper
     Ok(Box::new(Euler::new(
         h_bound,
         dt,
-        setup.h,
+        setup.time.h,
         &path,
-        scheme_name(setup.scheme),
+        scheme_name(setup.model.scheme()),
     )?))
 }
 
@@ -220,7 +201,7 @@ fn mechanics_step(
     u: &mut [V3],
     v: &mut [V3],
 ) -> f64 {
-    let (k, kappa, p) = (setup.stiffness, setup.coupling, setup.exponent);
+    let (k, kappa, p) = (setup.model.stiffness, setup.model.coupling, setup.model.exponent);
     let (mass, damp) = (&setup.mass, &setup.damping);
     const CH: usize = 4096;
     u.par_chunks_mut(CH)
@@ -287,9 +268,9 @@ impl Simulation {
         let gid: Vec<u64> = numbering.global.iter().map(|&g| g as u64).collect();
         let n_global = c.sum_i128(n_owned as i128) as usize;
         let inc = Incidence::new(&setup.mesh);
-        crate::distribute::log_memory("the local mesh and plan");
+        crate::diagnostics::log_memory("the local mesh and plan");
         let mut dual = Dual::build(&setup.mesh, &inc, n_owned, Some(gid.as_slice()));
-        crate::distribute::log_memory("the dual geometry");
+        crate::diagnostics::log_memory("the dual geometry");
         let inactive_nodes = c.sum_i128(dual.vol.iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
         // activity of halo nodes comes from their owners; only fixedness matters there
         let active: Vec<bool> = (0..layout.n_local)
@@ -301,7 +282,7 @@ impl Simulation {
         dual.release_pairs();
         dual.col = Vec::new();
         dual.row_ptr = Vec::new();
-        crate::distribute::log_memory("the operator");
+        crate::diagnostics::log_memory("the operator");
         let mut prop = Propagation::new(op, halo, layout);
         tracing::info!(
             "geometry and operator built ({} rows); searching the stable substep",
@@ -415,7 +396,7 @@ impl Simulation {
 
     /// Number of steps the stop condition allows (equilibrium: its cap).
     pub fn max_steps(&self) -> u64 {
-        match self.setup.stop {
+        match self.setup.time.stop {
             Stop::Steps(n) => n,
             Stop::End(t) => (t / self.dt - 1e-9).ceil().max(0.0) as u64,
             Stop::Equilibrium { max_steps, .. } => max_steps,
@@ -427,7 +408,7 @@ impl Simulation {
         if self.step >= self.max_steps() {
             return true;
         }
-        match self.setup.stop {
+        match self.setup.time.stop {
             Stop::Equilibrium { tol, .. } => self.step > 0 && self.max_speed < tol,
             _ => false,
         }
@@ -524,7 +505,7 @@ impl Simulation {
     }
 }
 
-pub fn scheme_name(s: Scheme) -> &'static str {
+pub(crate) fn scheme_name(s: Scheme) -> &'static str {
     match s {
         Scheme::Compact => "compact",
         Scheme::Paper { correction: true } => "paper (corrected)",
@@ -532,22 +513,5 @@ pub fn scheme_name(s: Scheme) -> &'static str {
     }
 }
 
-/// Flattens 3-vectors for output.
-pub fn flat(v: &[V3]) -> Vec<f64> {
-    v.iter().flatten().copied().collect()
-}
-
-/// Checks that a path's directory exists before a long run starts.
-pub fn check_output_dir(path: &std::path::Path) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(std::path::Path::new("."));
-    if !dir.is_dir() {
-        return Err(anyhow!(
-            "{}: the output directory does not exist; fix: create it or choose another [output] file / --output",
-            path.display()
-        ));
-    }
-    Ok(())
-}
+#[cfg(test)]
+mod tests;

@@ -5,6 +5,7 @@
 //! The crate takes plain slices (cell offsets and connectivity) so it depends on no mesh type.
 
 use anyhow::{anyhow, bail, Result};
+use serde::{Deserialize, Serialize};
 
 /// Node-to-cell incidence in CSR form: the cells of node i, increasing, are
 /// `cells[ptr[i]..ptr[i + 1]]`.
@@ -166,7 +167,7 @@ pub fn quality(xadj: &[usize], adj: &[u32], part: &[u32], nparts: usize) -> Qual
 /// The local numbering of one process: owned interior nodes (no neighbour on another
 /// process), owned border nodes (sent to some neighbour), then halo nodes (copies of other
 /// processes' nodes, by increasing global id). Per-node arrays of a process follow it.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct LocalNumbering {
     /// Global id of each local node (owned first, then halo).
     pub global: Vec<u32>,
@@ -235,7 +236,7 @@ impl Layout {
 /// Who sends what to whom in a halo exchange: per neighbour process, the local indices of the
 /// owned nodes to send and of the halo nodes to receive into, both ordered by global id, so
 /// the two sides agree without negotiation.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct HaloPattern {
     pub neighbours: Vec<Neighbour>,
 }
@@ -247,7 +248,7 @@ impl HaloPattern {
     }
 }
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Neighbour {
     pub rank: usize,
     pub send: Vec<u32>,
@@ -257,7 +258,7 @@ pub struct Neighbour {
 /// What one process holds and exchanges: its numbering, its halo pattern and its cells
 /// (every cell with an owned node, in global order). Owned nodes are sorted by an optional
 /// locality key (ties and no key: by global id).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
     pub rank: usize,
     pub numbering: LocalNumbering,

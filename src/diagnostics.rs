@@ -1,0 +1,72 @@
+//! Measurements of a process for the logs, the summary and the benchmarks: resident memory
+//! and the median and spread of timings and counts.
+
+/// Logs (at -vv) the resident and peak memory of this process after a setup phase.
+pub fn log_memory(phase: &str) {
+    if tracing::enabled!(tracing::Level::DEBUG) {
+        let now = status_kb("VmRSS:") * 1024;
+        tracing::debug!(
+            "memory after {phase}: {:.1} MiB resident, peak {:.1} MiB",
+            now as f64 / 1048576.0,
+            peak_rss() as f64 / 1048576.0
+        );
+    }
+}
+
+/// Peak resident memory of this process so far, in bytes (Linux; 0 elsewhere).
+pub fn peak_rss() -> u64 {
+    status_kb("VmHWM:") * 1024
+}
+
+/// A `kB` line of /proc/self/status (0 when there is none).
+fn status_kb(key: &str) -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with(key))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|v| v.parse::<u64>().ok())
+        })
+        .unwrap_or(0)
+}
+
+/// The median of a list (the upper one of an even count; 0 when empty).
+pub fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// Min, median (as `median`) and max of a list (zeros when empty).
+pub fn spread(v: &[u32]) -> [u32; 3] {
+    let mut v = v.to_vec();
+    v.sort_unstable();
+    match (v.first(), v.last()) {
+        (Some(&lo), Some(&hi)) => [lo, v[v.len() / 2], hi],
+        _ => [0; 3],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn medians_and_spreads() {
+        assert_eq!(median(&[]), 0.0);
+        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&[4.0, 1.0, 3.0, 2.0]), 3.0);
+        assert_eq!(spread(&[]), [0; 3]);
+        assert_eq!(spread(&[5, 1, 9, 2]), [1, 5, 9]);
+    }
+
+    #[test]
+    fn this_process_has_a_resident_peak() {
+        let v = vec![1u8; 1 << 20];
+        std::hint::black_box(&v);
+        assert!(peak_rss() >= 1 << 20);
+        assert!(status_kb("VmRSS:") > 0);
+        assert_eq!(status_kb("NoSuchKey:"), 0);
+    }
+}
