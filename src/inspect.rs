@@ -265,13 +265,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         8.0
     };
     let mesh = sim.global.as_ref().unwrap_or(&sim.setup.mesh);
-    let mut warnings = mesh.warnings.clone();
-    if sim.inactive_nodes > 0 {
-        warnings.push(format!(
-            "{} node(s) belong to no cell and stay at rest",
-            sim.inactive_nodes
-        ));
-    }
+    let mut warnings = crate::summary::warnings(&sim, mesh);
     if sim.loads.iter().any(|l| l.nodes.len() == 1) {
         warnings.push(
             "a load on a single node is mesh-dependent (the source is singular); a `patch = { center, radius }` is not"

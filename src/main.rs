@@ -43,7 +43,8 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [tissue]    young = 100.0, beta = 0.0 (exponential law when > 0)\n\
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\
               halfspace = {point, normal} | nodes = [ids] | tag = N | group = \"name\"\n\
-  [[load]]    node = ID | nearest = [x,y,z];  force = [fx,fy,fz] | normal = magnitude;\n\
+  [[load]]    node = ID | nearest = [x,y,z] | patch = {center, radius};\n\
+              force = [fx,fy,fz] | normal = magnitude;\n\
               ramp = [[t0, s0], [t1, s1], ...] (optional scale in time)\n\
   [time]      steps = N | end = T | equilibrium = tol;  dt, h optional (automatic)\n\
   [output]    file = \"out.h5\", every = 1, fields = [\"displacement\", ...],\n\

@@ -6,6 +6,7 @@ use crate::parts::GlobalSizes;
 use crate::scenario::Stop;
 use crate::series::Series;
 use crate::solver::{scheme_name, Simulation};
+use eprop_io::Mesh;
 use serde::Serialize;
 
 #[derive(Serialize, Debug, Clone)]
@@ -162,6 +163,18 @@ pub struct Timing {
     pub rank0_scatter_peak: u64,
 }
 
+/// The reader's warnings about the mesh and the simulation's about its nodes.
+pub fn warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
+    let mut warnings = mesh.warnings.clone();
+    if sim.inactive_nodes > 0 {
+        warnings.push(format!(
+            "{} node(s) belong to no cell and stay at rest",
+            sim.inactive_nodes
+        ));
+    }
+    warnings
+}
+
 /// The summary of a finished run, on the process that holds the whole mesh (rank 0); every
 /// process calls (reductions inside).
 pub fn summarize(sim: &Simulation, sizes: &GlobalSizes, series: &Series, t: Timing) -> Option<Summary> {
@@ -171,13 +184,7 @@ pub fn summarize(sim: &Simulation, sizes: &GlobalSizes, series: &Series, t: Timi
     let halo_wait = sim.comm.max(sim.prop.halo.wait_seconds());
     let peak = sim.comm.max(peak_rss() as f64);
     let mesh = sim.global.as_ref()?;
-    let mut warnings = mesh.warnings.clone();
-    if sim.inactive_nodes > 0 {
-        warnings.push(format!(
-            "{} node(s) belong to no cell and stay at rest",
-            sim.inactive_nodes
-        ));
-    }
+    let mut warnings = warnings(sim, mesh);
     if let Stop::Equilibrium { tol, .. } = sim.setup.time.stop {
         if sim.max_speed >= tol {
             warnings.push(format!(

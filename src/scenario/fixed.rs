@@ -33,15 +33,8 @@ pub fn resolve(sc: &Scenario, sets: &[Entry<FixedSet>], mesh: &Mesh) -> Result<V
     let n = mesh.n_nodes();
     let mut fixed = vec![false; n];
     for e in sets {
-        let set = sc.select(&e.selector, FixedSet::TABLE, mesh)?;
-        if !set.iter().any(|&b| b) {
-            return Err(sc.error_at(
-                e.selector.span(),
-                FixedSet::TABLE,
-                e.selector.get_ref().key(),
-                "selects no node; fix: check it against the mesh (eprop info MESH)",
-            ));
-        }
+        let none = "selects no node; fix: check it against the mesh (eprop info MESH)";
+        let set = sc.select(&e.selector, FixedSet::TABLE, mesh, none)?;
         for i in 0..n {
             fixed[i] |= set[i];
         }

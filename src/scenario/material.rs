@@ -165,15 +165,8 @@ pub fn resolve(sc: &Scenario, m: &MaterialSec, mesh: &Mesh) -> Result<Materials>
     let mut mass = vec![m.mass; n];
     let mut damping = vec![m.damping; n];
     for reg in &m.region {
-        let set = sc.select(&reg.selector, Region::TABLE, mesh)?;
-        if !set.iter().any(|&b| b) {
-            return Err(sc.error_at(
-                reg.selector.span(),
-                Region::TABLE,
-                reg.selector.get_ref().key(),
-                "the region holds no node; fix: check its bounds against the mesh (eprop info MESH)",
-            ));
-        }
+        let none = "the region holds no node; fix: check its bounds against the mesh (eprop info MESH)";
+        let set = sc.select(&reg.selector, Region::TABLE, mesh, none)?;
         let w = &reg.with;
         for i in (0..n).filter(|&i| set[i]) {
             if let Some(c) = w.conductivity {

@@ -195,11 +195,18 @@ impl Scenario {
         anyhow!("{}", located(&at, Some(section), key, &msg.to_string()))
     }
 
-    /// The nodes a selector of table `section` picks on `mesh`; errors at the selector's line.
-    pub fn select(&self, s: &Spanned<Selector>, section: &str, mesh: &Mesh) -> Result<Vec<bool>> {
-        s.get_ref()
+    /// The nodes a selector of table `section` picks on `mesh`, at least one; errors (`none`
+    /// when it picks nothing) at the selector's line.
+    pub fn select(&self, s: &Spanned<Selector>, section: &str, mesh: &Mesh, none: &str) -> Result<Vec<bool>> {
+        let key = s.get_ref().key();
+        let set = s
+            .get_ref()
             .nodes(mesh)
-            .map_err(|e| self.error_at(s.span(), section, s.get_ref().key(), e))
+            .map_err(|e| self.error_at(s.span(), section, key, e))?;
+        if !set.iter().any(|&b| b) {
+            return Err(self.error_at(s.span(), section, key, none));
+        }
+        Ok(set)
     }
 }
 

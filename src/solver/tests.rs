@@ -44,7 +44,11 @@ fn free_swing(s: &Setup, dt: f64) -> f64 {
 
 #[test]
 fn the_mechanics_bound_separates_decay_from_growth() {
-    for model in [MODEL, "[material]\nmass = 2.0\ndamping = 0.0\n", "[material]\nmass = 2.0\ndamping = 3.0\n[model]\nstiffness = 0.0\n"] {
+    for model in [
+        MODEL,
+        "[material]\nmass = 2.0\ndamping = 0.0\n",
+        "[material]\nmass = 2.0\ndamping = 3.0\n[model]\nstiffness = 0.0\n",
+    ] {
         let s = setup(&format!("{model}[time]\nsteps = 1\n"));
         let n = s.mesh.n_nodes();
         let active: Vec<bool> = (0..n).map(|i| !s.fixed[i]).collect();
@@ -62,13 +66,24 @@ fn the_mechanics_bound_separates_decay_from_growth() {
     }
     let fixed_dt = setup(&format!("{MODEL}[time]\nsteps = 1\ndt = 100.0\n"));
     let n = fixed_dt.mesh.n_nodes();
-    let e = mechanics_dt(&fixed_dt, &vec![true; n], n, &Serial).unwrap_err().to_string();
-    assert!(e.contains("dt = 100 is above the mechanics stability bound") && e.contains("fix:"), "{e}");
+    let e = mechanics_dt(&fixed_dt, &vec![true; n], n, &Serial)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("dt = 100 is above the mechanics stability bound") && e.contains("fix:"),
+        "{e}"
+    );
     let free = setup("[material]\ndamping = 0.0\n[model]\nstiffness = 0.0\n[time]\nsteps = 1\n");
     let e = mechanics_dt(&free, &vec![true; n], n, &Serial).unwrap_err().to_string();
-    assert!(e.contains("no step size is stable by itself; fix: set [time] dt"), "{e}");
+    assert!(
+        e.contains("no step size is stable by itself; fix: set [time] dt"),
+        "{e}"
+    );
     let given = setup("[material]\ndamping = 0.0\n[model]\nstiffness = 0.0\n[time]\nsteps = 1\ndt = 0.5\n");
-    assert_eq!(mechanics_dt(&given, &vec![true; n], n, &Serial).unwrap(), (0.5, f64::INFINITY));
+    assert_eq!(
+        mechanics_dt(&given, &vec![true; n], n, &Serial).unwrap(),
+        (0.5, f64::INFINITY)
+    );
 }
 
 #[test]
@@ -81,7 +96,8 @@ fn a_load_takes_the_area_and_inward_normal_of_its_contact() {
     let local = sim.local(l.nodes[0]).unwrap() as u32;
     assert_eq!(sim.load_local[0], [(local, 1.0, 1.0, 1.0)]);
     // a patch of that one node: the source enters as a flux of depth 0.1 through its area
-    let patch = "[time]\nsteps = 1\n[[load]]\npatch = { center = [0.5, 0.5, 1.0], radius = 0.1 }\nforce = [0.0, 1.0, 0.0]\n";
+    let patch =
+        "[time]\nsteps = 1\n[[load]]\npatch = { center = [0.5, 0.5, 1.0], radius = 0.1 }\nforce = [0.0, 1.0, 0.0]\n";
     let sim = Simulation::new(setup(patch)).unwrap();
     let (l, mine) = (&sim.loads[0], &sim.load_local[0]);
     assert_eq!((l.area, l.force, l.depth), (0.25, [0.0, 1.0, 0.0], Some(0.1)));
@@ -93,5 +109,8 @@ fn a_load_takes_the_area_and_inward_normal_of_its_contact() {
     let s = setup(centre);
     assert_eq!(s.mesh.points[s.loads[0].nodes[0] as usize], [0.5; 3]);
     let e = Simulation::new(s).err().unwrap().to_string();
-    assert!(e.contains("load 1 on node 14: the node is inside the volume") && e.contains("fix:"), "{e}");
+    assert!(
+        e.contains("load 1 on node 14: the node is inside the volume") && e.contains("fix:"),
+        "{e}"
+    );
 }
