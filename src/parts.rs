@@ -200,17 +200,16 @@ pub fn scatter(
     let plan_of = |r| Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys));
     for r in 1..size {
         let plan = plan_of(r);
-        tracing::debug!(
-            "part {r}: {} owned, {} halo, {} neighbours",
-            plan.numbering.n_owned,
-            plan.n_halo(),
-            plan.pattern.neighbours.len()
-        );
+        let (owned, halo, neighbours) = (plan.numbering.n_owned, plan.n_halo(), plan.pattern.neighbours.len());
         let msg = encode(&Part {
             setup: setup.restrict(&plan),
             plan,
             sizes,
         })?;
+        tracing::debug!(
+            "part {r}: {owned} owned, {halo} halo, {neighbours} neighbours; {} bytes",
+            msg.len()
+        );
         world.process_at_rank(r as i32).send(&msg[..]);
     }
     let plan = plan_of(0);
