@@ -373,9 +373,8 @@ impl<'de, X: Keys> Visitor<'de> for EntryVisitor<X> {
         let Some(selector) = selectors.pop() else {
             let usage: Vec<&str> = X::SELECTORS.iter().map(|k| Selector::usage(k)).collect();
             return Err(de::Error::custom(format!(
-                "[[{}]] selects no nodes; fix: give one of {}",
-                X::TABLE,
-                usage.join(", ")
+                "no selector; fix: give one of {}",
+                either(&usage, "")
             )));
         };
         with.finish().map_err(de::Error::custom)?;
@@ -433,9 +432,9 @@ mod tests {
         ));
 
         let none = entry("weight = 1.0").unwrap_err();
-        assert!(
-            none.contains("selects no nodes") && none.contains("`tag = N`"),
-            "{none}"
+        assert_eq!(
+            none,
+            "no selector; fix: give one of `box = [[x0, y0, z0], [x1, y1, z1]]`, `tag = N` or `nearest = [x, y, z]`"
         );
         let two = entry("tag = 1\nbox = [[0, 0, 0], [1, 1, 1]]").unwrap_err();
         assert!(two.contains("`tag` and `box`") && two.contains("keep one"), "{two}");
