@@ -173,7 +173,8 @@ fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
 /// Rank 0 makes the whole-mesh setup (`make_setup`, called nowhere else), splits it and
 /// sends every process its part, one at a time; every process returns its own part, rank 0
 /// also the whole mesh. An error of rank 0 before the sends reaches every process: rank 0
-/// returns it as `Collective`, the others `ReportedElsewhere`.
+/// returns it as `Collective`, the others `ReportedElsewhere`; an error once sending has
+/// begun is rank 0's alone (the job's policy aborts it, see `launch`).
 pub fn scatter(
     world: &mpi::topology::SimpleCommunicator,
     make_setup: impl FnOnce() -> Result<Setup>,

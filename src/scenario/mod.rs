@@ -30,11 +30,11 @@ mod values;
 
 pub use fixed::FixedSet;
 pub use loads::{Load, Push};
-pub use material::{Conductivity, MaterialSec, Materials, Region};
+pub use material::{Conductivity, MaterialSec, Region};
 pub use mesh::MeshSec;
 pub use model::{Model, Scheme, SchemeName, TissueSec};
 pub use output::{Field, Output, OutputSec};
-pub use select::{nearest_surface_node, surface_node_areas, Entry, Keys, Selector};
+pub use select::{Entry, Keys, Selector};
 pub use time::{Stop, Time, TimeSec};
 pub use values::Precision;
 
@@ -258,7 +258,7 @@ impl Setup {
         let (sc, f) = (&scenario, &scenario.file);
         let time = time::resolve(sc, &f.time)?;
         let output = output::resolve(sc);
-        let Materials { r, mass, damping } = material::resolve(sc, &f.material, &mesh)?;
+        let material::Materials { r, mass, damping } = material::resolve(sc, &f.material, &mesh)?;
         let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         Ok(Setup {
