@@ -318,38 +318,43 @@ fn real_main(cli: Cli) -> Result<()> {
             println!("{}", inspect::export_operator(&scenario, &output)?);
         }
         Cmd::Mesh { shape } => {
-            let (mesh, out) = match shape {
-                Shape::Cylinder {
-                    radius,
-                    length,
-                    rings,
-                    layers,
-                    output,
-                } => (cylinder_mesh(radius, length, rings, layers)?, output),
-                Shape::Box {
-                    size,
-                    cells,
-                    kind,
-                    output,
-                } => {
-                    let k = match kind {
-                        Kind::Tet => BoxCells::Tet,
-                        Kind::Hex => BoxCells::Hex,
-                        Kind::Prism => BoxCells::Wedge,
-                        Kind::Pyramid => BoxCells::PyramidTet,
-                    };
-                    if size.len() != 3 || cells.len() != 3 {
-                        bail!("--size and --cells take three comma-separated values");
-                    }
-                    (
-                        box_mesh([size[0], size[1], size[2]], [cells[0], cells[1], cells[2]], k)?,
-                        output,
-                    )
-                }
-            };
+            let (mesh, out) = generate(shape)?;
             eprop_io::write_mesh(&mesh, &out)?;
             println!("{}: {} nodes, {} cells", out.display(), mesh.n_nodes(), mesh.n_cells());
         }
     }
     Ok(())
+}
+
+/// The mesh a `mesh` subcommand describes, and where it goes.
+fn generate(shape: Shape) -> Result<(eprop_io::Mesh, PathBuf)> {
+    Ok(match shape {
+        Shape::Cylinder {
+            radius,
+            length,
+            rings,
+            layers,
+            output,
+        } => (cylinder_mesh(radius, length, rings, layers)?, output),
+        Shape::Box {
+            size,
+            cells,
+            kind,
+            output,
+        } => {
+            let k = match kind {
+                Kind::Tet => BoxCells::Tet,
+                Kind::Hex => BoxCells::Hex,
+                Kind::Prism => BoxCells::Wedge,
+                Kind::Pyramid => BoxCells::PyramidTet,
+            };
+            if size.len() != 3 || cells.len() != 3 {
+                bail!("--size and --cells take three comma-separated values");
+            }
+            (
+                box_mesh([size[0], size[1], size[2]], [cells[0], cells[1], cells[2]], k)?,
+                output,
+            )
+        }
+    })
 }
