@@ -3,7 +3,7 @@
 //! Physical tags become cell tags and facet tags; `$PhysicalNames` become group names.
 
 use crate::mesh::{CellKind, Mesh};
-use crate::scan::{cap, Scan};
+use crate::scan::{cap, short, Scan};
 use anyhow::{anyhow, bail, Result};
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -83,14 +83,6 @@ impl<'a> Lines<'a> {
                 return Ok(());
             }
         }
-    }
-}
-
-fn short(s: &str) -> String {
-    if s.len() > 40 {
-        format!("{}...", &s[..s.char_indices().nth(40).map(|c| c.0).unwrap_or(s.len())])
-    } else {
-        s.to_string()
     }
 }
 
@@ -780,7 +772,7 @@ impl<'a> Bin<'a> {
                 p,
                 format!(
                     "expected `{tag}`, found `{}`; fix: a count disagrees with the data or the file is truncated",
-                    crate::scan::short(&l)
+                    short(&l)
                 ),
             )),
             None => Err(self.sc.truncated(tag)),
@@ -792,10 +784,7 @@ impl<'a> Bin<'a> {
         l.parse().map_err(|_| {
             self.sc.err_at(
                 p,
-                format!(
-                    "expected {what}, found `{}`; fix: repair the line",
-                    crate::scan::short(&l)
-                ),
+                format!("expected {what}, found `{}`; fix: repair the line", short(&l)),
             )
         })
     }
@@ -1043,10 +1032,7 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
                     None => {
                         return Err(b.sc.err_byte(
                             sec_pos,
-                            format!(
-                                "section {} has no end marker; fix: the file is truncated",
-                                crate::scan::short(s)
-                            ),
+                            format!("section {} has no end marker; fix: the file is truncated", short(s)),
                         ))
                     }
                 }
@@ -1056,7 +1042,7 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
                     sec_pos,
                     format!(
                         "unexpected `{}` between sections; fix: a count disagrees with the data",
-                        crate::scan::short(&l)
+                        short(&l)
                     ),
                 ))
             }
