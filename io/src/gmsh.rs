@@ -9,63 +9,66 @@ use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Line-oriented token reader that knows where it is, for messages.
+/// The text reader's view of a file: its non-blank lines, trimmed, each with the byte position
+/// of its start (messages turn it into a line number).
 struct Lines<'a> {
-    path: String,
-    lines: Vec<&'a str>,
-    pos: usize,
+    sc: Scan<'a>,
+    text: &'a str,
 }
 
 impl<'a> Lines<'a> {
-    fn new(path: &str, text: &'a str) -> Self {
+    fn new(name: &'a str, text: &'a str) -> Self {
         Lines {
-            path: path.to_string(),
-            lines: text.lines().collect(),
-            pos: 0,
+            sc: Scan::new(name, text.as_bytes()),
+            text,
         }
     }
-    /// The next non-blank line, with its 1-based number.
+    fn name(&self) -> &'a str {
+        self.sc.name
+    }
+    /// The next non-blank line and its position, or None at the end of the file.
+    fn next_line(&mut self) -> Option<(usize, &'a str)> {
+        let (p, l) = self.sc.next_line()?;
+        // the line is cut at ASCII bytes of valid UTF-8 text, so it is text itself
+        Some((p, self.text.get(p..p + l.len()).unwrap_or_default()))
+    }
+    /// The next non-blank line and its position; the end of the file is an error naming `what`.
     fn next(&mut self, what: &str) -> Result<(usize, &'a str)> {
-        while self.pos < self.lines.len() {
-            let l = self.lines[self.pos].trim();
-            self.pos += 1;
-            if !l.is_empty() {
-                return Ok((self.pos, l));
-            }
-        }
-        Err(anyhow!(
-            "{}:{}: file ends while reading {}; fix: the file is truncated, export it again",
-            self.path,
-            self.lines.len(),
-            what
-        ))
+        self.next_line().ok_or_else(|| {
+            let b = self.sc.b;
+            let lines = b.iter().filter(|&&c| c == b'\n').count() + usize::from(!b.is_empty() && !b.ends_with(b"\n"));
+            anyhow!(
+                "{}:{lines}: file ends while reading {what}; fix: the file is truncated, export it again",
+                self.name()
+            )
+        })
     }
-    fn err(&self, line: usize, msg: impl std::fmt::Display) -> anyhow::Error {
-        anyhow!("{}:{}: {}", self.path, line, msg)
+    fn err(&self, pos: usize, msg: impl std::fmt::Display) -> anyhow::Error {
+        self.sc.err_at(pos, msg)
     }
     /// Parses every whitespace-separated token of the next line.
     fn numbers<T: std::str::FromStr>(&mut self, what: &str) -> Result<(usize, Vec<T>)> {
-        let (ln, l) = self.next(what)?;
+        let (at, l) = self.next(what)?;
         let mut v = Vec::new();
         for tok in l.split_whitespace() {
             v.push(tok.parse::<T>().map_err(|_| {
                 if tok.starts_with('$') {
                     self.err(
-                        ln,
+                        at,
                         format!("found `{}` while reading {what}; fix: the count in the section header disagrees with its lines, repair it", short(tok)),
                     )
                 } else {
-                    self.err(ln, format!("cannot read `{}` as a number in {what}; fix: repair the line", short(tok)))
+                    self.err(at, format!("cannot read `{}` as a number in {what}; fix: repair the line", short(tok)))
                 }
             })?);
         }
-        Ok((ln, v))
+        Ok((at, v))
     }
     fn expect(&mut self, tag: &str) -> Result<()> {
-        let (ln, l) = self.next(tag)?;
+        let (at, l) = self.next(tag)?;
         if l != tag {
             return Err(self.err(
-                ln,
+                at,
                 format!(
                     "expected `{tag}`, found `{}`; fix: the section is malformed or truncated",
                     short(l)
@@ -89,7 +92,8 @@ impl<'a> Lines<'a> {
 /// Raw elements before node ids are resolved, in flat arrays (no allocation per element).
 #[derive(Default)]
 struct RawElems {
-    line: Vec<usize>,
+    /// Where each element starts in the file (a byte position), for messages.
+    pos: Vec<usize>,
     id: Vec<u64>,
     gtype: Vec<u32>,
     tag: Vec<i32>,
@@ -98,11 +102,11 @@ struct RawElems {
 }
 
 impl RawElems {
-    fn push(&mut self, line: usize, id: u64, gtype: u32, tag: i32, nodes: &[u64]) {
+    fn push(&mut self, pos: usize, id: u64, gtype: u32, tag: i32, nodes: &[u64]) {
         if self.offsets.is_empty() {
             self.offsets.push(0);
         }
-        self.line.push(line);
+        self.pos.push(pos);
         self.id.push(id);
         self.gtype.push(gtype);
         self.tag.push(tag);
@@ -111,7 +115,7 @@ impl RawElems {
     }
     /// Room for `n` more elements of up to four nodes (callers bound `n` by the data left).
     fn reserve(&mut self, n: usize) {
-        self.line.reserve(n);
+        self.pos.reserve(n);
         self.id.reserve(n);
         self.gtype.reserve(n);
         self.tag.reserve(n);
@@ -179,22 +183,22 @@ pub fn parse_bytes(name: &str, bytes: &[u8]) -> Result<Mesh> {
 /// Parses the text of a Gmsh file.
 pub fn parse(name: &str, text: &str) -> Result<Mesh> {
     let mut rd = Lines::new(name, text);
-    let (ln, first) = rd.next("the first section")?;
+    let (at, first) = rd.next("the first section")?;
     match first {
         "$NOD" => parse_v1(rd),
         "$MeshFormat" => {
-            let (ln2, fmt) = rd
+            let (at2, fmt) = rd
                 .numbers::<f64>("$MeshFormat")
                 .map_err(|e| e.context("reading $MeshFormat"))?;
             if fmt.len() < 3 {
                 return Err(rd.err(
-                    ln2,
+                    at2,
                     "$MeshFormat needs `version file-type data-size`; fix: repair the header",
                 ));
             }
             if fmt[1] != 0.0 {
                 return Err(rd.err(
-                    ln2,
+                    at2,
                     "binary .msh given as text; fix: read it with gmsh::parse_bytes (read_mesh does)",
                 ));
             }
@@ -205,11 +209,11 @@ pub fn parse(name: &str, text: &str) -> Result<Mesh> {
             } else if (4.1..4.2).contains(&v) {
                 parse_v41(rd)
             } else {
-                Err(rd.err(ln2, format!("Gmsh format {v} is not supported (1, 2.2 and 4.1 are); fix: save with gmsh -format msh41 or msh22")))
+                Err(rd.err(at2, format!("Gmsh format {v} is not supported (1, 2.2 and 4.1 are); fix: save with gmsh -format msh41 or msh22")))
             }
         }
         _ => Err(rd.err(
-            ln,
+            at,
             format!(
                 "`{}` is not the start of a Gmsh file ($MeshFormat or $NOD); fix: check the file type",
                 short(first)
@@ -221,49 +225,45 @@ pub fn parse(name: &str, text: &str) -> Result<Mesh> {
 fn parse_v1(mut rd: Lines) -> Result<Mesh> {
     let mut ids = Vec::new();
     let mut pts = Vec::new();
-    let (ln, n) = rd.numbers::<usize>("the node count")?;
+    let (at, n) = rd.numbers::<usize>("the node count")?;
     if n.len() != 1 {
-        return Err(rd.err(ln, "expected the node count alone on the line after $NOD"));
+        return Err(rd.err(at, "expected the node count alone on the line after $NOD"));
     }
     read_nodes_lines(&mut rd, n[0], &mut ids, &mut pts)?;
     rd.expect("$ENDNOD")?;
     let mut elems = RawElems::default();
-    loop {
-        let (ln, l) = match rd.next("$ELM") {
-            Ok(x) => x,
-            Err(_) => break,
-        };
+    while let Some((at, l)) = rd.next_line() {
         if l == "$ELM" {
-            let (ln2, n) = rd.numbers::<usize>("the element count")?;
+            let (at2, n) = rd.numbers::<usize>("the element count")?;
             if n.len() != 1 {
-                return Err(rd.err(ln2, "expected the element count alone on the line after $ELM"));
+                return Err(rd.err(at2, "expected the element count alone on the line after $ELM"));
             }
             for _ in 0..n[0] {
-                let (ln3, v) = rd.numbers::<i64>("an element")?;
+                let (at3, v) = rd.numbers::<i64>("an element")?;
                 if v.len() < 5 || v[4] < 0 || (v.len() - 5) as u64 != v[4] as u64 {
-                    return Err(rd.err(ln3, format!("element line has {} numbers; expected `id type phys elem n` and n node ids; fix: the count disagrees with the $ELM header or the line is cut", v.len())));
+                    return Err(rd.err(at3, format!("element line has {} numbers; expected `id type phys elem n` and n node ids; fix: the count disagrees with the $ELM header or the line is cut", v.len())));
                 }
                 let nodes: Vec<u64> = v[5..].iter().map(|&x| x as u64).collect();
-                elems.push(ln3, v[0] as u64, v[1] as u32, v[2] as i32, &nodes);
+                elems.push(at3, v[0] as u64, v[1] as u32, v[2] as i32, &nodes);
             }
             rd.expect("$ENDELM")?;
         } else {
-            return Err(rd.err(ln, format!("unexpected `{}` between sections", short(l))));
+            return Err(rd.err(at, format!("unexpected `{}` between sections", short(l))));
         }
     }
-    build(rd.path.clone(), ids, pts, elems, BTreeMap::new(), &rd)
+    build(ids, pts, elems, BTreeMap::new(), &rd)
 }
 
 fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<[f64; 3]>) -> Result<()> {
-    let c = n.min(rd.lines.len());
+    let c = cap(n, rd.sc.remaining(), 8);
     ids.reserve(c);
     pts.reserve(c);
     for _ in 0..n {
-        let (ln, l) = rd.next("a node")?;
+        let (at, l) = rd.next("a node")?;
         let t: Vec<&str> = l.split_whitespace().collect();
         if t.len() < 4 || t[0].starts_with('$') {
             return Err(rd.err(
-                ln,
+                at,
                 format!(
                     "expected `id x y z`, found `{}`; fix: the node count disagrees with the node lines",
                     short(l)
@@ -272,15 +272,15 @@ fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<
         }
         let id: u64 = t[0]
             .parse()
-            .map_err(|_| rd.err(ln, format!("node id `{}` is not a positive integer", t[0])))?;
+            .map_err(|_| rd.err(at, format!("node id `{}` is not a positive integer", t[0])))?;
         let mut p = [0.0f64; 3];
         for d in 0..3 {
             p[d] = t[1 + d]
                 .parse()
-                .map_err(|_| rd.err(ln, format!("coordinate `{}` is not a number", t[1 + d])))?;
+                .map_err(|_| rd.err(at, format!("coordinate `{}` is not a number", t[1 + d])))?;
             if !p[d].is_finite() {
                 return Err(rd.err(
-                    ln,
+                    at,
                     format!(
                         "node {id} has a non-finite coordinate `{}`; fix: repair the node",
                         t[1 + d]
@@ -295,22 +295,22 @@ fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<
 }
 
 fn read_physical_names(rd: &mut Lines) -> Result<BTreeMap<(u8, i32), String>> {
-    let (ln, n) = rd.numbers::<usize>("the physical name count")?;
+    let (at, n) = rd.numbers::<usize>("the physical name count")?;
     if n.len() != 1 {
-        return Err(rd.err(ln, "expected the number of physical names"));
+        return Err(rd.err(at, "expected the number of physical names"));
     }
     let mut m = BTreeMap::new();
     for _ in 0..n[0] {
-        let (ln, l) = rd.next("a physical name")?;
+        let (at, l) = rd.next("a physical name")?;
         let mut it = l.splitn(3, char::is_whitespace);
         let dim: u8 = it
             .next()
             .and_then(|s| s.parse().ok())
-            .ok_or_else(|| rd.err(ln, "expected `dim tag \"name\"`"))?;
+            .ok_or_else(|| rd.err(at, "expected `dim tag \"name\"`"))?;
         let tag: i32 = it
             .next()
             .and_then(|s| s.trim().parse().ok())
-            .ok_or_else(|| rd.err(ln, "expected `dim tag \"name\"`"))?;
+            .ok_or_else(|| rd.err(at, "expected `dim tag \"name\"`"))?;
         let name = it.next().unwrap_or("").trim().trim_matches('"').to_string();
         m.insert((dim, tag), name);
     }
@@ -324,32 +324,28 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
     let mut elems = RawElems::default();
     let mut names = BTreeMap::new();
     let mut saw_nodes = false;
-    loop {
-        let (ln, l) = match rd.next("a section") {
-            Ok(x) => x,
-            Err(_) => break,
-        };
+    while let Some((at, l)) = rd.next_line() {
         match l {
             "$PhysicalNames" => names = read_physical_names(&mut rd)?,
             "$Nodes" => {
-                let (ln2, n) = rd.numbers::<usize>("the node count")?;
+                let (at2, n) = rd.numbers::<usize>("the node count")?;
                 if n.len() != 1 {
-                    return Err(rd.err(ln2, "expected the node count alone on the line after $Nodes"));
+                    return Err(rd.err(at2, "expected the node count alone on the line after $Nodes"));
                 }
                 read_nodes_lines(&mut rd, n[0], &mut ids, &mut pts)?;
                 rd.expect("$EndNodes")?;
                 saw_nodes = true;
             }
             "$Elements" => {
-                let (ln2, n) = rd.numbers::<usize>("the element count")?;
+                let (at2, n) = rd.numbers::<usize>("the element count")?;
                 if n.len() != 1 {
-                    return Err(rd.err(ln2, "expected the element count alone on the line after $Elements"));
+                    return Err(rd.err(at2, "expected the element count alone on the line after $Elements"));
                 }
-                elems.reserve(n[0].min(rd.lines.len()));
+                elems.reserve(cap(n[0], rd.sc.remaining(), 8));
                 for _ in 0..n[0] {
-                    let (ln3, v) = rd.numbers::<i64>("an element")?;
+                    let (at3, v) = rd.numbers::<i64>("an element")?;
                     if v.len() < 3 || v[2] < 0 || ((v.len() - 3) as u64) < v[2] as u64 {
-                        return Err(rd.err(ln3, "element line too short; expected `id type ntags tags... nodes...`; fix: the count disagrees with $Elements or the line is cut"));
+                        return Err(rd.err(at3, "element line too short; expected `id type ntags tags... nodes...`; fix: the count disagrees with $Elements or the line is cut"));
                     }
                     let ntags = v[2] as usize;
                     let gtype = v[1] as u32;
@@ -358,7 +354,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
                     if let Some((nn, _)) = nodes_per_type(gtype) {
                         if nodes.len() != nn {
                             return Err(rd.err(
-                                ln3,
+                                at3,
                                 format!(
                                     "element {} of type {gtype} has {} node ids, expected {nn}",
                                     v[0],
@@ -367,21 +363,21 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
                             ));
                         }
                     }
-                    elems.push(ln3, v[0] as u64, gtype, tag, &nodes);
+                    elems.push(at3, v[0] as u64, gtype, tag, &nodes);
                 }
                 rd.expect("$EndElements")?;
             }
             s if s.starts_with('$') => rd.skip_section(s)?,
-            _ => return Err(rd.err(ln, format!("unexpected `{}` between sections", short(l)))),
+            _ => return Err(rd.err(at, format!("unexpected `{}` between sections", short(l)))),
         }
     }
     if !saw_nodes {
         bail!(
             "{}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)",
-            rd.path
+            rd.name()
         );
     }
-    build(rd.path.clone(), ids, pts, elems, names, &rd)
+    build(ids, pts, elems, names, &rd)
 }
 
 fn parse_v41(mut rd: Lines) -> Result<Mesh> {
@@ -392,28 +388,24 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
     // (dim, entity tag) -> first physical tag
     let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
     let mut saw_nodes = false;
-    loop {
-        let (ln, l) = match rd.next("a section") {
-            Ok(x) => x,
-            Err(_) => break,
-        };
+    while let Some((at, l)) = rd.next_line() {
         match l {
             "$PhysicalNames" => names = read_physical_names(&mut rd)?,
             "$Entities" => {
-                let (ln2, c) = rd.numbers::<usize>("entity counts")?;
+                let (at2, c) = rd.numbers::<usize>("entity counts")?;
                 if c.len() != 4 {
-                    return Err(rd.err(ln2, "expected `numPoints numCurves numSurfaces numVolumes`"));
+                    return Err(rd.err(at2, "expected `numPoints numCurves numSurfaces numVolumes`"));
                 }
                 for dim in 0..4u8 {
                     for _ in 0..c[dim as usize] {
-                        let (ln3, v) = rd.numbers::<f64>("an entity")?;
+                        let (at3, v) = rd.numbers::<f64>("an entity")?;
                         let np_at = if dim == 0 { 4 } else { 7 };
                         if v.len() <= np_at {
-                            return Err(rd.err(ln3, "entity line too short"));
+                            return Err(rd.err(at3, "entity line too short"));
                         }
                         let nphys = v[np_at] as usize;
                         if v.len().saturating_sub(np_at + 1) < nphys {
-                            return Err(rd.err(ln3, "entity line has fewer physical tags than it announces"));
+                            return Err(rd.err(at3, "entity line has fewer physical tags than it announces"));
                         }
                         if nphys > 0 {
                             entity_phys.insert((dim, v[0] as i32), v[np_at + 1] as i32);
@@ -423,38 +415,38 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                 rd.expect("$EndEntities")?;
             }
             "$Nodes" => {
-                let (ln2, h) = rd.numbers::<usize>("the $Nodes header")?;
+                let (at2, h) = rd.numbers::<usize>("the $Nodes header")?;
                 if h.len() != 4 {
-                    return Err(rd.err(ln2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
+                    return Err(rd.err(at2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
                 }
-                ids.reserve(h[1].min(rd.lines.len()));
-                pts.reserve(h[1].min(rd.lines.len()));
+                ids.reserve(cap(h[1], rd.sc.remaining(), 8));
+                pts.reserve(cap(h[1], rd.sc.remaining(), 8));
                 for _ in 0..h[0] {
-                    let (ln3, b) = rd.numbers::<i64>("a node block header")?;
+                    let (at3, b) = rd.numbers::<i64>("a node block header")?;
                     if b.len() != 4 || b[3] < 0 {
-                        return Err(rd.err(ln3, "expected `entityDim entityTag parametric numNodesInBlock`"));
+                        return Err(rd.err(at3, "expected `entityDim entityTag parametric numNodesInBlock`"));
                     }
                     let parametric = b[2] != 0;
                     let n = b[3] as usize;
                     let start = ids.len();
                     for _ in 0..n {
-                        let (ln4, t) = rd.numbers::<u64>("a node tag")?;
+                        let (at4, t) = rd.numbers::<u64>("a node tag")?;
                         if t.len() != 1 {
                             return Err(rd.err(
-                                ln4,
+                                at4,
                                 "expected one node tag per line; fix: the block count disagrees with its lines",
                             ));
                         }
                         ids.push(t[0]);
                     }
                     for k in 0..n {
-                        let (ln4, c) = rd.numbers::<f64>("node coordinates")?;
+                        let (at4, c) = rd.numbers::<f64>("node coordinates")?;
                         if c.len() < 3 || (!parametric && c.len() != 3) {
-                            return Err(rd.err(ln4, "expected `x y z`; fix: the block count disagrees with its lines"));
+                            return Err(rd.err(at4, "expected `x y z`; fix: the block count disagrees with its lines"));
                         }
                         if c[..3].iter().any(|x| !x.is_finite()) {
                             return Err(rd.err(
-                                ln4,
+                                at4,
                                 format!(
                                     "node {} has a non-finite coordinate; fix: repair the node",
                                     ids[start + k]
@@ -466,7 +458,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                 }
                 if ids.len() != h[1] {
                     return Err(rd.err(
-                        ln2,
+                        at2,
                         format!(
                             "$Nodes announces {} nodes but its blocks hold {}; fix: repair the header",
                             h[1],
@@ -478,39 +470,39 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                 saw_nodes = true;
             }
             "$Elements" => {
-                let (ln2, h) = rd.numbers::<usize>("the $Elements header")?;
+                let (at2, h) = rd.numbers::<usize>("the $Elements header")?;
                 if h.len() != 4 {
                     return Err(rd.err(
-                        ln2,
+                        at2,
                         "expected `numEntityBlocks numElements minElementTag maxElementTag`",
                     ));
                 }
-                elems.reserve(h[1].min(rd.lines.len()));
+                elems.reserve(cap(h[1], rd.sc.remaining(), 8));
                 let mut count = 0usize;
                 for _ in 0..h[0] {
-                    let (ln3, b) = rd.numbers::<i64>("an element block header")?;
+                    let (at3, b) = rd.numbers::<i64>("an element block header")?;
                     if b.len() != 4 || b[3] < 0 {
-                        return Err(rd.err(ln3, "expected `entityDim entityTag elementType numElementsInBlock`"));
+                        return Err(rd.err(at3, "expected `entityDim entityTag elementType numElementsInBlock`"));
                     }
                     let tag = entity_phys.get(&(b[0] as u8, b[1] as i32)).copied().unwrap_or(0);
                     let gtype = b[2] as u32;
                     for _ in 0..b[3] {
-                        let (ln4, v) = rd.numbers::<u64>("an element")?;
+                        let (at4, v) = rd.numbers::<u64>("an element")?;
                         if v.is_empty() {
-                            return Err(rd.err(ln4, "empty element line"));
+                            return Err(rd.err(at4, "empty element line"));
                         }
                         if let Some((nn, _)) = nodes_per_type(gtype) {
                             if v.len() != nn + 1 {
-                                return Err(rd.err(ln4, format!("element {} of type {gtype} has {} node ids, expected {nn}; fix: the block count disagrees with its lines", v[0], v.len() - 1)));
+                                return Err(rd.err(at4, format!("element {} of type {gtype} has {} node ids, expected {nn}; fix: the block count disagrees with its lines", v[0], v.len() - 1)));
                             }
                         }
-                        elems.push(ln4, v[0], gtype, tag, &v[1..]);
+                        elems.push(at4, v[0], gtype, tag, &v[1..]);
                         count += 1;
                     }
                 }
                 if count != h[1] {
                     return Err(rd.err(
-                        ln2,
+                        at2,
                         format!(
                             "$Elements announces {} elements but its blocks hold {count}; fix: repair the header",
                             h[1]
@@ -520,28 +512,29 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                 rd.expect("$EndElements")?;
             }
             s if s.starts_with('$') => rd.skip_section(s)?,
-            _ => return Err(rd.err(ln, format!("unexpected `{}` between sections", short(l)))),
+            _ => return Err(rd.err(at, format!("unexpected `{}` between sections", short(l)))),
         }
     }
     if !saw_nodes {
         bail!(
             "{}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)",
-            rd.path
+            rd.name()
         );
     }
-    build(rd.path.clone(), ids, pts, elems, names, &rd)
+    build(ids, pts, elems, names, &rd)
 }
 
 fn build(
-    source: String,
     ids: Vec<u64>,
     pts: Vec<[f64; 3]>,
     elems: RawElems,
     names: BTreeMap<(u8, i32), String>,
     rd: &Lines,
 ) -> Result<Mesh> {
-    let path = rd.path.clone();
-    build_at(source, ids, pts, elems, names, &|line| format!("{path}:{line}"))
+    let sc = &rd.sc;
+    build_at(rd.name().to_string(), ids, pts, elems, names, &|pos| {
+        format!("{}:{}", sc.name, sc.line_of(pos))
+    })
 }
 
 /// Resolves node ids of the raw elements; `loc` turns a raw element's position into
@@ -566,14 +559,14 @@ fn build_at(
     mesh.group_names = names;
     let mut buf = Vec::with_capacity(8);
     for e in 0..elems.len() {
-        let (line, id, gtype, tag, nodes) = (elems.line[e], elems.id[e], elems.gtype[e], elems.tag[e], elems.nodes(e));
+        let (pos, id, gtype, tag, nodes) = (elems.pos[e], elems.id[e], elems.gtype[e], elems.tag[e], elems.nodes(e));
         let Some((nn, dim)) = nodes_per_type(gtype) else {
-            return Err(anyhow!("{}: element {}: {}", loc(line), id, type_problem(gtype)));
+            return Err(anyhow!("{}: element {}: {}", loc(pos), id, type_problem(gtype)));
         };
         if nodes.len() != nn {
             return Err(anyhow!(
                 "{}: element {} has {} node ids, expected {nn}; fix: repair the element",
-                loc(line),
+                loc(pos),
                 id,
                 nodes.len()
             ));
@@ -581,7 +574,7 @@ fn build_at(
         buf.clear();
         for &n in nodes {
             let Some(&k) = index.get(&n) else {
-                return Err(anyhow!("{}: element {} names node {n}, which the file does not define; fix: repair the element or add the node", loc(line), id));
+                return Err(anyhow!("{}: element {} names node {n}, which the file does not define; fix: repair the element or add the node", loc(pos), id));
             };
             buf.push(k);
         }
@@ -754,15 +747,9 @@ impl<'a> Bin<'a> {
     }
     /// A text line (section markers, ASCII counts).
     fn line(&mut self) -> Option<String> {
-        loop {
-            if self.sc.remaining() == 0 {
-                return None;
-            }
-            let l = String::from_utf8_lossy(self.sc.rest_of_line()).trim().to_string();
-            if !l.is_empty() {
-                return Some(l);
-            }
-        }
+        self.sc
+            .next_line()
+            .map(|(_, l)| String::from_utf8_lossy(l).into_owned())
     }
     fn expect(&mut self, tag: &str) -> Result<()> {
         let p = self.sc.pos;

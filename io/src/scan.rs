@@ -131,6 +131,19 @@ impl<'a> Scan<'a> {
         }
         l
     }
+    /// The next line that is not blank, without the whitespace around it, and the position of
+    /// its first byte; None at the end.
+    pub fn next_line(&mut self) -> Option<(usize, &'a [u8])> {
+        while self.pos < self.b.len() {
+            let start = self.pos;
+            let l = self.rest_of_line();
+            let t = l.trim_ascii_start();
+            if !t.is_empty() {
+                return Some((start + (l.len() - t.len()), t.trim_ascii_end()));
+            }
+        }
+        None
+    }
     /// `n` raw bytes.
     pub fn raw(&mut self, n: usize, what: &str) -> Result<&'a [u8]> {
         if n > self.remaining() {
