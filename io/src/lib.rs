@@ -1,24 +1,23 @@
-//! eprop-io: meshes in (readers, generators), time series out (VTKHDF).
+//! eprop-io: meshes in (readers), meshes and time series out (writers, VTKHDF).
 //!
 //! Readers: Gmsh `.msh` (1, 2.2, 4.1; ASCII and binary), VTK legacy `.vtk`, VTK XML `.vtu`,
 //! TetGen `.node`/`.ele`/`.face`, Medit `.mesh`. Each has a `parse` function on bytes; every
 //! mesh read through `read_mesh` goes through one validation pass (`validate`).
+//!
+//! The mesh itself, its geometry, the validation pass and the generators live in `eprop-mesh`
+//! (no HDF5, no MPI) and are re-exported here under the same paths (`eprop_io::mesh`,
+//! `eprop_io::geom`, `eprop_io::generate`, `eprop_io::validate`, `eprop_io::Mesh`, ...).
 
-pub mod generate;
-pub mod geom;
 pub mod gmsh;
 pub mod medit;
-pub mod mesh;
 pub mod scan;
 pub mod testwrite;
 pub mod tetgen;
-pub mod validate;
 pub mod vtk;
 pub mod vtkhdf;
 pub mod vtu;
 
-pub use mesh::{CellKind, Mesh};
-pub use validate::{validate, ReadOptions};
+pub use eprop_mesh::{generate, geom, mesh, validate, CellKind, Mesh, ReadOptions};
 
 use anyhow::{anyhow, bail, Result};
 use std::path::Path;
