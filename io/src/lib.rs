@@ -11,6 +11,7 @@
 pub mod gmsh;
 pub mod medit;
 pub mod scan;
+#[cfg(feature = "test-writers")]
 pub mod testwrite;
 pub mod tetgen;
 pub mod vtk;

@@ -1,6 +1,7 @@
 //! Writers for formats eprop reads but does not write (VTK legacy, TetGen, Medit, binary
 //! Gmsh), used by the round-trip tests and to make fuzzing seeds. Not meant for production
-//! output: `write_mesh` writes `.msh` and `.vtu`.
+//! output: `write_mesh` writes `.msh` and `.vtu`. Built only with the `test-writers` feature,
+//! which the tests and examples of eprop and eprop-io turn on.
 
 use crate::mesh::Mesh;
 use crate::vtk::vtk_order;
