@@ -8,6 +8,8 @@ use crate::mesh::Mesh;
 use crate::scan::{decode, parse_text, short, Scan, Ty, Vals};
 use crate::vtk::{build, vtk_order, VtkData};
 use anyhow::{anyhow, bail, Result};
+use base64::engine::general_purpose::{GeneralPurpose, GeneralPurposeConfig};
+use base64::{alphabet, Engine as _};
 use std::io::{Read, Write as _};
 use std::path::Path;
 
@@ -159,7 +161,9 @@ impl<'a> Xml<'a> {
     }
 }
 
-/// A streaming base64 decoder over concatenated base64 blocks (each may carry padding).
+/// A streaming base64 decoder over concatenated base64 blocks (each may carry padding), as VTK
+/// writes a header and its payload. Decoding is the `base64` crate's; this reads only the
+/// groups of four symbols a request needs, so a request never looks past its array.
 struct B64<'a> {
     s: &'a [u8],
     pos: usize,
@@ -168,16 +172,14 @@ struct B64<'a> {
     base: usize,
 }
 
-fn b64val(c: u8) -> Option<u32> {
-    Some(match c {
-        b'A'..=b'Z' => (c - b'A') as u32,
-        b'a'..=b'z' => (c - b'a' + 26) as u32,
-        b'0'..=b'9' => (c - b'0' + 52) as u32,
-        b'+' => 62,
-        b'/' => 63,
-        _ => return None,
-    })
-}
+/// VTK's base64: the standard alphabet, padded groups; bits after the last byte are ignored.
+const VTK_BASE64: GeneralPurpose = GeneralPurpose::new(
+    &alphabet::STANDARD,
+    GeneralPurposeConfig::new().with_decode_allow_trailing_bits(true),
+);
+
+/// Symbols decoded in one call at most (a multiple of 4).
+const B64_BATCH: usize = 1 << 16;
 
 impl<'a> B64<'a> {
     fn remaining_bytes(&self) -> usize {
@@ -191,45 +193,78 @@ impl<'a> B64<'a> {
                 self.base + self.pos
             );
         }
+        let mut quads: Vec<u8> = Vec::new();
         while self.pending.len() < n {
-            let mut q = [0u8; 4];
-            let mut k = 0;
-            while k < 4 {
+            // the groups still needed, up to and including the first padded one (it ends a block)
+            let want = (n - self.pending.len()).div_ceil(3).saturating_mul(4).min(B64_BATCH);
+            let start = self.pos;
+            quads.clear();
+            while quads.len() < want {
                 let Some(&c) = self.s.get(self.pos) else {
+                    // report a bad group read before the end first, as a group-by-group decoder would
+                    let whole = quads.len() / 4 * 4;
+                    self.decode(&quads[..whole], start)?;
                     bail!("{}: byte {}: base64 data ends while reading {what}; fix: the data is truncated or its header is wrong, export again", self.name, self.base + self.pos);
                 };
                 self.pos += 1;
                 if c.is_ascii_whitespace() {
                     continue;
                 }
-                q[k] = c;
-                k += 1;
+                quads.push(c);
+                if c == b'=' && quads.len().is_multiple_of(4) {
+                    break;
+                }
             }
-            let pad = q.iter().rev().take_while(|&&c| c == b'=').count();
-            if pad > 2 {
-                bail!(
-                    "{}: byte {}: bad base64 padding; fix: the data is corrupt, export again",
-                    self.name,
-                    self.base + self.pos
-                );
-            }
-            let mut v = 0u32;
-            for &c in &q[..4 - pad] {
-                let x = b64val(c).ok_or_else(|| {
-                    anyhow!(
-                        "{}: byte {}: `{}` is not a base64 character; fix: the data is corrupt, export again",
-                        self.name,
-                        self.base + self.pos,
-                        c.escape_ascii()
-                    )
-                })?;
-                v = (v << 6) | x;
-            }
-            v <<= 6 * pad as u32;
-            let bytes = [(v >> 16) as u8, (v >> 8) as u8, v as u8];
-            self.pending.extend_from_slice(&bytes[..3 - pad]);
+            self.decode(&quads, start)?;
         }
         Ok(self.pending.drain(..n).collect())
+    }
+    /// Decodes whole groups of symbols read from `start` on into `pending`.
+    fn decode(&mut self, quads: &[u8], start: usize) -> Result<()> {
+        VTK_BASE64
+            .decode_vec(quads, &mut self.pending)
+            .map_err(|e| self.decode_error(quads, start, e))
+    }
+    /// Names the first bad group: where it ends in the file and what is wrong with it.
+    fn decode_error(&self, quads: &[u8], start: usize, e: base64::DecodeError) -> anyhow::Error {
+        let at = match e {
+            base64::DecodeError::InvalidByte(i, _) | base64::DecodeError::InvalidLastSymbol(i, _) => i,
+            base64::DecodeError::InvalidLength(_) | base64::DecodeError::InvalidPadding => {
+                quads.len().saturating_sub(1)
+            }
+        };
+        let group = &quads[at / 4 * 4..(at / 4 * 4 + 4).min(quads.len())];
+        // the file position just after that group
+        let mut seen = 0;
+        let mut end = start;
+        while seen < at / 4 * 4 + group.len() && end < self.s.len() {
+            if !self.s[end].is_ascii_whitespace() {
+                seen += 1;
+            }
+            end += 1;
+        }
+        let pad = group.iter().rev().take_while(|&&c| c == b'=').count();
+        let bad = group[..group.len() - pad]
+            .iter()
+            .find(|&&c| !(c.is_ascii_alphanumeric() || c == b'+' || c == b'/'));
+        match bad {
+            _ if pad > 2 => anyhow!(
+                "{}: byte {}: bad base64 padding; fix: the data is corrupt, export again",
+                self.name,
+                self.base + end
+            ),
+            Some(c) => anyhow!(
+                "{}: byte {}: `{}` is not a base64 character; fix: the data is corrupt, export again",
+                self.name,
+                self.base + end,
+                c.escape_ascii()
+            ),
+            None => anyhow!(
+                "{}: byte {}: bad base64 data ({e}); fix: the data is corrupt, export again",
+                self.name,
+                self.base + end
+            ),
+        }
     }
 }
 
@@ -683,19 +718,7 @@ impl Default for VtuOptions {
 }
 
 fn b64encode(b: &[u8]) -> String {
-    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut s = String::with_capacity(b.len().div_ceil(3) * 4);
-    for c in b.chunks(3) {
-        let v = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
-        for k in 0..4 {
-            if k <= c.len() {
-                s.push(T[(v >> (18 - 6 * k)) as usize & 63] as char);
-            } else {
-                s.push('=');
-            }
-        }
-    }
-    s
+    base64::engine::general_purpose::STANDARD.encode(b)
 }
 
 /// Encodes a mesh as `.vtu` bytes.
