@@ -10,6 +10,9 @@ use crate::vtk::{build, vtk_order, VtkData};
 use anyhow::{anyhow, bail, Result};
 use base64::engine::general_purpose::{GeneralPurpose, GeneralPurposeConfig};
 use base64::{alphabet, Engine as _};
+use quick_xml::events::attributes::AttrError;
+use quick_xml::events::Event;
+use quick_xml::Reader;
 use std::io::{Read, Write as _};
 use std::path::Path;
 
@@ -30,9 +33,14 @@ impl Tag {
     }
 }
 
-/// Minimal XML scanner: start tags, end tags; skips declarations and comments.
+/// The XML layer: quick-xml's tokenizer over the file's bytes, as start and end tags with their
+/// byte positions; declarations, comments and text are skipped. The reader matches end tags
+/// itself (a `</DataArray>` closes nothing), so quick-xml's own checks of them are off.
 struct Xml<'a> {
     sc: Scan<'a>,
+    rd: Reader<&'a [u8]>,
+    /// Length of the byte-order mark quick-xml does not see.
+    bom: usize,
 }
 
 enum Ev {
@@ -41,6 +49,20 @@ enum Ev {
 }
 
 impl<'a> Xml<'a> {
+    fn new(name: &'a str, bytes: &'a [u8]) -> Self {
+        // quick-xml skips a byte-order mark without counting it: positions here count it
+        let bom = if bytes.starts_with(b"\xEF\xBB\xBF") { 3 } else { 0 };
+        let mut rd = Reader::from_reader(&bytes[bom..]);
+        let c = rd.config_mut();
+        c.check_end_names = false;
+        c.allow_unmatched_ends = true;
+        c.allow_dangling_amp = true;
+        Xml {
+            sc: Scan::new(name, bytes),
+            rd,
+            bom,
+        }
+    }
     fn find(&self, from: usize, pat: &[u8]) -> Option<usize> {
         let b = self.sc.b;
         if from > b.len() || pat.is_empty() {
@@ -48,116 +70,124 @@ impl<'a> Xml<'a> {
         }
         b[from..].windows(pat.len()).position(|w| w == pat).map(|p| p + from)
     }
+    /// The next start or end tag, or None at the end of the file.
     fn next(&mut self) -> Result<Option<Ev>> {
         loop {
-            let Some(lt) = self.find(self.sc.pos, b"<") else {
-                return Ok(None);
+            let before = self.bom + self.rd.buffer_position() as usize;
+            let ev = match self.rd.read_event() {
+                Ok(ev) => ev,
+                Err(e) => return Err(self.syntax_error(e)),
             };
-            self.sc.pos = lt;
-            let b = self.sc.b;
-            if b[lt..].starts_with(b"<!--") {
-                let e = self
-                    .find(lt + 4, b"-->")
-                    .ok_or_else(|| self.sc.err("comment without `-->`; fix: the file is truncated"))?;
-                self.sc.pos = e + 3;
-                continue;
-            }
-            if b[lt..].starts_with(b"<?") || b[lt..].starts_with(b"<!") {
-                let e = self
-                    .find(lt, b">")
-                    .ok_or_else(|| self.sc.err("declaration without `>`; fix: the file is truncated"))?;
-                self.sc.pos = e + 1;
-                continue;
-            }
-            let close = b.get(lt + 1) == Some(&b'/');
-            let mut p = lt + 1 + close as usize;
-            let s = p;
-            while p < b.len() && !b[p].is_ascii_whitespace() && b[p] != b'>' && b[p] != b'/' {
-                p += 1;
-            }
-            let name = String::from_utf8_lossy(&b[s..p]).to_string();
+            let end = self.bom + self.rd.buffer_position() as usize;
+            self.sc.pos = end;
+            let (t, self_closing) = match ev {
+                Event::Start(t) => (t, false),
+                Event::Empty(t) => (t, true),
+                Event::End(t) => {
+                    let raw = t.name().into_inner();
+                    let n = raw.iter().take_while(|c| !c.is_ascii_whitespace()).count();
+                    let name = String::from_utf8_lossy(&raw[..n]).into_owned();
+                    if name.is_empty() {
+                        return Err(self
+                            .sc
+                            .err_at(before, "a `<` without a tag name; fix: the XML is malformed"));
+                    }
+                    return Ok(Some(Ev::End(name)));
+                }
+                Event::Eof => return Ok(None),
+                _ => continue,
+            };
+            let name = String::from_utf8_lossy(t.name().as_ref()).into_owned();
             if name.is_empty() {
                 return Err(self
                     .sc
-                    .err_at(lt, "a `<` without a tag name; fix: the XML is malformed"));
+                    .err_at(before, "a `<` without a tag name; fix: the XML is malformed"));
             }
             let mut attrs = Vec::new();
-            loop {
-                while p < b.len() && b[p].is_ascii_whitespace() {
-                    p += 1;
-                }
-                match b.get(p) {
-                    None => {
-                        return Err(self.sc.err_at(
-                            lt,
-                            format!("tag <{}> is not closed; fix: the file is truncated", short(&name)),
-                        ))
-                    }
-                    Some(b'>') => {
-                        self.sc.pos = p + 1;
-                        if close {
-                            return Ok(Some(Ev::End(name)));
-                        }
-                        return Ok(Some(Ev::Start(Tag {
-                            name,
-                            attrs,
-                            pos: lt,
-                            end: p + 1,
-                            self_closing: false,
-                        })));
-                    }
-                    Some(b'/') if b.get(p + 1) == Some(&b'>') => {
-                        self.sc.pos = p + 2;
-                        return Ok(Some(Ev::Start(Tag {
-                            name,
-                            attrs,
-                            pos: lt,
-                            end: p + 2,
-                            self_closing: true,
-                        })));
-                    }
-                    Some(_) => {
-                        let ks = p;
-                        while p < b.len() && b[p] != b'=' && b[p] != b'>' && !b[p].is_ascii_whitespace() {
-                            p += 1;
-                        }
-                        let key = String::from_utf8_lossy(&b[ks..p]).to_string();
-                        while p < b.len() && b[p].is_ascii_whitespace() {
-                            p += 1;
-                        }
-                        if b.get(p) != Some(&b'=') {
-                            return Err(self.sc.err_at(
-                                p,
-                                format!("attribute `{}` without a value; fix: the XML is malformed", short(&key)),
-                            ));
-                        }
-                        p += 1;
-                        while p < b.len() && b[p].is_ascii_whitespace() {
-                            p += 1;
-                        }
-                        let q = match b.get(p) {
-                            Some(&c) if c == b'"' || c == b'\'' => c,
-                            _ => {
-                                return Err(self.sc.err_at(
-                                    p,
-                                    format!(
-                                        "attribute `{}` value is not quoted; fix: the XML is malformed",
-                                        short(&key)
-                                    ),
-                                ))
-                            }
-                        };
-                        let vs = p + 1;
-                        let ve = b[vs..].iter().position(|&c| c == q).map(|x| x + vs).ok_or_else(|| {
-                            self.sc
-                                .err_at(p, "attribute value not closed; fix: the file is truncated")
-                        })?;
-                        attrs.push((key, String::from_utf8_lossy(&b[vs..ve]).to_string()));
-                        p = ve + 1;
-                    }
-                }
+            for a in t.attributes().with_checks(false) {
+                let a = a.map_err(|e| self.attribute_error(before, e))?;
+                attrs.push((
+                    String::from_utf8_lossy(a.key.as_ref()).into_owned(),
+                    String::from_utf8_lossy(a.value.as_ref()).into_owned(),
+                ));
             }
+            return Ok(Some(Ev::Start(Tag {
+                name,
+                attrs,
+                pos: before,
+                end,
+                self_closing,
+            })));
         }
+    }
+    /// A tokenizer error as `file:line: what; fix`.
+    fn syntax_error(&self, e: quick_xml::Error) -> anyhow::Error {
+        use quick_xml::errors::SyntaxError as S;
+        let at = self.bom + self.rd.error_position() as usize;
+        let msg = match &e {
+            quick_xml::Error::Syntax(S::UnclosedComment) => {
+                "comment without `-->`; fix: the file is truncated".to_string()
+            }
+            quick_xml::Error::Syntax(S::UnclosedTag) => {
+                let b = &self.sc.b[(at + 1).min(self.sc.b.len())..];
+                let b = b.strip_prefix(b"/").unwrap_or(b);
+                let n = b
+                    .iter()
+                    .take_while(|&&c| !c.is_ascii_whitespace() && c != b'>' && c != b'/')
+                    .count();
+                let name = String::from_utf8_lossy(&b[..n]).into_owned();
+                format!("tag <{}> is not closed; fix: the file is truncated", short(&name))
+            }
+            quick_xml::Error::Syntax(S::UnclosedDoubleQuotedAttributeValue | S::UnclosedSingleQuotedAttributeValue) => {
+                "attribute value not closed; fix: the file is truncated".to_string()
+            }
+            quick_xml::Error::Syntax(S::UnclosedPI | S::UnclosedXmlDecl) => {
+                "declaration `<?` without `?>`; fix: the file is truncated or the XML is malformed".to_string()
+            }
+            quick_xml::Error::Syntax(S::InvalidBangMarkup) => {
+                "`<!` starts neither a comment, CDATA nor DOCTYPE; fix: the XML is malformed".to_string()
+            }
+            quick_xml::Error::Syntax(_) => "declaration without `>`; fix: the file is truncated".to_string(),
+            e => format!("{e}; fix: the XML is malformed"),
+        };
+        self.sc.err_at(at, msg)
+    }
+    /// An attribute error in the tag whose `<` is at `tag`, naming the attribute.
+    fn attribute_error(&self, tag: usize, e: AttrError) -> anyhow::Error {
+        let b = self.sc.b;
+        // quick-xml counts from the byte after the `<`; the attribute's key is the word
+        // before that position (before its `=`, if any)
+        let at = |p: usize| (tag + 1 + p).min(b.len());
+        let key_before = |p: usize| {
+            let mut e = at(p);
+            while e > tag && (b[e - 1].is_ascii_whitespace() || b[e - 1] == b'=') {
+                e -= 1;
+            }
+            let mut s = e;
+            while s > tag && !b[s - 1].is_ascii_whitespace() {
+                s -= 1;
+            }
+            short(&String::from_utf8_lossy(&b[s..e]))
+        };
+        let (p, msg) = match e {
+            AttrError::ExpectedEq(p) => (
+                p,
+                format!(
+                    "attribute `{}` without a value; fix: the XML is malformed",
+                    key_before(p)
+                ),
+            ),
+            AttrError::ExpectedValue(p) | AttrError::UnquotedValue(p) => (
+                p,
+                format!(
+                    "attribute `{}` value is not quoted; fix: the XML is malformed",
+                    key_before(p)
+                ),
+            ),
+            AttrError::ExpectedQuote(p, _) => (p, "attribute value not closed; fix: the file is truncated".to_string()),
+            AttrError::Duplicated(p, _) => (p, "an attribute is given twice; fix: the XML is malformed".to_string()),
+        };
+        self.sc.err_at(at(p), msg)
     }
 }
 
@@ -365,9 +395,7 @@ struct Arr {
 
 /// Parses the bytes of a `.vtu` file.
 pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
-    let mut x = Xml {
-        sc: Scan::new(name, bytes),
-    };
+    let mut x = Xml::new(name, bytes);
     let mut stack: Vec<String> = Vec::new();
     let mut fmt = Fmt {
         big: false,
