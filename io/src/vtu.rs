@@ -393,8 +393,44 @@ struct Arr {
     text: (usize, usize),
 }
 
+/// What the XML structure of a `.vtu` says, before any array is decoded.
+struct Doc<'a> {
+    name: &'a str,
+    bytes: &'a [u8],
+    /// For messages (`file:line`).
+    sc: Scan<'a>,
+    fmt: Fmt,
+    arrays: Vec<Arr>,
+    /// NumberOfPoints and NumberOfCells of the one `<Piece>`.
+    np: usize,
+    nc: usize,
+    /// Appended data: start (after the `_`), end (the closing tag or the end of the file),
+    /// base64 or raw.
+    appended: Option<(usize, usize, bool)>,
+}
+
 /// Parses the bytes of a `.vtu` file.
 pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let doc = structure(name, bytes)?;
+    let points = doc.points()?;
+    let (types, starts, conn) = doc.cells()?;
+    let (cell_arrays, point_arrays) = doc.tag_arrays()?;
+    build(
+        name,
+        VtkData {
+            points,
+            conn,
+            starts,
+            types,
+            cell_arrays,
+            point_arrays,
+        },
+    )
+}
+
+/// Walks the XML: the `<VTKFile>` format, the `<Piece>` counts, every `<DataArray>` with its
+/// parent element, and where appended data starts (the walk stops there: what follows is data).
+fn structure<'a>(name: &'a str, bytes: &'a [u8]) -> Result<Doc<'a>> {
     let mut x = Xml::new(name, bytes);
     let mut stack: Vec<String> = Vec::new();
     let mut fmt = Fmt {
@@ -403,9 +439,7 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
         zlib: false,
     };
     let mut arrays: Vec<Arr> = Vec::new();
-    let mut pieces = 0usize;
-    let mut npoints: Option<usize> = None;
-    let mut ncells: Option<usize> = None;
+    let mut piece: Option<(usize, usize)> = None;
     let mut appended: Option<(usize, bool)> = None; // (start of data after `_`, base64)
     let mut saw_root = false;
     while let Some(ev) = x.next()? {
@@ -414,61 +448,13 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
                 match t.name.as_str() {
                     "VTKFile" => {
                         saw_root = true;
-                        if let Some(ty) = t.attr("type") {
-                            if ty != "UnstructuredGrid" {
-                                return Err(x.sc.err_at(t.pos, format!("VTK XML type {} is not a volume mesh (UnstructuredGrid is read); fix: save as .vtu (unstructured grid)", short(ty))));
-                            }
-                        }
-                        fmt.big = match t.attr("byte_order") {
-                            Some("BigEndian") => true,
-                            Some("LittleEndian") | None => false,
-                            Some(o) => {
-                                return Err(x.sc.err_at(
-                                    t.pos,
-                                    format!("unknown byte_order `{}`; fix: use LittleEndian or BigEndian", short(o)),
-                                ))
-                            }
-                        };
-                        fmt.header = match t.attr("header_type") {
-                            None | Some("UInt32") => Ty::U32,
-                            Some("UInt64") => Ty::U64,
-                            Some(h) => {
-                                return Err(x.sc.err_at(
-                                    t.pos,
-                                    format!("unknown header_type `{}`; fix: use UInt32 or UInt64", short(h)),
-                                ))
-                            }
-                        };
-                        fmt.zlib = match t.attr("compressor") {
-                            None | Some("") => false,
-                            Some("vtkZLibDataCompressor") => true,
-                            Some(c) => {
-                                return Err(x.sc.err_at(
-                                    t.pos,
-                                    format!(
-                                        "compressor {} is not supported; fix: save with zlib compression or none",
-                                        short(c)
-                                    ),
-                                ))
-                            }
-                        };
+                        fmt = file_format(&x.sc, &t)?;
                     }
                     "Piece" => {
-                        pieces += 1;
-                        if pieces > 1 {
+                        if piece.is_some() {
                             return Err(x.sc.err_at(t.pos, "more than one <Piece>; fix: merge the pieces into one (e.g. ParaView Merge Blocks) and save again"));
                         }
-                        let num = |k: &str| -> Result<usize> {
-                            t.attr(k)
-                                .ok_or_else(|| x.sc.err_at(t.pos, format!("<Piece> has no {k}; fix: repair the file")))?
-                                .trim()
-                                .parse::<usize>()
-                                .map_err(|_| {
-                                    x.sc.err_at(t.pos, format!("<Piece> {k} is not a count; fix: repair the file"))
-                                })
-                        };
-                        npoints = Some(num("NumberOfPoints")?);
-                        ncells = Some(num("NumberOfCells")?);
+                        piece = Some(piece_counts(&x.sc, &t)?);
                     }
                     "DataArray" => {
                         let parent = stack.last().cloned().unwrap_or_default();
@@ -482,21 +468,7 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
                         continue; // its end tag pops nothing
                     }
                     "AppendedData" => {
-                        let enc = t.attr("encoding").unwrap_or("raw");
-                        let b64 = match enc {
-                            "raw" => false,
-                            "base64" => true,
-                            _ => {
-                                return Err(x.sc.err_at(
-                                    t.pos,
-                                    format!("appended encoding `{}` is unknown; fix: use raw or base64", short(enc)),
-                                ))
-                            }
-                        };
-                        let us = x.find(t.end, b"_").ok_or_else(|| {
-                            x.sc.err_at(t.pos, "<AppendedData> has no `_` marker; fix: the file is truncated")
-                        })?;
-                        appended = Some((us + 1, b64));
+                        appended = Some(appended_start(&x, &t)?);
                         break;
                     }
                     _ => {}
@@ -525,19 +497,115 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
     if !saw_root {
         bail!("{name}: no <VTKFile> element; fix: check that this is a VTK XML file");
     }
-    let (Some(np), Some(nc)) = (npoints, ncells) else {
+    let Some((np, nc)) = piece else {
         bail!("{name}: no <Piece>; fix: the file holds no unstructured grid");
     };
-    // the end of appended data is the closing tag, when present
-    let app_end = appended.map(|(s, _)| {
-        bytes[s..]
-            .windows(16)
-            .rposition(|w| w == b"</AppendedData>\n" || w.starts_with(b"</AppendedData>"))
-            .map(|p| p + s)
-            .unwrap_or(bytes.len())
-    });
-    let sc = &x.sc;
-    let read = |a: &Arr, count_hint: Option<usize>| -> Result<Vals> {
+    Ok(Doc {
+        name,
+        bytes,
+        sc: x.sc,
+        fmt,
+        arrays,
+        np,
+        nc,
+        appended: appended.map(|(s, b64)| (s, appended_end(bytes, s), b64)),
+    })
+}
+
+/// The attributes of `<VTKFile>`: dataset type, byte order, header type, compressor.
+fn file_format(sc: &Scan, t: &Tag) -> Result<Fmt> {
+    if let Some(ty) = t.attr("type") {
+        if ty != "UnstructuredGrid" {
+            return Err(sc.err_at(t.pos, format!("VTK XML type {} is not a volume mesh (UnstructuredGrid is read); fix: save as .vtu (unstructured grid)", short(ty))));
+        }
+    }
+    let big = match t.attr("byte_order") {
+        Some("BigEndian") => true,
+        Some("LittleEndian") | None => false,
+        Some(o) => {
+            return Err(sc.err_at(
+                t.pos,
+                format!("unknown byte_order `{}`; fix: use LittleEndian or BigEndian", short(o)),
+            ))
+        }
+    };
+    let header = match t.attr("header_type") {
+        None | Some("UInt32") => Ty::U32,
+        Some("UInt64") => Ty::U64,
+        Some(h) => {
+            return Err(sc.err_at(
+                t.pos,
+                format!("unknown header_type `{}`; fix: use UInt32 or UInt64", short(h)),
+            ))
+        }
+    };
+    let zlib = match t.attr("compressor") {
+        None | Some("") => false,
+        Some("vtkZLibDataCompressor") => true,
+        Some(c) => {
+            return Err(sc.err_at(
+                t.pos,
+                format!(
+                    "compressor {} is not supported; fix: save with zlib compression or none",
+                    short(c)
+                ),
+            ))
+        }
+    };
+    Ok(Fmt { big, header, zlib })
+}
+
+/// NumberOfPoints and NumberOfCells of a `<Piece>`.
+fn piece_counts(sc: &Scan, t: &Tag) -> Result<(usize, usize)> {
+    let num = |k: &str| -> Result<usize> {
+        t.attr(k)
+            .ok_or_else(|| sc.err_at(t.pos, format!("<Piece> has no {k}; fix: repair the file")))?
+            .trim()
+            .parse::<usize>()
+            .map_err(|_| sc.err_at(t.pos, format!("<Piece> {k} is not a count; fix: repair the file")))
+    };
+    Ok((num("NumberOfPoints")?, num("NumberOfCells")?))
+}
+
+/// Where the data of `<AppendedData>` starts (after its `_` marker), and whether it is base64.
+fn appended_start(x: &Xml, t: &Tag) -> Result<(usize, bool)> {
+    let enc = t.attr("encoding").unwrap_or("raw");
+    let b64 = match enc {
+        "raw" => false,
+        "base64" => true,
+        _ => {
+            return Err(x.sc.err_at(
+                t.pos,
+                format!("appended encoding `{}` is unknown; fix: use raw or base64", short(enc)),
+            ))
+        }
+    };
+    let us = x.find(t.end, b"_").ok_or_else(|| {
+        x.sc.err_at(t.pos, "<AppendedData> has no `_` marker; fix: the file is truncated")
+    })?;
+    Ok((us + 1, b64))
+}
+
+/// The end of appended data starting at `start`: its closing tag, when present.
+fn appended_end(bytes: &[u8], start: usize) -> usize {
+    bytes[start..]
+        .windows(16)
+        .rposition(|w| w == b"</AppendedData>\n" || w.starts_with(b"</AppendedData>"))
+        .map(|p| p + start)
+        .unwrap_or(bytes.len())
+}
+
+impl Doc<'_> {
+    /// The first array under `parent` (with that `Name`, if given).
+    fn find(&self, parent: &str, nm: Option<&str>) -> Option<&Arr> {
+        self.arrays
+            .iter()
+            .find(|a| a.parent == parent && (nm.is_none() || a.tag.attr("Name") == nm))
+    }
+
+    /// Decodes an array; `count_hint` is the number of values it must hold, when known.
+    fn read(&self, a: &Arr, count_hint: Option<usize>) -> Result<Vals> {
+        let (name, sc) = (self.name, &self.sc);
         let t = &a.tag;
         let aname = t.attr("Name").unwrap_or("");
         let what = format!("DataArray `{}`", short(aname));
@@ -553,70 +621,20 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
         })?;
         let format = t.attr("format").unwrap_or("ascii");
         let bytes_out = match format {
-            "ascii" => {
-                let mut s = Scan::new(name, &bytes[..a.text.1]);
-                s.pos = a.text.0;
-                let mut n = 0usize;
-                {
-                    let mut c = Scan::new(name, &bytes[..a.text.1]);
-                    c.pos = a.text.0;
-                    while c.token().is_some() {
-                        n += 1;
-                    }
-                }
-                if let Some(h) = count_hint {
-                    if n != h {
-                        return Err(sc.err_at(
-                            t.pos,
-                            format!("{what} holds {n} values, expected {h}; fix: the counts disagree, export again"),
-                        ));
-                    }
-                }
-                return parse_text(&mut s, n, ty, &what);
-            }
+            "ascii" => return self.read_ascii(a, ty, &what, count_hint),
             "binary" => {
                 let mut src = Src::B64(B64 {
-                    s: &bytes[a.text.0..a.text.1],
+                    s: &self.bytes[a.text.0..a.text.1],
                     pos: 0,
                     pending: Vec::new(),
                     name,
                     base: a.text.0,
                 });
-                read_binary(&mut src, &fmt, &what, name)?
+                read_binary(&mut src, &self.fmt, &what, name)?
             }
             "appended" => {
-                let Some((start, b64)) = appended else {
-                    return Err(sc.err_at(
-                        t.pos,
-                        format!("{what} is appended but the file has no <AppendedData>; fix: the file is truncated"),
-                    ));
-                };
-                let end = app_end.unwrap_or(bytes.len()).max(start);
-                let off: usize = t
-                    .attr("offset")
-                    .and_then(|o| o.trim().parse().ok())
-                    .ok_or_else(|| sc.err_at(t.pos, format!("{what} has no valid offset; fix: repair the file")))?;
-                let region = &bytes[start..end];
-                if off > region.len() {
-                    return Err(sc.err_at(t.pos, format!("{what}: offset {off} is past the end of the appended data ({} bytes); fix: the file is truncated", region.len())));
-                }
-                let mut src = if b64 {
-                    Src::B64(B64 {
-                        s: &region[off..],
-                        pos: 0,
-                        pending: Vec::new(),
-                        name,
-                        base: start + off,
-                    })
-                } else {
-                    Src::Raw {
-                        b: region,
-                        pos: off,
-                        base: start,
-                        name,
-                    }
-                };
-                read_binary(&mut src, &fmt, &what, name)?
+                let mut src = self.appended_source(t, &what)?;
+                read_binary(&mut src, &self.fmt, &what, name)?
             }
             f => {
                 return Err(sc.err_at(
@@ -631,7 +649,7 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
         if bytes_out.len() % ty.size() != 0 {
             return Err(sc.err_at(t.pos, format!("{what} holds {} bytes, not a whole number of {ty_s} values; fix: the data is corrupt, export again", bytes_out.len())));
         }
-        let v = decode(&bytes_out, ty, fmt.big);
+        let v = decode(&bytes_out, ty, self.fmt.big);
         if let Some(h) = count_hint {
             if v.len() != h {
                 return Err(sc.err_at(
@@ -644,73 +662,139 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
             }
         }
         Ok(v)
-    };
-    let find = |parent: &str, nm: Option<&str>| {
-        arrays
-            .iter()
-            .find(|a| a.parent == parent && (nm.is_none() || a.tag.attr("Name") == nm))
-    };
-    let pts_a =
-        find("Points", None).ok_or_else(|| anyhow!("{name}: no <Points> array; fix: the file holds no mesh"))?;
-    let ncomp: usize = pts_a
-        .tag
-        .attr("NumberOfComponents")
-        .and_then(|s| s.trim().parse().ok())
-        .unwrap_or(1);
-    if ncomp != 3 {
-        return Err(sc.err_at(
-            pts_a.tag.pos,
-            format!("points have {ncomp} components, expected 3; fix: export 3D points"),
-        ));
     }
-    let np3 = np
-        .checked_mul(3)
-        .ok_or_else(|| anyhow!("{name}: NumberOfPoints {np} too large; fix: repair the file"))?;
-    let points = read(pts_a, Some(np3))?.to_f64();
-    let cell = |n: &str| {
-        find("Cells", Some(n))
-            .ok_or_else(|| anyhow!("{name}: no `{n}` array in <Cells>; fix: the file is incomplete, export again"))
-    };
-    let ints = |a: &Arr, hint: Option<usize>| -> Result<Vec<i64>> {
-        read(a, hint)?
-            .to_i64()
-            .ok_or_else(|| sc.err_at(a.tag.pos, "cell array holds non-integers; fix: repair the file"))
-    };
-    let types = ints(cell("types")?, Some(nc))?;
-    let offsets = ints(cell("offsets")?, Some(nc))?;
-    let conn = ints(cell("connectivity")?, None)?;
-    let mut starts = Vec::with_capacity(nc + 1);
-    starts.push(0i64);
-    starts.extend_from_slice(&offsets);
-    let mut cell_arrays = Vec::new();
-    let mut point_arrays = Vec::new();
-    for a in &arrays {
-        let one = a
+
+    /// An ascii array: its values are counted before they are parsed.
+    fn read_ascii(&self, a: &Arr, ty: Ty, what: &str, count_hint: Option<usize>) -> Result<Vals> {
+        let text = &self.bytes[..a.text.1];
+        let mut c = Scan::new(self.name, text);
+        c.pos = a.text.0;
+        let mut n = 0usize;
+        while c.token().is_some() {
+            n += 1;
+        }
+        if let Some(h) = count_hint {
+            if n != h {
+                return Err(self.sc.err_at(
+                    a.tag.pos,
+                    format!("{what} holds {n} values, expected {h}; fix: the counts disagree, export again"),
+                ));
+            }
+        }
+        let mut s = Scan::new(self.name, text);
+        s.pos = a.text.0;
+        parse_text(&mut s, n, ty, what)
+    }
+
+    /// The bytes of an appended array, from its offset in the appended data.
+    fn appended_source(&self, t: &Tag, what: &str) -> Result<Src<'_>> {
+        let sc = &self.sc;
+        let Some((start, end, b64)) = self.appended else {
+            return Err(sc.err_at(
+                t.pos,
+                format!("{what} is appended but the file has no <AppendedData>; fix: the file is truncated"),
+            ));
+        };
+        let end = end.max(start);
+        let off: usize = t
+            .attr("offset")
+            .and_then(|o| o.trim().parse().ok())
+            .ok_or_else(|| sc.err_at(t.pos, format!("{what} has no valid offset; fix: repair the file")))?;
+        let region = &self.bytes[start..end];
+        if off > region.len() {
+            return Err(sc.err_at(
+                t.pos,
+                format!(
+                    "{what}: offset {off} is past the end of the appended data ({} bytes); fix: the file is truncated",
+                    region.len()
+                ),
+            ));
+        }
+        Ok(if b64 {
+            Src::B64(B64 {
+                s: &region[off..],
+                pos: 0,
+                pending: Vec::new(),
+                name: self.name,
+                base: start + off,
+            })
+        } else {
+            Src::Raw {
+                b: region,
+                pos: off,
+                base: start,
+                name: self.name,
+            }
+        })
+    }
+
+    /// The `<Points>` array: NumberOfPoints points of 3 components.
+    fn points(&self) -> Result<Vec<f64>> {
+        let (name, np) = (self.name, self.np);
+        let pts_a = self
+            .find("Points", None)
+            .ok_or_else(|| anyhow!("{name}: no <Points> array; fix: the file holds no mesh"))?;
+        let ncomp: usize = pts_a
             .tag
             .attr("NumberOfComponents")
-            .map(|s| s.trim() == "1")
-            .unwrap_or(true);
-        if !one {
-            continue;
+            .and_then(|s| s.trim().parse().ok())
+            .unwrap_or(1);
+        if ncomp != 3 {
+            return Err(self.sc.err_at(
+                pts_a.tag.pos,
+                format!("points have {ncomp} components, expected 3; fix: export 3D points"),
+            ));
         }
-        let nm = a.tag.attr("Name").unwrap_or("").to_string();
-        if a.parent == "CellData" {
-            cell_arrays.push((nm, read(a, Some(nc))?));
-        } else if a.parent == "PointData" && nm == "node_ids" {
-            point_arrays.push((nm, read(a, Some(np))?));
-        }
+        let np3 = np
+            .checked_mul(3)
+            .ok_or_else(|| anyhow!("{name}: NumberOfPoints {np} too large; fix: repair the file"))?;
+        Ok(self.read(pts_a, Some(np3))?.to_f64())
     }
-    build(
-        name,
-        VtkData {
-            points,
-            conn,
-            starts,
-            types,
-            cell_arrays,
-            point_arrays,
-        },
-    )
+
+    /// The `<Cells>` arrays: types, starts (0 then the offsets) and connectivity.
+    fn cells(&self) -> Result<(Vec<i64>, Vec<i64>, Vec<i64>)> {
+        let (name, nc) = (self.name, self.nc);
+        let cell = |n: &str| {
+            self.find("Cells", Some(n))
+                .ok_or_else(|| anyhow!("{name}: no `{n}` array in <Cells>; fix: the file is incomplete, export again"))
+        };
+        let ints = |a: &Arr, hint: Option<usize>| -> Result<Vec<i64>> {
+            self.read(a, hint)?.to_i64().ok_or_else(|| {
+                self.sc
+                    .err_at(a.tag.pos, "cell array holds non-integers; fix: repair the file")
+            })
+        };
+        let types = ints(cell("types")?, Some(nc))?;
+        let offsets = ints(cell("offsets")?, Some(nc))?;
+        let conn = ints(cell("connectivity")?, None)?;
+        let mut starts = Vec::with_capacity(nc + 1);
+        starts.push(0i64);
+        starts.extend_from_slice(&offsets);
+        Ok((types, starts, conn))
+    }
+
+    /// One-component cell-data arrays (cell tag candidates) and the `node_ids` point data.
+    fn tag_arrays(&self) -> Result<(Vec<(String, Vals)>, Vec<(String, Vals)>)> {
+        let mut cell_arrays = Vec::new();
+        let mut point_arrays = Vec::new();
+        for a in &self.arrays {
+            let one = a
+                .tag
+                .attr("NumberOfComponents")
+                .map(|s| s.trim() == "1")
+                .unwrap_or(true);
+            if !one {
+                continue;
+            }
+            let nm = a.tag.attr("Name").unwrap_or("").to_string();
+            if a.parent == "CellData" {
+                cell_arrays.push((nm, self.read(a, Some(self.nc))?));
+            } else if a.parent == "PointData" && nm == "node_ids" {
+                point_arrays.push((nm, self.read(a, Some(self.np))?));
+            }
+        }
+        Ok((cell_arrays, point_arrays))
+    }
 }
 
 /// How to encode the data arrays of a written `.vtu`.
