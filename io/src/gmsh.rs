@@ -777,7 +777,54 @@ impl<'a> Bin<'a> {
     }
 }
 
+/// What the sections of a binary file hold, gathered section by section.
+#[derive(Default)]
+struct BinParts {
+    ids: Vec<u64>,
+    pts: Vec<[f64; 3]>,
+    elems: RawElems,
+    names: BTreeMap<(u8, i32), String>,
+    /// (dim, entity tag) -> first physical tag (4.1)
+    entity_phys: HashMap<(u8, i32), i32>,
+    saw_nodes: bool,
+}
+
 fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let (mut b, v2) = binary_header(name, bytes)?;
+    let mut m = BinParts::default();
+    while let Some(l) = b.line() {
+        let sec_pos = b.sc.pos;
+        match l.as_str() {
+            "$PhysicalNames" => m.names = b.physical_names()?,
+            "$Entities" if !v2 => b.entities(&mut m.entity_phys)?,
+            "$Nodes" if v2 => b.nodes_v2(&mut m)?,
+            "$Nodes" => b.nodes_v41(&mut m, sec_pos)?,
+            "$Elements" if v2 => b.elements_v2(&mut m.elems)?,
+            "$Elements" => b.elements_v41(&mut m, sec_pos)?,
+            s if s.starts_with('$') && s.len() > 1 => b.skip_section(s, sec_pos)?,
+            _ => {
+                return Err(b.sc.err_byte(
+                    sec_pos,
+                    format!(
+                        "unexpected `{}` between sections; fix: a count disagrees with the data",
+                        short(&l)
+                    ),
+                ))
+            }
+        }
+    }
+    if !m.saw_nodes {
+        bail!("{name}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)");
+    }
+    let nm = name.to_string();
+    build_at(name.to_string(), m.ids, m.pts, m.elems, m.names, &|p| {
+        format!("{nm}: byte {p}")
+    })
+}
+
+/// Reads `$MeshFormat` of a binary file up to `$EndMeshFormat`: the version (2.2 or 4.1: true
+/// for 2.2), the data size and the byte order (from the integer 1 written after the line).
+fn binary_header<'a>(name: &'a str, bytes: &'a [u8]) -> Result<(Bin<'a>, bool)> {
     let mut sc = Scan::new(name, bytes);
     sc.rest_of_line();
     let fmt_pos = sc.pos;
@@ -811,233 +858,231 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
     };
     let mut b = Bin { sc, big, dsize };
     b.expect("$EndMeshFormat")?;
-    let mut ids: Vec<u64> = Vec::new();
-    let mut pts: Vec<[f64; 3]> = Vec::new();
-    let mut elems = RawElems::default();
-    let mut names = BTreeMap::new();
-    let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
-    let mut saw_nodes = false;
-    while let Some(l) = b.line() {
-        let sec_pos = b.sc.pos;
-        match l.as_str() {
-            "$PhysicalNames" => {
-                let n = b.text_count("the physical name count")?;
-                for _ in 0..n {
-                    let p = b.sc.pos;
-                    let l = b.line().ok_or_else(|| b.sc.truncated("a physical name"))?;
-                    let mut it = l.splitn(3, char::is_whitespace);
-                    let dim = it.next().and_then(|s| s.parse::<u8>().ok());
-                    let tag = it.next().and_then(|s| s.trim().parse::<i32>().ok());
-                    let (Some(dim), Some(tag)) = (dim, tag) else {
-                        return Err(b.sc.err_at(p, "expected `dim tag \"name\"`; fix: repair the line"));
-                    };
-                    names.insert((dim, tag), it.next().unwrap_or("").trim().trim_matches('"').to_string());
+    Ok((b, v2))
+}
+
+impl Bin<'_> {
+    /// `$PhysicalNames` (text lines in a binary file) up to its end marker.
+    fn physical_names(&mut self) -> Result<BTreeMap<(u8, i32), String>> {
+        let mut names = BTreeMap::new();
+        let n = self.text_count("the physical name count")?;
+        for _ in 0..n {
+            let p = self.sc.pos;
+            let l = self.line().ok_or_else(|| self.sc.truncated("a physical name"))?;
+            let mut it = l.splitn(3, char::is_whitespace);
+            let dim = it.next().and_then(|s| s.parse::<u8>().ok());
+            let tag = it.next().and_then(|s| s.trim().parse::<i32>().ok());
+            let (Some(dim), Some(tag)) = (dim, tag) else {
+                return Err(self.sc.err_at(p, "expected `dim tag \"name\"`; fix: repair the line"));
+            };
+            names.insert((dim, tag), it.next().unwrap_or("").trim().trim_matches('"').to_string());
+        }
+        self.expect("$EndPhysicalNames")?;
+        Ok(names)
+    }
+
+    /// `$Entities` (4.1): the first physical tag of every entity.
+    fn entities(&mut self, entity_phys: &mut HashMap<(u8, i32), i32>) -> Result<()> {
+        let mut c = [0usize; 4];
+        for x in &mut c {
+            *x = self.count("an entity count")?;
+        }
+        for dim in 0..4u8 {
+            for _ in 0..c[dim as usize] {
+                let tag = self.i32("an entity tag")?;
+                for _ in 0..if dim == 0 { 3 } else { 6 } {
+                    self.f64("an entity bound")?;
                 }
-                b.expect("$EndPhysicalNames")?;
-            }
-            "$Entities" if !v2 => {
-                let mut c = [0usize; 4];
-                for x in &mut c {
-                    *x = b.count("an entity count")?;
-                }
-                for dim in 0..4u8 {
-                    for _ in 0..c[dim as usize] {
-                        let tag = b.i32("an entity tag")?;
-                        for _ in 0..if dim == 0 { 3 } else { 6 } {
-                            b.f64("an entity bound")?;
-                        }
-                        let np = b.count("a physical tag count")?;
-                        for k in 0..np {
-                            let ph = b.i32("a physical tag")?;
-                            if k == 0 {
-                                entity_phys.insert((dim, tag), ph);
-                            }
-                        }
-                        if dim > 0 {
-                            let nb = b.count("a bounding entity count")?;
-                            for _ in 0..nb {
-                                b.i32("a bounding entity")?;
-                            }
-                        }
+                let np = self.count("a physical tag count")?;
+                for k in 0..np {
+                    let ph = self.i32("a physical tag")?;
+                    if k == 0 {
+                        entity_phys.insert((dim, tag), ph);
                     }
                 }
-                b.expect("$EndEntities")?;
-            }
-            "$Nodes" if v2 => {
-                let n = b.text_count("the node count")?;
-                let c = cap(n, b.sc.remaining(), 28);
-                ids.reserve(c);
-                pts.reserve(c);
-                for _ in 0..n {
-                    let id = b.i32("a node id")?;
-                    let mut p = [0.0; 3];
-                    for x in &mut p {
-                        *x = b.f64("a coordinate")?;
-                    }
-                    ids.push(id as u32 as u64);
-                    pts.push(p);
-                }
-                b.expect("$EndNodes")?;
-                saw_nodes = true;
-            }
-            "$Nodes" => {
-                let nblocks = b.count("the node block count")?;
-                let n = b.count("the node count")?;
-                b.count("the minimum node tag")?;
-                b.count("the maximum node tag")?;
-                let c = cap(n, b.sc.remaining(), 32);
-                ids.reserve(c);
-                pts.reserve(c);
-                for _ in 0..nblocks {
-                    let edim = b.i32("an entity dimension")?;
-                    b.i32("an entity tag")?;
-                    let param = b.i32("the parametric flag")?;
-                    let nn = b.count("the block node count")?;
-                    if nn > b.sc.remaining() / (dsize + 24) {
-                        return Err(b.sc.err_byte(b.sc.pos, format!("a node block announces {nn} nodes, more than the file holds; fix: the file is truncated or corrupt")));
-                    }
-                    for _ in 0..nn {
-                        ids.push(b.size("a node tag")?);
-                    }
-                    let extra = if param != 0 { edim.clamp(0, 3) as usize } else { 0 };
-                    for _ in 0..nn {
-                        let mut p = [0.0; 3];
-                        for x in &mut p {
-                            *x = b.f64("a coordinate")?;
-                        }
-                        for _ in 0..extra {
-                            b.f64("a parametric coordinate")?;
-                        }
-                        pts.push(p);
+                if dim > 0 {
+                    let nb = self.count("a bounding entity count")?;
+                    for _ in 0..nb {
+                        self.i32("a bounding entity")?;
                     }
                 }
-                if ids.len() != n {
-                    return Err(b.sc.err_byte(
-                        sec_pos,
-                        format!(
-                            "$Nodes announces {n} nodes but its blocks hold {}; fix: repair the header",
-                            ids.len()
-                        ),
-                    ));
-                }
-                b.expect("$EndNodes")?;
-                saw_nodes = true;
-            }
-            "$Elements" if v2 => {
-                let n = b.text_count("the element count")?;
-                elems.reserve(cap(n, b.sc.remaining(), 20));
-                let mut done = 0usize;
-                while done < n {
-                    let hp = b.sc.pos;
-                    let gtype = b.i32("an element type")? as u32;
-                    let follow = b.i32("the element count of a block")?.max(0) as usize;
-                    let ntags = b.i32("the tag count")?.max(0) as usize;
-                    let Some((nn, _)) = nodes_per_type(gtype) else {
-                        return Err(b.sc.err_byte(hp, type_problem(gtype)));
-                    };
-                    if follow == 0 || follow > n - done {
-                        return Err(b.sc.err_byte(hp, format!("an element block announces {follow} elements, but {} remain of the {n} announced; fix: the counts disagree, export again", n - done)));
-                    }
-                    if ntags > 1 << 16 {
-                        return Err(b
-                            .sc
-                            .err_byte(hp, format!("{ntags} tags per element; fix: the file is corrupt")));
-                    }
-                    for _ in 0..follow {
-                        let p = b.sc.pos;
-                        let id = b.i32("an element id")? as u32 as u64;
-                        let mut tag = 0;
-                        for k in 0..ntags {
-                            let t = b.i32("an element tag")?;
-                            if k == 0 {
-                                tag = t;
-                            }
-                        }
-                        let mut nodes = Vec::with_capacity(nn);
-                        for _ in 0..nn {
-                            nodes.push(b.i32("an element node")? as u32 as u64);
-                        }
-                        elems.push(p, id, gtype, tag, &nodes);
-                    }
-                    done += follow;
-                }
-                b.expect("$EndElements")?;
-            }
-            "$Elements" => {
-                let nblocks = b.count("the element block count")?;
-                let n = b.count("the element count")?;
-                b.count("the minimum element tag")?;
-                b.count("the maximum element tag")?;
-                elems.reserve(cap(n, b.sc.remaining(), 2 * dsize));
-                for _ in 0..nblocks {
-                    let hp = b.sc.pos;
-                    let edim = b.i32("an entity dimension")?;
-                    let etag = b.i32("an entity tag")?;
-                    let gtype = b.i32("an element type")? as u32;
-                    let ne = b.count("the block element count")?;
-                    let Some((nn, _)) = nodes_per_type(gtype) else {
-                        return Err(b.sc.err_byte(hp, type_problem(gtype)));
-                    };
-                    if ne > b.sc.remaining() / ((nn + 1) * dsize) {
-                        return Err(b.sc.err_byte(hp, format!("an element block announces {ne} elements, more than the file holds; fix: the file is truncated or corrupt")));
-                    }
-                    let tag = u8::try_from(edim)
-                        .ok()
-                        .and_then(|d| entity_phys.get(&(d, etag)).copied())
-                        .unwrap_or(0);
-                    for _ in 0..ne {
-                        let p = b.sc.pos;
-                        let id = b.size("an element tag")?;
-                        let mut nodes = Vec::with_capacity(nn);
-                        for _ in 0..nn {
-                            nodes.push(b.size("an element node")?);
-                        }
-                        elems.push(p, id, gtype, tag, &nodes);
-                    }
-                }
-                if elems.len() != n {
-                    return Err(b.sc.err_byte(
-                        sec_pos,
-                        format!(
-                            "$Elements announces {n} elements but its blocks hold {}; fix: repair the header",
-                            elems.len()
-                        ),
-                    ));
-                }
-                b.expect("$EndElements")?;
-            }
-            s if s.starts_with('$') && s.len() > 1 => {
-                // a section eprop does not use: find its end marker
-                let end = format!("\n$End{}", &s[1..]);
-                let from = b.sc.pos.saturating_sub(1);
-                let hay = &b.sc.b[from..];
-                match hay.windows(end.len()).position(|w| w == end.as_bytes()) {
-                    Some(k) => {
-                        b.sc.pos = from + k + 1;
-                        b.line();
-                    }
-                    None => {
-                        return Err(b.sc.err_byte(
-                            sec_pos,
-                            format!("section {} has no end marker; fix: the file is truncated", short(s)),
-                        ))
-                    }
-                }
-            }
-            _ => {
-                return Err(b.sc.err_byte(
-                    sec_pos,
-                    format!(
-                        "unexpected `{}` between sections; fix: a count disagrees with the data",
-                        short(&l)
-                    ),
-                ))
             }
         }
+        self.expect("$EndEntities")
     }
-    if !saw_nodes {
-        bail!("{name}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)");
+
+    /// `$Nodes` of a 2.2 file: a text count, then `id x y z` records.
+    fn nodes_v2(&mut self, m: &mut BinParts) -> Result<()> {
+        let n = self.text_count("the node count")?;
+        let c = cap(n, self.sc.remaining(), 28);
+        m.ids.reserve(c);
+        m.pts.reserve(c);
+        for _ in 0..n {
+            let id = self.i32("a node id")?;
+            let mut p = [0.0; 3];
+            for x in &mut p {
+                *x = self.f64("a coordinate")?;
+            }
+            m.ids.push(id as u32 as u64);
+            m.pts.push(p);
+        }
+        self.expect("$EndNodes")?;
+        m.saw_nodes = true;
+        Ok(())
     }
-    let nm = name.to_string();
-    build_at(name.to_string(), ids, pts, elems, names, &|p| format!("{nm}: byte {p}"))
+
+    /// `$Nodes` of a 4.1 file: entity blocks, each with its node tags, then its coordinates.
+    fn nodes_v41(&mut self, m: &mut BinParts, sec_pos: usize) -> Result<()> {
+        let dsize = self.dsize;
+        let nblocks = self.count("the node block count")?;
+        let n = self.count("the node count")?;
+        self.count("the minimum node tag")?;
+        self.count("the maximum node tag")?;
+        let c = cap(n, self.sc.remaining(), 32);
+        m.ids.reserve(c);
+        m.pts.reserve(c);
+        for _ in 0..nblocks {
+            let edim = self.i32("an entity dimension")?;
+            self.i32("an entity tag")?;
+            let param = self.i32("the parametric flag")?;
+            let nn = self.count("the block node count")?;
+            if nn > self.sc.remaining() / (dsize + 24) {
+                return Err(self.sc.err_byte(self.sc.pos, format!("a node block announces {nn} nodes, more than the file holds; fix: the file is truncated or corrupt")));
+            }
+            for _ in 0..nn {
+                m.ids.push(self.size("a node tag")?);
+            }
+            let extra = if param != 0 { edim.clamp(0, 3) as usize } else { 0 };
+            for _ in 0..nn {
+                let mut p = [0.0; 3];
+                for x in &mut p {
+                    *x = self.f64("a coordinate")?;
+                }
+                for _ in 0..extra {
+                    self.f64("a parametric coordinate")?;
+                }
+                m.pts.push(p);
+            }
+        }
+        if m.ids.len() != n {
+            return Err(self.sc.err_byte(
+                sec_pos,
+                format!(
+                    "$Nodes announces {n} nodes but its blocks hold {}; fix: repair the header",
+                    m.ids.len()
+                ),
+            ));
+        }
+        self.expect("$EndNodes")?;
+        m.saw_nodes = true;
+        Ok(())
+    }
+
+    /// `$Elements` of a 2.2 file: a text count, then blocks of `type count ntags` headers
+    /// followed by `id tags... nodes...` records.
+    fn elements_v2(&mut self, elems: &mut RawElems) -> Result<()> {
+        let n = self.text_count("the element count")?;
+        elems.reserve(cap(n, self.sc.remaining(), 20));
+        let mut done = 0usize;
+        while done < n {
+            let hp = self.sc.pos;
+            let gtype = self.i32("an element type")? as u32;
+            let follow = self.i32("the element count of a block")?.max(0) as usize;
+            let ntags = self.i32("the tag count")?.max(0) as usize;
+            let Some((nn, _)) = nodes_per_type(gtype) else {
+                return Err(self.sc.err_byte(hp, type_problem(gtype)));
+            };
+            if follow == 0 || follow > n - done {
+                return Err(self.sc.err_byte(hp, format!("an element block announces {follow} elements, but {} remain of the {n} announced; fix: the counts disagree, export again", n - done)));
+            }
+            if ntags > 1 << 16 {
+                return Err(self
+                    .sc
+                    .err_byte(hp, format!("{ntags} tags per element; fix: the file is corrupt")));
+            }
+            for _ in 0..follow {
+                let p = self.sc.pos;
+                let id = self.i32("an element id")? as u32 as u64;
+                let mut tag = 0;
+                for k in 0..ntags {
+                    let t = self.i32("an element tag")?;
+                    if k == 0 {
+                        tag = t;
+                    }
+                }
+                let mut nodes = Vec::with_capacity(nn);
+                for _ in 0..nn {
+                    nodes.push(self.i32("an element node")? as u32 as u64);
+                }
+                elems.push(p, id, gtype, tag, &nodes);
+            }
+            done += follow;
+        }
+        self.expect("$EndElements")
+    }
+
+    /// `$Elements` of a 4.1 file: entity blocks of one element type each; the entity's first
+    /// physical tag becomes the elements' tag.
+    fn elements_v41(&mut self, m: &mut BinParts, sec_pos: usize) -> Result<()> {
+        let dsize = self.dsize;
+        let nblocks = self.count("the element block count")?;
+        let n = self.count("the element count")?;
+        self.count("the minimum element tag")?;
+        self.count("the maximum element tag")?;
+        m.elems.reserve(cap(n, self.sc.remaining(), 2 * dsize));
+        for _ in 0..nblocks {
+            let hp = self.sc.pos;
+            let edim = self.i32("an entity dimension")?;
+            let etag = self.i32("an entity tag")?;
+            let gtype = self.i32("an element type")? as u32;
+            let ne = self.count("the block element count")?;
+            let Some((nn, _)) = nodes_per_type(gtype) else {
+                return Err(self.sc.err_byte(hp, type_problem(gtype)));
+            };
+            if ne > self.sc.remaining() / ((nn + 1) * dsize) {
+                return Err(self.sc.err_byte(hp, format!("an element block announces {ne} elements, more than the file holds; fix: the file is truncated or corrupt")));
+            }
+            let tag = u8::try_from(edim)
+                .ok()
+                .and_then(|d| m.entity_phys.get(&(d, etag)).copied())
+                .unwrap_or(0);
+            for _ in 0..ne {
+                let p = self.sc.pos;
+                let id = self.size("an element tag")?;
+                let mut nodes = Vec::with_capacity(nn);
+                for _ in 0..nn {
+                    nodes.push(self.size("an element node")?);
+                }
+                m.elems.push(p, id, gtype, tag, &nodes);
+            }
+        }
+        if m.elems.len() != n {
+            return Err(self.sc.err_byte(
+                sec_pos,
+                format!(
+                    "$Elements announces {n} elements but its blocks hold {}; fix: repair the header",
+                    m.elems.len()
+                ),
+            ));
+        }
+        self.expect("$EndElements")
+    }
+
+    /// A section eprop does not use: moves past its end marker.
+    fn skip_section(&mut self, s: &str, sec_pos: usize) -> Result<()> {
+        let end = format!("\n$End{}", &s[1..]);
+        let from = self.sc.pos.saturating_sub(1);
+        let hay = &self.sc.b[from..];
+        match hay.windows(end.len()).position(|w| w == end.as_bytes()) {
+            Some(k) => {
+                self.sc.pos = from + k + 1;
+                self.line();
+                Ok(())
+            }
+            None => Err(self.sc.err_byte(
+                sec_pos,
+                format!("section {} has no end marker; fix: the file is truncated", short(s)),
+            )),
+        }
+    }
 }
