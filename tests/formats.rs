@@ -729,3 +729,75 @@ Extrude{0,0,1}{Surface{1}; Layers{2}; Recombine;}\nPhysical Volume(5) = {1};\n";
     assert_eq!(meshes[0].conn, meshes[1].conn);
     assert_eq!(meshes[0].conn, meshes[2].conn);
 }
+
+/// Reads a mesh on another thread and returns its error: a reader that blocks (on a FIFO)
+/// fails the test instead of hanging it.
+fn read_error_within(p: &Path, secs: u64) -> String {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let q = p.to_path_buf();
+    std::thread::spawn(move || {
+        let _ = tx.send(read_mesh(&q).map(|_| ()).map_err(|e| format!("{e:#}")));
+    });
+    match rx.recv_timeout(std::time::Duration::from_secs(secs)) {
+        Ok(r) => r.expect_err("read without error"),
+        Err(_) => panic!("reading {} did not return within {secs} s", p.display()),
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn only_regular_files_are_read() {
+    use std::os::unix::fs::symlink;
+    let d = tempfile::tempdir().unwrap();
+    let good = d.path().join("good.msh");
+    std::fs::write(&good, GMSH).unwrap();
+    // a FIFO would block the reader forever
+    let fifo = d.path().join("pipe.msh");
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let e = read_error_within(&fifo, 10);
+    assert!(
+        e.contains("pipe.msh") && e.contains("FIFO") && e.contains("not a regular file") && e.contains("fix:"),
+        "{e}"
+    );
+    // /dev/zero never ends
+    let zero = d.path().join("zero.msh");
+    symlink("/dev/zero", &zero).unwrap();
+    let e = read_error_within(&zero, 10);
+    assert!(
+        e.contains("zero.msh") && e.contains("character device") && e.contains("fix:"),
+        "{e}"
+    );
+    // a link loop is not a missing file
+    let (a, b) = (d.path().join("a.vtu"), d.path().join("b.vtu"));
+    symlink(&b, &a).unwrap();
+    symlink(&a, &b).unwrap();
+    let e = read_error_within(&a, 10);
+    assert!(
+        e.contains("a.vtu") && e.contains("symbolic link loop") && e.contains("fix:"),
+        "{e}"
+    );
+    assert!(!e.contains("no such"), "{e}");
+    // a directory
+    let dir = d.path().join("dir.vtk");
+    std::fs::create_dir(&dir).unwrap();
+    let e = read_error_within(&dir, 10);
+    assert!(e.contains("is a directory") && e.contains("fix:"), "{e}");
+    // a TetGen part that is a FIFO
+    std::fs::write(d.path().join("t.ele"), ELE).unwrap();
+    assert!(Command::new("mkfifo")
+        .arg(d.path().join("t.node"))
+        .status()
+        .unwrap()
+        .success());
+    let e = read_error_within(&d.path().join("t.ele"), 10);
+    assert!(e.contains("t.node") && e.contains("FIFO") && e.contains("fix:"), "{e}");
+    // a link to a mesh is read
+    let link = d.path().join("link.msh");
+    symlink(&good, &link).unwrap();
+    assert_eq!(read_mesh(&link).unwrap().n_cells(), 2);
+    // and the program says it too
+    for p in [&fifo, &zero, &a] {
+        let (ok, _, err) = eprop(&["info", p.to_str().unwrap()]);
+        assert!(!ok && err.contains("fix:") && !err.contains("panicked"), "{err}");
+    }
+}

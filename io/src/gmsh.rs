@@ -156,7 +156,7 @@ fn type_problem(t: u32) -> String {
 
 /// Reads a Gmsh file of any supported version, ASCII or binary.
 pub fn read(path: &Path) -> Result<Mesh> {
-    let bytes = std::fs::read(path).map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
+    let bytes = crate::read_input_file(path, "mesh")?;
     parse_bytes(&path.display().to_string(), &bytes)
 }
 

@@ -9,6 +9,7 @@
 //! `eprop_io::geom`, `eprop_io::generate`, `eprop_io::validate`, `eprop_io::Mesh`, ...).
 
 pub mod gmsh;
+pub mod input;
 pub mod medit;
 pub mod scan;
 #[cfg(feature = "test-writers")]
@@ -19,8 +20,9 @@ pub mod vtkhdf;
 pub mod vtu;
 
 pub use eprop_mesh::{generate, geom, mesh, validate, CellKind, Mesh, ReadOptions};
+pub use input::{read_input_file, read_input_text};
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{bail, Result};
 use std::path::Path;
 
 /// The mesh formats eprop reads.
@@ -79,20 +81,19 @@ pub fn read_mesh_with(path: &Path, opts: &ReadOptions) -> Result<Mesh> {
     };
     if format == Format::TetGen {
         let base = path.with_extension("").display().to_string();
-        if !Path::new(&format!("{base}.ele")).exists() || !Path::new(&format!("{base}.node")).exists() {
+        // a link or special file in its place is not missing: reading it says what it is
+        let missing = |ext: &str| std::fs::symlink_metadata(format!("{base}.{ext}")).is_err();
+        if missing("ele") || missing("node") {
             bail!(
                 "{}: no such mesh file (TetGen needs x.node and x.ele side by side); fix: check the path",
                 path.display()
             );
         }
-    } else if !path.exists() {
-        bail!("{}: no such mesh file; fix: check the path (relative paths in a scenario are relative to the scenario file)", path.display());
     }
     let mut mesh = match format {
         Format::TetGen => tetgen::read(path)?,
         _ => {
-            let bytes = std::fs::read(path)
-                .map_err(|e| anyhow!("{}: cannot read: {e}; fix: check the permissions", path.display()))?;
+            let bytes = read_input_file(path, "mesh")?;
             parse_mesh(format, &path.display().to_string(), &bytes)?
         }
     };

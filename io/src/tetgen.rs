@@ -5,7 +5,7 @@
 
 use crate::mesh::{CellKind, Mesh};
 use crate::scan::{cap, Scan};
-use anyhow::{anyhow, bail, Result};
+use anyhow::{bail, Result};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -185,17 +185,13 @@ pub fn read(path: &Path) -> Result<Mesh> {
     let base: PathBuf = path.with_extension("");
     // `x.1.ele` -> `x.1.node`: append, since with_extension would replace the `.1`
     let sib = |ext: &str| PathBuf::from(format!("{}.{ext}", base.display()));
-    let rd = |p: &Path| {
-        std::fs::read(p).map_err(|e| {
-            anyhow!(
-                "{}: cannot read: {e}; fix: TetGen meshes need x.node and x.ele side by side",
-                p.display()
-            )
-        })
+    let node = crate::read_input_file(&sib("node"), "TetGen .node")?;
+    let ele = crate::read_input_file(&sib("ele"), "TetGen .ele")?;
+    // the .face file is optional; one that is there must be readable
+    let face = match std::fs::symlink_metadata(sib("face")) {
+        Ok(_) => Some(crate::read_input_file(&sib("face"), "TetGen .face")?),
+        Err(_) => None,
     };
-    let node = rd(&sib("node"))?;
-    let ele = rd(&sib("ele"))?;
-    let face = std::fs::read(sib("face")).ok();
     parse(&base.display().to_string(), &node, &ele, face.as_deref())
 }
 
