@@ -801,3 +801,94 @@ fn only_regular_files_are_read() {
         assert!(!ok && err.contains("fix:") && !err.contains("panicked"), "{err}");
     }
 }
+
+/// A `.vtu` of one tetrahedron whose `which` array (0 points, 1 connectivity, another value
+/// none) is a zlib bomb: `blocks` blocks that each inflate to `mib` MiB of zeros (1/1000 of that
+/// compressed), of which `present` are in the file. `np` is its NumberOfPoints.
+fn zlib_bomb(which: usize, np: u64, mib: u64, blocks: u64, present: u64) -> Vec<u8> {
+    use std::io::Write as _;
+    let z = |data: &[u8]| {
+        let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+        e.write_all(data).unwrap();
+        e.finish().unwrap()
+    };
+    let one = |data: &[u8]| {
+        let c = z(data);
+        let mut a: Vec<u8> = [1u64, data.len() as u64, data.len() as u64, c.len() as u64]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        a.extend(c);
+        a
+    };
+    let bs = mib << 20;
+    let blk = z(&vec![0u8; bs as usize]);
+    let mut bomb: Vec<u8> = [blocks, bs, 0].iter().flat_map(|x| x.to_le_bytes()).collect();
+    for _ in 0..blocks {
+        bomb.extend((blk.len() as u64).to_le_bytes());
+    }
+    for _ in 0..present {
+        bomb.extend(&blk);
+    }
+    let pts: Vec<u8> = [0.0f64, 0., 0., 1., 0., 0., 0., 1., 0., 0., 0., 1.]
+        .iter()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let conn: Vec<u8> = [0i64, 1, 2, 3].iter().flat_map(|x| x.to_le_bytes()).collect();
+    let mut arrays = vec![one(&pts), one(&conn), one(&4i64.to_le_bytes()), one(&[10u8])];
+    if let Some(a) = arrays.get_mut(which) {
+        *a = bomb;
+    }
+    let mut offsets = Vec::new();
+    let mut app: Vec<u8> = Vec::new();
+    for a in &arrays {
+        offsets.push(app.len());
+        app.extend(a);
+    }
+    let mut f = format!(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"{}\" NumberOfCells=\"1\">\n<Points>\n<DataArray type=\"Float64\" Name=\"Points\" NumberOfComponents=\"3\" format=\"appended\" offset=\"{}\"/>\n</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"appended\" offset=\"{}\"/>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"appended\" offset=\"{}\"/>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"appended\" offset=\"{}\"/>\n</Cells>\n</Piece>\n</UnstructuredGrid>\n<AppendedData encoding=\"raw\">\n_",
+        np, offsets[0], offsets[1], offsets[2], offsets[3]
+    )
+    .into_bytes();
+    f.extend(app);
+    f.extend(b"\n</AppendedData>\n</VTKFile>\n");
+    f
+}
+
+/// The peak resident memory of this process so far (Linux), in KiB.
+fn peak_rss_kib() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let l = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    l.split_whitespace().nth(1)?.parse().ok()
+}
+
+#[test]
+fn zlib_bombs_are_refused_before_inflating() {
+    let d = tempfile::tempdir().unwrap();
+    // the sanity of the generator: with its real arrays the file reads
+    let p = d.path().join("one.vtu");
+    std::fs::write(&p, zlib_bomb(9, 4, 0, 0, 0)).unwrap();
+    assert_eq!(read_mesh(&p).unwrap().n_cells(), 1);
+    // 160 blocks of 16 MiB (2.7 GB) from 2.6 MB, where 12 coordinates or 4 indices are needed;
+    // and the 5 GB of coordinates 100 * 2^21 points need, from 100 blocks of which 1 is there
+    for (which, np, mib, blocks, present, key) in [
+        (0, 4, 16, 160, 160, "but its 12 values take 96"),
+        (1, 4, 16, 160, 160, "more than the 4 values the cell offsets use"),
+        (0, 100 << 21, 48, 100, 1, "ends while reading"),
+    ] {
+        let p = d.path().join(format!("bomb{which}-{present}.vtu"));
+        std::fs::write(&p, zlib_bomb(which, np, mib, blocks, present)).unwrap();
+        let before = peak_rss_kib();
+        let t = std::time::Instant::now();
+        let e = format!("{:#}", read_mesh(&p).unwrap_err());
+        let took = t.elapsed().as_secs_f64();
+        assert!(
+            e.contains(&format!("bomb{which}-{present}.vtu")) && e.contains(key) && e.contains("fix:"),
+            "{e}"
+        );
+        assert!(took < 2.0, "{e}: {took:.1} s");
+        if let (Some(a), Some(b)) = (before, peak_rss_kib()) {
+            assert!(b < a + (256 << 10), "{e}: peak memory grew from {a} to {b} KiB");
+        }
+    }
+}

@@ -3,7 +3,7 @@
 //! Physical tags become cell tags and facet tags; `$PhysicalNames` become group names.
 
 use crate::mesh::{CellKind, Mesh};
-use crate::scan::{cap, short, Scan};
+use crate::scan::{cap, reserve, short, Scan};
 use anyhow::{anyhow, bail, Result};
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -114,13 +114,13 @@ impl RawElems {
         self.offsets.push(self.nodes.len());
     }
     /// Room for `n` more elements of up to four nodes (callers bound `n` by the data left).
-    fn reserve(&mut self, n: usize) {
-        self.pos.reserve(n);
-        self.id.reserve(n);
-        self.gtype.reserve(n);
-        self.tag.reserve(n);
-        self.offsets.reserve(n + 1);
-        self.nodes.reserve(4 * n);
+    fn reserve(&mut self, n: usize, name: &str) -> Result<()> {
+        reserve(&mut self.pos, n, name)?;
+        reserve(&mut self.id, n, name)?;
+        reserve(&mut self.gtype, n, name)?;
+        reserve(&mut self.tag, n, name)?;
+        reserve(&mut self.offsets, n + 1, name)?;
+        reserve(&mut self.nodes, 4 * n, name)
     }
     fn len(&self) -> usize {
         self.id.len()
@@ -256,8 +256,8 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
 
 fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<[f64; 3]>) -> Result<()> {
     let c = cap(n, rd.sc.remaining(), 8);
-    ids.reserve(c);
-    pts.reserve(c);
+    reserve(ids, c, rd.name())?;
+    reserve(pts, c, rd.name())?;
     for _ in 0..n {
         let (at, l) = rd.next("a node")?;
         let t: Vec<&str> = l.split_whitespace().collect();
@@ -341,7 +341,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
                 if n.len() != 1 {
                     return Err(rd.err(at2, "expected the element count alone on the line after $Elements"));
                 }
-                elems.reserve(cap(n[0], rd.sc.remaining(), 8));
+                elems.reserve(cap(n[0], rd.sc.remaining(), 8), rd.name())?;
                 for _ in 0..n[0] {
                     let (at3, v) = rd.numbers::<i64>("an element")?;
                     if v.len() < 3 || v[2] < 0 || ((v.len() - 3) as u64) < v[2] as u64 {
@@ -419,8 +419,8 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                 if h.len() != 4 {
                     return Err(rd.err(at2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
                 }
-                ids.reserve(cap(h[1], rd.sc.remaining(), 8));
-                pts.reserve(cap(h[1], rd.sc.remaining(), 8));
+                reserve(&mut ids, cap(h[1], rd.sc.remaining(), 8), rd.name())?;
+                reserve(&mut pts, cap(h[1], rd.sc.remaining(), 8), rd.name())?;
                 for _ in 0..h[0] {
                     let (at3, b) = rd.numbers::<i64>("a node block header")?;
                     if b.len() != 4 || b[3] < 0 {
@@ -477,7 +477,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                         "expected `numEntityBlocks numElements minElementTag maxElementTag`",
                     ));
                 }
-                elems.reserve(cap(h[1], rd.sc.remaining(), 8));
+                elems.reserve(cap(h[1], rd.sc.remaining(), 8), rd.name())?;
                 let mut count = 0usize;
                 for _ in 0..h[0] {
                     let (at3, b) = rd.numbers::<i64>("an element block header")?;
@@ -915,8 +915,8 @@ impl Bin<'_> {
     fn nodes_v2(&mut self, m: &mut BinParts) -> Result<()> {
         let n = self.text_count("the node count")?;
         let c = cap(n, self.sc.remaining(), 28);
-        m.ids.reserve(c);
-        m.pts.reserve(c);
+        reserve(&mut m.ids, c, self.sc.name)?;
+        reserve(&mut m.pts, c, self.sc.name)?;
         for _ in 0..n {
             let id = self.i32("a node id")?;
             let mut p = [0.0; 3];
@@ -939,8 +939,8 @@ impl Bin<'_> {
         self.count("the minimum node tag")?;
         self.count("the maximum node tag")?;
         let c = cap(n, self.sc.remaining(), 32);
-        m.ids.reserve(c);
-        m.pts.reserve(c);
+        reserve(&mut m.ids, c, self.sc.name)?;
+        reserve(&mut m.pts, c, self.sc.name)?;
         for _ in 0..nblocks {
             let edim = self.i32("an entity dimension")?;
             self.i32("an entity tag")?;
@@ -982,7 +982,7 @@ impl Bin<'_> {
     /// followed by `id tags... nodes...` records.
     fn elements_v2(&mut self, elems: &mut RawElems) -> Result<()> {
         let n = self.text_count("the element count")?;
-        elems.reserve(cap(n, self.sc.remaining(), 20));
+        elems.reserve(cap(n, self.sc.remaining(), 20), self.sc.name)?;
         let mut done = 0usize;
         while done < n {
             let hp = self.sc.pos;
@@ -1029,7 +1029,7 @@ impl Bin<'_> {
         let n = self.count("the element count")?;
         self.count("the minimum element tag")?;
         self.count("the maximum element tag")?;
-        m.elems.reserve(cap(n, self.sc.remaining(), 2 * dsize));
+        m.elems.reserve(cap(n, self.sc.remaining(), 2 * dsize), self.sc.name)?;
         for _ in 0..nblocks {
             let hp = self.sc.pos;
             let edim = self.i32("an entity dimension")?;

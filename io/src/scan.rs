@@ -160,6 +160,17 @@ impl<'a> Scan<'a> {
     }
 }
 
+/// Room for `n` more items in `v`, `n` coming from a file (and capped by what the file can
+/// hold, see `cap`): an allocation that fails is an error naming memory, not an abort.
+pub fn reserve<T>(v: &mut Vec<T>, n: usize, name: &str) -> Result<()> {
+    v.try_reserve(n).map_err(|_| {
+        anyhow!(
+            "{name}: not enough memory for {n} more values of {} bytes; fix: free memory or use a machine with more",
+            std::mem::size_of::<T>()
+        )
+    })
+}
+
 /// A count announced by a file, capped for pre-allocation: never more items than the
 /// remaining bytes could hold at `min_bytes` each.
 pub fn cap(count: usize, remaining: usize, min_bytes: usize) -> usize {
@@ -318,13 +329,15 @@ pub fn decode(bytes: &[u8], ty: Ty, big_endian: bool) -> Vals {
 pub fn parse_text(sc: &mut Scan, n: usize, ty: Ty, what: &str) -> Result<Vals> {
     let cap = cap(n, sc.remaining(), 2);
     if ty.is_float() {
-        let mut v = Vec::with_capacity(cap);
+        let mut v = Vec::new();
+        reserve(&mut v, cap, sc.name)?;
         for _ in 0..n {
             v.push(sc.num::<f64>(what)?);
         }
         Ok(Vals::F(v))
     } else {
-        let mut v = Vec::with_capacity(cap);
+        let mut v = Vec::new();
+        reserve(&mut v, cap, sc.name)?;
         for _ in 0..n {
             let w = sc.word(what)?;
             let x = match w.parse::<i64>() {
@@ -369,4 +382,18 @@ pub fn pick_tags(arrays: &[(String, Vals)], n_cells: usize, warnings: &mut Vec<S
         .or_else(|| usable.first())?;
     warnings.push(format!("cell tags taken from cell-data array `{}`", pick.0));
     Some(pick.1.iter().map(|&x| x as i32).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_reservation_too_large_for_memory_is_an_error_naming_memory() {
+        let mut v: Vec<[f64; 3]> = Vec::new();
+        let e = super::reserve(&mut v, usize::MAX / 64, "big.msh")
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("big.msh: not enough memory") && e.contains("fix:"), "{e}");
+        super::reserve(&mut v, 10, "small.msh").unwrap();
+        assert!(v.capacity() >= 10);
+    }
 }

@@ -4,7 +4,7 @@
 //! markers of `.face` become facet tags. Numbering may start at 0 or 1; `#` starts a comment.
 
 use crate::mesh::{CellKind, Mesh};
-use crate::scan::{cap, Scan};
+use crate::scan::{cap, reserve, Scan};
 use anyhow::{bail, Result};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -39,9 +39,14 @@ pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result
     }
     let mut mesh = Mesh::new(name);
     let c = cap(n, sc.remaining(), 8);
-    mesh.points.reserve(c);
-    mesh.node_ids.reserve(c);
-    let mut index: HashMap<u64, u32> = HashMap::with_capacity(c);
+    reserve(&mut mesh.points, c, sc.name)?;
+    reserve(&mut mesh.node_ids, c, sc.name)?;
+    let mut index: HashMap<u64, u32> = HashMap::new();
+    index.try_reserve(c).map_err(|_| {
+        sc.err(format!(
+            "not enough memory for {c} nodes; fix: free memory or use a machine with more"
+        ))
+    })?;
     for _ in 0..n {
         let id = id_of(&mut sc, "a node index")?;
         let mut p = [0.0; 3];
@@ -77,7 +82,7 @@ pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result
         return Err(sc.err("too many attributes; fix: repair the first line"));
     }
     let c = cap(ne, sc.remaining(), 10);
-    mesh.conn.reserve(c * 4);
+    reserve(&mut mesh.conn, c * 4, sc.name)?;
     let mut nodes = [0u32; 4];
     for _ in 0..ne {
         let eid = id_of(&mut sc, "a tetrahedron index")?;

@@ -3,7 +3,7 @@
 //! Also holds the cell-type mapping shared with the `.vtu` reader.
 
 use crate::mesh::{CellKind, Mesh};
-use crate::scan::{cap, decode, parse_text, pick_tags, short, Scan, Ty, Vals};
+use crate::scan::{cap, decode, parse_text, pick_tags, reserve, short, Scan, Ty, Vals};
 use anyhow::{anyhow, bail, Result};
 
 /// What a VTK cell type becomes.
@@ -367,8 +367,9 @@ impl Legacy<'_> {
     fn cells_v42(&mut self, a: usize, b: usize, kpos: usize) -> Result<(Vec<i64>, Vec<i64>)> {
         let list = ints(self.values(b, Ty::I32, "the cell list")?, &self.sc, "CELLS")?;
         let sc = &self.sc;
-        let mut st = Vec::with_capacity(cap(a, list.len(), 1) + 1);
-        let mut cn = Vec::with_capacity(list.len());
+        let (mut st, mut cn) = (Vec::new(), Vec::new());
+        reserve(&mut st, cap(a, list.len(), 1) + 1, sc.name)?;
+        reserve(&mut cn, list.len(), sc.name)?;
         let mut i = 0usize;
         st.push(0i64);
         for c in 0..a {

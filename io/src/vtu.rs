@@ -310,6 +310,30 @@ enum Src<'a> {
 }
 
 impl Src<'_> {
+    /// Fails as `take` would if fewer than `n` bytes are left.
+    fn ensure(&self, n: usize, what: &str) -> Result<()> {
+        match self {
+            Src::Raw { b, pos, base, name } => {
+                if n > b.len().saturating_sub(*pos) {
+                    bail!(
+                        "{name}: byte {}: appended data ends while reading {what} ({n} bytes announced, {} left); fix: the file is truncated or its header is wrong, export again",
+                        *base + *pos,
+                        b.len().saturating_sub(*pos)
+                    );
+                }
+            }
+            Src::B64(d) => {
+                if n > d.remaining_bytes() {
+                    bail!(
+                        "{}: byte {}: base64 data ends while reading {what} ({n} bytes announced); fix: the data is truncated or its header is wrong, export again",
+                        d.name,
+                        d.base + d.pos
+                    );
+                }
+            }
+        }
+        Ok(())
+    }
     fn take(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
         match self {
             Src::Raw { b, pos, base, name } => {
@@ -342,10 +366,41 @@ fn uint(b: &[u8], ty: Ty, big: bool) -> u64 {
     }
 }
 
-/// Reads one binary array (header + data, possibly zlib blocks) from `src`.
-fn read_binary(src: &mut Src, f: &Fmt, what: &str, name: &str) -> Result<Vec<u8>> {
+/// How many values an array must hold: exactly (counts from the `<Piece>`), or at most (the
+/// connectivity: what the cell offsets use).
+#[derive(Clone, Copy, Debug)]
+enum Count {
+    Exactly(usize),
+    AtMost(usize),
+}
+
+impl Count {
+    fn exactly(self) -> Option<usize> {
+        match self {
+            Count::Exactly(n) => Some(n),
+            Count::AtMost(_) => None,
+        }
+    }
+}
+
+/// What a binary array must inflate to: `count` values of `size` bytes; `at` (`file:line` of
+/// its `<DataArray>`) for messages.
+struct Need<'a> {
+    count: Count,
+    size: usize,
+    at: &'a str,
+}
+
+/// zlib cannot expand data more than about 1032:1: a block claiming more is a corrupt header.
+const ZLIB_MAX_RATIO: usize = 1100;
+
+/// Reads one binary array (header + data, possibly zlib blocks) from `src`. `need` bounds what
+/// zlib blocks may inflate to: their header is checked against it, and against what the
+/// compressed bytes can hold, before anything is inflated or allocated.
+fn read_binary(src: &mut Src, f: &Fmt, what: &str, name: &str, need: &Need) -> Result<Vec<u8>> {
     let hs = f.header.size();
     if !f.zlib {
+        // the data is in the file: `take` checks that it is there before copying it
         let n = uint(&src.take(hs, what)?, f.header, f.big);
         let n = usize::try_from(n)
             .map_err(|_| anyhow!("{name}: {what}: size {n} too large; fix: the header is corrupt"))?;
@@ -359,14 +414,29 @@ fn read_binary(src: &mut Src, f: &Fmt, what: &str, name: &str) -> Result<Vec<u8>
         .checked_mul(hs)
         .ok_or_else(|| anyhow!("{name}: {what}: {nblocks} compressed blocks announced; fix: the header is corrupt"))?;
     let sizes = src.take(sizes_len, what)?;
-    let mut out = Vec::new();
-    for (k, cs) in sizes.chunks_exact(hs).enumerate() {
-        let cs = uint(cs, f.header, f.big) as usize;
+    let block = |k: usize| {
+        let cs = uint(&sizes[k * hs..(k + 1) * hs], f.header, f.big) as usize;
         let want = if k + 1 == nblocks && last != 0 { last } else { bsize };
-        // zlib cannot expand more than about 1032:1; larger claims are corrupt headers
-        if want / 1100 > cs.saturating_add(64) {
+        (cs, want)
+    };
+    let (mut total, mut total_cs) = (0u128, 0u128);
+    for k in 0..nblocks {
+        let (cs, want) = block(k);
+        if want / ZLIB_MAX_RATIO > cs.saturating_add(64) {
             bail!("{name}: {what}: block {k} claims {want} bytes from {cs} compressed bytes; fix: the compression header is corrupt, export again");
         }
+        total += want as u128;
+        total_cs += cs as u128;
+    }
+    check_declared(total, need, what)?;
+    src.ensure(usize::try_from(total_cs).unwrap_or(usize::MAX), what)?;
+    let total = total as usize; // at most count * size
+    let mut out = Vec::new();
+    out.try_reserve_exact(total).map_err(|_| {
+        anyhow!("{name}: {what}: not enough memory for its {total} bytes; fix: free memory or use a machine with more")
+    })?;
+    for k in 0..nblocks {
+        let (cs, want) = block(k);
         let comp = src.take(cs, what)?;
         let mut dec = flate2::read::ZlibDecoder::new(&comp[..]).take(want as u64 + 1);
         let before = out.len();
@@ -383,6 +453,23 @@ fn read_binary(src: &mut Src, f: &Fmt, what: &str, name: &str) -> Result<Vec<u8>
         }
     }
     Ok(out)
+}
+
+/// The size a compression header declares against what the array's values take.
+fn check_declared(total: u128, need: &Need, what: &str) -> Result<()> {
+    let bytes = |n: usize| n as u128 * need.size as u128;
+    let name = need.at;
+    match need.count {
+        Count::Exactly(n) if total != bytes(n) => bail!(
+            "{name}: {what}: its compression header declares {total} bytes, but its {n} values take {}; fix: the counts disagree or the header is corrupt, export again",
+            bytes(n)
+        ),
+        Count::AtMost(n) if total > bytes(n) => bail!(
+            "{name}: {what}: its compression header declares {total} bytes, more than the {n} values the cell offsets use ({} bytes); fix: the header is corrupt, export again",
+            bytes(n)
+        ),
+        _ => Ok(()),
+    }
 }
 
 /// A `<DataArray>` as found in the file.
@@ -603,8 +690,9 @@ impl Doc<'_> {
             .find(|a| a.parent == parent && (nm.is_none() || a.tag.attr("Name") == nm))
     }
 
-    /// Decodes an array; `count_hint` is the number of values it must hold, when known.
-    fn read(&self, a: &Arr, count_hint: Option<usize>) -> Result<Vals> {
+    /// Decodes an array of `count` values.
+    fn read(&self, a: &Arr, count: Count) -> Result<Vals> {
+        let count_hint = count.exactly();
         let (name, sc) = (self.name, &self.sc);
         let t = &a.tag;
         let aname = t.attr("Name").unwrap_or("");
@@ -620,6 +708,12 @@ impl Doc<'_> {
             )
         })?;
         let format = t.attr("format").unwrap_or("ascii");
+        let at = format!("{name}:{}", sc.line_of(t.pos));
+        let need = Need {
+            count,
+            size: ty.size(),
+            at: &at,
+        };
         let bytes_out = match format {
             "ascii" => return self.read_ascii(a, ty, &what, count_hint),
             "binary" => {
@@ -630,11 +724,11 @@ impl Doc<'_> {
                     name,
                     base: a.text.0,
                 });
-                read_binary(&mut src, &self.fmt, &what, name)?
+                read_binary(&mut src, &self.fmt, &what, name, &need)?
             }
             "appended" => {
                 let mut src = self.appended_source(t, &what)?;
-                read_binary(&mut src, &self.fmt, &what, name)?
+                read_binary(&mut src, &self.fmt, &what, name, &need)?
             }
             f => {
                 return Err(sc.err_at(
@@ -748,7 +842,7 @@ impl Doc<'_> {
         let np3 = np
             .checked_mul(3)
             .ok_or_else(|| anyhow!("{name}: NumberOfPoints {np} too large; fix: repair the file"))?;
-        Ok(self.read(pts_a, Some(np3))?.to_f64())
+        Ok(self.read(pts_a, Count::Exactly(np3))?.to_f64())
     }
 
     /// The `<Cells>` arrays: types, starts (0 then the offsets) and connectivity.
@@ -758,15 +852,17 @@ impl Doc<'_> {
             self.find("Cells", Some(n))
                 .ok_or_else(|| anyhow!("{name}: no `{n}` array in <Cells>; fix: the file is incomplete, export again"))
         };
-        let ints = |a: &Arr, hint: Option<usize>| -> Result<Vec<i64>> {
+        let ints = |a: &Arr, hint: Count| -> Result<Vec<i64>> {
             self.read(a, hint)?.to_i64().ok_or_else(|| {
                 self.sc
                     .err_at(a.tag.pos, "cell array holds non-integers; fix: repair the file")
             })
         };
-        let types = ints(cell("types")?, Some(nc))?;
-        let offsets = ints(cell("offsets")?, Some(nc))?;
-        let conn = ints(cell("connectivity")?, None)?;
+        let types = ints(cell("types")?, Count::Exactly(nc))?;
+        let offsets = ints(cell("offsets")?, Count::Exactly(nc))?;
+        // the offsets say how many connectivity entries the cells use
+        let used = offsets.last().map_or(0, |&o| usize::try_from(o).unwrap_or(0));
+        let conn = ints(cell("connectivity")?, Count::AtMost(used))?;
         let mut starts = Vec::with_capacity(nc + 1);
         starts.push(0i64);
         starts.extend_from_slice(&offsets);
@@ -788,9 +884,9 @@ impl Doc<'_> {
             }
             let nm = a.tag.attr("Name").unwrap_or("").to_string();
             if a.parent == "CellData" {
-                cell_arrays.push((nm, self.read(a, Some(self.nc))?));
+                cell_arrays.push((nm, self.read(a, Count::Exactly(self.nc))?));
             } else if a.parent == "PointData" && nm == "node_ids" {
-                point_arrays.push((nm, self.read(a, Some(self.np))?));
+                point_arrays.push((nm, self.read(a, Count::Exactly(self.np))?));
             }
         }
         Ok((cell_arrays, point_arrays))
@@ -1073,7 +1169,21 @@ mod tests {
             header: Ty::U64,
             zlib: true,
         };
-        let e = format!("{:#}", read_binary(&mut src, &f, "a", "t").unwrap_err());
+        let e = format!(
+            "{:#}",
+            read_binary(
+                &mut src,
+                &f,
+                "a",
+                "t",
+                &Need {
+                    count: Count::AtMost(usize::MAX),
+                    size: 1,
+                    at: "t",
+                },
+            )
+            .unwrap_err()
+        );
         assert!(e.contains("compression header is corrupt"), "{e}");
     }
 }
