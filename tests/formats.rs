@@ -367,6 +367,18 @@ fn catalogue() -> Vec<(String, Vec<u8>, &'static str, bool)> {
         false,
     );
     t(
+        "gmsh_no_elements.msh",
+        GMSH[..GMSH.find("$Elements").unwrap()].to_string(),
+        "without an $Elements section",
+        false,
+    );
+    t(
+        "gmsh1_no_elements.msh",
+        "$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n".into(),
+        "truncated",
+        false,
+    );
+    t(
         "vtk_truncated.vtk",
         VTK[..VTK.find("4 0 2 1").unwrap()].to_string(),
         "file ends",
@@ -511,6 +523,13 @@ fn catalogue() -> Vec<(String, Vec<u8>, &'static str, bool)> {
         "gmsh41_bin_truncated.msh".into(),
         b41[..b41.len() * 2 / 3].to_vec(),
         "truncated",
+        false,
+    ));
+    let cut = b41.windows(9).position(|w| w == b"$Elements").unwrap();
+    v.push((
+        "gmsh41_bin_no_elements.msh".into(),
+        b41[..cut].to_vec(),
+        "without an $Elements section",
         false,
     ));
     let mut bad = testwrite::gmsh22_binary(&m, false);

@@ -232,8 +232,10 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
     read_nodes_lines(&mut rd, n[0], &mut ids, &mut pts)?;
     rd.expect("$ENDNOD")?;
     let mut elems = RawElems::default();
+    let mut saw_elements = false;
     while let Some((at, l)) = rd.next_line() {
         if l == "$ELM" {
+            saw_elements = true;
             let (at2, n) = rd.numbers::<usize>("the element count")?;
             if n.len() != 1 {
                 return Err(rd.err(at2, "expected the element count alone on the line after $ELM"));
@@ -250,6 +252,9 @@ fn parse_v1(mut rd: Lines) -> Result<Mesh> {
         } else {
             return Err(rd.err(at, format!("unexpected `{}` between sections", short(l))));
         }
+    }
+    if !saw_elements {
+        return Err(no_elements(rd.name(), "$ELM"));
     }
     build(ids, pts, elems, BTreeMap::new(), &rd)
 }
@@ -324,6 +329,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
     let mut elems = RawElems::default();
     let mut names = BTreeMap::new();
     let mut saw_nodes = false;
+    let mut saw_elements = false;
     while let Some((at, l)) = rd.next_line() {
         match l {
             "$PhysicalNames" => names = read_physical_names(&mut rd)?,
@@ -337,6 +343,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
                 saw_nodes = true;
             }
             "$Elements" => {
+                saw_elements = true;
                 let (at2, n) = rd.numbers::<usize>("the element count")?;
                 if n.len() != 1 {
                     return Err(rd.err(at2, "expected the element count alone on the line after $Elements"));
@@ -377,6 +384,9 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
             rd.name()
         );
     }
+    if !saw_elements {
+        return Err(no_elements(rd.name(), "$Elements"));
+    }
     build(ids, pts, elems, names, &rd)
 }
 
@@ -388,6 +398,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
     // (dim, entity tag) -> first physical tag
     let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
     let mut saw_nodes = false;
+    let mut saw_elements = false;
     while let Some((at, l)) = rd.next_line() {
         match l {
             "$PhysicalNames" => names = read_physical_names(&mut rd)?,
@@ -470,6 +481,7 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
                 saw_nodes = true;
             }
             "$Elements" => {
+                saw_elements = true;
                 let (at2, h) = rd.numbers::<usize>("the $Elements header")?;
                 if h.len() != 4 {
                     return Err(rd.err(
@@ -521,7 +533,17 @@ fn parse_v41(mut rd: Lines) -> Result<Mesh> {
             rd.name()
         );
     }
+    if !saw_elements {
+        return Err(no_elements(rd.name(), "$Elements"));
+    }
     build(ids, pts, elems, names, &rd)
+}
+
+/// A file whose nodes are not followed by an elements section: cut short, or a point cloud.
+fn no_elements(name: &str, section: &str) -> anyhow::Error {
+    anyhow!(
+        "{name}: the file ends without an {section} section (nodes but no elements); fix: the file is truncated, export it again (if it holds only nodes, mesh the volume first: gmsh -3)"
+    )
 }
 
 fn build(
@@ -787,6 +809,7 @@ struct BinParts {
     /// (dim, entity tag) -> first physical tag (4.1)
     entity_phys: HashMap<(u8, i32), i32>,
     saw_nodes: bool,
+    saw_elements: bool,
 }
 
 fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
@@ -799,8 +822,14 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
             "$Entities" if !v2 => b.entities(&mut m.entity_phys)?,
             "$Nodes" if v2 => b.nodes_v2(&mut m)?,
             "$Nodes" => b.nodes_v41(&mut m, sec_pos)?,
-            "$Elements" if v2 => b.elements_v2(&mut m.elems)?,
-            "$Elements" => b.elements_v41(&mut m, sec_pos)?,
+            "$Elements" if v2 => {
+                m.saw_elements = true;
+                b.elements_v2(&mut m.elems)?
+            }
+            "$Elements" => {
+                m.saw_elements = true;
+                b.elements_v41(&mut m, sec_pos)?
+            }
             s if s.starts_with('$') && s.len() > 1 => b.skip_section(s, sec_pos)?,
             _ => {
                 return Err(b.sc.err_byte(
@@ -815,6 +844,9 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
     }
     if !m.saw_nodes {
         bail!("{name}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)");
+    }
+    if !m.saw_elements {
+        return Err(no_elements(name, "$Elements"));
     }
     let nm = name.to_string();
     build_at(name.to_string(), m.ids, m.pts, m.elems, m.names, &|p| {
