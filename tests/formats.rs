@@ -688,31 +688,88 @@ fn repairs_are_reported() {
     assert!(!ok && err.contains("inverted"), "{err}");
 }
 
+/// The reader a fuzzing input is for, by the prefix of its file name.
+fn fuzz_format(name: &str) -> Option<eprop_io::Format> {
+    Some(match name.split('-').next().unwrap_or("") {
+        "gmsh" => eprop_io::Format::Gmsh,
+        "vtk" => eprop_io::Format::VtkLegacy,
+        "vtu" => eprop_io::Format::Vtu,
+        "tetgen" => eprop_io::Format::TetGen,
+        "medit" => eprop_io::Format::Medit,
+        _ => return None,
+    })
+}
+
+/// The fuzzing inputs of a folder of tests/data: (name, format, bytes), by name.
+fn fuzz_inputs(sub: &str) -> Vec<(String, eprop_io::Format, Vec<u8>)> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(sub);
+    let mut v: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().to_string();
+            let f = fuzz_format(&name)?;
+            Some((name, f, std::fs::read(e.path()).unwrap()))
+        })
+        .collect();
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}
+
 #[test]
 fn fuzz_regressions_do_not_panic() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fuzz-regressions");
+    // the seeds the fuzzer starts from (every reader, every encoding) and what it found
+    let seeds = fuzz_inputs("fuzz-seeds");
+    let found = fuzz_inputs("fuzz-regressions");
+    for r in ["gmsh", "vtk", "vtu", "tetgen", "medit"] {
+        assert!(
+            seeds.iter().any(|s| s.0.starts_with(&format!("{r}-"))),
+            "no {r} seeds in tests/data/fuzz-seeds"
+        );
+    }
     let mut n = 0;
-    for e in std::fs::read_dir(&dir).unwrap().flatten() {
-        let name = e.file_name().to_string_lossy().to_string();
-        let format = match name.split('-').next().unwrap_or("") {
-            "gmsh" => eprop_io::Format::Gmsh,
-            "vtk" => eprop_io::Format::VtkLegacy,
-            "vtu" => eprop_io::Format::Vtu,
-            "tetgen" => eprop_io::Format::TetGen,
-            "medit" => eprop_io::Format::Medit,
-            _ => continue,
-        };
-        let bytes = std::fs::read(e.path()).unwrap();
+    for (name, format, bytes) in seeds.iter().chain(&found) {
         let t = std::time::Instant::now();
         let r = std::panic::catch_unwind(|| {
-            eprop_io::parse_mesh(format, &name, &bytes)
+            eprop_io::parse_mesh(*format, name, bytes)
                 .and_then(|mut m| eprop_io::validate(&mut m, &ReadOptions::default()))
         });
         assert!(r.is_ok(), "{name} panics");
         assert!(t.elapsed().as_secs_f64() < 2.0, "{name} is slow");
         n += 1;
     }
-    println!("{n} fuzz regression inputs replayed");
+    assert!(n >= seeds.len() && !seeds.is_empty(), "no fuzzing inputs found");
+    println!(
+        "{n} fuzzing inputs replayed ({} seeds, {} regressions)",
+        seeds.len(),
+        found.len()
+    );
+}
+
+#[test]
+fn fuzz_seeds_are_the_fuzzers_and_read() {
+    // the committed seeds are what the fuzzer starts from, and each is a valid mesh
+    let seeds = fuzz_inputs("fuzz-seeds");
+    let mut want = Vec::new();
+    for (r, f) in [
+        ("gmsh", eprop_io::Format::Gmsh),
+        ("vtk", eprop_io::Format::VtkLegacy),
+        ("vtu", eprop_io::Format::Vtu),
+        ("tetgen", eprop_io::Format::TetGen),
+        ("medit", eprop_io::Format::Medit),
+    ] {
+        want.extend(testwrite::seeds(f).into_iter().map(|(n, b)| (format!("{r}-{n}"), b)));
+    }
+    want.sort();
+    let have: Vec<(String, Vec<u8>)> = seeds.iter().map(|s| (s.0.clone(), s.2.clone())).collect();
+    assert!(
+        have == want,
+        "tests/data/fuzz-seeds differs from testwrite::seeds; fix: cargo run --release -p eprop-io --example fuzz -- --write-seeds tests/data/fuzz-seeds"
+    );
+    for (name, format, bytes) in &seeds {
+        let mut m = eprop_io::parse_mesh(*format, name, bytes).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        eprop_io::validate(&mut m, &ReadOptions { strict: true }).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+    }
 }
 
 #[test]
