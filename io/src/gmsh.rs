@@ -963,13 +963,20 @@ impl Bin<'_> {
         Ok(())
     }
 
+    /// The header of a 4.1 `$Nodes` or `$Elements` section: block count, item count, minimum
+    /// and maximum tag (unused); `item` is "node" or "element".
+    fn blocks_header(&mut self, item: &str) -> Result<(usize, usize)> {
+        let nblocks = self.count(&format!("the {item} block count"))?;
+        let n = self.count(&format!("the {item} count"))?;
+        self.count(&format!("the minimum {item} tag"))?;
+        self.count(&format!("the maximum {item} tag"))?;
+        Ok((nblocks, n))
+    }
+
     /// `$Nodes` of a 4.1 file: entity blocks, each with its node tags, then its coordinates.
     fn nodes_v41(&mut self, m: &mut BinParts, sec_pos: usize) -> Result<()> {
         let dsize = self.dsize;
-        let nblocks = self.count("the node block count")?;
-        let n = self.count("the node count")?;
-        self.count("the minimum node tag")?;
-        self.count("the maximum node tag")?;
+        let (nblocks, n) = self.blocks_header("node")?;
         let c = cap(n, self.sc.remaining(), 32);
         reserve(&mut m.ids, c, self.sc.name)?;
         reserve(&mut m.pts, c, self.sc.name)?;
@@ -1057,10 +1064,7 @@ impl Bin<'_> {
     /// physical tag becomes the elements' tag.
     fn elements_v41(&mut self, m: &mut BinParts, sec_pos: usize) -> Result<()> {
         let dsize = self.dsize;
-        let nblocks = self.count("the element block count")?;
-        let n = self.count("the element count")?;
-        self.count("the minimum element tag")?;
-        self.count("the maximum element tag")?;
+        let (nblocks, n) = self.blocks_header("element")?;
         m.elems.reserve(cap(n, self.sc.remaining(), 2 * dsize), self.sc.name)?;
         for _ in 0..nblocks {
             let hp = self.sc.pos;

@@ -9,29 +9,21 @@ use anyhow::{anyhow, Result};
 use std::io::{ErrorKind, Read};
 use std::path::Path;
 
-/// `ELOOP`: too many levels of symbolic links.
-#[cfg(any(target_os = "linux", target_os = "android"))]
-const ELOOP: Option<i32> = Some(40);
-#[cfg(any(
-    target_os = "macos",
-    target_os = "ios",
+/// `ELOOP` (too many levels of symbolic links) of the system; None where it is not known here
+/// (a loop is then reported in the system's words).
+const ELOOP: Option<i32> = if cfg!(any(target_os = "linux", target_os = "android")) {
+    Some(40)
+} else if cfg!(any(
+    target_vendor = "apple",
     target_os = "freebsd",
     target_os = "netbsd",
     target_os = "openbsd",
     target_os = "dragonfly"
-))]
-const ELOOP: Option<i32> = Some(62);
-#[cfg(not(any(
-    target_os = "linux",
-    target_os = "android",
-    target_os = "macos",
-    target_os = "ios",
-    target_os = "freebsd",
-    target_os = "netbsd",
-    target_os = "openbsd",
-    target_os = "dragonfly"
-)))]
-const ELOOP: Option<i32> = None;
+)) {
+    Some(62)
+} else {
+    None
+};
 
 /// Reads a whole input file. `role` names it in messages ("mesh", "scenario", "table", ...).
 pub fn read_input_file(path: &Path, role: &str) -> Result<Vec<u8>> {

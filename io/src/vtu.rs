@@ -215,7 +215,8 @@ impl<'a> B64<'a> {
     fn remaining_bytes(&self) -> usize {
         self.pending.len() + (self.s.len().saturating_sub(self.pos)) / 4 * 3 + 3
     }
-    fn take(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
+    /// Fails if the data left cannot hold `n` more bytes.
+    fn ensure(&self, n: usize, what: &str) -> Result<()> {
         if n > self.remaining_bytes() {
             bail!(
                 "{}: byte {}: base64 data ends while reading {what} ({n} bytes announced); fix: the data is truncated or its header is wrong, export again",
@@ -223,6 +224,10 @@ impl<'a> B64<'a> {
                 self.base + self.pos
             );
         }
+        Ok(())
+    }
+    fn take(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
+        self.ensure(n, what)?;
         let mut quads: Vec<u8> = Vec::new();
         while self.pending.len() < n {
             // the groups still needed, up to and including the first padded one (it ends a block)
@@ -322,28 +327,14 @@ impl Src<'_> {
                     );
                 }
             }
-            Src::B64(d) => {
-                if n > d.remaining_bytes() {
-                    bail!(
-                        "{}: byte {}: base64 data ends while reading {what} ({n} bytes announced); fix: the data is truncated or its header is wrong, export again",
-                        d.name,
-                        d.base + d.pos
-                    );
-                }
-            }
+            Src::B64(d) => d.ensure(n, what)?,
         }
         Ok(())
     }
     fn take(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
+        self.ensure(n, what)?;
         match self {
-            Src::Raw { b, pos, base, name } => {
-                if n > b.len().saturating_sub(*pos) {
-                    bail!(
-                        "{name}: byte {}: appended data ends while reading {what} ({n} bytes announced, {} left); fix: the file is truncated or its header is wrong, export again",
-                        *base + *pos,
-                        b.len().saturating_sub(*pos)
-                    );
-                }
+            Src::Raw { b, pos, .. } => {
                 let v = b[*pos..*pos + n].to_vec();
                 *pos += n;
                 Ok(v)
