@@ -391,152 +391,161 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
 }
 
 fn parse_v41(mut rd: Lines) -> Result<Mesh> {
-    let mut ids = Vec::new();
-    let mut pts = Vec::new();
-    let mut elems = RawElems::default();
-    let mut names = BTreeMap::new();
-    // (dim, entity tag) -> first physical tag
-    let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
-    let mut saw_nodes = false;
-    let mut saw_elements = false;
+    let mut m = Parts::default();
     while let Some((at, l)) = rd.next_line() {
         match l {
-            "$PhysicalNames" => names = read_physical_names(&mut rd)?,
-            "$Entities" => {
-                let (at2, c) = rd.numbers::<usize>("entity counts")?;
-                if c.len() != 4 {
-                    return Err(rd.err(at2, "expected `numPoints numCurves numSurfaces numVolumes`"));
-                }
-                for dim in 0..4u8 {
-                    for _ in 0..c[dim as usize] {
-                        let (at3, v) = rd.numbers::<f64>("an entity")?;
-                        let np_at = if dim == 0 { 4 } else { 7 };
-                        if v.len() <= np_at {
-                            return Err(rd.err(at3, "entity line too short"));
-                        }
-                        let nphys = v[np_at] as usize;
-                        if v.len().saturating_sub(np_at + 1) < nphys {
-                            return Err(rd.err(at3, "entity line has fewer physical tags than it announces"));
-                        }
-                        if nphys > 0 {
-                            entity_phys.insert((dim, v[0] as i32), v[np_at + 1] as i32);
-                        }
-                    }
-                }
-                rd.expect("$EndEntities")?;
-            }
-            "$Nodes" => {
-                let (at2, h) = rd.numbers::<usize>("the $Nodes header")?;
-                if h.len() != 4 {
-                    return Err(rd.err(at2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
-                }
-                reserve(&mut ids, cap(h[1], rd.sc.remaining(), 8), rd.name())?;
-                reserve(&mut pts, cap(h[1], rd.sc.remaining(), 8), rd.name())?;
-                for _ in 0..h[0] {
-                    let (at3, b) = rd.numbers::<i64>("a node block header")?;
-                    if b.len() != 4 || b[3] < 0 {
-                        return Err(rd.err(at3, "expected `entityDim entityTag parametric numNodesInBlock`"));
-                    }
-                    let parametric = b[2] != 0;
-                    let n = b[3] as usize;
-                    let start = ids.len();
-                    for _ in 0..n {
-                        let (at4, t) = rd.numbers::<u64>("a node tag")?;
-                        if t.len() != 1 {
-                            return Err(rd.err(
-                                at4,
-                                "expected one node tag per line; fix: the block count disagrees with its lines",
-                            ));
-                        }
-                        ids.push(t[0]);
-                    }
-                    for k in 0..n {
-                        let (at4, c) = rd.numbers::<f64>("node coordinates")?;
-                        if c.len() < 3 || (!parametric && c.len() != 3) {
-                            return Err(rd.err(at4, "expected `x y z`; fix: the block count disagrees with its lines"));
-                        }
-                        if c[..3].iter().any(|x| !x.is_finite()) {
-                            return Err(rd.err(
-                                at4,
-                                format!(
-                                    "node {} has a non-finite coordinate; fix: repair the node",
-                                    ids[start + k]
-                                ),
-                            ));
-                        }
-                        pts.push([c[0], c[1], c[2]]);
-                    }
-                }
-                if ids.len() != h[1] {
-                    return Err(rd.err(
-                        at2,
-                        format!(
-                            "$Nodes announces {} nodes but its blocks hold {}; fix: repair the header",
-                            h[1],
-                            ids.len()
-                        ),
-                    ));
-                }
-                rd.expect("$EndNodes")?;
-                saw_nodes = true;
-            }
+            "$PhysicalNames" => m.names = read_physical_names(&mut rd)?,
+            "$Entities" => rd.entities_v41(&mut m.entity_phys)?,
+            "$Nodes" => rd.nodes_v41(&mut m)?,
             "$Elements" => {
-                saw_elements = true;
-                let (at2, h) = rd.numbers::<usize>("the $Elements header")?;
-                if h.len() != 4 {
-                    return Err(rd.err(
-                        at2,
-                        "expected `numEntityBlocks numElements minElementTag maxElementTag`",
-                    ));
-                }
-                elems.reserve(cap(h[1], rd.sc.remaining(), 8), rd.name())?;
-                let mut count = 0usize;
-                for _ in 0..h[0] {
-                    let (at3, b) = rd.numbers::<i64>("an element block header")?;
-                    if b.len() != 4 || b[3] < 0 {
-                        return Err(rd.err(at3, "expected `entityDim entityTag elementType numElementsInBlock`"));
-                    }
-                    let tag = entity_phys.get(&(b[0] as u8, b[1] as i32)).copied().unwrap_or(0);
-                    let gtype = b[2] as u32;
-                    for _ in 0..b[3] {
-                        let (at4, v) = rd.numbers::<u64>("an element")?;
-                        if v.is_empty() {
-                            return Err(rd.err(at4, "empty element line"));
-                        }
-                        if let Some((nn, _)) = nodes_per_type(gtype) {
-                            if v.len() != nn + 1 {
-                                return Err(rd.err(at4, format!("element {} of type {gtype} has {} node ids, expected {nn}; fix: the block count disagrees with its lines", v[0], v.len() - 1)));
-                            }
-                        }
-                        elems.push(at4, v[0], gtype, tag, &v[1..]);
-                        count += 1;
-                    }
-                }
-                if count != h[1] {
-                    return Err(rd.err(
-                        at2,
-                        format!(
-                            "$Elements announces {} elements but its blocks hold {count}; fix: repair the header",
-                            h[1]
-                        ),
-                    ));
-                }
-                rd.expect("$EndElements")?;
+                m.saw_elements = true;
+                rd.elements_v41(&mut m)?
             }
             s if s.starts_with('$') => rd.skip_section(s)?,
             _ => return Err(rd.err(at, format!("unexpected `{}` between sections", short(l)))),
         }
     }
-    if !saw_nodes {
+    if !m.saw_nodes {
         bail!(
             "{}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)",
             rd.name()
         );
     }
-    if !saw_elements {
+    if !m.saw_elements {
         return Err(no_elements(rd.name(), "$Elements"));
     }
-    build(ids, pts, elems, names, &rd)
+    build(m.ids, m.pts, m.elems, m.names, &rd)
+}
+
+/// The sections of a 4.1 text file.
+impl Lines<'_> {
+    /// `$Entities`: the first physical tag of every entity.
+    fn entities_v41(&mut self, entity_phys: &mut HashMap<(u8, i32), i32>) -> Result<()> {
+        let (at2, c) = self.numbers::<usize>("entity counts")?;
+        if c.len() != 4 {
+            return Err(self.err(at2, "expected `numPoints numCurves numSurfaces numVolumes`"));
+        }
+        for dim in 0..4u8 {
+            for _ in 0..c[dim as usize] {
+                let (at3, v) = self.numbers::<f64>("an entity")?;
+                let np_at = if dim == 0 { 4 } else { 7 };
+                if v.len() <= np_at {
+                    return Err(self.err(at3, "entity line too short"));
+                }
+                let nphys = v[np_at] as usize;
+                if v.len().saturating_sub(np_at + 1) < nphys {
+                    return Err(self.err(at3, "entity line has fewer physical tags than it announces"));
+                }
+                if nphys > 0 {
+                    entity_phys.insert((dim, v[0] as i32), v[np_at + 1] as i32);
+                }
+            }
+        }
+        self.expect("$EndEntities")
+    }
+
+    /// `$Nodes`: entity blocks, each with its node tags, then its coordinates.
+    fn nodes_v41(&mut self, m: &mut Parts) -> Result<()> {
+        let (at2, h) = self.numbers::<usize>("the $Nodes header")?;
+        if h.len() != 4 {
+            return Err(self.err(at2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
+        }
+        reserve(&mut m.ids, cap(h[1], self.sc.remaining(), 8), self.name())?;
+        reserve(&mut m.pts, cap(h[1], self.sc.remaining(), 8), self.name())?;
+        for _ in 0..h[0] {
+            let (at3, b) = self.numbers::<i64>("a node block header")?;
+            if b.len() != 4 || b[3] < 0 {
+                return Err(self.err(at3, "expected `entityDim entityTag parametric numNodesInBlock`"));
+            }
+            let parametric = b[2] != 0;
+            let n = b[3] as usize;
+            let start = m.ids.len();
+            for _ in 0..n {
+                let (at4, t) = self.numbers::<u64>("a node tag")?;
+                if t.len() != 1 {
+                    return Err(self.err(
+                        at4,
+                        "expected one node tag per line; fix: the block count disagrees with its lines",
+                    ));
+                }
+                m.ids.push(t[0]);
+            }
+            for k in 0..n {
+                let (at4, c) = self.numbers::<f64>("node coordinates")?;
+                if c.len() < 3 || (!parametric && c.len() != 3) {
+                    return Err(self.err(at4, "expected `x y z`; fix: the block count disagrees with its lines"));
+                }
+                if c[..3].iter().any(|x| !x.is_finite()) {
+                    return Err(self.err(
+                        at4,
+                        format!(
+                            "node {} has a non-finite coordinate; fix: repair the node",
+                            m.ids[start + k]
+                        ),
+                    ));
+                }
+                m.pts.push([c[0], c[1], c[2]]);
+            }
+        }
+        if m.ids.len() != h[1] {
+            return Err(self.err(
+                at2,
+                format!(
+                    "$Nodes announces {} nodes but its blocks hold {}; fix: repair the header",
+                    h[1],
+                    m.ids.len()
+                ),
+            ));
+        }
+        self.expect("$EndNodes")?;
+        m.saw_nodes = true;
+        Ok(())
+    }
+
+    /// `$Elements`: entity blocks of one element type each; the entity's first physical tag
+    /// becomes the elements' tag.
+    fn elements_v41(&mut self, m: &mut Parts) -> Result<()> {
+        let (at2, h) = self.numbers::<usize>("the $Elements header")?;
+        if h.len() != 4 {
+            return Err(self.err(
+                at2,
+                "expected `numEntityBlocks numElements minElementTag maxElementTag`",
+            ));
+        }
+        m.elems.reserve(cap(h[1], self.sc.remaining(), 8), self.name())?;
+        let mut count = 0usize;
+        for _ in 0..h[0] {
+            let (at3, b) = self.numbers::<i64>("an element block header")?;
+            if b.len() != 4 || b[3] < 0 {
+                return Err(self.err(at3, "expected `entityDim entityTag elementType numElementsInBlock`"));
+            }
+            let tag = m.entity_phys.get(&(b[0] as u8, b[1] as i32)).copied().unwrap_or(0);
+            let gtype = b[2] as u32;
+            for _ in 0..b[3] {
+                let (at4, v) = self.numbers::<u64>("an element")?;
+                if v.is_empty() {
+                    return Err(self.err(at4, "empty element line"));
+                }
+                if let Some((nn, _)) = nodes_per_type(gtype) {
+                    if v.len() != nn + 1 {
+                        return Err(self.err(at4, format!("element {} of type {gtype} has {} node ids, expected {nn}; fix: the block count disagrees with its lines", v[0], v.len() - 1)));
+                    }
+                }
+                m.elems.push(at4, v[0], gtype, tag, &v[1..]);
+                count += 1;
+            }
+        }
+        if count != h[1] {
+            return Err(self.err(
+                at2,
+                format!(
+                    "$Elements announces {} elements but its blocks hold {count}; fix: repair the header",
+                    h[1]
+                ),
+            ));
+        }
+        self.expect("$EndElements")
+    }
 }
 
 /// A file whose nodes are not followed by an elements section: cut short, or a point cloud.
@@ -799,9 +808,9 @@ impl<'a> Bin<'a> {
     }
 }
 
-/// What the sections of a binary file hold, gathered section by section.
+/// What the sections of a 4.1 or binary file hold, gathered section by section.
 #[derive(Default)]
-struct BinParts {
+struct Parts {
     ids: Vec<u64>,
     pts: Vec<[f64; 3]>,
     elems: RawElems,
@@ -814,7 +823,7 @@ struct BinParts {
 
 fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
     let (mut b, v2) = binary_header(name, bytes)?;
-    let mut m = BinParts::default();
+    let mut m = Parts::default();
     while let Some(l) = b.line() {
         let sec_pos = b.sc.pos;
         match l.as_str() {
@@ -944,7 +953,7 @@ impl Bin<'_> {
     }
 
     /// `$Nodes` of a 2.2 file: a text count, then `id x y z` records.
-    fn nodes_v2(&mut self, m: &mut BinParts) -> Result<()> {
+    fn nodes_v2(&mut self, m: &mut Parts) -> Result<()> {
         let n = self.text_count("the node count")?;
         let c = cap(n, self.sc.remaining(), 28);
         reserve(&mut m.ids, c, self.sc.name)?;
@@ -974,7 +983,7 @@ impl Bin<'_> {
     }
 
     /// `$Nodes` of a 4.1 file: entity blocks, each with its node tags, then its coordinates.
-    fn nodes_v41(&mut self, m: &mut BinParts, sec_pos: usize) -> Result<()> {
+    fn nodes_v41(&mut self, m: &mut Parts, sec_pos: usize) -> Result<()> {
         let dsize = self.dsize;
         let (nblocks, n) = self.blocks_header("node")?;
         let c = cap(n, self.sc.remaining(), 32);
@@ -1062,7 +1071,7 @@ impl Bin<'_> {
 
     /// `$Elements` of a 4.1 file: entity blocks of one element type each; the entity's first
     /// physical tag becomes the elements' tag.
-    fn elements_v41(&mut self, m: &mut BinParts, sec_pos: usize) -> Result<()> {
+    fn elements_v41(&mut self, m: &mut Parts, sec_pos: usize) -> Result<()> {
         let dsize = self.dsize;
         let (nblocks, n) = self.blocks_header("element")?;
         m.elems.reserve(cap(n, self.sc.remaining(), 2 * dsize), self.sc.name)?;
