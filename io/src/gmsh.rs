@@ -749,14 +749,17 @@ impl<'a> Bin<'a> {
         if self.dsize == 4 {
             return Ok(self.i32(what)? as u32 as u64);
         }
-        let b = self.sc.raw(8, what)?;
-        let mut a = [0u8; 8];
-        a.copy_from_slice(b);
+        let a = self.bytes8(what)?;
         Ok(if self.big {
             u64::from_be_bytes(a)
         } else {
             u64::from_le_bytes(a)
         })
+    }
+    fn bytes8(&mut self, what: &str) -> Result<[u8; 8]> {
+        let mut a = [0u8; 8];
+        a.copy_from_slice(self.sc.raw(8, what)?);
+        Ok(a)
     }
     fn count(&mut self, what: &str) -> Result<usize> {
         let p = self.sc.pos;
@@ -767,9 +770,7 @@ impl<'a> Bin<'a> {
         })
     }
     fn f64(&mut self, what: &str) -> Result<f64> {
-        let b = self.sc.raw(8, what)?;
-        let mut a = [0u8; 8];
-        a.copy_from_slice(b);
+        let a = self.bytes8(what)?;
         Ok(if self.big {
             f64::from_be_bytes(a)
         } else {

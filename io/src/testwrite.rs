@@ -23,11 +23,8 @@ fn vtk_cells(m: &Mesh) -> Vec<(u8, Vec<u32>, i32)> {
     }
     for f in 0..m.facets.len() {
         let n = m.facets.nodes(f);
-        let t = match (m.facets.dim[f], n.len()) {
-            (2, 3) => 5,
-            (2, 4) => 9,
-            (1, 2) => 3,
-            _ => continue,
+        let Some(t) = crate::vtk::facet_vtk_type(m.facets.dim[f], n.len()) else {
+            continue;
         };
         v.push((t, n.to_vec(), m.facets.tags[f]));
     }

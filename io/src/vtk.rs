@@ -48,6 +48,16 @@ pub fn vtk_order(kind: CellKind, nodes: &[u32]) -> Vec<u32> {
     }
 }
 
+/// The VTK type of a facet of dimension `dim` with `n` nodes (triangle, quad, line), if any.
+pub fn facet_vtk_type(dim: u8, n: usize) -> Option<u8> {
+    match (dim, n) {
+        (2, 3) => Some(5),
+        (2, 4) => Some(9),
+        (1, 2) => Some(3),
+        _ => None,
+    }
+}
+
 /// Data common to the legacy and XML readers, before it becomes a `Mesh`.
 pub struct VtkData {
     pub points: Vec<f64>,

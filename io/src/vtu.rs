@@ -941,11 +941,8 @@ pub fn to_bytes(mesh: &Mesh, o: &VtuOptions) -> Vec<u8> {
     }
     for f in 0..mesh.facets.len() {
         let nodes = mesh.facets.nodes(f);
-        let t = match (mesh.facets.dim[f], nodes.len()) {
-            (2, 3) => 5,
-            (2, 4) => 9,
-            (1, 2) => 3,
-            _ => continue,
+        let Some(t) = crate::vtk::facet_vtk_type(mesh.facets.dim[f], nodes.len()) else {
+            continue;
         };
         conn.extend(nodes.iter().map(|&x| x as i64));
         offs.push(conn.len() as i64);
