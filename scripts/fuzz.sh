@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Mutation-fuzzes every mesh reader for SECONDS each (default 600), one after the other, at low
-# priority. Panicking inputs land in tests/data/fuzz-regressions/ (tests/formats.rs replays them).
+# priority, from the seeds in tests/data/fuzz-seeds. Panicking inputs land in
+# tests/data/fuzz-regressions/ (tests/formats.rs replays both).
 # Usage: scripts/fuzz.sh [SECONDS] [READER...]
 set -euo pipefail
 cd "$(dirname "$0")/.."

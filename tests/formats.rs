@@ -367,6 +367,18 @@ fn catalogue() -> Vec<(String, Vec<u8>, &'static str, bool)> {
         false,
     );
     t(
+        "gmsh_no_elements.msh",
+        GMSH[..GMSH.find("$Elements").unwrap()].to_string(),
+        "without an $Elements section",
+        false,
+    );
+    t(
+        "gmsh1_no_elements.msh",
+        "$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n".into(),
+        "truncated",
+        false,
+    );
+    t(
         "vtk_truncated.vtk",
         VTK[..VTK.find("4 0 2 1").unwrap()].to_string(),
         "file ends",
@@ -511,6 +523,13 @@ fn catalogue() -> Vec<(String, Vec<u8>, &'static str, bool)> {
         "gmsh41_bin_truncated.msh".into(),
         b41[..b41.len() * 2 / 3].to_vec(),
         "truncated",
+        false,
+    ));
+    let cut = b41.windows(9).position(|w| w == b"$Elements").unwrap();
+    v.push((
+        "gmsh41_bin_no_elements.msh".into(),
+        b41[..cut].to_vec(),
+        "without an $Elements section",
         false,
     ));
     let mut bad = testwrite::gmsh22_binary(&m, false);
@@ -669,31 +688,88 @@ fn repairs_are_reported() {
     assert!(!ok && err.contains("inverted"), "{err}");
 }
 
+/// The reader a fuzzing input is for, by the prefix of its file name.
+fn fuzz_format(name: &str) -> Option<eprop_io::Format> {
+    Some(match name.split('-').next().unwrap_or("") {
+        "gmsh" => eprop_io::Format::Gmsh,
+        "vtk" => eprop_io::Format::VtkLegacy,
+        "vtu" => eprop_io::Format::Vtu,
+        "tetgen" => eprop_io::Format::TetGen,
+        "medit" => eprop_io::Format::Medit,
+        _ => return None,
+    })
+}
+
+/// The fuzzing inputs of a folder of tests/data: (name, format, bytes), by name.
+fn fuzz_inputs(sub: &str) -> Vec<(String, eprop_io::Format, Vec<u8>)> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(sub);
+    let mut v: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().to_string();
+            let f = fuzz_format(&name)?;
+            Some((name, f, std::fs::read(e.path()).unwrap()))
+        })
+        .collect();
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}
+
 #[test]
 fn fuzz_regressions_do_not_panic() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fuzz-regressions");
+    // the seeds the fuzzer starts from (every reader, every encoding) and what it found
+    let seeds = fuzz_inputs("fuzz-seeds");
+    let found = fuzz_inputs("fuzz-regressions");
+    for r in ["gmsh", "vtk", "vtu", "tetgen", "medit"] {
+        assert!(
+            seeds.iter().any(|s| s.0.starts_with(&format!("{r}-"))),
+            "no {r} seeds in tests/data/fuzz-seeds"
+        );
+    }
     let mut n = 0;
-    for e in std::fs::read_dir(&dir).unwrap().flatten() {
-        let name = e.file_name().to_string_lossy().to_string();
-        let format = match name.split('-').next().unwrap_or("") {
-            "gmsh" => eprop_io::Format::Gmsh,
-            "vtk" => eprop_io::Format::VtkLegacy,
-            "vtu" => eprop_io::Format::Vtu,
-            "tetgen" => eprop_io::Format::TetGen,
-            "medit" => eprop_io::Format::Medit,
-            _ => continue,
-        };
-        let bytes = std::fs::read(e.path()).unwrap();
+    for (name, format, bytes) in seeds.iter().chain(&found) {
         let t = std::time::Instant::now();
         let r = std::panic::catch_unwind(|| {
-            eprop_io::parse_mesh(format, &name, &bytes)
+            eprop_io::parse_mesh(*format, name, bytes)
                 .and_then(|mut m| eprop_io::validate(&mut m, &ReadOptions::default()))
         });
         assert!(r.is_ok(), "{name} panics");
         assert!(t.elapsed().as_secs_f64() < 2.0, "{name} is slow");
         n += 1;
     }
-    println!("{n} fuzz regression inputs replayed");
+    assert!(n >= seeds.len() && !seeds.is_empty(), "no fuzzing inputs found");
+    println!(
+        "{n} fuzzing inputs replayed ({} seeds, {} regressions)",
+        seeds.len(),
+        found.len()
+    );
+}
+
+#[test]
+fn fuzz_seeds_are_the_fuzzers_and_read() {
+    // the committed seeds are what the fuzzer starts from, and each is a valid mesh
+    let seeds = fuzz_inputs("fuzz-seeds");
+    let mut want = Vec::new();
+    for (r, f) in [
+        ("gmsh", eprop_io::Format::Gmsh),
+        ("vtk", eprop_io::Format::VtkLegacy),
+        ("vtu", eprop_io::Format::Vtu),
+        ("tetgen", eprop_io::Format::TetGen),
+        ("medit", eprop_io::Format::Medit),
+    ] {
+        want.extend(testwrite::seeds(f).into_iter().map(|(n, b)| (format!("{r}-{n}"), b)));
+    }
+    want.sort();
+    let have: Vec<(String, Vec<u8>)> = seeds.iter().map(|s| (s.0.clone(), s.2.clone())).collect();
+    assert!(
+        have == want,
+        "tests/data/fuzz-seeds differs from testwrite::seeds; fix: cargo run --release -p eprop-io --example fuzz -- --write-seeds tests/data/fuzz-seeds"
+    );
+    for (name, format, bytes) in &seeds {
+        let mut m = eprop_io::parse_mesh(*format, name, bytes).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        eprop_io::validate(&mut m, &ReadOptions { strict: true }).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+    }
 }
 
 #[test]
@@ -728,4 +804,167 @@ Extrude{0,0,1}{Surface{1}; Layers{2}; Recombine;}\nPhysical Volume(5) = {1};\n";
     // Medit and VTK keep Gmsh's local hexahedron order
     assert_eq!(meshes[0].conn, meshes[1].conn);
     assert_eq!(meshes[0].conn, meshes[2].conn);
+}
+
+/// Reads a mesh on another thread and returns its error: a reader that blocks (on a FIFO)
+/// fails the test instead of hanging it.
+fn read_error_within(p: &Path, secs: u64) -> String {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let q = p.to_path_buf();
+    std::thread::spawn(move || {
+        let _ = tx.send(read_mesh(&q).map(|_| ()).map_err(|e| format!("{e:#}")));
+    });
+    match rx.recv_timeout(std::time::Duration::from_secs(secs)) {
+        Ok(r) => r.expect_err("read without error"),
+        Err(_) => panic!("reading {} did not return within {secs} s", p.display()),
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn only_regular_files_are_read() {
+    use std::os::unix::fs::symlink;
+    let d = tempfile::tempdir().unwrap();
+    let good = d.path().join("good.msh");
+    std::fs::write(&good, GMSH).unwrap();
+    // a FIFO would block the reader forever
+    let fifo = d.path().join("pipe.msh");
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let e = read_error_within(&fifo, 10);
+    assert!(
+        e.contains("pipe.msh") && e.contains("FIFO") && e.contains("not a regular file") && e.contains("fix:"),
+        "{e}"
+    );
+    // /dev/zero never ends
+    let zero = d.path().join("zero.msh");
+    symlink("/dev/zero", &zero).unwrap();
+    let e = read_error_within(&zero, 10);
+    assert!(
+        e.contains("zero.msh") && e.contains("character device") && e.contains("fix:"),
+        "{e}"
+    );
+    // a link loop is not a missing file
+    let (a, b) = (d.path().join("a.vtu"), d.path().join("b.vtu"));
+    symlink(&b, &a).unwrap();
+    symlink(&a, &b).unwrap();
+    let e = read_error_within(&a, 10);
+    assert!(
+        e.contains("a.vtu") && e.contains("symbolic link loop") && e.contains("fix:"),
+        "{e}"
+    );
+    assert!(!e.contains("no such"), "{e}");
+    // a directory
+    let dir = d.path().join("dir.vtk");
+    std::fs::create_dir(&dir).unwrap();
+    let e = read_error_within(&dir, 10);
+    assert!(e.contains("is a directory") && e.contains("fix:"), "{e}");
+    // a TetGen part that is a FIFO
+    std::fs::write(d.path().join("t.ele"), ELE).unwrap();
+    assert!(Command::new("mkfifo")
+        .arg(d.path().join("t.node"))
+        .status()
+        .unwrap()
+        .success());
+    let e = read_error_within(&d.path().join("t.ele"), 10);
+    assert!(e.contains("t.node") && e.contains("FIFO") && e.contains("fix:"), "{e}");
+    // a link to a mesh is read
+    let link = d.path().join("link.msh");
+    symlink(&good, &link).unwrap();
+    assert_eq!(read_mesh(&link).unwrap().n_cells(), 2);
+    // and the program says it too
+    for p in [&fifo, &zero, &a] {
+        let (ok, _, err) = eprop(&["info", p.to_str().unwrap()]);
+        assert!(!ok && err.contains("fix:") && !err.contains("panicked"), "{err}");
+    }
+}
+
+/// A `.vtu` of one tetrahedron whose `which` array (0 points, 1 connectivity, another value
+/// none) is a zlib bomb: `blocks` blocks that each inflate to `mib` MiB of zeros (1/1000 of that
+/// compressed), of which `present` are in the file. `np` is its NumberOfPoints.
+fn zlib_bomb(which: usize, np: u64, mib: u64, blocks: u64, present: u64) -> Vec<u8> {
+    use std::io::Write as _;
+    let z = |data: &[u8]| {
+        let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+        e.write_all(data).unwrap();
+        e.finish().unwrap()
+    };
+    let one = |data: &[u8]| {
+        let c = z(data);
+        let mut a: Vec<u8> = [1u64, data.len() as u64, data.len() as u64, c.len() as u64]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        a.extend(c);
+        a
+    };
+    let bs = mib << 20;
+    let blk = z(&vec![0u8; bs as usize]);
+    let mut bomb: Vec<u8> = [blocks, bs, 0].iter().flat_map(|x| x.to_le_bytes()).collect();
+    for _ in 0..blocks {
+        bomb.extend((blk.len() as u64).to_le_bytes());
+    }
+    for _ in 0..present {
+        bomb.extend(&blk);
+    }
+    let pts: Vec<u8> = [0.0f64, 0., 0., 1., 0., 0., 0., 1., 0., 0., 0., 1.]
+        .iter()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let conn: Vec<u8> = [0i64, 1, 2, 3].iter().flat_map(|x| x.to_le_bytes()).collect();
+    let mut arrays = vec![one(&pts), one(&conn), one(&4i64.to_le_bytes()), one(&[10u8])];
+    if let Some(a) = arrays.get_mut(which) {
+        *a = bomb;
+    }
+    let mut offsets = Vec::new();
+    let mut app: Vec<u8> = Vec::new();
+    for a in &arrays {
+        offsets.push(app.len());
+        app.extend(a);
+    }
+    let mut f = format!(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"{}\" NumberOfCells=\"1\">\n<Points>\n<DataArray type=\"Float64\" Name=\"Points\" NumberOfComponents=\"3\" format=\"appended\" offset=\"{}\"/>\n</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"appended\" offset=\"{}\"/>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"appended\" offset=\"{}\"/>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"appended\" offset=\"{}\"/>\n</Cells>\n</Piece>\n</UnstructuredGrid>\n<AppendedData encoding=\"raw\">\n_",
+        np, offsets[0], offsets[1], offsets[2], offsets[3]
+    )
+    .into_bytes();
+    f.extend(app);
+    f.extend(b"\n</AppendedData>\n</VTKFile>\n");
+    f
+}
+
+/// The peak resident memory of this process so far (Linux), in KiB.
+fn peak_rss_kib() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let l = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    l.split_whitespace().nth(1)?.parse().ok()
+}
+
+#[test]
+fn zlib_bombs_are_refused_before_inflating() {
+    let d = tempfile::tempdir().unwrap();
+    // the sanity of the generator: with its real arrays the file reads
+    let p = d.path().join("one.vtu");
+    std::fs::write(&p, zlib_bomb(9, 4, 0, 0, 0)).unwrap();
+    assert_eq!(read_mesh(&p).unwrap().n_cells(), 1);
+    // 160 blocks of 16 MiB (2.7 GB) from 2.6 MB, where 12 coordinates or 4 indices are needed;
+    // and the 5 GB of coordinates 100 * 2^21 points need, from 100 blocks of which 1 is there
+    for (which, np, mib, blocks, present, key) in [
+        (0, 4, 16, 160, 160, "but its 12 values take 96"),
+        (1, 4, 16, 160, 160, "more than the 4 values the cell offsets use"),
+        (0, 100 << 21, 48, 100, 1, "ends while reading"),
+    ] {
+        let p = d.path().join(format!("bomb{which}-{present}.vtu"));
+        std::fs::write(&p, zlib_bomb(which, np, mib, blocks, present)).unwrap();
+        let before = peak_rss_kib();
+        let t = std::time::Instant::now();
+        let e = format!("{:#}", read_mesh(&p).unwrap_err());
+        let took = t.elapsed().as_secs_f64();
+        assert!(
+            e.contains(&format!("bomb{which}-{present}.vtu")) && e.contains(key) && e.contains("fix:"),
+            "{e}"
+        );
+        assert!(took < 2.0, "{e}: {took:.1} s");
+        if let (Some(a), Some(b)) = (before, peak_rss_kib()) {
+            assert!(b < a + (256 << 10), "{e}: peak memory grew from {a} to {b} KiB");
+        }
+    }
 }

@@ -1,9 +1,11 @@
 //! A mutation fuzzer for the mesh readers, for the stable toolchain.
 //!
 //! cargo run --release -p eprop-io --example fuzz -- --reader vtu --seconds 600 [--corpus DIR]
+//! cargo run --release -p eprop-io --example fuzz -- --write-seeds tests/data/fuzz-seeds
 //!
-//! Seeds are small meshes in every encoding of the format (plus files of DIR with a matching
-//! extension); each input is a mutation of a corpus entry (bit flips, byte inserts/deletes,
+//! Seeds are small meshes in every encoding of the format (`testwrite::seeds`, kept as files
+//! `<reader>-<name>` in tests/data/fuzz-seeds, which `--write-seeds` rewrites and
+//! tests/formats.rs replays), plus files of DIR with a matching extension; each input is a mutation of a corpus entry (bit flips, byte inserts/deletes,
 //! splices, number tweaks, truncation). It is parsed and, when it parses, validated, under
 //! `catch_unwind`. Inputs that panic are written to tests/data/fuzz-regressions/<reader>-<hash>;
 //! inputs that take longer than 2 s to <reader>-slow-<hash>; an allocation above 256 MiB or a
@@ -204,21 +206,47 @@ fn shape(msg: &str) -> String {
     out
 }
 
+/// The prefix of each reader's files in tests/data (fuzz-seeds, fuzz-regressions).
+const READERS: [(&str, Format); 5] = [
+    ("gmsh", Format::Gmsh),
+    ("vtk", Format::VtkLegacy),
+    ("vtu", Format::Vtu),
+    ("tetgen", Format::TetGen),
+    ("medit", Format::Medit),
+];
+
+/// Writes every reader's seeds into `dir` as `<reader>-<name>`.
+fn write_seeds(dir: &std::path::Path) {
+    if let Err(e) = std::fs::create_dir_all(dir) {
+        eprintln!("fuzz: {}: {e}", dir.display());
+        std::process::exit(1);
+    }
+    let mut n = 0;
+    for (reader, format) in READERS {
+        for (name, bytes) in eprop_io::testwrite::seeds(format) {
+            let p = dir.join(format!("{reader}-{name}"));
+            if let Err(e) = std::fs::write(&p, bytes) {
+                eprintln!("fuzz: {}: {e}", p.display());
+                std::process::exit(1);
+            }
+            n += 1;
+        }
+    }
+    println!("fuzz: {n} seeds written to {}", dir.display());
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let get = |k: &str| args.iter().position(|a| a == k).and_then(|i| args.get(i + 1)).cloned();
+    if let Some(dir) = get("--write-seeds") {
+        write_seeds(&PathBuf::from(dir));
+        return;
+    }
     let reader = get("--reader").unwrap_or_else(|| "vtu".into());
     let seconds: u64 = get("--seconds").and_then(|s| s.parse().ok()).unwrap_or(60);
-    let format = match reader.as_str() {
-        "gmsh" => Format::Gmsh,
-        "vtk" => Format::VtkLegacy,
-        "vtu" => Format::Vtu,
-        "tetgen" => Format::TetGen,
-        "medit" => Format::Medit,
-        _ => {
-            eprintln!("fuzz: --reader gmsh|vtk|vtu|tetgen|medit");
-            std::process::exit(2);
-        }
+    let Some(format) = READERS.iter().find(|r| r.0 == reader).map(|r| r.1) else {
+        eprintln!("fuzz: --reader gmsh|vtk|vtu|tetgen|medit, or --write-seeds DIR");
+        std::process::exit(2);
     };
     let out = get("--out")
         .map(PathBuf::from)

@@ -3,69 +3,72 @@
 //! Physical tags become cell tags and facet tags; `$PhysicalNames` become group names.
 
 use crate::mesh::{CellKind, Mesh};
-use crate::scan::{cap, Scan};
+use crate::scan::{cap, reserve, short, Scan};
 use anyhow::{anyhow, bail, Result};
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Line-oriented token reader that knows where it is, for messages.
+/// The text reader's view of a file: its non-blank lines, trimmed, each with the byte position
+/// of its start (messages turn it into a line number).
 struct Lines<'a> {
-    path: String,
-    lines: Vec<&'a str>,
-    pos: usize,
+    sc: Scan<'a>,
+    text: &'a str,
 }
 
 impl<'a> Lines<'a> {
-    fn new(path: &str, text: &'a str) -> Self {
+    fn new(name: &'a str, text: &'a str) -> Self {
         Lines {
-            path: path.to_string(),
-            lines: text.lines().collect(),
-            pos: 0,
+            sc: Scan::new(name, text.as_bytes()),
+            text,
         }
     }
-    /// The next non-blank line, with its 1-based number.
+    fn name(&self) -> &'a str {
+        self.sc.name
+    }
+    /// The next non-blank line and its position, or None at the end of the file.
+    fn next_line(&mut self) -> Option<(usize, &'a str)> {
+        let (p, l) = self.sc.next_line()?;
+        // the line is cut at ASCII bytes of valid UTF-8 text, so it is text itself
+        Some((p, self.text.get(p..p + l.len()).unwrap_or_default()))
+    }
+    /// The next non-blank line and its position; the end of the file is an error naming `what`.
     fn next(&mut self, what: &str) -> Result<(usize, &'a str)> {
-        while self.pos < self.lines.len() {
-            let l = self.lines[self.pos].trim();
-            self.pos += 1;
-            if !l.is_empty() {
-                return Ok((self.pos, l));
-            }
-        }
-        Err(anyhow!(
-            "{}:{}: file ends while reading {}; fix: the file is truncated, export it again",
-            self.path,
-            self.lines.len(),
-            what
-        ))
+        self.next_line().ok_or_else(|| {
+            let b = self.sc.b;
+            let lines = b.iter().filter(|&&c| c == b'\n').count() + usize::from(!b.is_empty() && !b.ends_with(b"\n"));
+            anyhow!(
+                "{}:{lines}: file ends while reading {what}; fix: the file is truncated, export it again",
+                self.name()
+            )
+        })
     }
-    fn err(&self, line: usize, msg: impl std::fmt::Display) -> anyhow::Error {
-        anyhow!("{}:{}: {}", self.path, line, msg)
+    fn err(&self, pos: usize, msg: impl std::fmt::Display) -> anyhow::Error {
+        self.sc.err_at(pos, msg)
     }
     /// Parses every whitespace-separated token of the next line.
     fn numbers<T: std::str::FromStr>(&mut self, what: &str) -> Result<(usize, Vec<T>)> {
-        let (ln, l) = self.next(what)?;
+        let (at, l) = self.next(what)?;
         let mut v = Vec::new();
         for tok in l.split_whitespace() {
             v.push(tok.parse::<T>().map_err(|_| {
                 if tok.starts_with('$') {
                     self.err(
-                        ln,
+                        at,
                         format!("found `{}` while reading {what}; fix: the count in the section header disagrees with its lines, repair it", short(tok)),
                     )
                 } else {
-                    self.err(ln, format!("cannot read `{}` as a number in {what}; fix: repair the line", short(tok)))
+                    self.err(at, format!("cannot read `{}` as a number in {what}; fix: repair the line", short(tok)))
                 }
             })?);
         }
-        Ok((ln, v))
+        Ok((at, v))
     }
     fn expect(&mut self, tag: &str) -> Result<()> {
-        let (ln, l) = self.next(tag)?;
+        let (at, l) = self.next(tag)?;
         if l != tag {
             return Err(self.err(
-                ln,
+                at,
                 format!(
                     "expected `{tag}`, found `{}`; fix: the section is malformed or truncated",
                     short(l)
@@ -86,18 +89,11 @@ impl<'a> Lines<'a> {
     }
 }
 
-fn short(s: &str) -> String {
-    if s.len() > 40 {
-        format!("{}...", &s[..s.char_indices().nth(40).map(|c| c.0).unwrap_or(s.len())])
-    } else {
-        s.to_string()
-    }
-}
-
 /// Raw elements before node ids are resolved, in flat arrays (no allocation per element).
 #[derive(Default)]
 struct RawElems {
-    line: Vec<usize>,
+    /// Where each element starts in the file (a byte position), for messages.
+    pos: Vec<usize>,
     id: Vec<u64>,
     gtype: Vec<u32>,
     tag: Vec<i32>,
@@ -106,11 +102,11 @@ struct RawElems {
 }
 
 impl RawElems {
-    fn push(&mut self, line: usize, id: u64, gtype: u32, tag: i32, nodes: &[u64]) {
+    fn push(&mut self, pos: usize, id: u64, gtype: u32, tag: i32, nodes: &[u64]) {
         if self.offsets.is_empty() {
             self.offsets.push(0);
         }
-        self.line.push(line);
+        self.pos.push(pos);
         self.id.push(id);
         self.gtype.push(gtype);
         self.tag.push(tag);
@@ -118,13 +114,13 @@ impl RawElems {
         self.offsets.push(self.nodes.len());
     }
     /// Room for `n` more elements of up to four nodes (callers bound `n` by the data left).
-    fn reserve(&mut self, n: usize) {
-        self.line.reserve(n);
-        self.id.reserve(n);
-        self.gtype.reserve(n);
-        self.tag.reserve(n);
-        self.offsets.reserve(n + 1);
-        self.nodes.reserve(4 * n);
+    fn reserve(&mut self, n: usize, name: &str) -> Result<()> {
+        reserve(&mut self.pos, n, name)?;
+        reserve(&mut self.id, n, name)?;
+        reserve(&mut self.gtype, n, name)?;
+        reserve(&mut self.tag, n, name)?;
+        reserve(&mut self.offsets, n + 1, name)?;
+        reserve(&mut self.nodes, 4 * n, name)
     }
     fn len(&self) -> usize {
         self.id.len()
@@ -160,7 +156,7 @@ fn type_problem(t: u32) -> String {
 
 /// Reads a Gmsh file of any supported version, ASCII or binary.
 pub fn read(path: &Path) -> Result<Mesh> {
-    let bytes = std::fs::read(path).map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
+    let bytes = crate::read_input_file(path, "mesh")?;
     parse_bytes(&path.display().to_string(), &bytes)
 }
 
@@ -187,22 +183,22 @@ pub fn parse_bytes(name: &str, bytes: &[u8]) -> Result<Mesh> {
 /// Parses the text of a Gmsh file.
 pub fn parse(name: &str, text: &str) -> Result<Mesh> {
     let mut rd = Lines::new(name, text);
-    let (ln, first) = rd.next("the first section")?;
+    let (at, first) = rd.next("the first section")?;
     match first {
         "$NOD" => parse_v1(rd),
         "$MeshFormat" => {
-            let (ln2, fmt) = rd
+            let (at2, fmt) = rd
                 .numbers::<f64>("$MeshFormat")
                 .map_err(|e| e.context("reading $MeshFormat"))?;
             if fmt.len() < 3 {
                 return Err(rd.err(
-                    ln2,
+                    at2,
                     "$MeshFormat needs `version file-type data-size`; fix: repair the header",
                 ));
             }
             if fmt[1] != 0.0 {
                 return Err(rd.err(
-                    ln2,
+                    at2,
                     "binary .msh given as text; fix: read it with gmsh::parse_bytes (read_mesh does)",
                 ));
             }
@@ -213,11 +209,11 @@ pub fn parse(name: &str, text: &str) -> Result<Mesh> {
             } else if (4.1..4.2).contains(&v) {
                 parse_v41(rd)
             } else {
-                Err(rd.err(ln2, format!("Gmsh format {v} is not supported (1, 2.2 and 4.1 are); fix: save with gmsh -format msh41 or msh22")))
+                Err(rd.err(at2, format!("Gmsh format {v} is not supported (1, 2.2 and 4.1 are); fix: save with gmsh -format msh41 or msh22")))
             }
         }
         _ => Err(rd.err(
-            ln,
+            at,
             format!(
                 "`{}` is not the start of a Gmsh file ($MeshFormat or $NOD); fix: check the file type",
                 short(first)
@@ -229,49 +225,50 @@ pub fn parse(name: &str, text: &str) -> Result<Mesh> {
 fn parse_v1(mut rd: Lines) -> Result<Mesh> {
     let mut ids = Vec::new();
     let mut pts = Vec::new();
-    let (ln, n) = rd.numbers::<usize>("the node count")?;
+    let (at, n) = rd.numbers::<usize>("the node count")?;
     if n.len() != 1 {
-        return Err(rd.err(ln, "expected the node count alone on the line after $NOD"));
+        return Err(rd.err(at, "expected the node count alone on the line after $NOD"));
     }
     read_nodes_lines(&mut rd, n[0], &mut ids, &mut pts)?;
     rd.expect("$ENDNOD")?;
     let mut elems = RawElems::default();
-    loop {
-        let (ln, l) = match rd.next("$ELM") {
-            Ok(x) => x,
-            Err(_) => break,
-        };
+    let mut saw_elements = false;
+    while let Some((at, l)) = rd.next_line() {
         if l == "$ELM" {
-            let (ln2, n) = rd.numbers::<usize>("the element count")?;
+            saw_elements = true;
+            let (at2, n) = rd.numbers::<usize>("the element count")?;
             if n.len() != 1 {
-                return Err(rd.err(ln2, "expected the element count alone on the line after $ELM"));
+                return Err(rd.err(at2, "expected the element count alone on the line after $ELM"));
             }
             for _ in 0..n[0] {
-                let (ln3, v) = rd.numbers::<i64>("an element")?;
+                let (at3, v) = rd.numbers::<i64>("an element")?;
                 if v.len() < 5 || v[4] < 0 || (v.len() - 5) as u64 != v[4] as u64 {
-                    return Err(rd.err(ln3, format!("element line has {} numbers; expected `id type phys elem n` and n node ids; fix: the count disagrees with the $ELM header or the line is cut", v.len())));
+                    return Err(rd.err(at3, format!("element line has {} numbers; expected `id type phys elem n` and n node ids; fix: the count disagrees with the $ELM header or the line is cut", v.len())));
                 }
                 let nodes: Vec<u64> = v[5..].iter().map(|&x| x as u64).collect();
-                elems.push(ln3, v[0] as u64, v[1] as u32, v[2] as i32, &nodes);
+                elems.push(at3, v[0] as u64, v[1] as u32, v[2] as i32, &nodes);
             }
             rd.expect("$ENDELM")?;
         } else {
-            return Err(rd.err(ln, format!("unexpected `{}` between sections", short(l))));
+            return Err(rd.err(at, format!("unexpected `{}` between sections", short(l))));
         }
     }
-    build(rd.path.clone(), ids, pts, elems, BTreeMap::new(), &rd)
+    if !saw_elements {
+        return Err(no_elements(rd.name(), "$ELM"));
+    }
+    build(ids, pts, elems, BTreeMap::new(), &rd)
 }
 
 fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<[f64; 3]>) -> Result<()> {
-    let c = n.min(rd.lines.len());
-    ids.reserve(c);
-    pts.reserve(c);
+    let c = cap(n, rd.sc.remaining(), 8);
+    reserve(ids, c, rd.name())?;
+    reserve(pts, c, rd.name())?;
     for _ in 0..n {
-        let (ln, l) = rd.next("a node")?;
+        let (at, l) = rd.next("a node")?;
         let t: Vec<&str> = l.split_whitespace().collect();
         if t.len() < 4 || t[0].starts_with('$') {
             return Err(rd.err(
-                ln,
+                at,
                 format!(
                     "expected `id x y z`, found `{}`; fix: the node count disagrees with the node lines",
                     short(l)
@@ -280,15 +277,15 @@ fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<
         }
         let id: u64 = t[0]
             .parse()
-            .map_err(|_| rd.err(ln, format!("node id `{}` is not a positive integer", t[0])))?;
+            .map_err(|_| rd.err(at, format!("node id `{}` is not a positive integer", t[0])))?;
         let mut p = [0.0f64; 3];
         for d in 0..3 {
             p[d] = t[1 + d]
                 .parse()
-                .map_err(|_| rd.err(ln, format!("coordinate `{}` is not a number", t[1 + d])))?;
+                .map_err(|_| rd.err(at, format!("coordinate `{}` is not a number", t[1 + d])))?;
             if !p[d].is_finite() {
                 return Err(rd.err(
-                    ln,
+                    at,
                     format!(
                         "node {id} has a non-finite coordinate `{}`; fix: repair the node",
                         t[1 + d]
@@ -303,22 +300,22 @@ fn read_nodes_lines(rd: &mut Lines, n: usize, ids: &mut Vec<u64>, pts: &mut Vec<
 }
 
 fn read_physical_names(rd: &mut Lines) -> Result<BTreeMap<(u8, i32), String>> {
-    let (ln, n) = rd.numbers::<usize>("the physical name count")?;
+    let (at, n) = rd.numbers::<usize>("the physical name count")?;
     if n.len() != 1 {
-        return Err(rd.err(ln, "expected the number of physical names"));
+        return Err(rd.err(at, "expected the number of physical names"));
     }
     let mut m = BTreeMap::new();
     for _ in 0..n[0] {
-        let (ln, l) = rd.next("a physical name")?;
+        let (at, l) = rd.next("a physical name")?;
         let mut it = l.splitn(3, char::is_whitespace);
         let dim: u8 = it
             .next()
             .and_then(|s| s.parse().ok())
-            .ok_or_else(|| rd.err(ln, "expected `dim tag \"name\"`"))?;
+            .ok_or_else(|| rd.err(at, "expected `dim tag \"name\"`"))?;
         let tag: i32 = it
             .next()
             .and_then(|s| s.trim().parse().ok())
-            .ok_or_else(|| rd.err(ln, "expected `dim tag \"name\"`"))?;
+            .ok_or_else(|| rd.err(at, "expected `dim tag \"name\"`"))?;
         let name = it.next().unwrap_or("").trim().trim_matches('"').to_string();
         m.insert((dim, tag), name);
     }
@@ -332,32 +329,30 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
     let mut elems = RawElems::default();
     let mut names = BTreeMap::new();
     let mut saw_nodes = false;
-    loop {
-        let (ln, l) = match rd.next("a section") {
-            Ok(x) => x,
-            Err(_) => break,
-        };
+    let mut saw_elements = false;
+    while let Some((at, l)) = rd.next_line() {
         match l {
             "$PhysicalNames" => names = read_physical_names(&mut rd)?,
             "$Nodes" => {
-                let (ln2, n) = rd.numbers::<usize>("the node count")?;
+                let (at2, n) = rd.numbers::<usize>("the node count")?;
                 if n.len() != 1 {
-                    return Err(rd.err(ln2, "expected the node count alone on the line after $Nodes"));
+                    return Err(rd.err(at2, "expected the node count alone on the line after $Nodes"));
                 }
                 read_nodes_lines(&mut rd, n[0], &mut ids, &mut pts)?;
                 rd.expect("$EndNodes")?;
                 saw_nodes = true;
             }
             "$Elements" => {
-                let (ln2, n) = rd.numbers::<usize>("the element count")?;
+                saw_elements = true;
+                let (at2, n) = rd.numbers::<usize>("the element count")?;
                 if n.len() != 1 {
-                    return Err(rd.err(ln2, "expected the element count alone on the line after $Elements"));
+                    return Err(rd.err(at2, "expected the element count alone on the line after $Elements"));
                 }
-                elems.reserve(n[0].min(rd.lines.len()));
+                elems.reserve(cap(n[0], rd.sc.remaining(), 8), rd.name())?;
                 for _ in 0..n[0] {
-                    let (ln3, v) = rd.numbers::<i64>("an element")?;
+                    let (at3, v) = rd.numbers::<i64>("an element")?;
                     if v.len() < 3 || v[2] < 0 || ((v.len() - 3) as u64) < v[2] as u64 {
-                        return Err(rd.err(ln3, "element line too short; expected `id type ntags tags... nodes...`; fix: the count disagrees with $Elements or the line is cut"));
+                        return Err(rd.err(at3, "element line too short; expected `id type ntags tags... nodes...`; fix: the count disagrees with $Elements or the line is cut"));
                     }
                     let ntags = v[2] as usize;
                     let gtype = v[1] as u32;
@@ -366,7 +361,7 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
                     if let Some((nn, _)) = nodes_per_type(gtype) {
                         if nodes.len() != nn {
                             return Err(rd.err(
-                                ln3,
+                                at3,
                                 format!(
                                     "element {} of type {gtype} has {} node ids, expected {nn}",
                                     v[0],
@@ -375,181 +370,202 @@ fn parse_v2(mut rd: Lines) -> Result<Mesh> {
                             ));
                         }
                     }
-                    elems.push(ln3, v[0] as u64, gtype, tag, &nodes);
+                    elems.push(at3, v[0] as u64, gtype, tag, &nodes);
                 }
                 rd.expect("$EndElements")?;
             }
             s if s.starts_with('$') => rd.skip_section(s)?,
-            _ => return Err(rd.err(ln, format!("unexpected `{}` between sections", short(l)))),
+            _ => return Err(rd.err(at, format!("unexpected `{}` between sections", short(l)))),
         }
     }
     if !saw_nodes {
         bail!(
             "{}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)",
-            rd.path
+            rd.name()
         );
     }
-    build(rd.path.clone(), ids, pts, elems, names, &rd)
+    if !saw_elements {
+        return Err(no_elements(rd.name(), "$Elements"));
+    }
+    build(ids, pts, elems, names, &rd)
 }
 
 fn parse_v41(mut rd: Lines) -> Result<Mesh> {
-    let mut ids = Vec::new();
-    let mut pts = Vec::new();
-    let mut elems = RawElems::default();
-    let mut names = BTreeMap::new();
-    // (dim, entity tag) -> first physical tag
-    let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
-    let mut saw_nodes = false;
-    loop {
-        let (ln, l) = match rd.next("a section") {
-            Ok(x) => x,
-            Err(_) => break,
-        };
+    let mut m = Parts::default();
+    while let Some((at, l)) = rd.next_line() {
         match l {
-            "$PhysicalNames" => names = read_physical_names(&mut rd)?,
-            "$Entities" => {
-                let (ln2, c) = rd.numbers::<usize>("entity counts")?;
-                if c.len() != 4 {
-                    return Err(rd.err(ln2, "expected `numPoints numCurves numSurfaces numVolumes`"));
-                }
-                for dim in 0..4u8 {
-                    for _ in 0..c[dim as usize] {
-                        let (ln3, v) = rd.numbers::<f64>("an entity")?;
-                        let np_at = if dim == 0 { 4 } else { 7 };
-                        if v.len() <= np_at {
-                            return Err(rd.err(ln3, "entity line too short"));
-                        }
-                        let nphys = v[np_at] as usize;
-                        if v.len().saturating_sub(np_at + 1) < nphys {
-                            return Err(rd.err(ln3, "entity line has fewer physical tags than it announces"));
-                        }
-                        if nphys > 0 {
-                            entity_phys.insert((dim, v[0] as i32), v[np_at + 1] as i32);
-                        }
-                    }
-                }
-                rd.expect("$EndEntities")?;
-            }
-            "$Nodes" => {
-                let (ln2, h) = rd.numbers::<usize>("the $Nodes header")?;
-                if h.len() != 4 {
-                    return Err(rd.err(ln2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
-                }
-                ids.reserve(h[1].min(rd.lines.len()));
-                pts.reserve(h[1].min(rd.lines.len()));
-                for _ in 0..h[0] {
-                    let (ln3, b) = rd.numbers::<i64>("a node block header")?;
-                    if b.len() != 4 || b[3] < 0 {
-                        return Err(rd.err(ln3, "expected `entityDim entityTag parametric numNodesInBlock`"));
-                    }
-                    let parametric = b[2] != 0;
-                    let n = b[3] as usize;
-                    let start = ids.len();
-                    for _ in 0..n {
-                        let (ln4, t) = rd.numbers::<u64>("a node tag")?;
-                        if t.len() != 1 {
-                            return Err(rd.err(
-                                ln4,
-                                "expected one node tag per line; fix: the block count disagrees with its lines",
-                            ));
-                        }
-                        ids.push(t[0]);
-                    }
-                    for k in 0..n {
-                        let (ln4, c) = rd.numbers::<f64>("node coordinates")?;
-                        if c.len() < 3 || (!parametric && c.len() != 3) {
-                            return Err(rd.err(ln4, "expected `x y z`; fix: the block count disagrees with its lines"));
-                        }
-                        if c[..3].iter().any(|x| !x.is_finite()) {
-                            return Err(rd.err(
-                                ln4,
-                                format!(
-                                    "node {} has a non-finite coordinate; fix: repair the node",
-                                    ids[start + k]
-                                ),
-                            ));
-                        }
-                        pts.push([c[0], c[1], c[2]]);
-                    }
-                }
-                if ids.len() != h[1] {
-                    return Err(rd.err(
-                        ln2,
-                        format!(
-                            "$Nodes announces {} nodes but its blocks hold {}; fix: repair the header",
-                            h[1],
-                            ids.len()
-                        ),
-                    ));
-                }
-                rd.expect("$EndNodes")?;
-                saw_nodes = true;
-            }
+            "$PhysicalNames" => m.names = read_physical_names(&mut rd)?,
+            "$Entities" => rd.entities_v41(&mut m.entity_phys)?,
+            "$Nodes" => rd.nodes_v41(&mut m)?,
             "$Elements" => {
-                let (ln2, h) = rd.numbers::<usize>("the $Elements header")?;
-                if h.len() != 4 {
-                    return Err(rd.err(
-                        ln2,
-                        "expected `numEntityBlocks numElements minElementTag maxElementTag`",
-                    ));
-                }
-                elems.reserve(h[1].min(rd.lines.len()));
-                let mut count = 0usize;
-                for _ in 0..h[0] {
-                    let (ln3, b) = rd.numbers::<i64>("an element block header")?;
-                    if b.len() != 4 || b[3] < 0 {
-                        return Err(rd.err(ln3, "expected `entityDim entityTag elementType numElementsInBlock`"));
-                    }
-                    let tag = entity_phys.get(&(b[0] as u8, b[1] as i32)).copied().unwrap_or(0);
-                    let gtype = b[2] as u32;
-                    for _ in 0..b[3] {
-                        let (ln4, v) = rd.numbers::<u64>("an element")?;
-                        if v.is_empty() {
-                            return Err(rd.err(ln4, "empty element line"));
-                        }
-                        if let Some((nn, _)) = nodes_per_type(gtype) {
-                            if v.len() != nn + 1 {
-                                return Err(rd.err(ln4, format!("element {} of type {gtype} has {} node ids, expected {nn}; fix: the block count disagrees with its lines", v[0], v.len() - 1)));
-                            }
-                        }
-                        elems.push(ln4, v[0], gtype, tag, &v[1..]);
-                        count += 1;
-                    }
-                }
-                if count != h[1] {
-                    return Err(rd.err(
-                        ln2,
-                        format!(
-                            "$Elements announces {} elements but its blocks hold {count}; fix: repair the header",
-                            h[1]
-                        ),
-                    ));
-                }
-                rd.expect("$EndElements")?;
+                m.saw_elements = true;
+                rd.elements_v41(&mut m)?
             }
             s if s.starts_with('$') => rd.skip_section(s)?,
-            _ => return Err(rd.err(ln, format!("unexpected `{}` between sections", short(l)))),
+            _ => return Err(rd.err(at, format!("unexpected `{}` between sections", short(l)))),
         }
     }
-    if !saw_nodes {
+    if !m.saw_nodes {
         bail!(
             "{}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)",
-            rd.path
+            rd.name()
         );
     }
-    build(rd.path.clone(), ids, pts, elems, names, &rd)
+    if !m.saw_elements {
+        return Err(no_elements(rd.name(), "$Elements"));
+    }
+    build(m.ids, m.pts, m.elems, m.names, &rd)
+}
+
+/// The sections of a 4.1 text file.
+impl Lines<'_> {
+    /// `$Entities`: the first physical tag of every entity.
+    fn entities_v41(&mut self, entity_phys: &mut HashMap<(u8, i32), i32>) -> Result<()> {
+        let (at2, c) = self.numbers::<usize>("entity counts")?;
+        if c.len() != 4 {
+            return Err(self.err(at2, "expected `numPoints numCurves numSurfaces numVolumes`"));
+        }
+        for dim in 0..4u8 {
+            for _ in 0..c[dim as usize] {
+                let (at3, v) = self.numbers::<f64>("an entity")?;
+                let np_at = if dim == 0 { 4 } else { 7 };
+                if v.len() <= np_at {
+                    return Err(self.err(at3, "entity line too short"));
+                }
+                let nphys = v[np_at] as usize;
+                if v.len().saturating_sub(np_at + 1) < nphys {
+                    return Err(self.err(at3, "entity line has fewer physical tags than it announces"));
+                }
+                if nphys > 0 {
+                    entity_phys.insert((dim, v[0] as i32), v[np_at + 1] as i32);
+                }
+            }
+        }
+        self.expect("$EndEntities")
+    }
+
+    /// `$Nodes`: entity blocks, each with its node tags, then its coordinates.
+    fn nodes_v41(&mut self, m: &mut Parts) -> Result<()> {
+        let (at2, h) = self.numbers::<usize>("the $Nodes header")?;
+        if h.len() != 4 {
+            return Err(self.err(at2, "expected `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
+        }
+        reserve(&mut m.ids, cap(h[1], self.sc.remaining(), 8), self.name())?;
+        reserve(&mut m.pts, cap(h[1], self.sc.remaining(), 8), self.name())?;
+        for _ in 0..h[0] {
+            let (at3, b) = self.numbers::<i64>("a node block header")?;
+            if b.len() != 4 || b[3] < 0 {
+                return Err(self.err(at3, "expected `entityDim entityTag parametric numNodesInBlock`"));
+            }
+            let parametric = b[2] != 0;
+            let n = b[3] as usize;
+            let start = m.ids.len();
+            for _ in 0..n {
+                let (at4, t) = self.numbers::<u64>("a node tag")?;
+                if t.len() != 1 {
+                    return Err(self.err(
+                        at4,
+                        "expected one node tag per line; fix: the block count disagrees with its lines",
+                    ));
+                }
+                m.ids.push(t[0]);
+            }
+            for k in 0..n {
+                let (at4, c) = self.numbers::<f64>("node coordinates")?;
+                if c.len() < 3 || (!parametric && c.len() != 3) {
+                    return Err(self.err(at4, "expected `x y z`; fix: the block count disagrees with its lines"));
+                }
+                if c[..3].iter().any(|x| !x.is_finite()) {
+                    return Err(self.err(
+                        at4,
+                        format!(
+                            "node {} has a non-finite coordinate; fix: repair the node",
+                            m.ids[start + k]
+                        ),
+                    ));
+                }
+                m.pts.push([c[0], c[1], c[2]]);
+            }
+        }
+        if m.ids.len() != h[1] {
+            return Err(self.err(
+                at2,
+                format!(
+                    "$Nodes announces {} nodes but its blocks hold {}; fix: repair the header",
+                    h[1],
+                    m.ids.len()
+                ),
+            ));
+        }
+        self.expect("$EndNodes")?;
+        m.saw_nodes = true;
+        Ok(())
+    }
+
+    /// `$Elements`: entity blocks of one element type each; the entity's first physical tag
+    /// becomes the elements' tag.
+    fn elements_v41(&mut self, m: &mut Parts) -> Result<()> {
+        let (at2, h) = self.numbers::<usize>("the $Elements header")?;
+        if h.len() != 4 {
+            return Err(self.err(
+                at2,
+                "expected `numEntityBlocks numElements minElementTag maxElementTag`",
+            ));
+        }
+        m.elems.reserve(cap(h[1], self.sc.remaining(), 8), self.name())?;
+        let mut count = 0usize;
+        for _ in 0..h[0] {
+            let (at3, b) = self.numbers::<i64>("an element block header")?;
+            if b.len() != 4 || b[3] < 0 {
+                return Err(self.err(at3, "expected `entityDim entityTag elementType numElementsInBlock`"));
+            }
+            let tag = m.entity_phys.get(&(b[0] as u8, b[1] as i32)).copied().unwrap_or(0);
+            let gtype = b[2] as u32;
+            for _ in 0..b[3] {
+                let (at4, v) = self.numbers::<u64>("an element")?;
+                if v.is_empty() {
+                    return Err(self.err(at4, "empty element line"));
+                }
+                if let Some((nn, _)) = nodes_per_type(gtype) {
+                    if v.len() != nn + 1 {
+                        return Err(self.err(at4, format!("element {} of type {gtype} has {} node ids, expected {nn}; fix: the block count disagrees with its lines", v[0], v.len() - 1)));
+                    }
+                }
+                m.elems.push(at4, v[0], gtype, tag, &v[1..]);
+                count += 1;
+            }
+        }
+        if count != h[1] {
+            return Err(self.err(
+                at2,
+                format!(
+                    "$Elements announces {} elements but its blocks hold {count}; fix: repair the header",
+                    h[1]
+                ),
+            ));
+        }
+        self.expect("$EndElements")
+    }
+}
+
+/// A file whose nodes are not followed by an elements section: cut short, or a point cloud.
+fn no_elements(name: &str, section: &str) -> anyhow::Error {
+    anyhow!(
+        "{name}: the file ends without an {section} section (nodes but no elements); fix: the file is truncated, export it again (if it holds only nodes, mesh the volume first: gmsh -3)"
+    )
 }
 
 fn build(
-    source: String,
     ids: Vec<u64>,
     pts: Vec<[f64; 3]>,
     elems: RawElems,
     names: BTreeMap<(u8, i32), String>,
     rd: &Lines,
 ) -> Result<Mesh> {
-    let path = rd.path.clone();
-    build_at(source, ids, pts, elems, names, &|line| format!("{path}:{line}"))
+    let sc = &rd.sc;
+    build_at(rd.name().to_string(), ids, pts, elems, names, &|pos| {
+        format!("{}:{}", sc.name, sc.line_of(pos))
+    })
 }
 
 /// Resolves node ids of the raw elements; `loc` turns a raw element's position into
@@ -574,14 +590,14 @@ fn build_at(
     mesh.group_names = names;
     let mut buf = Vec::with_capacity(8);
     for e in 0..elems.len() {
-        let (line, id, gtype, tag, nodes) = (elems.line[e], elems.id[e], elems.gtype[e], elems.tag[e], elems.nodes(e));
+        let (pos, id, gtype, tag, nodes) = (elems.pos[e], elems.id[e], elems.gtype[e], elems.tag[e], elems.nodes(e));
         let Some((nn, dim)) = nodes_per_type(gtype) else {
-            return Err(anyhow!("{}: element {}: {}", loc(line), id, type_problem(gtype)));
+            return Err(anyhow!("{}: element {}: {}", loc(pos), id, type_problem(gtype)));
         };
         if nodes.len() != nn {
             return Err(anyhow!(
                 "{}: element {} has {} node ids, expected {nn}; fix: repair the element",
-                loc(line),
+                loc(pos),
                 id,
                 nodes.len()
             ));
@@ -589,7 +605,7 @@ fn build_at(
         buf.clear();
         for &n in nodes {
             let Some(&k) = index.get(&n) else {
-                return Err(anyhow!("{}: element {} names node {n}, which the file does not define; fix: repair the element or add the node", loc(line), id));
+                return Err(anyhow!("{}: element {} names node {n}, which the file does not define; fix: repair the element or add the node", loc(pos), id));
             };
             buf.push(k);
         }
@@ -733,14 +749,17 @@ impl<'a> Bin<'a> {
         if self.dsize == 4 {
             return Ok(self.i32(what)? as u32 as u64);
         }
-        let b = self.sc.raw(8, what)?;
-        let mut a = [0u8; 8];
-        a.copy_from_slice(b);
+        let a = self.bytes8(what)?;
         Ok(if self.big {
             u64::from_be_bytes(a)
         } else {
             u64::from_le_bytes(a)
         })
+    }
+    fn bytes8(&mut self, what: &str) -> Result<[u8; 8]> {
+        let mut a = [0u8; 8];
+        a.copy_from_slice(self.sc.raw(8, what)?);
+        Ok(a)
     }
     fn count(&mut self, what: &str) -> Result<usize> {
         let p = self.sc.pos;
@@ -751,9 +770,7 @@ impl<'a> Bin<'a> {
         })
     }
     fn f64(&mut self, what: &str) -> Result<f64> {
-        let b = self.sc.raw(8, what)?;
-        let mut a = [0u8; 8];
-        a.copy_from_slice(b);
+        let a = self.bytes8(what)?;
         Ok(if self.big {
             f64::from_be_bytes(a)
         } else {
@@ -762,15 +779,9 @@ impl<'a> Bin<'a> {
     }
     /// A text line (section markers, ASCII counts).
     fn line(&mut self) -> Option<String> {
-        loop {
-            if self.sc.remaining() == 0 {
-                return None;
-            }
-            let l = String::from_utf8_lossy(self.sc.rest_of_line()).trim().to_string();
-            if !l.is_empty() {
-                return Some(l);
-            }
-        }
+        self.sc
+            .next_line()
+            .map(|(_, l)| String::from_utf8_lossy(l).into_owned())
     }
     fn expect(&mut self, tag: &str) -> Result<()> {
         let p = self.sc.pos;
@@ -780,7 +791,7 @@ impl<'a> Bin<'a> {
                 p,
                 format!(
                     "expected `{tag}`, found `{}`; fix: a count disagrees with the data or the file is truncated",
-                    crate::scan::short(&l)
+                    short(&l)
                 ),
             )),
             None => Err(self.sc.truncated(tag)),
@@ -792,16 +803,70 @@ impl<'a> Bin<'a> {
         l.parse().map_err(|_| {
             self.sc.err_at(
                 p,
-                format!(
-                    "expected {what}, found `{}`; fix: repair the line",
-                    crate::scan::short(&l)
-                ),
+                format!("expected {what}, found `{}`; fix: repair the line", short(&l)),
             )
         })
     }
 }
 
+/// What the sections of a 4.1 or binary file hold, gathered section by section.
+#[derive(Default)]
+struct Parts {
+    ids: Vec<u64>,
+    pts: Vec<[f64; 3]>,
+    elems: RawElems,
+    names: BTreeMap<(u8, i32), String>,
+    /// (dim, entity tag) -> first physical tag (4.1)
+    entity_phys: HashMap<(u8, i32), i32>,
+    saw_nodes: bool,
+    saw_elements: bool,
+}
+
 fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let (mut b, v2) = binary_header(name, bytes)?;
+    let mut m = Parts::default();
+    while let Some(l) = b.line() {
+        let sec_pos = b.sc.pos;
+        match l.as_str() {
+            "$PhysicalNames" => m.names = b.physical_names()?,
+            "$Entities" if !v2 => b.entities(&mut m.entity_phys)?,
+            "$Nodes" if v2 => b.nodes_v2(&mut m)?,
+            "$Nodes" => b.nodes_v41(&mut m, sec_pos)?,
+            "$Elements" if v2 => {
+                m.saw_elements = true;
+                b.elements_v2(&mut m.elems)?
+            }
+            "$Elements" => {
+                m.saw_elements = true;
+                b.elements_v41(&mut m, sec_pos)?
+            }
+            s if s.starts_with('$') && s.len() > 1 => b.skip_section(s, sec_pos)?,
+            _ => {
+                return Err(b.sc.err_byte(
+                    sec_pos,
+                    format!(
+                        "unexpected `{}` between sections; fix: a count disagrees with the data",
+                        short(&l)
+                    ),
+                ))
+            }
+        }
+    }
+    if !m.saw_nodes {
+        bail!("{name}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)");
+    }
+    if !m.saw_elements {
+        return Err(no_elements(name, "$Elements"));
+    }
+    let nm = name.to_string();
+    build_at(name.to_string(), m.ids, m.pts, m.elems, m.names, &|p| {
+        format!("{nm}: byte {p}")
+    })
+}
+
+/// Reads `$MeshFormat` of a binary file up to `$EndMeshFormat`: the version (2.2 or 4.1: true
+/// for 2.2), the data size and the byte order (from the integer 1 written after the line).
+fn binary_header<'a>(name: &'a str, bytes: &'a [u8]) -> Result<(Bin<'a>, bool)> {
     let mut sc = Scan::new(name, bytes);
     sc.rest_of_line();
     let fmt_pos = sc.pos;
@@ -835,236 +900,235 @@ fn parse_binary(name: &str, bytes: &[u8]) -> Result<Mesh> {
     };
     let mut b = Bin { sc, big, dsize };
     b.expect("$EndMeshFormat")?;
-    let mut ids: Vec<u64> = Vec::new();
-    let mut pts: Vec<[f64; 3]> = Vec::new();
-    let mut elems = RawElems::default();
-    let mut names = BTreeMap::new();
-    let mut entity_phys: HashMap<(u8, i32), i32> = HashMap::new();
-    let mut saw_nodes = false;
-    while let Some(l) = b.line() {
-        let sec_pos = b.sc.pos;
-        match l.as_str() {
-            "$PhysicalNames" => {
-                let n = b.text_count("the physical name count")?;
-                for _ in 0..n {
-                    let p = b.sc.pos;
-                    let l = b.line().ok_or_else(|| b.sc.truncated("a physical name"))?;
-                    let mut it = l.splitn(3, char::is_whitespace);
-                    let dim = it.next().and_then(|s| s.parse::<u8>().ok());
-                    let tag = it.next().and_then(|s| s.trim().parse::<i32>().ok());
-                    let (Some(dim), Some(tag)) = (dim, tag) else {
-                        return Err(b.sc.err_at(p, "expected `dim tag \"name\"`; fix: repair the line"));
-                    };
-                    names.insert((dim, tag), it.next().unwrap_or("").trim().trim_matches('"').to_string());
+    Ok((b, v2))
+}
+
+impl Bin<'_> {
+    /// `$PhysicalNames` (text lines in a binary file) up to its end marker.
+    fn physical_names(&mut self) -> Result<BTreeMap<(u8, i32), String>> {
+        let mut names = BTreeMap::new();
+        let n = self.text_count("the physical name count")?;
+        for _ in 0..n {
+            let p = self.sc.pos;
+            let l = self.line().ok_or_else(|| self.sc.truncated("a physical name"))?;
+            let mut it = l.splitn(3, char::is_whitespace);
+            let dim = it.next().and_then(|s| s.parse::<u8>().ok());
+            let tag = it.next().and_then(|s| s.trim().parse::<i32>().ok());
+            let (Some(dim), Some(tag)) = (dim, tag) else {
+                return Err(self.sc.err_at(p, "expected `dim tag \"name\"`; fix: repair the line"));
+            };
+            names.insert((dim, tag), it.next().unwrap_or("").trim().trim_matches('"').to_string());
+        }
+        self.expect("$EndPhysicalNames")?;
+        Ok(names)
+    }
+
+    /// `$Entities` (4.1): the first physical tag of every entity.
+    fn entities(&mut self, entity_phys: &mut HashMap<(u8, i32), i32>) -> Result<()> {
+        let mut c = [0usize; 4];
+        for x in &mut c {
+            *x = self.count("an entity count")?;
+        }
+        for dim in 0..4u8 {
+            for _ in 0..c[dim as usize] {
+                let tag = self.i32("an entity tag")?;
+                for _ in 0..if dim == 0 { 3 } else { 6 } {
+                    self.f64("an entity bound")?;
                 }
-                b.expect("$EndPhysicalNames")?;
-            }
-            "$Entities" if !v2 => {
-                let mut c = [0usize; 4];
-                for x in &mut c {
-                    *x = b.count("an entity count")?;
-                }
-                for dim in 0..4u8 {
-                    for _ in 0..c[dim as usize] {
-                        let tag = b.i32("an entity tag")?;
-                        for _ in 0..if dim == 0 { 3 } else { 6 } {
-                            b.f64("an entity bound")?;
-                        }
-                        let np = b.count("a physical tag count")?;
-                        for k in 0..np {
-                            let ph = b.i32("a physical tag")?;
-                            if k == 0 {
-                                entity_phys.insert((dim, tag), ph);
-                            }
-                        }
-                        if dim > 0 {
-                            let nb = b.count("a bounding entity count")?;
-                            for _ in 0..nb {
-                                b.i32("a bounding entity")?;
-                            }
-                        }
+                let np = self.count("a physical tag count")?;
+                for k in 0..np {
+                    let ph = self.i32("a physical tag")?;
+                    if k == 0 {
+                        entity_phys.insert((dim, tag), ph);
                     }
                 }
-                b.expect("$EndEntities")?;
-            }
-            "$Nodes" if v2 => {
-                let n = b.text_count("the node count")?;
-                let c = cap(n, b.sc.remaining(), 28);
-                ids.reserve(c);
-                pts.reserve(c);
-                for _ in 0..n {
-                    let id = b.i32("a node id")?;
-                    let mut p = [0.0; 3];
-                    for x in &mut p {
-                        *x = b.f64("a coordinate")?;
-                    }
-                    ids.push(id as u32 as u64);
-                    pts.push(p);
-                }
-                b.expect("$EndNodes")?;
-                saw_nodes = true;
-            }
-            "$Nodes" => {
-                let nblocks = b.count("the node block count")?;
-                let n = b.count("the node count")?;
-                b.count("the minimum node tag")?;
-                b.count("the maximum node tag")?;
-                let c = cap(n, b.sc.remaining(), 32);
-                ids.reserve(c);
-                pts.reserve(c);
-                for _ in 0..nblocks {
-                    let edim = b.i32("an entity dimension")?;
-                    b.i32("an entity tag")?;
-                    let param = b.i32("the parametric flag")?;
-                    let nn = b.count("the block node count")?;
-                    if nn > b.sc.remaining() / (dsize + 24) {
-                        return Err(b.sc.err_byte(b.sc.pos, format!("a node block announces {nn} nodes, more than the file holds; fix: the file is truncated or corrupt")));
-                    }
-                    for _ in 0..nn {
-                        ids.push(b.size("a node tag")?);
-                    }
-                    let extra = if param != 0 { edim.clamp(0, 3) as usize } else { 0 };
-                    for _ in 0..nn {
-                        let mut p = [0.0; 3];
-                        for x in &mut p {
-                            *x = b.f64("a coordinate")?;
-                        }
-                        for _ in 0..extra {
-                            b.f64("a parametric coordinate")?;
-                        }
-                        pts.push(p);
+                if dim > 0 {
+                    let nb = self.count("a bounding entity count")?;
+                    for _ in 0..nb {
+                        self.i32("a bounding entity")?;
                     }
                 }
-                if ids.len() != n {
-                    return Err(b.sc.err_byte(
-                        sec_pos,
-                        format!(
-                            "$Nodes announces {n} nodes but its blocks hold {}; fix: repair the header",
-                            ids.len()
-                        ),
-                    ));
-                }
-                b.expect("$EndNodes")?;
-                saw_nodes = true;
-            }
-            "$Elements" if v2 => {
-                let n = b.text_count("the element count")?;
-                elems.reserve(cap(n, b.sc.remaining(), 20));
-                let mut done = 0usize;
-                while done < n {
-                    let hp = b.sc.pos;
-                    let gtype = b.i32("an element type")? as u32;
-                    let follow = b.i32("the element count of a block")?.max(0) as usize;
-                    let ntags = b.i32("the tag count")?.max(0) as usize;
-                    let Some((nn, _)) = nodes_per_type(gtype) else {
-                        return Err(b.sc.err_byte(hp, type_problem(gtype)));
-                    };
-                    if follow == 0 || follow > n - done {
-                        return Err(b.sc.err_byte(hp, format!("an element block announces {follow} elements, but {} remain of the {n} announced; fix: the counts disagree, export again", n - done)));
-                    }
-                    if ntags > 1 << 16 {
-                        return Err(b
-                            .sc
-                            .err_byte(hp, format!("{ntags} tags per element; fix: the file is corrupt")));
-                    }
-                    for _ in 0..follow {
-                        let p = b.sc.pos;
-                        let id = b.i32("an element id")? as u32 as u64;
-                        let mut tag = 0;
-                        for k in 0..ntags {
-                            let t = b.i32("an element tag")?;
-                            if k == 0 {
-                                tag = t;
-                            }
-                        }
-                        let mut nodes = Vec::with_capacity(nn);
-                        for _ in 0..nn {
-                            nodes.push(b.i32("an element node")? as u32 as u64);
-                        }
-                        elems.push(p, id, gtype, tag, &nodes);
-                    }
-                    done += follow;
-                }
-                b.expect("$EndElements")?;
-            }
-            "$Elements" => {
-                let nblocks = b.count("the element block count")?;
-                let n = b.count("the element count")?;
-                b.count("the minimum element tag")?;
-                b.count("the maximum element tag")?;
-                elems.reserve(cap(n, b.sc.remaining(), 2 * dsize));
-                for _ in 0..nblocks {
-                    let hp = b.sc.pos;
-                    let edim = b.i32("an entity dimension")?;
-                    let etag = b.i32("an entity tag")?;
-                    let gtype = b.i32("an element type")? as u32;
-                    let ne = b.count("the block element count")?;
-                    let Some((nn, _)) = nodes_per_type(gtype) else {
-                        return Err(b.sc.err_byte(hp, type_problem(gtype)));
-                    };
-                    if ne > b.sc.remaining() / ((nn + 1) * dsize) {
-                        return Err(b.sc.err_byte(hp, format!("an element block announces {ne} elements, more than the file holds; fix: the file is truncated or corrupt")));
-                    }
-                    let tag = u8::try_from(edim)
-                        .ok()
-                        .and_then(|d| entity_phys.get(&(d, etag)).copied())
-                        .unwrap_or(0);
-                    for _ in 0..ne {
-                        let p = b.sc.pos;
-                        let id = b.size("an element tag")?;
-                        let mut nodes = Vec::with_capacity(nn);
-                        for _ in 0..nn {
-                            nodes.push(b.size("an element node")?);
-                        }
-                        elems.push(p, id, gtype, tag, &nodes);
-                    }
-                }
-                if elems.len() != n {
-                    return Err(b.sc.err_byte(
-                        sec_pos,
-                        format!(
-                            "$Elements announces {n} elements but its blocks hold {}; fix: repair the header",
-                            elems.len()
-                        ),
-                    ));
-                }
-                b.expect("$EndElements")?;
-            }
-            s if s.starts_with('$') && s.len() > 1 => {
-                // a section eprop does not use: find its end marker
-                let end = format!("\n$End{}", &s[1..]);
-                let from = b.sc.pos.saturating_sub(1);
-                let hay = &b.sc.b[from..];
-                match hay.windows(end.len()).position(|w| w == end.as_bytes()) {
-                    Some(k) => {
-                        b.sc.pos = from + k + 1;
-                        b.line();
-                    }
-                    None => {
-                        return Err(b.sc.err_byte(
-                            sec_pos,
-                            format!(
-                                "section {} has no end marker; fix: the file is truncated",
-                                crate::scan::short(s)
-                            ),
-                        ))
-                    }
-                }
-            }
-            _ => {
-                return Err(b.sc.err_byte(
-                    sec_pos,
-                    format!(
-                        "unexpected `{}` between sections; fix: a count disagrees with the data",
-                        crate::scan::short(&l)
-                    ),
-                ))
             }
         }
+        self.expect("$EndEntities")
     }
-    if !saw_nodes {
-        bail!("{name}: no $Nodes section; fix: the file holds no mesh (run gmsh -3 first)");
+
+    /// `$Nodes` of a 2.2 file: a text count, then `id x y z` records.
+    fn nodes_v2(&mut self, m: &mut Parts) -> Result<()> {
+        let n = self.text_count("the node count")?;
+        let c = cap(n, self.sc.remaining(), 28);
+        reserve(&mut m.ids, c, self.sc.name)?;
+        reserve(&mut m.pts, c, self.sc.name)?;
+        for _ in 0..n {
+            let id = self.i32("a node id")?;
+            let mut p = [0.0; 3];
+            for x in &mut p {
+                *x = self.f64("a coordinate")?;
+            }
+            m.ids.push(id as u32 as u64);
+            m.pts.push(p);
+        }
+        self.expect("$EndNodes")?;
+        m.saw_nodes = true;
+        Ok(())
     }
-    let nm = name.to_string();
-    build_at(name.to_string(), ids, pts, elems, names, &|p| format!("{nm}: byte {p}"))
+
+    /// The header of a 4.1 `$Nodes` or `$Elements` section: block count, item count, minimum
+    /// and maximum tag (unused); `item` is "node" or "element".
+    fn blocks_header(&mut self, item: &str) -> Result<(usize, usize)> {
+        let nblocks = self.count(&format!("the {item} block count"))?;
+        let n = self.count(&format!("the {item} count"))?;
+        self.count(&format!("the minimum {item} tag"))?;
+        self.count(&format!("the maximum {item} tag"))?;
+        Ok((nblocks, n))
+    }
+
+    /// `$Nodes` of a 4.1 file: entity blocks, each with its node tags, then its coordinates.
+    fn nodes_v41(&mut self, m: &mut Parts, sec_pos: usize) -> Result<()> {
+        let dsize = self.dsize;
+        let (nblocks, n) = self.blocks_header("node")?;
+        let c = cap(n, self.sc.remaining(), 32);
+        reserve(&mut m.ids, c, self.sc.name)?;
+        reserve(&mut m.pts, c, self.sc.name)?;
+        for _ in 0..nblocks {
+            let edim = self.i32("an entity dimension")?;
+            self.i32("an entity tag")?;
+            let param = self.i32("the parametric flag")?;
+            let nn = self.count("the block node count")?;
+            if nn > self.sc.remaining() / (dsize + 24) {
+                return Err(self.sc.err_byte(self.sc.pos, format!("a node block announces {nn} nodes, more than the file holds; fix: the file is truncated or corrupt")));
+            }
+            for _ in 0..nn {
+                m.ids.push(self.size("a node tag")?);
+            }
+            let extra = if param != 0 { edim.clamp(0, 3) as usize } else { 0 };
+            for _ in 0..nn {
+                let mut p = [0.0; 3];
+                for x in &mut p {
+                    *x = self.f64("a coordinate")?;
+                }
+                for _ in 0..extra {
+                    self.f64("a parametric coordinate")?;
+                }
+                m.pts.push(p);
+            }
+        }
+        if m.ids.len() != n {
+            return Err(self.sc.err_byte(
+                sec_pos,
+                format!(
+                    "$Nodes announces {n} nodes but its blocks hold {}; fix: repair the header",
+                    m.ids.len()
+                ),
+            ));
+        }
+        self.expect("$EndNodes")?;
+        m.saw_nodes = true;
+        Ok(())
+    }
+
+    /// `$Elements` of a 2.2 file: a text count, then blocks of `type count ntags` headers
+    /// followed by `id tags... nodes...` records.
+    fn elements_v2(&mut self, elems: &mut RawElems) -> Result<()> {
+        let n = self.text_count("the element count")?;
+        elems.reserve(cap(n, self.sc.remaining(), 20), self.sc.name)?;
+        let mut done = 0usize;
+        while done < n {
+            let hp = self.sc.pos;
+            let gtype = self.i32("an element type")? as u32;
+            let follow = self.i32("the element count of a block")?.max(0) as usize;
+            let ntags = self.i32("the tag count")?.max(0) as usize;
+            let Some((nn, _)) = nodes_per_type(gtype) else {
+                return Err(self.sc.err_byte(hp, type_problem(gtype)));
+            };
+            if follow == 0 || follow > n - done {
+                return Err(self.sc.err_byte(hp, format!("an element block announces {follow} elements, but {} remain of the {n} announced; fix: the counts disagree, export again", n - done)));
+            }
+            if ntags > 1 << 16 {
+                return Err(self
+                    .sc
+                    .err_byte(hp, format!("{ntags} tags per element; fix: the file is corrupt")));
+            }
+            for _ in 0..follow {
+                let p = self.sc.pos;
+                let id = self.i32("an element id")? as u32 as u64;
+                let mut tag = 0;
+                for k in 0..ntags {
+                    let t = self.i32("an element tag")?;
+                    if k == 0 {
+                        tag = t;
+                    }
+                }
+                let mut nodes = Vec::with_capacity(nn);
+                for _ in 0..nn {
+                    nodes.push(self.i32("an element node")? as u32 as u64);
+                }
+                elems.push(p, id, gtype, tag, &nodes);
+            }
+            done += follow;
+        }
+        self.expect("$EndElements")
+    }
+
+    /// `$Elements` of a 4.1 file: entity blocks of one element type each; the entity's first
+    /// physical tag becomes the elements' tag.
+    fn elements_v41(&mut self, m: &mut Parts, sec_pos: usize) -> Result<()> {
+        let dsize = self.dsize;
+        let (nblocks, n) = self.blocks_header("element")?;
+        m.elems.reserve(cap(n, self.sc.remaining(), 2 * dsize), self.sc.name)?;
+        for _ in 0..nblocks {
+            let hp = self.sc.pos;
+            let edim = self.i32("an entity dimension")?;
+            let etag = self.i32("an entity tag")?;
+            let gtype = self.i32("an element type")? as u32;
+            let ne = self.count("the block element count")?;
+            let Some((nn, _)) = nodes_per_type(gtype) else {
+                return Err(self.sc.err_byte(hp, type_problem(gtype)));
+            };
+            if ne > self.sc.remaining() / ((nn + 1) * dsize) {
+                return Err(self.sc.err_byte(hp, format!("an element block announces {ne} elements, more than the file holds; fix: the file is truncated or corrupt")));
+            }
+            let tag = u8::try_from(edim)
+                .ok()
+                .and_then(|d| m.entity_phys.get(&(d, etag)).copied())
+                .unwrap_or(0);
+            for _ in 0..ne {
+                let p = self.sc.pos;
+                let id = self.size("an element tag")?;
+                let mut nodes = Vec::with_capacity(nn);
+                for _ in 0..nn {
+                    nodes.push(self.size("an element node")?);
+                }
+                m.elems.push(p, id, gtype, tag, &nodes);
+            }
+        }
+        if m.elems.len() != n {
+            return Err(self.sc.err_byte(
+                sec_pos,
+                format!(
+                    "$Elements announces {n} elements but its blocks hold {}; fix: repair the header",
+                    m.elems.len()
+                ),
+            ));
+        }
+        self.expect("$EndElements")
+    }
+
+    /// A section eprop does not use: moves past its end marker.
+    fn skip_section(&mut self, s: &str, sec_pos: usize) -> Result<()> {
+        let end = format!("\n$End{}", &s[1..]);
+        let from = self.sc.pos.saturating_sub(1);
+        let hay = &self.sc.b[from..];
+        match hay.windows(end.len()).position(|w| w == end.as_bytes()) {
+            Some(k) => {
+                self.sc.pos = from + k + 1;
+                self.line();
+                Ok(())
+            }
+            None => Err(self.sc.err_byte(
+                sec_pos,
+                format!("section {} has no end marker; fix: the file is truncated", short(s)),
+            )),
+        }
+    }
 }

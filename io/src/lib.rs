@@ -1,26 +1,28 @@
-//! eprop-io: meshes in (readers, generators), time series out (VTKHDF).
+//! eprop-io: meshes in (readers), meshes and time series out (writers, VTKHDF).
 //!
 //! Readers: Gmsh `.msh` (1, 2.2, 4.1; ASCII and binary), VTK legacy `.vtk`, VTK XML `.vtu`,
 //! TetGen `.node`/`.ele`/`.face`, Medit `.mesh`. Each has a `parse` function on bytes; every
 //! mesh read through `read_mesh` goes through one validation pass (`validate`).
+//!
+//! The mesh itself, its geometry, the validation pass and the generators live in `eprop-mesh`
+//! (no HDF5, no MPI) and are re-exported here under the same paths (`eprop_io::mesh`,
+//! `eprop_io::geom`, `eprop_io::generate`, `eprop_io::validate`, `eprop_io::Mesh`, ...).
 
-pub mod generate;
-pub mod geom;
 pub mod gmsh;
+pub mod input;
 pub mod medit;
-pub mod mesh;
 pub mod scan;
+#[cfg(feature = "test-writers")]
 pub mod testwrite;
 pub mod tetgen;
-pub mod validate;
 pub mod vtk;
 pub mod vtkhdf;
 pub mod vtu;
 
-pub use mesh::{CellKind, Mesh};
-pub use validate::{validate, ReadOptions};
+pub use eprop_mesh::{generate, geom, mesh, validate, CellKind, Mesh, ReadOptions};
+pub use input::{read_input_file, read_input_text};
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{bail, Result};
 use std::path::Path;
 
 /// The mesh formats eprop reads.
@@ -79,20 +81,19 @@ pub fn read_mesh_with(path: &Path, opts: &ReadOptions) -> Result<Mesh> {
     };
     if format == Format::TetGen {
         let base = path.with_extension("").display().to_string();
-        if !Path::new(&format!("{base}.ele")).exists() || !Path::new(&format!("{base}.node")).exists() {
+        // a link or special file in its place is not missing: reading it says what it is
+        let missing = |ext: &str| std::fs::symlink_metadata(format!("{base}.{ext}")).is_err();
+        if missing("ele") || missing("node") {
             bail!(
                 "{}: no such mesh file (TetGen needs x.node and x.ele side by side); fix: check the path",
                 path.display()
             );
         }
-    } else if !path.exists() {
-        bail!("{}: no such mesh file; fix: check the path (relative paths in a scenario are relative to the scenario file)", path.display());
     }
     let mut mesh = match format {
         Format::TetGen => tetgen::read(path)?,
         _ => {
-            let bytes = std::fs::read(path)
-                .map_err(|e| anyhow!("{}: cannot read: {e}; fix: check the permissions", path.display()))?;
+            let bytes = read_input_file(path, "mesh")?;
             parse_mesh(format, &path.display().to_string(), &bytes)?
         }
     };

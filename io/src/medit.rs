@@ -9,7 +9,7 @@
 //! reorients any cell that comes inverted.
 
 use crate::mesh::{CellKind, Mesh};
-use crate::scan::{cap, short, Scan};
+use crate::scan::{cap, reserve, short, Scan};
 use anyhow::{bail, Result};
 
 /// Parses the bytes of a `.mesh` file.
@@ -43,7 +43,7 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
             "Vertices" => {
                 let n = sc.count("the vertex count")?;
                 let c = cap(n, sc.remaining(), 8);
-                mesh.points.reserve(c);
+                reserve(&mut mesh.points, c, name)?;
                 for _ in 0..n {
                     let mut p = [0.0; 3];
                     for v in &mut p {
@@ -68,9 +68,9 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
                 };
                 let c = cap(n, sc.remaining(), 2 * nn + 2);
                 if vol.is_some() {
-                    pending.reserve(c);
+                    reserve(&mut pending, c, name)?;
                 } else {
-                    facets.reserve(c);
+                    reserve(&mut facets, c, name)?;
                 }
                 for k in 0..n {
                     let pos = sc.pos;

@@ -131,6 +131,19 @@ impl<'a> Scan<'a> {
         }
         l
     }
+    /// The next line that is not blank, without the whitespace around it, and the position of
+    /// its first byte; None at the end.
+    pub fn next_line(&mut self) -> Option<(usize, &'a [u8])> {
+        while self.pos < self.b.len() {
+            let start = self.pos;
+            let l = self.rest_of_line();
+            let t = l.trim_ascii_start();
+            if !t.is_empty() {
+                return Some((start + (l.len() - t.len()), t.trim_ascii_end()));
+            }
+        }
+        None
+    }
     /// `n` raw bytes.
     pub fn raw(&mut self, n: usize, what: &str) -> Result<&'a [u8]> {
         if n > self.remaining() {
@@ -145,6 +158,17 @@ impl<'a> Scan<'a> {
         self.pos += n;
         Ok(s)
     }
+}
+
+/// Room for `n` more items in `v`, `n` coming from a file (and capped by what the file can
+/// hold, see `cap`): an allocation that fails is an error naming memory, not an abort.
+pub fn reserve<T>(v: &mut Vec<T>, n: usize, name: &str) -> Result<()> {
+    v.try_reserve(n).map_err(|_| {
+        anyhow!(
+            "{name}: not enough memory for {n} more values of {} bytes; fix: free memory or use a machine with more",
+            std::mem::size_of::<T>()
+        )
+    })
 }
 
 /// A count announced by a file, capped for pre-allocation: never more items than the
@@ -305,13 +329,15 @@ pub fn decode(bytes: &[u8], ty: Ty, big_endian: bool) -> Vals {
 pub fn parse_text(sc: &mut Scan, n: usize, ty: Ty, what: &str) -> Result<Vals> {
     let cap = cap(n, sc.remaining(), 2);
     if ty.is_float() {
-        let mut v = Vec::with_capacity(cap);
+        let mut v = Vec::new();
+        reserve(&mut v, cap, sc.name)?;
         for _ in 0..n {
             v.push(sc.num::<f64>(what)?);
         }
         Ok(Vals::F(v))
     } else {
-        let mut v = Vec::with_capacity(cap);
+        let mut v = Vec::new();
+        reserve(&mut v, cap, sc.name)?;
         for _ in 0..n {
             let w = sc.word(what)?;
             let x = match w.parse::<i64>() {
@@ -356,4 +382,18 @@ pub fn pick_tags(arrays: &[(String, Vals)], n_cells: usize, warnings: &mut Vec<S
         .or_else(|| usable.first())?;
     warnings.push(format!("cell tags taken from cell-data array `{}`", pick.0));
     Some(pick.1.iter().map(|&x| x as i32).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_reservation_too_large_for_memory_is_an_error_naming_memory() {
+        let mut v: Vec<[f64; 3]> = Vec::new();
+        let e = super::reserve(&mut v, usize::MAX / 64, "big.msh")
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("big.msh: not enough memory") && e.contains("fix:"), "{e}");
+        super::reserve(&mut v, 10, "small.msh").unwrap();
+        assert!(v.capacity() >= 10);
+    }
 }

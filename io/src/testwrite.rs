@@ -1,6 +1,7 @@
 //! Writers for formats eprop reads but does not write (VTK legacy, TetGen, Medit, binary
 //! Gmsh), used by the round-trip tests and to make fuzzing seeds. Not meant for production
-//! output: `write_mesh` writes `.msh` and `.vtu`.
+//! output: `write_mesh` writes `.msh` and `.vtu`. Built only with the `test-writers` feature,
+//! which the tests and examples of eprop and eprop-io turn on.
 
 use crate::mesh::Mesh;
 use crate::vtk::vtk_order;
@@ -22,11 +23,8 @@ fn vtk_cells(m: &Mesh) -> Vec<(u8, Vec<u32>, i32)> {
     }
     for f in 0..m.facets.len() {
         let n = m.facets.nodes(f);
-        let t = match (m.facets.dim[f], n.len()) {
-            (2, 3) => 5,
-            (2, 4) => 9,
-            (1, 2) => 3,
-            _ => continue,
+        let Some(t) = crate::vtk::facet_vtk_type(m.facets.dim[f], n.len()) else {
+            continue;
         };
         v.push((t, n.to_vec(), m.facets.tags[f]));
     }

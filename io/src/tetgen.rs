@@ -4,8 +4,8 @@
 //! markers of `.face` become facet tags. Numbering may start at 0 or 1; `#` starts a comment.
 
 use crate::mesh::{CellKind, Mesh};
-use crate::scan::{cap, Scan};
-use anyhow::{anyhow, bail, Result};
+use crate::scan::{cap, reserve, Scan};
+use anyhow::{bail, Result};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -39,9 +39,14 @@ pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result
     }
     let mut mesh = Mesh::new(name);
     let c = cap(n, sc.remaining(), 8);
-    mesh.points.reserve(c);
-    mesh.node_ids.reserve(c);
-    let mut index: HashMap<u64, u32> = HashMap::with_capacity(c);
+    reserve(&mut mesh.points, c, sc.name)?;
+    reserve(&mut mesh.node_ids, c, sc.name)?;
+    let mut index: HashMap<u64, u32> = HashMap::new();
+    index.try_reserve(c).map_err(|_| {
+        sc.err(format!(
+            "not enough memory for {c} nodes; fix: free memory or use a machine with more"
+        ))
+    })?;
     for _ in 0..n {
         let id = id_of(&mut sc, "a node index")?;
         let mut p = [0.0; 3];
@@ -77,7 +82,7 @@ pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result
         return Err(sc.err("too many attributes; fix: repair the first line"));
     }
     let c = cap(ne, sc.remaining(), 10);
-    mesh.conn.reserve(c * 4);
+    reserve(&mut mesh.conn, c * 4, sc.name)?;
     let mut nodes = [0u32; 4];
     for _ in 0..ne {
         let eid = id_of(&mut sc, "a tetrahedron index")?;
@@ -185,17 +190,13 @@ pub fn read(path: &Path) -> Result<Mesh> {
     let base: PathBuf = path.with_extension("");
     // `x.1.ele` -> `x.1.node`: append, since with_extension would replace the `.1`
     let sib = |ext: &str| PathBuf::from(format!("{}.{ext}", base.display()));
-    let rd = |p: &Path| {
-        std::fs::read(p).map_err(|e| {
-            anyhow!(
-                "{}: cannot read: {e}; fix: TetGen meshes need x.node and x.ele side by side",
-                p.display()
-            )
-        })
+    let node = crate::read_input_file(&sib("node"), "TetGen .node")?;
+    let ele = crate::read_input_file(&sib("ele"), "TetGen .ele")?;
+    // the .face file is optional; one that is there must be readable
+    let face = match std::fs::symlink_metadata(sib("face")) {
+        Ok(_) => Some(crate::read_input_file(&sib("face"), "TetGen .face")?),
+        Err(_) => None,
     };
-    let node = rd(&sib("node"))?;
-    let ele = rd(&sib("ele"))?;
-    let face = std::fs::read(sib("face")).ok();
     parse(&base.display().to_string(), &node, &ele, face.as_deref())
 }
 

@@ -3,7 +3,7 @@
 //! Also holds the cell-type mapping shared with the `.vtu` reader.
 
 use crate::mesh::{CellKind, Mesh};
-use crate::scan::{cap, decode, parse_text, pick_tags, short, Scan, Ty, Vals};
+use crate::scan::{cap, decode, parse_text, pick_tags, reserve, short, Scan, Ty, Vals};
 use anyhow::{anyhow, bail, Result};
 
 /// What a VTK cell type becomes.
@@ -45,6 +45,16 @@ pub fn vtk_order(kind: CellKind, nodes: &[u32]) -> Vec<u32> {
     match kind {
         CellKind::Wedge if nodes.len() == 6 => vec![nodes[0], nodes[2], nodes[1], nodes[3], nodes[5], nodes[4]],
         _ => nodes.to_vec(),
+    }
+}
+
+/// The VTK type of a facet of dimension `dim` with `n` nodes (triangle, quad, line), if any.
+pub fn facet_vtk_type(dim: u8, n: usize) -> Option<u8> {
+    match (dim, n) {
+        (2, 3) => Some(5),
+        (2, 4) => Some(9),
+        (1, 2) => Some(3),
+        _ => None,
     }
 }
 
@@ -173,8 +183,95 @@ fn ints(v: Vals, sc: &Scan, what: &str) -> Result<Vec<i64>> {
         .ok_or_else(|| sc.err(format!("{what} holds non-integer values; fix: write them as integers")))
 }
 
+/// What the sections of a legacy file hold, gathered keyword by keyword.
+#[derive(Default)]
+struct Parts {
+    points: Option<Vec<f64>>,
+    conn: Option<Vec<i64>>,
+    starts: Option<Vec<i64>>,
+    types: Option<Vec<i64>>,
+    cell_arrays: Vec<(String, Vals)>,
+    point_arrays: Vec<(String, Vals)>,
+    /// The data section the arrays that follow belong to: 'C' cell data, 'P' point data, and
+    /// its count.
+    attr: Option<(char, usize)>,
+}
+
+impl Parts {
+    /// Keeps a one-component array of the current data section.
+    fn push(&mut self, which: char, name: String, v: Vals) {
+        if which == 'C' {
+            self.cell_arrays.push((name, v));
+        } else {
+            self.point_arrays.push((name, v));
+        }
+    }
+}
+
+/// A legacy file after its header: the cursor, ASCII or BINARY, and the major version.
+struct Legacy<'a> {
+    sc: Scan<'a>,
+    binary: bool,
+    major: u32,
+}
+
 /// Parses a legacy VTK file.
 pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
+    let mut rd = header(name, bytes)?;
+    let mut p = Parts::default();
+    while let Some(t) = rd.sc.token() {
+        let kpos = rd.sc.pos;
+        let key = String::from_utf8_lossy(t).to_ascii_uppercase();
+        match key.as_str() {
+            "POINTS" => p.points = Some(rd.points()?),
+            "CELLS" => {
+                let (starts, conn) = rd.cells(kpos)?;
+                p.starts = Some(starts);
+                p.conn = Some(conn);
+            }
+            "CELL_TYPES" => p.types = Some(rd.cell_types()?),
+            "CELL_DATA" => p.attr = Some(('C', rd.sc.count("the cell data count")?)),
+            "POINT_DATA" => p.attr = Some(('P', rd.sc.count("the point data count")?)),
+            "SCALARS" | "VECTORS" | "NORMALS" | "TENSORS" | "TEXTURE_COORDINATES" | "COLOR_SCALARS" | "FIELD" => {
+                rd.data_arrays(&key, kpos, &mut p)?
+            }
+            "LOOKUP_TABLE" => rd.lookup_table()?,
+            "METADATA" => rd.metadata(),
+            _ => {
+                return Err(rd.sc.err_at(
+                    kpos,
+                    format!(
+                        "unexpected `{}`; fix: the file is malformed or a count is wrong",
+                        short(&key)
+                    ),
+                ));
+            }
+        }
+    }
+    let points = p
+        .points
+        .ok_or_else(|| anyhow!("{name}: no POINTS section; fix: the file holds no mesh"))?;
+    let (Some(conn), Some(starts)) = (p.conn, p.starts) else {
+        bail!("{name}: no CELLS section; fix: the file holds no cells");
+    };
+    let types = p
+        .types
+        .ok_or_else(|| anyhow!("{name}: no CELL_TYPES section; fix: the file is incomplete, export it again"))?;
+    build(
+        name,
+        VtkData {
+            points,
+            conn,
+            starts,
+            types,
+            cell_arrays: p.cell_arrays,
+            point_arrays: p.point_arrays,
+        },
+    )
+}
+
+/// The first four lines: version, title, ASCII or BINARY, `DATASET UNSTRUCTURED_GRID`.
+fn header<'a>(name: &'a str, bytes: &'a [u8]) -> Result<Legacy<'a>> {
     let mut sc = Scan::new(name, bytes);
     let l1 = String::from_utf8_lossy(sc.rest_of_line()).trim().to_string();
     let Some(ver) = l1
@@ -216,227 +313,208 @@ pub fn parse(name: &str, bytes: &[u8]) -> Result<Mesh> {
             short(&ds)
         )));
     }
-    let mut points: Option<Vec<f64>> = None;
-    let mut conn: Option<Vec<i64>> = None;
-    let mut starts: Option<Vec<i64>> = None;
-    let mut types: Option<Vec<i64>> = None;
-    let mut cell_arrays = Vec::new();
-    let mut point_arrays = Vec::new();
-    // 'C' cell data, 'P' point data, with its count
-    let mut attr: Option<(char, usize)> = None;
-    while let Some(t) = sc.token() {
-        let kpos = sc.pos;
-        let key = String::from_utf8_lossy(t).to_ascii_uppercase();
-        match key.as_str() {
-            "POINTS" => {
-                let n = sc.count("the point count")?;
-                let ty = ty_of(&mut sc, "POINTS")?;
-                let n3 = n
-                    .checked_mul(3)
-                    .ok_or_else(|| sc.err("point count too large; fix: repair the count"))?;
-                points = Some(values(&mut sc, binary, n3, ty, "the points")?.to_f64());
+    Ok(Legacy { sc, binary, major })
+}
+
+impl Legacy<'_> {
+    fn values(&mut self, n: usize, ty: Ty, what: &str) -> Result<Vals> {
+        values(&mut self.sc, self.binary, n, ty, what)
+    }
+
+    /// `POINTS n type` and 3n values.
+    fn points(&mut self) -> Result<Vec<f64>> {
+        let sc = &mut self.sc;
+        let n = sc.count("the point count")?;
+        let ty = ty_of(sc, "POINTS")?;
+        let n3 = n
+            .checked_mul(3)
+            .ok_or_else(|| sc.err("point count too large; fix: repair the count"))?;
+        Ok(self.values(n3, ty, "the points")?.to_f64())
+    }
+
+    /// `CELLS a b` in either layout: (starts, connectivity).
+    fn cells(&mut self, kpos: usize) -> Result<(Vec<i64>, Vec<i64>)> {
+        let a = self.sc.count("the cell count")?;
+        let b = self.sc.count("the cell list size")?;
+        let p = self.sc.pos;
+        let next = self.sc.token().map(|t| t.to_ascii_uppercase());
+        self.sc.pos = p;
+        if next.as_deref() == Some(b"OFFSETS") || self.major >= 5 {
+            self.cells_v51(a, b)
+        } else {
+            self.cells_v42(a, b, kpos)
+        }
+    }
+
+    /// The 5.1 layout: `OFFSETS type` and a values, `CONNECTIVITY type` and b values.
+    fn cells_v51(&mut self, a: usize, b: usize) -> Result<(Vec<i64>, Vec<i64>)> {
+        let major = self.major;
+        let k = self.sc.word("OFFSETS")?;
+        if !k.eq_ignore_ascii_case("OFFSETS") {
+            return Err(self.sc.err(format!(
+                "expected OFFSETS after CELLS in a version {major} file, found `{}`; fix: repair the file",
+                short(k)
+            )));
+        }
+        let ty = ty_of(&mut self.sc, "OFFSETS")?;
+        let off = ints(self.values(a, ty, "the cell offsets")?, &self.sc, "OFFSETS")?;
+        let k = self.sc.word("CONNECTIVITY")?;
+        if !k.eq_ignore_ascii_case("CONNECTIVITY") {
+            return Err(self.sc.err(format!(
+                "expected CONNECTIVITY, found `{}`; fix: repair the file",
+                short(k)
+            )));
+        }
+        let ty = ty_of(&mut self.sc, "CONNECTIVITY")?;
+        let c = ints(self.values(b, ty, "the connectivity")?, &self.sc, "CONNECTIVITY")?;
+        if off.first().copied().unwrap_or(0) != 0 {
+            return Err(self.sc.err("the first cell offset is not 0; fix: repair OFFSETS"));
+        }
+        Ok((if off.is_empty() { vec![0] } else { off }, c))
+    }
+
+    /// The 4.2 layout: b integers, each cell as `count ids...`.
+    fn cells_v42(&mut self, a: usize, b: usize, kpos: usize) -> Result<(Vec<i64>, Vec<i64>)> {
+        let list = ints(self.values(b, Ty::I32, "the cell list")?, &self.sc, "CELLS")?;
+        let sc = &self.sc;
+        let (mut st, mut cn) = (Vec::new(), Vec::new());
+        reserve(&mut st, cap(a, list.len(), 1) + 1, sc.name)?;
+        reserve(&mut cn, list.len(), sc.name)?;
+        let mut i = 0usize;
+        st.push(0i64);
+        for c in 0..a {
+            let Some(&k) = list.get(i) else {
+                return Err(sc.err_at(kpos, format!("CELLS announces {a} cells in {b} integers, but the list ends at cell {c}; fix: the counts disagree, export the mesh again")));
+            };
+            if k < 0 || (k as u64) > (list.len() - i - 1) as u64 {
+                return Err(sc.err_at(kpos, format!("cell {c} announces {k} nodes, more than the list holds; fix: the counts disagree, export the mesh again")));
             }
-            "CELLS" => {
-                let a = sc.count("the cell count")?;
-                let b = sc.count("the cell list size")?;
-                let p = sc.pos;
-                let next = sc.token().map(|t| t.to_ascii_uppercase());
-                if next.as_deref() == Some(b"OFFSETS") || major >= 5 {
-                    sc.pos = p;
-                    // 5.1 layout: OFFSETS type, a values; CONNECTIVITY type, b values
-                    let k = sc.word("OFFSETS")?;
-                    if !k.eq_ignore_ascii_case("OFFSETS") {
-                        return Err(sc.err(format!(
-                            "expected OFFSETS after CELLS in a version {major} file, found `{}`; fix: repair the file",
-                            short(k)
-                        )));
-                    }
-                    let ty = ty_of(&mut sc, "OFFSETS")?;
-                    let off = ints(values(&mut sc, binary, a, ty, "the cell offsets")?, &sc, "OFFSETS")?;
-                    let k = sc.word("CONNECTIVITY")?;
-                    if !k.eq_ignore_ascii_case("CONNECTIVITY") {
-                        return Err(sc.err(format!(
-                            "expected CONNECTIVITY, found `{}`; fix: repair the file",
-                            short(k)
-                        )));
-                    }
-                    let ty = ty_of(&mut sc, "CONNECTIVITY")?;
-                    let c = ints(values(&mut sc, binary, b, ty, "the connectivity")?, &sc, "CONNECTIVITY")?;
-                    if off.first().copied().unwrap_or(0) != 0 {
-                        return Err(sc.err("the first cell offset is not 0; fix: repair OFFSETS"));
-                    }
-                    starts = Some(if off.is_empty() { vec![0] } else { off });
-                    conn = Some(c);
-                } else {
-                    sc.pos = p;
-                    // 4.2 layout: b integers, each cell as `count ids...`
-                    let list = ints(values(&mut sc, binary, b, Ty::I32, "the cell list")?, &sc, "CELLS")?;
-                    let mut st = Vec::with_capacity(cap(a, list.len(), 1) + 1);
-                    let mut cn = Vec::with_capacity(list.len());
-                    let mut i = 0usize;
-                    st.push(0i64);
-                    for c in 0..a {
-                        let Some(&k) = list.get(i) else {
-                            return Err(sc.err_at(kpos, format!("CELLS announces {a} cells in {b} integers, but the list ends at cell {c}; fix: the counts disagree, export the mesh again")));
-                        };
-                        if k < 0 || (k as u64) > (list.len() - i - 1) as u64 {
-                            return Err(sc.err_at(kpos, format!("cell {c} announces {k} nodes, more than the list holds; fix: the counts disagree, export the mesh again")));
-                        }
-                        cn.extend_from_slice(&list[i + 1..i + 1 + k as usize]);
-                        i += 1 + k as usize;
-                        st.push(cn.len() as i64);
-                    }
-                    if i != list.len() {
-                        return Err(sc.err_at(kpos, format!("CELLS announces {a} cells in {b} integers, but the cells use {i}; fix: the counts disagree, export the mesh again")));
-                    }
-                    starts = Some(st);
-                    conn = Some(cn);
-                }
-            }
-            "CELL_TYPES" => {
-                let n = sc.count("the cell type count")?;
-                types = Some(ints(
-                    values(&mut sc, binary, n, Ty::I32, "the cell types")?,
-                    &sc,
-                    "CELL_TYPES",
-                )?);
-            }
-            "CELL_DATA" => attr = Some(('C', sc.count("the cell data count")?)),
-            "POINT_DATA" => attr = Some(('P', sc.count("the point data count")?)),
-            "SCALARS" | "VECTORS" | "NORMALS" | "TENSORS" | "TEXTURE_COORDINATES" | "COLOR_SCALARS" | "FIELD" => {
-                let Some((which, n)) = attr else {
-                    return Err(sc.err_at(
-                        kpos,
-                        format!("{key} before CELL_DATA or POINT_DATA; fix: repair the file"),
-                    ));
+            cn.extend_from_slice(&list[i + 1..i + 1 + k as usize]);
+            i += 1 + k as usize;
+            st.push(cn.len() as i64);
+        }
+        if i != list.len() {
+            return Err(sc.err_at(kpos, format!("CELLS announces {a} cells in {b} integers, but the cells use {i}; fix: the counts disagree, export the mesh again")));
+        }
+        Ok((st, cn))
+    }
+
+    /// `CELL_TYPES n` and n integers.
+    fn cell_types(&mut self) -> Result<Vec<i64>> {
+        let n = self.sc.count("the cell type count")?;
+        ints(self.values(n, Ty::I32, "the cell types")?, &self.sc, "CELL_TYPES")
+    }
+
+    /// The arrays of one attribute keyword of the current data section; one-component arrays
+    /// are kept (cell tag candidates, `node_ids`).
+    fn data_arrays(&mut self, key: &str, kpos: usize, p: &mut Parts) -> Result<()> {
+        let binary = self.binary;
+        let Some((which, n)) = p.attr else {
+            return Err(self.sc.err_at(
+                kpos,
+                format!("{key} before CELL_DATA or POINT_DATA; fix: repair the file"),
+            ));
+        };
+        let sc = &mut self.sc;
+        let aname = sc.word("the array name")?.to_string();
+        let mut arrays: Vec<(String, usize, Ty)> = Vec::new();
+        match key {
+            "SCALARS" => {
+                let Some(a) = self.scalars(aname, which, n, p)? else {
+                    return Ok(());
                 };
-                let aname = sc.word("the array name")?.to_string();
-                let mut arrays: Vec<(String, usize, Ty)> = Vec::new();
-                match key.as_str() {
-                    "SCALARS" => {
-                        let ty = ty_of(&mut sc, "SCALARS")?;
-                        // optional component count on the same line
-                        let rest = String::from_utf8_lossy(sc.rest_of_line()).to_string();
-                        let ncomp: usize = rest.split_whitespace().next().and_then(|s| s.parse().ok()).unwrap_or(1);
-                        let p = sc.pos;
-                        if sc.token().map(|t| t.eq_ignore_ascii_case(b"LOOKUP_TABLE")) == Some(true) {
-                            sc.word("the lookup table name")?;
-                        } else {
-                            sc.pos = p;
-                            let len = ncomp
-                                .max(1)
-                                .checked_mul(n)
-                                .ok_or_else(|| sc.err("data array too large; fix: repair the counts"))?;
-                            let v = values_from(&mut sc, binary, false, len, ty, "a data array")?;
-                            if ncomp <= 1 {
-                                if which == 'C' {
-                                    cell_arrays.push((aname, v));
-                                } else {
-                                    point_arrays.push((aname, v));
-                                }
-                            }
-                            continue;
-                        }
-                        arrays.push((aname, ncomp.max(1), ty));
-                    }
-                    "VECTORS" | "NORMALS" => arrays.push((aname, 3, ty_of(&mut sc, &key)?)),
-                    "TENSORS" => arrays.push((aname, 9, ty_of(&mut sc, &key)?)),
-                    "TEXTURE_COORDINATES" => {
-                        let d = sc.count("the dimension")?;
-                        arrays.push((aname, d, ty_of(&mut sc, &key)?));
-                    }
-                    "COLOR_SCALARS" => {
-                        let d = sc.count("the component count")?;
-                        arrays.push((aname, d, if binary { Ty::U8 } else { Ty::F32 }));
-                    }
-                    _ => {
-                        // FIELD name k, then k arrays `name ncomp ntuples type`
-                        let k = sc.count("the field array count")?;
-                        for _ in 0..k {
-                            let an = sc.word("a field array name")?.to_string();
-                            let nc = sc.count("the component count")?;
-                            let nt = sc.count("the tuple count")?;
-                            let ty = ty_of(&mut sc, "a field array")?;
-                            let len = nc
-                                .checked_mul(nt)
-                                .ok_or_else(|| sc.err("field array too large; fix: repair the counts"))?;
-                            let v = values(&mut sc, binary, len, ty, "a field array")?;
-                            if nc == 1 && nt == n {
-                                if which == 'C' {
-                                    cell_arrays.push((an, v));
-                                } else {
-                                    point_arrays.push((an, v));
-                                }
-                            }
-                        }
-                    }
-                }
-                for (an, ncomp, ty) in arrays {
-                    let len = ncomp
-                        .checked_mul(n)
-                        .ok_or_else(|| sc.err("data array too large; fix: repair the counts"))?;
-                    let v = values(&mut sc, binary, len, ty, "a data array")?;
-                    if ncomp == 1 {
-                        if which == 'C' {
-                            cell_arrays.push((an, v));
-                        } else {
-                            point_arrays.push((an, v));
-                        }
-                    }
-                }
+                arrays.push(a);
             }
-            "LOOKUP_TABLE" => {
-                sc.word("the lookup table name")?;
-                let n = sc.count("the lookup table size")?;
-                let len = n
-                    .checked_mul(4)
-                    .ok_or_else(|| sc.err("lookup table too large; fix: repair the count"))?;
-                values(
-                    &mut sc,
-                    binary,
-                    len,
-                    if binary { Ty::U8 } else { Ty::F32 },
-                    "a lookup table",
-                )?;
+            "VECTORS" | "NORMALS" => arrays.push((aname, 3, ty_of(sc, key)?)),
+            "TENSORS" => arrays.push((aname, 9, ty_of(sc, key)?)),
+            "TEXTURE_COORDINATES" => {
+                let d = sc.count("the dimension")?;
+                arrays.push((aname, d, ty_of(sc, key)?));
             }
-            "METADATA" => {
-                sc.rest_of_line();
-                loop {
-                    if sc.remaining() == 0 {
-                        break;
-                    }
-                    let l = sc.rest_of_line();
-                    if l.iter().all(|c| c.is_ascii_whitespace()) {
-                        break;
-                    }
-                }
+            "COLOR_SCALARS" => {
+                let d = sc.count("the component count")?;
+                arrays.push((aname, d, if binary { Ty::U8 } else { Ty::F32 }));
             }
-            _ => {
-                return Err(sc.err_at(
-                    kpos,
-                    format!(
-                        "unexpected `{}`; fix: the file is malformed or a count is wrong",
-                        short(&key)
-                    ),
-                ));
+            _ => return self.field(which, n, p),
+        }
+        for (an, ncomp, ty) in arrays {
+            let len = ncomp
+                .checked_mul(n)
+                .ok_or_else(|| self.sc.err("data array too large; fix: repair the counts"))?;
+            let v = self.values(len, ty, "a data array")?;
+            if ncomp == 1 {
+                p.push(which, an, v);
+            }
+        }
+        Ok(())
+    }
+
+    /// `SCALARS name type [ncomp]`: without a `LOOKUP_TABLE` line its values follow at once
+    /// (read here, None returned); with one, the array is returned for the caller to read.
+    fn scalars(&mut self, aname: String, which: char, n: usize, p: &mut Parts) -> Result<Option<(String, usize, Ty)>> {
+        let sc = &mut self.sc;
+        let ty = ty_of(sc, "SCALARS")?;
+        // optional component count on the same line
+        let rest = String::from_utf8_lossy(sc.rest_of_line()).to_string();
+        let ncomp: usize = rest.split_whitespace().next().and_then(|s| s.parse().ok()).unwrap_or(1);
+        let pos = sc.pos;
+        if sc.token().map(|t| t.eq_ignore_ascii_case(b"LOOKUP_TABLE")) == Some(true) {
+            sc.word("the lookup table name")?;
+            return Ok(Some((aname, ncomp.max(1), ty)));
+        }
+        sc.pos = pos;
+        let len = ncomp
+            .max(1)
+            .checked_mul(n)
+            .ok_or_else(|| sc.err("data array too large; fix: repair the counts"))?;
+        let v = values_from(sc, self.binary, false, len, ty, "a data array")?;
+        if ncomp <= 1 {
+            p.push(which, aname, v);
+        }
+        Ok(None)
+    }
+
+    /// `FIELD name k`, then k arrays `name ncomp ntuples type` with their values.
+    fn field(&mut self, which: char, n: usize, p: &mut Parts) -> Result<()> {
+        let k = self.sc.count("the field array count")?;
+        for _ in 0..k {
+            let sc = &mut self.sc;
+            let an = sc.word("a field array name")?.to_string();
+            let nc = sc.count("the component count")?;
+            let nt = sc.count("the tuple count")?;
+            let ty = ty_of(sc, "a field array")?;
+            let len = nc
+                .checked_mul(nt)
+                .ok_or_else(|| sc.err("field array too large; fix: repair the counts"))?;
+            let v = self.values(len, ty, "a field array")?;
+            if nc == 1 && nt == n {
+                p.push(which, an, v);
+            }
+        }
+        Ok(())
+    }
+
+    /// `LOOKUP_TABLE name n` and its n RGBA entries (skipped).
+    fn lookup_table(&mut self) -> Result<()> {
+        let binary = self.binary;
+        self.sc.word("the lookup table name")?;
+        let n = self.sc.count("the lookup table size")?;
+        let len = n
+            .checked_mul(4)
+            .ok_or_else(|| self.sc.err("lookup table too large; fix: repair the count"))?;
+        self.values(len, if binary { Ty::U8 } else { Ty::F32 }, "a lookup table")?;
+        Ok(())
+    }
+
+    /// `METADATA` and its lines up to a blank one (skipped).
+    fn metadata(&mut self) {
+        let sc = &mut self.sc;
+        sc.rest_of_line();
+        while sc.remaining() > 0 {
+            let l = sc.rest_of_line();
+            if l.iter().all(|c| c.is_ascii_whitespace()) {
+                break;
             }
         }
     }
-    let points = points.ok_or_else(|| anyhow!("{name}: no POINTS section; fix: the file holds no mesh"))?;
-    let (Some(conn), Some(starts)) = (conn, starts) else {
-        bail!("{name}: no CELLS section; fix: the file holds no cells");
-    };
-    let types =
-        types.ok_or_else(|| anyhow!("{name}: no CELL_TYPES section; fix: the file is incomplete, export it again"))?;
-    build(
-        name,
-        VtkData {
-            points,
-            conn,
-            starts,
-            types,
-            cell_arrays,
-            point_arrays,
-        },
-    )
 }

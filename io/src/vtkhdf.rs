@@ -7,7 +7,8 @@
 //! per-load probes and the count of complete steps. Every dataset that grows per step is
 //! chunked and extendible, so appending step k costs the same for every k.
 
-use crate::mesh::{CellKind, Mesh};
+use crate::mesh::Mesh;
+use crate::vtk::vtk_order;
 use anyhow::{anyhow, Context, Result};
 use hdf5::dataset::{AllocTime, FillTime};
 use hdf5::types::{FixedAscii, VarLenUnicode};
@@ -217,14 +218,6 @@ pub struct Resume {
     pub u: Vec<f64>,
     pub v: Vec<f64>,
     pub phi: Vec<f64>,
-}
-
-/// VTK connectivity order of a cell (VTK wedges wind their first triangle the other way).
-pub fn vtk_order(kind: CellKind, nodes: &[u32]) -> Vec<u32> {
-    match kind {
-        CellKind::Wedge => vec![nodes[0], nodes[2], nodes[1], nodes[3], nodes[5], nodes[4]],
-        _ => nodes.to_vec(),
-    }
 }
 
 impl SeriesWriter {

@@ -232,46 +232,6 @@ impl Mesh {
         }
         (lo, hi)
     }
-
-    /// Checks cell orientation and degeneracy; reorients inverted cells (with a warning).
-    /// Zero-volume cells are an error naming the cell.
-    pub fn orient_cells(&mut self) -> anyhow::Result<usize> {
-        let mut flipped = 0usize;
-        let mut first_flipped = None;
-        for c in 0..self.n_cells() {
-            let kind = self.kinds[c];
-            let r = self.offsets[c]..self.offsets[c + 1];
-            let nodes: Vec<u32> = self.conn[r.clone()].to_vec();
-            let v = crate::geom::cell_volume(kind, &nodes, &self.points);
-            let scale = crate::geom::cell_size(kind, &nodes, &self.points);
-            if !(v.abs() > 1e-14 * scale.powi(3)) {
-                anyhow::bail!(
-                    "{}: cell {} ({}) has zero volume (nodes {:?}); fix: remove the degenerate \
-                     cell or re-mesh",
-                    self.source,
-                    c + 1,
-                    kind.name(),
-                    nodes.iter().map(|&n| self.node_ids[n as usize]).collect::<Vec<_>>()
-                );
-            }
-            if v < 0.0 {
-                let perm = kind.flip();
-                for (k, &p) in perm.iter().enumerate() {
-                    self.conn[r.start + k] = nodes[p];
-                }
-                flipped += 1;
-                first_flipped.get_or_insert(c);
-            }
-        }
-        if flipped > 0 {
-            self.warnings.push(format!(
-                "{} inverted cell(s) reoriented (first: cell {})",
-                flipped,
-                first_flipped.unwrap() + 1
-            ));
-        }
-        Ok(flipped)
-    }
 }
 
 /// Boundary faces of the volume cells: faces that belong to exactly one cell, wound outward.

@@ -19,10 +19,22 @@ pub struct ReadOptions {
 /// Checks and repairs a mesh in place.
 pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
     let src = mesh.source.clone();
-    let np = mesh.n_nodes();
-    if mesh.node_ids.len() != np {
-        mesh.node_ids = (1..=np as u64).collect();
+    if mesh.node_ids.len() != mesh.n_nodes() {
+        mesh.node_ids = (1..=mesh.n_nodes() as u64).collect();
     }
+    check_coordinates(mesh, &src)?;
+    check_arrays(mesh, &src)?;
+    check_repeated_nodes(mesh, &src)?;
+    check_duplicate_cells(mesh, &src)?;
+    orient_cells(mesh, &src, opts)?;
+    check_manifold(mesh, &src)?;
+    drop_unused_nodes(mesh);
+    warn_components(mesh);
+    Ok(())
+}
+
+/// Every coordinate is finite.
+fn check_coordinates(mesh: &Mesh, src: &str) -> Result<()> {
     for (n, p) in mesh.points.iter().enumerate() {
         if p.iter().any(|x| !x.is_finite()) {
             bail!(
@@ -34,6 +46,13 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
             );
         }
     }
+    Ok(())
+}
+
+/// There are volume cells; the cell and facet arrays agree with each other, every node index is
+/// in range, and the cell count fits eprop's indices.
+fn check_arrays(mesh: &Mesh, src: &str) -> Result<()> {
+    let np = mesh.n_nodes();
     if mesh.n_cells() == 0 {
         bail!("{src}: no volume cells (tetrahedra, hexahedra, prisms or pyramids); fix: mesh the volume (e.g. gmsh -3 or tetgen), not only its surface");
     }
@@ -74,7 +93,11 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
             mesh.n_cells()
         );
     }
-    // a node repeated inside one cell
+    Ok(())
+}
+
+/// No node appears twice in one cell.
+fn check_repeated_nodes(mesh: &Mesh, src: &str) -> Result<()> {
     for c in 0..mesh.n_cells() {
         let k = sorted_key(mesh.cell(c));
         if k.windows(2).any(|w| w[0] == w[1] && w[0] != u32::MAX) {
@@ -86,29 +109,37 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
             );
         }
     }
-    // duplicate cells (the same node set): cells grouped by their smallest node, compared
-    // within each group (no table of every cell's key)
-    {
-        let (ptr, cells) = group_by_node(np, mesh.n_cells(), 1, |c, _| mesh.cell(c).iter().min().copied());
-        let mut keys: Vec<([u32; 8], u32)> = Vec::new();
-        for n in 0..np {
-            let g = &cells[ptr[n] as usize..ptr[n + 1] as usize];
-            if g.len() < 2 {
-                continue;
-            }
-            keys.clear();
-            keys.extend(g.iter().map(|&c| (sorted_key(mesh.cell(c as usize)), c)));
-            keys.sort_unstable();
-            if let Some(w) = keys.windows(2).find(|w| w[0].0 == w[1].0) {
-                bail!(
-                    "{src}: cells {} and {} are duplicates (same nodes); fix: remove one of them",
-                    mesh.cell_id(w[0].1 as usize),
-                    mesh.cell_id(w[1].1 as usize)
-                );
-            }
+    Ok(())
+}
+
+/// No two cells have the same node set: cells grouped by their smallest node, compared within
+/// each group (no table of every cell's key).
+fn check_duplicate_cells(mesh: &Mesh, src: &str) -> Result<()> {
+    let np = mesh.n_nodes();
+    let (ptr, cells) = group_by_node(np, mesh.n_cells(), 1, |c, _| mesh.cell(c).iter().min().copied());
+    let mut keys: Vec<([u32; 8], u32)> = Vec::new();
+    for n in 0..np {
+        let g = &cells[ptr[n] as usize..ptr[n + 1] as usize];
+        if g.len() < 2 {
+            continue;
+        }
+        keys.clear();
+        keys.extend(g.iter().map(|&c| (sorted_key(mesh.cell(c as usize)), c)));
+        keys.sort_unstable();
+        if let Some(w) = keys.windows(2).find(|w| w[0].0 == w[1].0) {
+            bail!(
+                "{src}: cells {} and {} are duplicates (same nodes); fix: remove one of them",
+                mesh.cell_id(w[0].1 as usize),
+                mesh.cell_id(w[1].1 as usize)
+            );
         }
     }
-    // orientation and zero volume
+    Ok(())
+}
+
+/// Zero-volume cells are errors; inverted cells are reoriented with a warning (errors when
+/// `strict`).
+fn orient_cells(mesh: &mut Mesh, src: &str, opts: &ReadOptions) -> Result<()> {
     let mut flipped = 0usize;
     let mut first = 0u64;
     for c in 0..mesh.n_cells() {
@@ -146,7 +177,11 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
         mesh.warnings
             .push(format!("{flipped} inverted cell(s) reoriented (first: cell {first})"));
     }
-    // faces shared by more than two cells
+    Ok(())
+}
+
+/// No face is shared by more than two cells.
+fn check_manifold(mesh: &Mesh, src: &str) -> Result<()> {
     crate::mesh::for_each_face(mesh, |key, cells| {
         if cells.len() > 2 {
             let ids: Vec<u64> = key
@@ -161,55 +196,64 @@ pub fn validate(mesh: &mut Mesh, opts: &ReadOptions) -> Result<()> {
             );
         }
         Ok(())
-    })?;
-    // unreferenced nodes: drop them, keep input ids of the rest
+    })
+}
+
+/// Drops the nodes no cell uses, with a warning; the others keep their input ids, and boundary
+/// elements on dropped nodes go too.
+fn drop_unused_nodes(mesh: &mut Mesh) {
+    let np = mesh.n_nodes();
     let mut used = vec![false; np];
     for &n in &mesh.conn {
         used[n as usize] = true;
     }
     let unused = used.iter().filter(|&&u| !u).count();
-    if unused > 0 {
-        let mut map = vec![u32::MAX; np];
-        let mut k = 0u32;
-        for n in 0..np {
-            if used[n] {
-                map[n] = k;
-                k += 1;
-            }
-        }
-        let first = (0..np).find(|&n| !used[n]).map(|n| mesh.node_id(n)).unwrap_or(0);
-        mesh.points = (0..np).filter(|&n| used[n]).map(|n| mesh.points[n]).collect();
-        mesh.node_ids = (0..np).filter(|&n| used[n]).map(|n| mesh.node_ids[n]).collect();
-        for n in &mut mesh.conn {
-            *n = map[*n as usize];
-        }
-        let old = std::mem::replace(&mut mesh.facets, crate::mesh::Facets::new());
-        let mut lost = 0usize;
-        for f in 0..old.len() {
-            let nodes: Vec<u32> = old.nodes(f).iter().map(|&n| map[n as usize]).collect();
-            if nodes.contains(&u32::MAX) {
-                lost += 1;
-            } else {
-                mesh.facets.push(old.dim[f], old.tags[f], &nodes);
-            }
-        }
-        let extra = if lost > 0 {
-            format!("; {lost} boundary element(s) on them dropped too")
-        } else {
-            String::new()
-        };
-        mesh.warnings.push(format!(
-            "{unused} node(s) used by no cell dropped (first: node {first}); the others keep their ids{extra}"
-        ));
+    if unused == 0 {
+        return;
     }
-    // connected components over shared nodes (every node is in a cell by now)
+    let mut map = vec![u32::MAX; np];
+    let mut k = 0u32;
+    for n in 0..np {
+        if used[n] {
+            map[n] = k;
+            k += 1;
+        }
+    }
+    let first = (0..np).find(|&n| !used[n]).map(|n| mesh.node_id(n)).unwrap_or(0);
+    mesh.points = (0..np).filter(|&n| used[n]).map(|n| mesh.points[n]).collect();
+    mesh.node_ids = (0..np).filter(|&n| used[n]).map(|n| mesh.node_ids[n]).collect();
+    for n in &mut mesh.conn {
+        *n = map[*n as usize];
+    }
+    let old = std::mem::replace(&mut mesh.facets, crate::mesh::Facets::new());
+    let mut lost = 0usize;
+    for f in 0..old.len() {
+        let nodes: Vec<u32> = old.nodes(f).iter().map(|&n| map[n as usize]).collect();
+        if nodes.contains(&u32::MAX) {
+            lost += 1;
+        } else {
+            mesh.facets.push(old.dim[f], old.tags[f], &nodes);
+        }
+    }
+    let extra = if lost > 0 {
+        format!("; {lost} boundary element(s) on them dropped too")
+    } else {
+        String::new()
+    };
+    mesh.warnings.push(format!(
+        "{unused} node(s) used by no cell dropped (first: node {first}); the others keep their ids{extra}"
+    ));
+}
+
+/// Several connected components (over shared nodes; every node is in a cell by now) are a
+/// warning: each needs its own fixed set.
+fn warn_components(mesh: &mut Mesh) {
     let (_, comps) = crate::mesh::components(mesh);
     if comps > 1 {
         mesh.warnings.push(format!(
             "the mesh has {comps} disconnected components; each needs its own fixed set (a free component drifts)"
         ));
     }
-    Ok(())
 }
 
 /// The nodes of a cell, sorted, padded with `u32::MAX` (cells have at most 8 nodes).
