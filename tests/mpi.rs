@@ -154,7 +154,8 @@ fn a_failing_rank_ends_the_job_quickly() {
     let out = mpirun(2, &["run", sc.to_str().unwrap(), "-q", "-o", "/nonexistent/dir/x.h5"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("output directory"));
-    assert!(t.elapsed() < Duration::from_secs(30));
+    // a hang detector, generous for a loaded machine
+    assert!(t.elapsed() < Duration::from_secs(120));
     // more ranks than nodes of a tiny mesh
     let sc = tiny_box_scenario(d.path());
     let t = Instant::now();
@@ -173,32 +174,8 @@ fn a_failing_rank_ends_the_job_quickly() {
         "2 ranks on 8 nodes must work: {}",
         String::from_utf8_lossy(&out.stderr)
     );
-    assert!(t.elapsed() < Duration::from_secs(30));
-}
-
-/// Pids of the `eprop` processes started by `parent` (mpirun).
-fn children(parent: u32) -> Vec<i32> {
-    let mut out = vec![];
-    for e in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-            continue;
-        };
-        // pid (comm) state ppid ...
-        let Some(close) = stat.rfind(')') else { continue };
-        let comm = &stat[stat.find('(').unwrap_or(0) + 1..close];
-        let ppid: u32 = stat[close + 2..]
-            .split_whitespace()
-            .nth(1)
-            .and_then(|x| x.parse().ok())
-            .unwrap_or(0);
-        if ppid == parent && comm == "eprop" {
-            out.push(pid);
-        }
-    }
-    out
+    // a hang detector, generous for a loaded machine
+    assert!(t.elapsed() < Duration::from_secs(120));
 }
 
 #[test]
@@ -220,7 +197,7 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
     // wait until both ranks run and some steps are in the file
     let t = Instant::now();
     let ranks = loop {
-        let r = children(child.id());
+        let r = common::children(child.id());
         if r.len() == 2 && h5.exists() && t.elapsed() > Duration::from_secs(2) {
             break r;
         }
@@ -236,9 +213,9 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
         if let Some(s) = child.try_wait().unwrap() {
             break s;
         }
-        if killed.elapsed() > Duration::from_secs(20) {
+        if killed.elapsed() > Duration::from_secs(90) {
             let _ = child.kill();
-            panic!("mpirun still runs 20 s after a rank was killed");
+            panic!("mpirun still runs 90 s after a rank was killed");
         }
         std::thread::sleep(Duration::from_millis(50));
     };
