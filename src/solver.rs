@@ -22,7 +22,14 @@ pub use crate::integrate::euler::SAFETY;
 /// and unsprung.
 fn dt_bound_node(m: f64, g: f64, k: f64) -> f64 {
     if k > 0.0 {
-        (-g + (g * g + 4.0 * m * k).sqrt()) / k
+        let direct = (-g + (g * g + 4.0 * m * k).sqrt()) / k;
+        if direct.is_finite() && direct > 0.0 && 4.0 * m * k > 1e-8 * g * g {
+            return direct;
+        }
+        // the same bound where the direct form overflows (m k huge) or cancels (m k tiny
+        // against g^2): 2 sqrt(m/k) / (sqrt(1 + a^2) + a), a = g / (2 sqrt(m k))
+        let a = g / (2.0 * m.sqrt() * k.sqrt());
+        2.0 * (m.sqrt() / k.sqrt()) / (a.hypot(1.0) + a)
     } else if g > 0.0 {
         2.0 * m / g
     } else {
@@ -81,6 +88,9 @@ pub struct Simulation {
     pub(crate) inactive_nodes: usize,
     /// Operator applications of every step this process advanced.
     pub(crate) applications: Vec<u32>,
+    /// The stop signal some process received before the last step (0: none), agreed by every
+    /// process in the step's reduction (`crate::signals`).
+    pub stop_signal: i32,
 }
 
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
@@ -315,6 +325,7 @@ impl Simulation {
             max_speed: 0.0,
             inactive_nodes,
             applications: Vec::new(),
+            stop_signal: 0,
             setup,
             comm,
             global,
@@ -387,7 +398,10 @@ impl Simulation {
             &mut self.u[..n],
             &mut self.v[..n],
         );
-        self.max_speed = self.comm.max(m2.sqrt());
+        // a stop signal rides on the step's reduction, so every process stops after this step
+        let all = self.comm.max_each(&[m2.sqrt(), crate::signals::pending() as f64]);
+        self.max_speed = all[0];
+        self.stop_signal = all[1] as i32;
         self.applications.push(stats.applications.min(u32::MAX as usize) as u32);
         self.step += 1;
         self.time = self.step as f64 * self.dt;

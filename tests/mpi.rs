@@ -186,7 +186,8 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
     let mut child = Command::new("mpirun")
         .args(["-n", "2", "--oversubscribe"])
         .arg(env!("CARGO_BIN_EXE_eprop"))
-        .args(["run", sc.to_str().unwrap(), "-q", "-o", h5.to_str().unwrap()])
+        // --force: the step count is a stand-in for "until killed", far more than the disk holds
+        .args(["run", sc.to_str().unwrap(), "-q", "--force", "-o", h5.to_str().unwrap()])
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("RAYON_NUM_THREADS", "1")

@@ -92,6 +92,7 @@ fn organ_scenarios_run_on_one_and_two_ranks() {
                 "--steps",
                 "20",
                 "--json",
+                "--overwrite",
                 "-o",
                 h5.to_str().unwrap(),
             ];

@@ -120,7 +120,8 @@ fn spawn(ranks: usize, sc: &Path, h5: &Path) -> std::process::Child {
             .arg(env!("CARGO_BIN_EXE_eprop"));
         c
     };
-    cmd.args(["run", sc.to_str().unwrap(), "-q", "-o", h5.to_str().unwrap()])
+    // --force: the step count is a stand-in for "until killed", far more than the disk holds
+    cmd.args(["run", sc.to_str().unwrap(), "-q", "--force", "-o", h5.to_str().unwrap()])
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("RAYON_NUM_THREADS", "1")
