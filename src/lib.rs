@@ -18,5 +18,6 @@ pub mod run;
 pub mod scatter;
 pub mod scenario;
 pub mod solver;
+pub mod wavefront;
 
 pub use eprop_io as io;

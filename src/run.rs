@@ -250,7 +250,7 @@ fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let weights = eprop_partition::degree_weights(&xadj);
     let part = eprop_partition::partition_weighted(&xadj, &adj, size, eprop_partition::Method::Metis, Some(&weights))
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
-    Ok((part, eprop_partition::morton_keys(&mesh.points)))
+    Ok((part, eprop_partition::rcm_keys(&xadj, &adj)))
 }
 
 /// Runs a scenario under MPI. Rank 0 reads the scenario and the mesh, splits the node graph
