@@ -47,7 +47,8 @@ pub const DEPTHS: [usize; 5] = [1, 2, 3, 4, 8];
 /// Sweeps of each depth the tuner times before it chooses.
 const TUNE_ROUNDS: usize = 3;
 
-/// `EPROP_FUSE=d`: d substeps per sweep (1: no fusion); unset or `auto`: chosen by timing.
+/// `EPROP_FUSE=d`: d substeps per sweep (1: no fusion), also under MPI; unset or `auto`: chosen
+/// by timing on one process, none on several.
 fn fuse_setting() -> Option<usize> {
     std::env::var("EPROP_FUSE")
         .ok()
@@ -56,10 +57,10 @@ fn fuse_setting() -> Option<usize> {
 }
 
 /// Chooses the fusion depth on this process by timing sweeps of each depth in turn (the
-/// fastest depth depends on the mesh and the caches: 8 on a 300k-node box, 2 on an organ mesh
-/// whose band is less regular). The choice changes the speed only: every depth gives the same
-/// bits, and processes may choose differently (each substep is one halo exchange whatever the
-/// grouping, so the messages still pair up).
+/// fastest depth depends on the mesh, the caches and the load of the machine: 8 on a 300k-node
+/// box, 4 on a 1M box and on a 749k-node kidney). The choice changes the speed only:
+/// every depth gives the same bits; processes agree on it (`choice`), though differing depths
+/// would still pair their messages (one exchange per substep whatever the grouping).
 #[derive(Clone, Debug, Default)]
 struct Tuner {
     /// Seconds per substep of the timed sweeps, per depth in `DEPTHS`.
@@ -78,17 +79,25 @@ impl Tuner {
         }
         self.round += 1;
     }
-    /// The depth with the smallest median time, once every depth had its rounds.
-    fn choice(&self) -> Option<usize> {
+    /// The depth with the smallest median time (the largest over the processes, so that all
+    /// choose the same: a process fusing while its neighbour does not waits for the neighbour's
+    /// whole sweep), once every depth had its rounds. Every process reaches the end of the
+    /// rounds at the same call (the same substep counts everywhere), where `halo` reduces.
+    fn choice(&self, halo: &Halo) -> Option<usize> {
         if self.round < TUNE_ROUNDS * DEPTHS.len() {
             return None;
         }
-        let median = |v: &Vec<f64>| {
-            let mut v = v.clone();
-            v.sort_by(f64::total_cmp);
-            v.get(v.len() / 2).copied().unwrap_or(f64::INFINITY)
-        };
-        let best = (0..DEPTHS.len()).min_by(|&a, &b| median(&self.times[a]).total_cmp(&median(&self.times[b])));
+        let mut medians: Vec<f64> = self
+            .times
+            .iter()
+            .map(|v| {
+                let mut v = v.clone();
+                v.sort_by(f64::total_cmp);
+                v.get(v.len() / 2).copied().unwrap_or(f64::INFINITY)
+            })
+            .collect();
+        halo.max_all(&mut medians);
+        let best = (0..DEPTHS.len()).min_by(|&a, &b| medians[a].total_cmp(&medians[b]));
         Some(best.map_or(1, |k| DEPTHS[k]))
     }
 }
@@ -102,6 +111,18 @@ impl Propagation {
         } else {
             Layout::default()
         };
+        // Without a setting, one process tunes its depth; several processes do not fuse: a
+        // fused sweep makes one halo exchange per level with little work left to hide it, and
+        // on a loaded machine each of them waits for a descheduled neighbour (2 processes, 300k
+        // and 1M boxes: 1.2x faster to 3.5x slower than one substep per sweep, run to run).
+        // A collective (every process builds its propagation at the same point).
+        let mut several = [if halo.pattern().neighbours.is_empty() { 0.0 } else { 1.0 }];
+        halo.max_all(&mut several);
+        let (fuse, tuner) = match fuse_setting() {
+            Some(d) => (d, None),
+            None if several[0] > 0.0 => (1, None),
+            None => (DEPTHS[DEPTHS.len() - 1], Some(Tuner::default())),
+        };
         Propagation {
             op,
             halo,
@@ -109,12 +130,8 @@ impl Propagation {
             next: NodeField::filled(layout, [0.0; 3]),
             grad: NodeField::filled(gl, [0.0; 9]),
             layout,
-            fuse: fuse_setting().unwrap_or(DEPTHS[DEPTHS.len() - 1]),
-            tuner: if fuse_setting().is_none() {
-                Some(Tuner::default())
-            } else {
-                None
-            },
+            fuse,
+            tuner,
             wave: None,
             levels: vec![],
             pad: true,
@@ -161,7 +178,7 @@ impl Propagation {
             left -= d;
             if let Some(t) = &mut self.tuner {
                 t.record(d, t0.elapsed().as_secs_f64() / d as f64);
-                if let Some(best) = t.choice() {
+                if let Some(best) = t.choice(&self.halo) {
                     tracing::debug!("fused sweeps: {best} substeps per sweep (timed {:?})", t.times);
                     self.tuner = None;
                     self.fuse = best;

@@ -129,6 +129,16 @@ impl Halo {
         self.start(data, stride).finish(data);
     }
 
+    /// The largest value of each entry over the processes of the exchange (a collective: every
+    /// process calls it at the same point; nothing to do on one process).
+    pub fn max_all(&self, v: &mut [f64]) {
+        if let Some(comm) = &self.comm {
+            use mpi::collective::{CommunicatorCollectives, SystemOperation};
+            let mine = v.to_vec();
+            comm.all_reduce_into(&mine[..], v, SystemOperation::max());
+        }
+    }
+
     /// Seconds spent waiting in `finish` so far.
     pub fn wait_seconds(&self) -> f64 {
         self.waited.get()
