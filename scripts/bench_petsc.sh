@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # eprop's compact substep against PETSc on the same operator, 1 and 2 ranks, in one run.
-# usage: scripts/bench_petsc.sh [CELLS] [SECONDS]   (unit box of CELLS^3 cells; default 66: 300,763
-# nodes; SECONDS per PETSc measurement, default 6)
+# usage: scripts/bench_petsc.sh [CELLS] [SECONDS] [REPEATS]   (unit box of CELLS^3 cells; default
+# 66: 300,763 nodes; SECONDS per PETSc measurement, default 6; REPEATS: PETSc and eprop take
+# turns this many times per rank count, medians shown, default 1)
 # PETSc forms (scripts/bench_petsc.py): "dense" = A.matMult(X, Y) on an n x 3 dense block (the
 # matrix read once per substep: the strongest form petsc4py 3.18 reaches), "3mult" = three
 # MatMult, one per component. eprop: `eprop bench`, its substep as the Euler stepper runs it
@@ -14,6 +15,7 @@ here="$(cd "$(dirname "$0")/.." && pwd)"
 source "$here/scripts/env.sh"
 cells="${1:-66}"
 secs="${2:-6}"
+repeats="${3:-1}"
 if ! dpkg-query -W -f='${Status}' python3-petsc4py 2>/dev/null | grep -q "install ok installed"; then
   echo "bench_petsc.sh: installing python3-petsc4py (PETSc 3.18)" >&2
   SUDO=""
@@ -45,18 +47,32 @@ normal = 1.0
 steps = 1
 TOML
 "$eprop" export-operator "$work/box.toml" -o "$work/A.h5" >/dev/null
-printf "%6s %12s %3s %12s %12s %12s %8s %8s %8s %8s %6s %6s\n" ranks "eprop" "sw" "eprop 1/sw" "PETSc dense" "PETSc 3mult" \
-  "x dense" "x 3mult" "1/sw xd" "1/sw x3" "frac" "triad"
-for n in 1 2; do
-  p=$(mpirun -n "$n" /usr/bin/python3 "$here/scripts/bench_petsc.py" "$work/A.h5" --seconds "$secs" | tail -1)
-  if [ "$n" -eq 1 ]; then "$eprop" bench --cells "$cells" --schemes compact --json "$work/e.json" >/dev/null
-  else mpirun -n "$n" "$eprop" bench --cells "$cells" --schemes compact --json "$work/e.json" >/dev/null; fi
-  /usr/bin/python3 - "$p" "$work/e.json" "$n" <<'PY'
-import json, sys
-p = json.loads(sys.argv[1]); e = json.load(open(sys.argv[2]))[0]
-ef, e1 = e['node_substeps_per_second'], e['single_node_substeps_per_second']
-pd, p3 = p['dense_node_substeps_per_second'], p['mult3_node_substeps_per_second']
-print(f"{sys.argv[3]:>6} {ef:12.4e} {e['substeps_per_sweep']:3d} {e1:12.4e} {pd:12.4e} {p3:12.4e} {ef / pd:8.2f} {ef / p3:8.2f} "
-      f"{e1 / pd:8.2f} {e1 / p3:8.2f} {e['fraction_of_triad']:6.2f} {e['triad_gb_per_s']:6.1f}")
-PY
+# PETSc and eprop take turns, `repeats` times per rank count; the table shows medians
+for r in $(seq "$repeats"); do
+  for n in 1 2; do
+    mpirun -n "$n" /usr/bin/python3 "$here/scripts/bench_petsc.py" "$work/A.h5" --seconds "$secs" | tail -1 >> "$work/p$n.jsonl"
+    if [ "$n" -eq 1 ]; then "$eprop" bench --cells "$cells" --schemes compact --json "$work/e.json" >/dev/null
+    else mpirun -n "$n" "$eprop" bench --cells "$cells" --schemes compact --json "$work/e.json" >/dev/null; fi
+    /usr/bin/python3 -c "import json,sys; print(json.dumps(json.load(open(sys.argv[1]))[0]))" "$work/e.json" >> "$work/e$n.jsonl"
+  done
 done
+/usr/bin/python3 - "$work" "$repeats" <<'PY'
+import json, sys
+work, reps = sys.argv[1], int(sys.argv[2])
+med = lambda v: sorted(v)[len(v) // 2]
+print(f"{'ranks':>6} {'eprop':>12} {'sw':>3} {'eprop 1/sw':>12} {'PETSc dense':>12} {'PETSc 3mult':>12} {'x dense':>8} "
+      f"{'x 3mult':>8} {'1/sw xd':>8} {'1/sw x3':>8} {'frac':>6} {'triad':>6}   (medians of {reps})")
+for n in (1, 2):
+    p = [json.loads(l) for l in open(f"{work}/p{n}.jsonl")]
+    e = [json.loads(l) for l in open(f"{work}/e{n}.jsonl")]
+    ef, e1 = med([x['node_substeps_per_second'] for x in e]), med([x['single_node_substeps_per_second'] for x in e])
+    pd, p3 = med([x['dense_node_substeps_per_second'] for x in p]), med([x['mult3_node_substeps_per_second'] for x in p])
+    sw = med([x['substeps_per_sweep'] for x in e])
+    frac, triad = med([x['fraction_of_triad'] for x in e]), med([x['triad_gb_per_s'] for x in e])
+    print(f"{n:>6} {ef:12.4e} {sw:3d} {e1:12.4e} {pd:12.4e} {p3:12.4e} {ef / pd:8.2f} {ef / p3:8.2f} "
+          f"{e1 / pd:8.2f} {e1 / p3:8.2f} {frac:6.2f} {triad:6.1f}")
+    for k, (x, y) in enumerate(zip(e, p)):
+        print(f"{'':>6} run {k + 1}: eprop {x['node_substeps_per_second']:.3e} ({x['substeps_per_sweep']}/sweep), "
+              f"1/sw {x['single_node_substeps_per_second']:.3e}, PETSc dense {y['dense_node_substeps_per_second']:.3e}, "
+              f"3mult {y['mult3_node_substeps_per_second']:.3e}, frac {x['fraction_of_triad']:.2f}")
+PY
