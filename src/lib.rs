@@ -26,6 +26,7 @@ pub mod solver;
 pub mod summary;
 #[cfg(test)]
 mod testing;
+pub mod wavefront;
 mod wire;
 
 pub use eprop_io as io;

@@ -53,7 +53,7 @@ pub struct Simulation {
     pub(crate) n_global: usize,
     numbering: LocalNumbering,
     /// Global node index of each local node.
-    pub(crate) gid: Vec<u64>,
+    pub gid: Vec<u64>,
     /// Output blocks of the global node order.
     pub(crate) blocks: BlockScatter,
     pub dual: Dual,
@@ -239,12 +239,21 @@ fn mechanics_step(
         .reduce(|| 0.0, f64::max)
 }
 
+/// The order of a process's nodes (`Plan::new`): reverse Cuthill-McKee on the node graph, so
+/// that a row's neighbours lie within a narrow band of rows (the fused substeps of
+/// `Propagation::substeps` need it; the single substep gathers better too).
+pub fn locality_keys(m: &Mesh) -> Vec<u64> {
+    let (xadj, adj) = eprop_partition::node_graph(m.n_nodes(), &m.offsets, &m.conn);
+    eprop_partition::rcm_keys(&xadj, &adj)
+}
+
 impl Simulation {
-    /// A simulation on one process (nodes reordered for locality; output in input order).
+    /// A simulation on one process (nodes reordered for locality, `locality_keys`; output in
+    /// input order).
     pub fn new(setup: Setup) -> Result<Simulation> {
         let m = &setup.mesh;
         let part = vec![0u32; m.n_nodes()];
-        let keys = eprop_partition::morton_keys(&m.points);
+        let keys = locality_keys(m);
         let plan = Plan::new(m.n_nodes(), &m.offsets, &m.conn, &part, 0, Some(&keys));
         let local = setup.restrict(&plan);
         let Setup { mesh, .. } = setup; // the global per-node arrays go before the build

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{assert_same, mpirun, serial};
+use common::{assert_same, mpirun, mpirun_env, serial};
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -72,6 +72,87 @@ fn bitwise_identical_on_1_to_4_ranks_mixed_elements() {
             &format!("[model]\nscheme = \"paper\"\n{box_case}"),
             &format!("{file}-paper"),
         );
+    }
+}
+
+/// Temporal blocking (`Propagation::substeps`, on by default) against one sweep per substep
+/// (`EPROP_FUSE=1`): bitwise the same output on one process and on 1-4 ranks, for fused sweeps
+/// of 2, 3 and 8 substeps (7 substeps per step: full and shorter sweeps both run), and with a
+/// different depth on each process.
+#[test]
+fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
+    let d = tempfile::Builder::new().prefix("fused").tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 4\n[output]\nevery = 1\n",
+            mesh.display()
+        ),
+    )
+    .unwrap();
+    let sc = sc.to_str().unwrap();
+    let plain = d.path().join("plain.h5");
+    let out = mpirun_env(
+        1,
+        &["run", sc, "-q", "-o", plain.to_str().unwrap()],
+        &[("EPROP_FUSE", "1")],
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("7 substeps"),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    for fuse in ["2", "3", "8"] {
+        for n in 1..=4 {
+            let f = d.path().join(format!("f{fuse}n{n}.h5"));
+            let out = mpirun_env(
+                n,
+                &["run", sc, "-q", "-o", f.to_str().unwrap()],
+                &[("EPROP_FUSE", fuse)],
+            );
+            assert!(
+                out.status.success(),
+                "fuse {fuse}, {n} ranks: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            assert_same(&plain, &f);
+        }
+    }
+    // processes that chose different depths (the tuner does so per process) still pair their
+    // halo messages and give the same bits
+    for depths in [&["1", "4"][..], &["8", "1", "3"]] {
+        let f = d.path().join(format!("mixed{}.h5", depths.len()));
+        let mut cmd = Command::new("mpirun");
+        cmd.arg("--oversubscribe");
+        for (k, fuse) in depths.iter().enumerate() {
+            if k > 0 {
+                cmd.arg(":");
+            }
+            cmd.args([
+                "-x",
+                &format!("EPROP_FUSE={fuse}"),
+                "-n",
+                "1",
+                env!("CARGO_BIN_EXE_eprop"),
+            ]);
+            cmd.args(["run", sc, "-q", "-o", f.to_str().unwrap()]);
+        }
+        let out = cmd
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+            .env("RAYON_NUM_THREADS", "1")
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "depths {depths:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert_same(&plain, &f);
     }
 }
 
