@@ -258,6 +258,12 @@ pub fn encode(setup: &Setup, plan: &Plan, sizes: GlobalSizes) -> Vec<u8> {
     w.opt_f64(setup.h);
     w.str(&setup.output.to_string_lossy());
     w.u64(setup.every);
+    let it = &setup.integrator;
+    w.u64(it.kind as u64);
+    w.f64(it.tolerance);
+    w.u64(it.max_iterations as u64);
+    w.u64(it.max_stages as u64);
+    w.u64(it.preconditioner as u64);
     w.0
 }
 
@@ -360,6 +366,26 @@ pub fn decode(bytes: &[u8]) -> Result<Part> {
     let h = r.opt_f64()?;
     let output = PathBuf::from(r.str()?);
     let every = r.u64()?;
+    let integrator = {
+        use crate::integrate::{Kind, Preconditioner, Settings, KINDS, PRECONDITIONERS};
+        let kind = r.usize()?;
+        let (tolerance, max_iterations, max_stages, pre) = (r.f64()?, r.usize()?, r.usize()?, r.usize()?);
+        Settings {
+            kind: KINDS
+                .iter()
+                .map(|k| k.1)
+                .find(|&k| k as usize == kind)
+                .unwrap_or(Kind::Auto),
+            tolerance,
+            max_iterations,
+            max_stages,
+            preconditioner: PRECONDITIONERS
+                .iter()
+                .map(|k| k.1)
+                .find(|&k| k as usize == pre)
+                .unwrap_or(Preconditioner::Jacobi),
+        }
+    };
     Ok(Part {
         setup: Setup {
             scenario,
@@ -379,6 +405,7 @@ pub fn decode(bytes: &[u8]) -> Result<Part> {
             h,
             output,
             every,
+            integrator,
         },
         plan,
         sizes,

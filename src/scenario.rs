@@ -26,6 +26,9 @@ pub struct ScenarioFile {
     pub time: TimeSec,
     #[serde(default)]
     pub output: OutputSec,
+    /// Settings of the `rkl2` and `implicit` integrators.
+    #[serde(default)]
+    pub integrator: crate::integrate::IntegratorSec,
 }
 
 #[derive(Deserialize, Debug, Clone)]
@@ -191,6 +194,13 @@ pub struct ModelSec {
     /// Storage of the compact operator's coefficients: "float64" (default) or "float32".
     #[serde(default = "default_precision")]
     pub operator_precision: String,
+    /// Integrator of the propagation: "auto" (default), "euler", "rkl2" or "implicit".
+    #[serde(default = "default_integrator")]
+    pub integrator: String,
+}
+
+fn default_integrator() -> String {
+    "auto".into()
 }
 
 impl Default for ModelSec {
@@ -202,6 +212,7 @@ impl Default for ModelSec {
             coupling: 1.0,
             exponent: 1.0,
             operator_precision: default_precision(),
+            integrator: default_integrator(),
         }
     }
 }
@@ -467,6 +478,7 @@ pub struct Setup {
     pub h: Option<f64>,
     pub output: PathBuf,
     pub every: u64,
+    pub integrator: crate::integrate::Settings,
 }
 
 fn finite3(v: &[f64; 3]) -> bool {
@@ -598,6 +610,8 @@ impl Setup {
                 ),
             ));
         }
+        let integrator = crate::integrate::Settings::resolve(&md.integrator, &f.integrator)
+            .map_err(|(section, key, msg)| sc.err(section, 0, key, msg))?;
         if !(md.stiffness >= 0.0 && md.stiffness.is_finite()) {
             return Err(sc.err("model", 0, "stiffness", "must be zero or positive"));
         }
@@ -881,6 +895,7 @@ impl Setup {
             dt: tm.dt,
             h: tm.h,
             every: f.output.every,
+            integrator,
             output,
             scenario,
             mesh,
@@ -917,6 +932,7 @@ impl Setup {
             h: self.h,
             output: self.output.clone(),
             every: self.every,
+            integrator: self.integrator.clone(),
         }
     }
 }

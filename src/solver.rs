@@ -5,7 +5,7 @@
 use crate::comm::{exact_sum, Comm, Serial};
 use crate::field::NodeField;
 use crate::geometry::{compact_coefficients, Dual, Incidence};
-use crate::integrate::{stability, Euler, StepPlan, StepStats, Stepper};
+use crate::integrate::{stability, StepPlan, StepStats, Stepper};
 use crate::operator::{Compact, Operator, Paper, V3};
 use crate::propagation::Propagation;
 use crate::scatter::{BlockScatter, Halo};
@@ -145,16 +145,32 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
 }
 
 /// The stepper of the scenario for the mechanics step dt, on an operator whose forward Euler
-/// stability bound is `h_bound`.
-fn build_stepper(setup: &Setup, h_bound: f64, dt: f64) -> Result<Box<dyn Stepper>> {
+/// stability bound is `h_bound` (`integrate::choose`).
+fn build_stepper(
+    setup: &Setup,
+    prop: &mut Propagation,
+    vol: &[f64],
+    active: &[bool],
+    gid: &[u64],
+    h_bound: f64,
+    dt: f64,
+    comm: &dyn Comm,
+) -> Result<Box<dyn Stepper>> {
     let path = setup.scenario.path.display().to_string();
-    Ok(Box::new(Euler::new(
+    crate::integrate::choose::build(&mut crate::integrate::choose::Context {
+        settings: &setup.integrator,
+        scheme: scheme_name(setup.scheme),
+        compact: setup.scheme == Scheme::Compact,
         h_bound,
         dt,
-        setup.h,
-        &path,
-        scheme_name(setup.scheme),
-    )?))
+        user_h: setup.h,
+        path: &path,
+        prop,
+        vol,
+        active,
+        gid,
+        comm,
+    })
 }
 
 /// Per load: its contact area and force direction (summed over the owners of its contact
@@ -309,7 +325,7 @@ impl Simulation {
         );
         let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
         let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
-        let stepper = build_stepper(&setup, h_bound, dt)?;
+        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, c)?;
         let (loads, load_local) = resolve_loads(&setup, &dual, &numbering, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
@@ -354,7 +370,16 @@ impl Simulation {
 
     /// Replaces the mechanics step (and re-plans the propagation for it).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
-        self.stepper = build_stepper(&self.setup, self.stepper.plan().h_bound, dt)?;
+        self.stepper = build_stepper(
+            &self.setup,
+            &mut self.prop,
+            &self.dual.vol,
+            &self.active,
+            &self.gid,
+            self.stepper.plan().h_bound,
+            dt,
+            self.comm.as_ref(),
+        )?;
         self.dt = dt;
         Ok(())
     }
