@@ -108,6 +108,34 @@ fn bitwise_identical_on_1_to_4_ranks_vtu_liver() {
     );
 }
 
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_every_deterministic_integrator() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    // stiff enough for tens of stages and iterations; a tolerance that is not the default
+    // (it travels in the part sent to every rank)
+    let stiff = format!("[material]\nconductivity = 2.0\n{CYL}");
+    check_ranks(&mesh, &format!("[model]\nintegrator = \"rkl2\"\n{stiff}"), "rkl2");
+    check_ranks(
+        &mesh,
+        &format!("[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\n{stiff}"),
+        "implicit",
+    );
+    check_ranks(&mesh, &stiff, "auto");
+}
+
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_every_integrator_organ_mesh() {
+    let Some(mesh) = common::shared_mesh("mor_liverFine.vtu") else {
+        return;
+    };
+    let case = "[material]\nconductivity = 0.3\n[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n";
+    for kind in ["rkl2", "implicit"] {
+        check_ranks(&mesh, &format!("[model]\nintegrator = \"{kind}\"\n{case}"), kind);
+    }
+}
+
 /// A generated cylinder in `dir` and a scenario on it with `steps` steps.
 fn cylinder_scenario(dir: &Path, rings: usize, layers: usize, steps: u64) -> std::path::PathBuf {
     let mesh = dir.join("cyl.msh");
