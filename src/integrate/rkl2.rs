@@ -204,3 +204,48 @@ impl Stepper for Rkl2 {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_stability_polynomial_is_second_order_and_bounded_on_the_interval() {
+        for s in [2usize, 3, 4, 7, 16, 45, 121, 300] {
+            // second order: R(z) - (1 + z + z^2/2) = O(z^3)
+            for z in [-1e-2f64, -2e-3] {
+                let err = amplification(s, z) - (1.0 + z + z * z / 2.0);
+                assert!(err.abs() < 2.0 * z.abs().powi(3), "s = {s}, z = {z}: {err:e}");
+            }
+            // |R| <= 1 on [-SAFETY (s^2 + s - 2) / 2, 0], the interval `stages_for` keeps to,
+            // and strictly below 1 past the first modes: stiff modes are damped
+            let edge = SAFETY * ((s * s + s - 2) as f64) / 2.0;
+            for k in 1..=2000 {
+                let z = -edge * k as f64 / 2000.0;
+                let r = amplification(s, z);
+                assert!(r.abs() <= 1.0, "s = {s}, z = {z}: R = {r}");
+                if z < -1.0 {
+                    assert!(r.abs() < 1.0 - 1e-3, "s = {s}, z = {z}: R = {r}");
+                }
+            }
+            // past the interval the polynomial grows: the bound is not loose
+            let past = -((s * s + s - 2) as f64) / 2.0 * 1.2;
+            assert!(amplification(s, past).abs() > 1.0, "s = {s}");
+        }
+    }
+
+    #[test]
+    fn stages_are_the_fewest_stable_ones() {
+        for r in [0.5, 1.0, 3.3, 10.0, 528.0, 3665.0, 21001.0] {
+            let s = stages_for(r * SAFETY, 1.0);
+            assert!(((s * s + s - 2) as f64) >= 4.0 * r && s >= 2);
+            if s > 2 {
+                let t = s - 1;
+                assert!(((t * t + t - 2) as f64) < 4.0 * r, "{r}: {s}");
+            }
+        }
+        // stages grow like sqrt(dt / h): 21001 Euler substeps need 290 stages
+        assert_eq!(stages_for(21001.0 * SAFETY, 1.0), 290);
+        assert_eq!(stages_for(1.0, f64::INFINITY), 2);
+    }
+}
