@@ -26,6 +26,11 @@ pub trait Comm {
     fn all_gather(&self, x: &[f64]) -> Vec<f64>;
     /// Ends every process after an error on this one.
     fn abort(&self, code: i32) -> !;
+    /// The MPI communicator of these processes, for libraries that take one (None on one
+    /// process without MPI).
+    fn raw_comm(&self) -> Option<mpi::ffi::MPI_Comm> {
+        None
+    }
 }
 
 /// A 256-bit two's-complement integer (`hi * 2^128 + lo`): the accumulator of `exact_sum`.
@@ -408,6 +413,10 @@ impl Comm for Mpi {
     }
     fn abort(&self, code: i32) -> ! {
         self.world.abort(code)
+    }
+    fn raw_comm(&self) -> Option<mpi::ffi::MPI_Comm> {
+        use mpi::raw::AsRaw;
+        Some(self.world.as_raw())
     }
 }
 

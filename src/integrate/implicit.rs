@@ -156,8 +156,13 @@ impl Implicit {
             Preconditioner::Jacobi => Box::new(Jacobi {
                 inv: d.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect(),
             }),
+            #[cfg(feature = "hypre")]
+            Preconditioner::Amg => Box::new(
+                super::amg::Amg::new(prop, &vol, theta_tau, comm).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
+            ),
+            #[cfg(not(feature = "hypre"))]
             Preconditioner::Amg => bail!(
-                "{path}: [integrator] preconditioner = \"amg\" is not available in this build; fix: use \"jacobi\""
+                "{path}: [integrator] preconditioner = \"amg\" needs hypre, and this eprop was built without it; fix: use \"jacobi\", or build with the `hypre` feature (scripts/setup.sh installs libhypre-dev)"
             ),
         };
         let z = || NodeField::filled(layout, [0.0; 3]);

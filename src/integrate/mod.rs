@@ -7,6 +7,8 @@
 //! `implicit` (TR-BDF2 with preconditioned conjugate gradients) and the `auto` choice between
 //! them (`choose`); docs/integrators.md gives their equations.
 
+#[cfg(feature = "hypre")]
+pub mod amg;
 pub mod choose;
 pub mod euler;
 pub mod implicit;
