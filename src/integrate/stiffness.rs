@@ -236,6 +236,17 @@ impl Stiffness {
             self.far_above,
             self.nodes
         );
+        // positions to about six significant digits of the largest coordinate named
+        let big = self
+            .stiffest
+            .iter()
+            .flat_map(|n| n.position)
+            .fold(0.0f64, |m, x| m.max(x.abs()));
+        let dec = if big > 0.0 {
+            (6 - big.log10().ceil() as i32).clamp(0, 15) as usize
+        } else {
+            4
+        };
         for (k, n) in self.stiffest.iter().enumerate() {
             let p = n.position;
             let cell = match &n.cell {
@@ -254,7 +265,7 @@ impl Stiffness {
                 None => "no cell".into(),
             };
             out += &format!(
-                "\n{}node {} at ({:.4}, {:.4}, {:.4}): substep {:.3e} ({:.0}x the median), {cell}",
+                "\n{}node {} at ({:.dec$}, {:.dec$}, {:.dec$}): substep {:.3e} ({:.0}x the median), {cell}",
                 key(if k == 0 { "stiffest" } else { "" }),
                 n.id,
                 p[0],
