@@ -44,3 +44,8 @@ if [ ! -s "$ref" ]; then
 fi
 RAYON_NUM_THREADS=2 "$bin" "$sc" 10 2 "$ref" | tee "$out/np1_k$conductivity.txt"
 mpirun -n 2 "$bin" "$sc" 10 2 "$ref" | tee "$out/np2_k$conductivity.txt"
+# two processes against one, one thread each: three short runs of each, taken in turn
+for rep in 1 2 3; do
+  RAYON_NUM_THREADS=1 "$bin" "$sc" 3 0 | sed "s/^/1 process, run $rep: /"
+  mpirun -n 2 "$bin" "$sc" 3 0 | sed "s/^/2 processes, run $rep: /"
+done | tee "$out/speedup_k$conductivity.txt"
