@@ -5,8 +5,9 @@
 # processes (examples/integrators.rs, steps taken in turn) and the relative L2 error of u after
 # 10 steps against euler at its own substep.
 #   scripts/bench_integrators.sh [OUT_DIR] [SHARED_MESH_DIR]
-# Stages (each skipped when its output exists): the mesh; the euler reference (10 full euler
-# steps, about 20-30 min on one process); the timed runs (euler on 2 steps only).
+# Stages: the mesh and the euler reference (10 full euler steps, about 20-30 min on one
+# process; both skipped when they exist); the timed runs (euler on 2 steps only); two processes
+# against one (no euler). CONDUCTIVITY=1.0 for the 3,665-substep case.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 out="${1:-$root/target/bench-integrators}"
