@@ -514,3 +514,60 @@ fn a_restarted_run_continues_bit_for_bit_with_rkl2_and_implicit() {
         common::assert_same(&full, &cut);
     }
 }
+
+#[test]
+fn info_check_and_the_summary_say_what_sets_the_substep_and_which_integrator_runs() {
+    let d = tempfile::tempdir().unwrap();
+    // a box with one node pushed almost onto its neighbour: flat cells around it
+    let mut mesh = box_mesh([1.0; 3], [6, 6, 6], BoxCells::Tet).unwrap();
+    let c = mesh.points.iter().position(|p| *p == [0.5, 0.5, 0.5]).unwrap();
+    for x in mesh.points[c].iter_mut() {
+        *x += 0.16;
+    }
+    // the moved node or the one it almost touches sets the substep
+    let nb = mesh
+        .points
+        .iter()
+        .position(|p| p.iter().all(|x| (x - 4.0 / 6.0).abs() < 1e-12))
+        .unwrap();
+    let ids = [mesh.node_id(c), mesh.node_id(nb)];
+    let named = |t: &str| ids.iter().any(|id| t.contains(&format!("set by node {id},")));
+    let m = d.path().join("sliver.msh");
+    eprop_io::write_mesh(&mesh, &m).unwrap();
+    let out = common::serial(&["info", m.to_str().unwrap()], 1);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        named(&text) && text.contains("stiffest") && text.contains("quality"),
+        "{text}"
+    );
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        "[mesh]\nfile = \"sliver.msh\"\n[material]\nconductivity = 1.0\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = { center = [1.0, 0.5, 0.5], radius = 0.3 }\nnormal = 1.0\n[time]\nsteps = 3\n",
+    )
+    .unwrap();
+    let out = common::serial(&["check", sc.to_str().unwrap()], 1);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("integrator  ") && text.contains("auto: ") && named(&text),
+        "{text}"
+    );
+    let out = common::serial(
+        &[
+            "run",
+            sc.to_str().unwrap(),
+            "-q",
+            "-o",
+            d.path().join("s.h5").to_str().unwrap(),
+        ],
+        1,
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("operator applications per step") && text.contains("auto: "),
+        "{text}"
+    );
+}
