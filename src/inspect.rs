@@ -294,7 +294,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         integrator: sim.step_plan().integrator.to_string(),
         integrator_why: sim.step_plan().why.clone(),
         per_step: sim.step_plan().per_step_phrase(),
-        stiffness: crate::integrate::stiffness::of_simulation(&sim),
+        stiffness: sim.stiffness(),
         h: sim.step_plan().h,
         h_bound: sim.step_plan().h_bound,
         dt: sim.dt,

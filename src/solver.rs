@@ -264,6 +264,26 @@ pub fn locality_keys(m: &Mesh) -> Vec<u64> {
 }
 
 impl Simulation {
+    /// The stiffness of the compact operator on one process (`eprop check`); None for the
+    /// paper scheme or a distributed simulation.
+    pub fn stiffness(&self) -> Option<crate::integrate::stiffness::Stiffness> {
+        let Operator::Compact(op) = &self.prop.op else {
+            return None;
+        };
+        if self.comm.size() > 1 {
+            return None;
+        }
+        // one process: the local cells are the mesh's cells in their order
+        let ids = self.global.as_ref();
+        Some(crate::integrate::stiffness::analyse(
+            self.mesh(),
+            op,
+            &self.dual.vol,
+            &self.setup.r,
+            &|c| ids.map(|m| m.cell_id(c)).unwrap_or(c as u64 + 1),
+        ))
+    }
+
     /// A simulation on one process (nodes reordered for locality, `locality_keys`; output in
     /// input order).
     pub fn new(setup: Setup) -> Result<Simulation> {
