@@ -1,81 +1,174 @@
-//! Interleaved A/B timing of the `compact` kernels on one generated box, so that the noise of
+//! Interleaved A/B timing of the `compact` substep variants on one mesh, so that the noise of
 //! a shared machine falls on every variant alike: bursts of substeps, variants taken in turn,
-//! min and median ns per node-substep per variant.
-//!   cargo run --release --example kernel_ab -- CELLS SECONDS [compact|compact32]
-use eprop::operator::{Kernel, Operator};
+//! min and median ns per node-substep per variant, and each variant's median relative to the
+//! first ("morton, 1/sweep": the substep as it was before temporal blocking).
+//!   cargo run --release --example kernel_ab -- CELLS|SCENARIO.toml SECONDS [compact|compact32] [VARIANTS]
+//! CELLS: the bench box of CELLS^3 cells; SCENARIO.toml: any scenario (an organ mesh).
+//! Variants: node order (Morton: the space-filling curve; RCM: reverse Cuthill-McKee, see
+//! `eprop_partition::rcm_keys`), coefficient precision, substeps per fused sweep
+//! (`Propagation::substeps`; 1 = one sweep per substep), software prefetch ("pf") or not.
+//! VARIANTS: names as printed, comma-separated (default: all).
+use eprop::operator::{Compact, Kernel, Operator};
+use eprop::propagation::Propagation;
+use eprop::scatter::Halo;
+use eprop_partition::Layout;
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().collect();
-    let cells: usize = a.get(1).map(|s| s.parse()).transpose()?.unwrap_or(66);
+    let what = a.get(1).cloned().unwrap_or("66".into());
     let secs: f64 = a.get(2).map(|s| s.parse()).transpose()?.unwrap_or(20.0);
     let scheme = a.get(3).cloned().unwrap_or("compact".into());
-    let setup = eprop::bench::box_setup(cells, &scheme)?;
-    let mut sim = eprop::solver::Simulation::new(setup)?;
+    // optional: the variants to time, by name, comma-separated (default: all)
+    let only: Option<Vec<String>> = a.get(4).map(|s| s.split(',').map(|v| v.trim().to_string()).collect());
+    let setup = match what.parse::<usize>() {
+        Ok(cells) => eprop::bench::box_setup(cells, &scheme)?,
+        Err(_) => eprop::scenario::Setup::new(eprop::scenario::Scenario::load(std::path::Path::new(&what))?)?,
+    };
+    let sim = eprop::solver::Simulation::new(setup)?;
     let n = sim.n_owned();
-    let variants: Vec<(String, Kernel)> = vec![
-        (
-            "portable".into(),
-            Kernel {
-                vector: false,
-                prefetch: 0,
-            },
-        ),
-        (
-            "vector".into(),
-            Kernel {
-                vector: true,
-                prefetch: 0,
-            },
-        ),
-        (
-            "vector+pf192".into(),
-            Kernel {
-                vector: true,
-                prefetch: 192,
-            },
-        ),
-        (
-            "vector+pf384".into(),
-            Kernel {
-                vector: true,
-                prefetch: 384,
-            },
-        ),
-        (
-            "vector+pf96".into(),
-            Kernel {
-                vector: true,
-                prefetch: 96,
-            },
-        ),
-    ];
-    let q = vec![(0u32, [1.0, 0.0, 0.0])];
     let h = sim.step_plan().h;
-    let mut times: Vec<Vec<f64>> = vec![vec![]; variants.len()];
-    let burst = (2e7 / n as f64).ceil() as usize; // about 0.4 s
+    let Operator::Compact(base) = &sim.prop.op else {
+        anyhow::bail!("kernel_ab times the compact scheme");
+    };
+    // the orders of the whole mesh restricted to this process's nodes, as `Plan::new` makes
+    // them, relative to the simulation's own order
+    let mesh = sim.global.as_ref().expect("a serial simulation keeps its mesh");
+    let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
+    let t = Instant::now();
+    let key = eprop_partition::rcm_keys(&xadj, &adj);
+    let t_rcm = t.elapsed().as_secs_f64();
+    let perm = |key: &[u64]| {
+        let mut by_key: Vec<u32> = (0..n as u32).collect();
+        by_key.sort_by_key(|&l| key[sim.gid[l as usize] as usize]);
+        let mut new_of = vec![0u32; n];
+        for (r, &l) in by_key.iter().enumerate() {
+            new_of[l as usize] = r as u32;
+        }
+        new_of
+    };
+    let mnew_of = perm(&eprop_partition::morton_keys(&mesh.points));
+    let new_of = perm(&key);
+    let morton = &base.permuted(&mnew_of);
+    let rcm = base.permuted(&new_of);
+    let band = |c: &Compact| {
+        (0..n)
+            .flat_map(|i| {
+                c.col[c.row_ptr[i] as usize..c.row_ptr[i + 1] as usize]
+                    .iter()
+                    .map(move |&j| i.abs_diff(j as usize))
+            })
+            .max()
+            .unwrap_or(0)
+    };
+    println!(
+        "{n} nodes, {scheme}, {} substeps per mechanics step; bandwidth Morton {} RCM {} (RCM order {t_rcm:.2} s)",
+        sim.step_plan().per_step,
+        band(morton),
+        band(&rcm)
+    );
+    {
+        let w = eprop::wavefront::Wavefront::new(&rcm, Layout::serial(n), 2);
+        let mut lags: Vec<u32> = w.deep[1].iter().map(|s| s.need - s.start).collect();
+        lags.sort_unstable();
+        let empty = (0..n).filter(|&i| rcm.row_ptr[i] == rcm.row_ptr[i + 1]).count();
+        println!(
+            "pairs per row {:.2}, empty rows {empty}, segment lag (RCM) median {} p90 {} max {}",
+            rcm.col.len() as f64 / n as f64,
+            lags[lags.len() / 2],
+            lags[lags.len() * 9 / 10],
+            lags[lags.len() - 1]
+        );
+    }
+    let prop = |c: Compact| Propagation::new(Operator::Compact(c), Halo::serial(), Layout::serial(n));
+    let id: Vec<u32> = (0..n as u32).collect();
+    let f64_coef = morton.coef32.is_empty();
+    // (name, order: 0 Morton 1 RCM, float32 coefficients, substeps per sweep (0: chosen by
+    // the tuner, as in a run), prefetch distance (3: none, and level buffers of three values)
+    let mut spec: Vec<(&str, u8, bool, usize, usize)> = vec![
+        ("morton 1/sweep pf", 0, false, 1, 192),
+        ("rcm 1/sweep pf", 1, false, 1, 192),
+        ("rcm 1/sweep", 1, false, 1, 0),
+        ("morton 4/sweep pf", 0, false, 4, 192),
+        ("rcm 2/sweep", 1, false, 2, 0),
+        ("rcm 3/sweep", 1, false, 3, 0),
+        ("rcm 4/sweep", 1, false, 4, 0),
+        ("rcm 8/sweep", 1, false, 8, 0),
+        ("rcm auto", 1, false, 0, 0),
+        ("rcm 4/sweep pf", 1, false, 4, 192),
+        ("rcm 2/sweep p3", 1, false, 2, 3),
+        ("rcm 4/sweep p3", 1, false, 4, 3),
+    ];
+    if f64_coef {
+        spec.push(("rcm f32 4/sweep", 1, true, 4, 0));
+    }
+    if let Some(only) = &only {
+        spec.retain(|v| only.iter().any(|o| o == v.0));
+        anyhow::ensure!(!spec.is_empty(), "no variant named {only:?}");
+    }
+    let mut props: Vec<(String, Propagation, u8)> = spec
+        .iter()
+        .map(|&(name, order, single, fuse, pf)| {
+            let mut c = if order == 0 {
+                morton.permuted(&id)
+            } else {
+                rcm.permuted(&id)
+            };
+            if single {
+                c = c.into_f32();
+            }
+            c.kernel = Kernel {
+                vector: c.kernel.vector,
+                prefetch: if pf == 3 { 0 } else { pf },
+            };
+            let mut p = prop(c);
+            p.pad = !name.ends_with(" p3");
+            if fuse > 0 {
+                p.set_fuse(fuse); // 0: chosen by the tuner, as in a run
+            }
+            // the same O(1) field on every variant (no subnormal values, which would time the
+            // floating-point assists instead of the kernel), by node
+            for l in 0..n {
+                let g = sim.gid[l] as f64;
+                let at = if order == 0 { mnew_of[l] } else { new_of[l] } as usize;
+                p.phi[at] = [(0.37 * g).sin(), (0.11 * g).cos(), 1.0 + 1.0 / (1.0 + g)];
+            }
+            p.wavefront();
+            (name.to_string(), p, order)
+        })
+        .collect();
+    drop(rcm);
+    // one source on the same node in every variant
+    let q_of = |order: u8| {
+        let at = if order == 0 { mnew_of[0] } else { new_of[0] };
+        vec![(at, [1.0, 0.0, 0.0])]
+    };
+    let mut times: Vec<Vec<f64>> = vec![vec![]; props.len()];
+    let burst = ((2e7 / n as f64).ceil() as usize).div_ceil(8) * 8; // about 0.4 s, a multiple of 8
     let t0 = Instant::now();
     while t0.elapsed().as_secs_f64() < secs {
-        for (v, (_, k)) in variants.iter().enumerate() {
-            if let Operator::Compact(c) = &mut sim.prop.op {
-                c.kernel = *k;
-            }
-            sim.prop.substep_serial(h, &q);
+        for (v, (_, p, order)) in props.iter_mut().enumerate() {
+            let q = q_of(*order);
+            p.substeps(h, &q, 8);
             let t = Instant::now();
-            for _ in 0..burst {
-                sim.prop.substep_serial(h, &q);
-            }
+            p.substeps(h, &q, burst);
             times[v].push(t.elapsed().as_secs_f64() / burst as f64 / n as f64 * 1e9);
         }
     }
-    println!("{n} nodes, {scheme}, {} rounds", times[0].len());
-    for (v, (name, _)) in variants.iter().enumerate() {
-        let mut t = times[v].clone();
+    println!("{} rounds of {burst} substeps", times[0].len());
+    let med = |v: &Vec<f64>| {
+        let mut t = v.clone();
         t.sort_by(f64::total_cmp);
+        (t[0], t[t.len() / 2])
+    };
+    let base = med(&times[0]).1;
+    for (v, (name, p, _)) in props.iter_mut().enumerate() {
+        let (lo, mid) = med(&times[v]);
+        let lag = p.wavefront().map(|w| w.lag()).unwrap_or(0);
         println!(
-            "{name:>14}  min {:6.2}  median {:6.2} ns/node-substep",
-            t[0],
-            t[t.len() / 2]
+            "{name:>18}  min {lo:6.2}  median {mid:6.2} ns/node-substep  speed x{:5.2}  (level lag {lag} rows, {} substeps per sweep)",
+            base / mid,
+            p.fuse()
         );
     }
     Ok(())

@@ -31,8 +31,15 @@ pub struct Case {
     pub threads: usize,
     pub substeps_timed: usize,
     pub seconds_per_substep: f64,
+    /// Node-substeps per second as the Euler stepper runs them (`substeps_per_sweep` fused).
     pub node_substeps_per_second: f64,
-    /// Bytes per node that one substep streams at least (whole mesh / nodes).
+    /// Substeps per fused sweep (1: none) in `node_substeps_per_second`.
+    pub substeps_per_sweep: usize,
+    /// Node-substeps per second with one substep per sweep (one substep per mechanics step).
+    pub single_node_substeps_per_second: f64,
+    /// Bytes per node that one substep streams at least (whole mesh / nodes) with one substep
+    /// per sweep; GB/s and the fraction of the triad count these bytes per substep, so a fused
+    /// sweep can exceed the triad.
     pub bytes_per_node_substep: f64,
     pub achieved_gb_per_s: f64,
     pub triad_gb_per_s: f64,
@@ -104,29 +111,44 @@ pub fn measure(
     let n = sizes.nodes;
     let q: Vec<(u32, [f64; 3])> = (0..sim.n_owned().min(1)).map(|i| (i as u32, [1.0, 0.0, 0.0])).collect();
     let h = sim.step_plan().h;
-    // calibrate: about 2 s of substeps, the same count on every process
-    for _ in 0..3 {
-        sim.prop.substep(h, &q);
+    // the substep as the Euler stepper runs it (fused sweeps of `fuse` substeps where they
+    // apply), and one substep per sweep, in alternating chunks
+    // let the process choose its fusion depth first (the same calls on every process)
+    while !sim.prop.tuned() && sim.prop.fuses() {
+        sim.prop.substeps(h, &q, 8);
     }
+    let fuse = sim.prop.fuse();
+    let sweep = if sim.prop.fuses() { fuse } else { 1 };
+    let run = |sim: &mut Simulation, depth: usize, count: usize| {
+        sim.prop.set_fuse(depth);
+        sim.prop.substeps(h, &q, count);
+    };
+    // calibrate: about 2 s of substeps per variant, the same count on every process
+    run(&mut sim, fuse, 2 * sweep);
+    run(&mut sim, 1, 2);
     let t = Instant::now();
-    for _ in 0..5 {
-        sim.prop.substep(h, &q);
-    }
-    let t5 = sim.comm.max(t.elapsed().as_secs_f64()) / 5.0;
-    let k = ((2.0 / t5.max(1e-9)) as usize).clamp(10, 20_000);
-    let wait0 = sim.prop.halo.wait_seconds();
-    let mut times = Vec::new();
-    let chunk = (k / 10).max(1);
+    run(&mut sim, fuse, 4 * sweep);
+    let t1 = sim.comm.max(t.elapsed().as_secs_f64()) / (4 * sweep) as f64;
+    let k = ((2.0 / t1.max(1e-9)) as usize).clamp(10 * sweep, 20_000);
+    let chunk = (k / 10).div_ceil(sweep).max(1) * sweep;
+    let (mut times, mut single) = (Vec::new(), Vec::new());
+    let mut waited = 0.0;
     for _ in 0..10 {
         sim.comm.max(0.0); // line the processes up
+        let w0 = sim.prop.halo.wait_seconds();
         let t = Instant::now();
-        for _ in 0..chunk {
-            sim.prop.substep(h, &q);
-        }
+        run(&mut sim, fuse, chunk);
         times.push(sim.comm.max(t.elapsed().as_secs_f64()) / chunk as f64);
+        waited += sim.prop.halo.wait_seconds() - w0;
+        sim.comm.max(0.0);
+        let t = Instant::now();
+        run(&mut sim, 1, chunk);
+        single.push(sim.comm.max(t.elapsed().as_secs_f64()) / chunk as f64);
     }
+    sim.prop.set_fuse(fuse);
     let per_substep = median(&times);
-    let waited = sim.comm.max(sim.prop.halo.wait_seconds() - wait0) / (10 * chunk) as f64;
+    let per_single = median(&single);
+    let waited = sim.comm.max(waited) / (10 * chunk) as f64;
     let bytes = sim.comm.sum_i128(sim.prop.op.stream_bytes() as i128) as f64 / n as f64;
     // full steps with one substep each (dt = h)
     sim.set_dt(sim.dt.min(h))?;
@@ -190,6 +212,8 @@ pub fn measure(
         substeps_timed: 10 * chunk,
         seconds_per_substep: per_substep,
         node_substeps_per_second: rate,
+        substeps_per_sweep: sweep,
+        single_node_substeps_per_second: n as f64 / per_single,
         bytes_per_node_substep: bytes,
         achieved_gb_per_s: rate * bytes / 1e9,
         triad_gb_per_s: triad_gbs,
@@ -255,12 +279,14 @@ pub fn bench(
 /// The table header and one row per case.
 pub fn header() -> String {
     format!(
-        "{:>9} {:>8} {:>5} {:>9} {:>10} {:>7} {:>7} {:>7} {:>6} {:>10} {:>6} {:>8} {:>8}",
+        "{:>9} {:>8} {:>5} {:>9} {:>10} {:>3} {:>10} {:>7} {:>7} {:>7} {:>6} {:>10} {:>6} {:>8} {:>8}",
         "nodes",
         "scheme",
         "procs",
         "ns/node",
         "node-sub/s",
+        "sw",
+        "1/sweep",
         "B/node",
         "GB/s",
         "triad",
@@ -274,12 +300,14 @@ pub fn header() -> String {
 
 pub fn row(c: &Case) -> String {
     format!(
-        "{:>9} {:>8} {:>5} {:>9.2} {:>10.3e} {:>7.0} {:>7.2} {:>7.2} {:>6.2} {:>10.1} {:>6.1} {:>8.4} {:>8.0}",
+        "{:>9} {:>8} {:>5} {:>9.2} {:>10.3e} {:>3} {:>10.3e} {:>7.0} {:>7.2} {:>7.2} {:>6.2} {:>10.1} {:>6.1} {:>8.4} {:>8.0}",
         c.nodes,
         c.scheme.split(' ').next().unwrap_or(""),
         c.processes,
         1e9 / c.node_substeps_per_second,
         c.node_substeps_per_second,
+        c.substeps_per_sweep,
+        c.single_node_substeps_per_second,
         c.bytes_per_node_substep,
         c.achieved_gb_per_s,
         c.triad_gb_per_s,

@@ -217,42 +217,79 @@ pub fn par_rows<T: Send, R: Send>(
     row_ptr: &[usize],
     f: impl Fn(usize, &mut [T]) -> R + Sync + Send,
 ) -> Vec<R> {
-    par_rows_with(data, row_ptr, |_, _| (), |_, i, row| f(i, row))
+    par_rows_with(data, row_ptr, None, |_| (), |_, i, row| f(i, row))
 }
 
-/// `par_rows` with a context built once per block of rows (`init(first row, end row)`), shared
-/// by the rows of that block.
+/// The rows `0..n` of a local mesh in Morton order of their points: the order in which the
+/// setup visits rows, so that the rows of a block and their cells are near each other whatever
+/// the numbering (the band order of the numbering puts consecutive rows on a thin level).
+pub fn visit_order(mesh: &Mesh, n: usize) -> Vec<u32> {
+    let keys = eprop_partition::morton_keys(&mesh.points[..n]);
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    order.sort_unstable_by_key(|&i| (keys[i as usize], i));
+    order
+}
+
+/// A pointer that threads may share, each writing its own disjoint entries.
+struct Shared<T>(*mut T);
+unsafe impl<T: Send> Send for Shared<T> {}
+unsafe impl<T: Send> Sync for Shared<T> {}
+impl<T> Shared<T> {
+    fn get(&self) -> *mut T {
+        self.0
+    }
+}
+
+/// `par_rows` with a context built once per block of rows (`init(rows of the block)`), shared
+/// by the rows of that block, the rows taken in blocks of `order` (a permutation of the rows;
+/// None: increasing). Results come back in row order; a row's work does not depend on the order.
 pub fn par_rows_with<T: Send, R: Send, C>(
     data: &mut [T],
     row_ptr: &[usize],
-    init: impl Fn(usize, usize) -> C + Sync + Send,
+    order: Option<&[u32]>,
+    init: impl Fn(&[u32]) -> C + Sync + Send,
     f: impl Fn(&C, usize, &mut [T]) -> R + Sync + Send,
 ) -> Vec<R> {
     const BLOCK: usize = 1024;
     let n = row_ptr.len() - 1;
-    let mut blocks = Vec::with_capacity(n.div_ceil(BLOCK));
-    let mut rest = data;
-    for b in 0..n.div_ceil(BLOCK) {
-        let (r0, r1) = (b * BLOCK, ((b + 1) * BLOCK).min(n));
-        let (head, tail) = std::mem::take(&mut rest).split_at_mut(row_ptr[r1] - row_ptr[r0]);
-        blocks.push((r0, r1, head));
-        rest = tail;
-    }
-    let out: Vec<Vec<R>> = blocks
-        .into_par_iter()
-        .map(|(r0, r1, block)| {
-            let ctx = init(r0, r1);
-            let mut block = block;
-            let mut out = Vec::with_capacity(r1 - r0);
-            for i in r0..r1 {
-                let (row, tail) = std::mem::take(&mut block).split_at_mut(row_ptr[i + 1] - row_ptr[i]);
-                out.push(f(&ctx, i, row));
-                block = tail;
+    assert!(data.len() >= row_ptr[n]);
+    let ident: Vec<u32>;
+    let order = match order {
+        Some(o) => {
+            let mut seen = vec![false; n];
+            for &i in o {
+                assert!(
+                    !std::mem::replace(&mut seen[i as usize], true),
+                    "row {i} twice in the order"
+                );
             }
-            out
-        })
-        .collect();
-    out.into_iter().flatten().collect()
+            assert_eq!(o.len(), n, "the order must name every row once");
+            o
+        }
+        None => {
+            ident = (0..n as u32).collect();
+            &ident
+        }
+    };
+    let mut out: Vec<R> = Vec::with_capacity(n);
+    let (rows_at, out_at) = (Shared(data.as_mut_ptr()), Shared(out.as_mut_ptr()));
+    order.par_chunks(BLOCK).for_each(|rows| {
+        let ctx = init(rows);
+        for &i in rows {
+            let i = i as usize;
+            // SAFETY: `order` is a permutation of the rows (checked), so each row's slice of
+            // `data` and each slot of `out` is touched by exactly one iteration; the slices lie
+            // inside `data` (row_ptr is non-decreasing up to row_ptr[n] <= data.len()) and the
+            // slots inside `out`'s capacity.
+            unsafe {
+                let row = std::slice::from_raw_parts_mut(rows_at.get().add(row_ptr[i]), row_ptr[i + 1] - row_ptr[i]);
+                out_at.get().add(i).write(f(&ctx, i, row));
+            }
+        }
+    });
+    // SAFETY: every slot 0..n was written above (a panic there propagates before this line)
+    unsafe { out.set_len(n) };
+    out
 }
 
 impl Dual {
@@ -263,9 +300,9 @@ impl Dual {
         let pts = &mesh.points;
         let mut s = vec![[0.0; 3]; col.len()];
         // the dual of each cell of a block of rows, computed once for the block (the rows of a
-        // block are near each other, so few cells are computed in two blocks)
-        let cell_duals = |r0: usize, r1: usize| {
-            let mut cells: Vec<u32> = (r0..r1).flat_map(|i| inc.of(i).iter().copied()).collect();
+        // block are near each other in the visit order, so few cells are computed in two blocks)
+        let cell_duals = |rows: &[u32]| {
+            let mut cells: Vec<u32> = rows.iter().flat_map(|&i| inc.of(i as usize).iter().copied()).collect();
             cells.sort_unstable();
             cells.dedup();
             let duals: Vec<CellDual> = cells
@@ -274,50 +311,52 @@ impl Dual {
                 .collect();
             (cells, duals)
         };
-        let rows: Vec<(f64, [f64; 3], f64)> = par_rows_with(&mut s, &row_ptr[..=n_rows], cell_duals, |ctx, i, s| {
-            let (cells, duals) = ctx;
-            let cols = &col[row_ptr[i]..row_ptr[i + 1]];
-            let mut v = 0.0;
-            let mut a = [0.0; 3];
-            for &c in inc.of(i) {
-                let cd = &duals[cells.binary_search(&c).unwrap()];
-                let c = c as usize;
-                let kind = mesh.kinds[c];
-                let nodes = mesh.cell(c);
-                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                v += cd.vol[li];
-                for (e, edge) in kind.edges().iter().enumerate() {
-                    let (other, sign) = if edge[0] == li {
-                        (edge[1], 1.0)
-                    } else if edge[1] == li {
-                        (edge[0], -1.0)
-                    } else {
-                        continue;
-                    };
-                    let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
-                    s[p] = add(s[p], scale(cd.s[e], sign));
-                }
-                if mask[c] != 0 {
-                    for (f, face) in kind.faces().iter().enumerate() {
-                        if mask[c] & (1 << f) == 0 {
+        let order = visit_order(mesh, n_rows);
+        let rows: Vec<(f64, [f64; 3], f64)> =
+            par_rows_with(&mut s, &row_ptr[..=n_rows], Some(&order), cell_duals, |ctx, i, s| {
+                let (cells, duals) = ctx;
+                let cols = &col[row_ptr[i]..row_ptr[i + 1]];
+                let mut v = 0.0;
+                let mut a = [0.0; 3];
+                for &c in inc.of(i) {
+                    let cd = &duals[cells.binary_search(&c).unwrap()];
+                    let c = c as usize;
+                    let kind = mesh.kinds[c];
+                    let nodes = mesh.cell(c);
+                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                    v += cd.vol[li];
+                    for (e, edge) in kind.edges().iter().enumerate() {
+                        let (other, sign) = if edge[0] == li {
+                            (edge[1], 1.0)
+                        } else if edge[1] == li {
+                            (edge[0], -1.0)
+                        } else {
                             continue;
-                        }
-                        if let Some(k) = face.iter().position(|&l| l == li) {
-                            let nf = face.len();
-                            let next = nodes[face[(k + 1) % nf]] as usize;
-                            let prev = nodes[face[(k + nf - 1) % nf]] as usize;
-                            let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
-                            let fcn = centroid(&fnodes, pts);
-                            let xi = pts[i];
-                            let quad = [xi, scale(add(xi, pts[next]), 0.5), fcn, scale(add(xi, pts[prev]), 0.5)];
-                            a = add(a, loop_area(&quad));
+                        };
+                        let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
+                        s[p] = add(s[p], scale(cd.s[e], sign));
+                    }
+                    if mask[c] != 0 {
+                        for (f, face) in kind.faces().iter().enumerate() {
+                            if mask[c] & (1 << f) == 0 {
+                                continue;
+                            }
+                            if let Some(k) = face.iter().position(|&l| l == li) {
+                                let nf = face.len();
+                                let next = nodes[face[(k + 1) % nf]] as usize;
+                                let prev = nodes[face[(k + nf - 1) % nf]] as usize;
+                                let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
+                                let fcn = centroid(&fnodes, pts);
+                                let xi = pts[i];
+                                let quad = [xi, scale(add(xi, pts[next]), 0.5), fcn, scale(add(xi, pts[prev]), 0.5)];
+                                a = add(a, loop_area(&quad));
+                            }
                         }
                     }
                 }
-            }
-            let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
-            (v, a, da)
-        });
+                let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
+                (v, a, da)
+            });
         let vol = rows.iter().map(|r| r.0).collect();
         let area = rows.iter().map(|r| r.1).collect();
         let dual_area = rows.iter().map(|r| r.2).collect();
@@ -364,55 +403,62 @@ impl Dual {
 pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &[Tensor]) -> Vec<f64> {
     let pts = &mesh.points;
     let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
-    par_rows(&mut out, &dual.row_ptr[..=dual.n_rows], |i, w| {
-        let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
-        for &c in inc.of(i) {
-            let c = c as usize;
-            let kind = mesh.kinds[c];
-            let nodes = mesh.cell(c);
-            let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-            let mut rc = Matrix3::zeros();
-            for &n in nodes {
-                rc += r[n as usize];
+    let order = visit_order(mesh, dual.n_rows);
+    par_rows_with(
+        &mut out,
+        &dual.row_ptr[..=dual.n_rows],
+        Some(&order),
+        |_| (),
+        |_, i, w| {
+            let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
+            for &c in inc.of(i) {
+                let c = c as usize;
+                let kind = mesh.kinds[c];
+                let nodes = mesh.cell(c);
+                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                let mut rc = Matrix3::zeros();
+                for &n in nodes {
+                    rc += r[n as usize];
+                }
+                rc /= nodes.len() as f64;
+                if kind == CellKind::Tet {
+                    // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
+                    // that a_ab == a_ba bitwise
+                    let (g, v) = tet_gradients(nodes, pts);
+                    for lk in 0..4 {
+                        if lk == li {
+                            continue;
+                        }
+                        let (lo, hi) = (li.min(lk), li.max(lk));
+                        let rg = rc * Vector3::from(g[hi]);
+                        let val = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
+                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
+                        w[p] += val;
+                    }
+                } else {
+                    let cd = cell_dual(kind, nodes, pts);
+                    let gg = green_gauss(kind, nodes, pts, cd.volume);
+                    // total outward dual-face vector of node li in this cell
+                    let mut sum_s = [0.0; 3];
+                    for (e, edge) in kind.edges().iter().enumerate() {
+                        if edge[0] == li {
+                            sum_s = add(sum_s, cd.s[e]);
+                        } else if edge[1] == li {
+                            sum_s = sub(sum_s, cd.s[e]);
+                        }
+                    }
+                    let rs = rc * Vector3::from(sum_s);
+                    for (lk, gk) in gg.iter().enumerate() {
+                        if lk == li {
+                            continue;
+                        }
+                        let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
+                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
+                        w[p] += val;
+                    }
+                }
             }
-            rc /= nodes.len() as f64;
-            if kind == CellKind::Tet {
-                // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
-                // that a_ab == a_ba bitwise
-                let (g, v) = tet_gradients(nodes, pts);
-                for lk in 0..4 {
-                    if lk == li {
-                        continue;
-                    }
-                    let (lo, hi) = (li.min(lk), li.max(lk));
-                    let rg = rc * Vector3::from(g[hi]);
-                    let val = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
-                    let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
-                    w[p] += val;
-                }
-            } else {
-                let cd = cell_dual(kind, nodes, pts);
-                let gg = green_gauss(kind, nodes, pts, cd.volume);
-                // total outward dual-face vector of node li in this cell
-                let mut sum_s = [0.0; 3];
-                for (e, edge) in kind.edges().iter().enumerate() {
-                    if edge[0] == li {
-                        sum_s = add(sum_s, cd.s[e]);
-                    } else if edge[1] == li {
-                        sum_s = sub(sum_s, cd.s[e]);
-                    }
-                }
-                let rs = rc * Vector3::from(sum_s);
-                for (lk, gk) in gg.iter().enumerate() {
-                    if lk == li {
-                        continue;
-                    }
-                    let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
-                    let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
-                    w[p] += val;
-                }
-            }
-        }
-    });
+        },
+    );
     out
 }

@@ -230,8 +230,10 @@ mod tests {
             integrator: "euler",
             dt,
             h,
+            step: h,
             h_bound: h / 0.9,
             per_step,
+            cost: per_step as f64,
             why: String::new(),
         }
     }

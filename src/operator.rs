@@ -37,8 +37,9 @@ pub struct Kernel {
     /// 256-bit vectors with fused multiply-add (x86-64 with AVX2 and FMA only).
     pub vector: bool,
     /// Software prefetch of the neighbours this many pairs ahead (0: none; vector kernel only).
-    /// 192 (about 14 rows of a tetrahedral mesh) measured best on a 300k and a 1M node box;
-    /// `EPROP_PREFETCH` overrides it.
+    /// None by default: in the band-limited node order (`solver::locality_keys`) the hardware
+    /// prefetchers follow the gathers, and the prefetch instructions cost more than they save
+    /// (192 pairs ahead paid 15-25 % in the Morton order). `EPROP_PREFETCH` sets it.
     pub prefetch: usize,
 }
 
@@ -47,7 +48,7 @@ impl Default for Kernel {
         let prefetch = std::env::var("EPROP_PREFETCH")
             .ok()
             .and_then(|v| v.parse().ok())
-            .unwrap_or(192);
+            .unwrap_or(0);
         Kernel {
             vector: simd_available(),
             prefetch,
@@ -110,10 +111,16 @@ impl Compact {
 
     #[inline(always)]
     fn row(&self, i: usize, x: &[V3]) -> V3 {
+        self.row_s::<3>(i, x.as_flattened())
+    }
+
+    /// (L x)_i with x given flat, `S` values per node (the first three are the potential).
+    #[inline(always)]
+    fn row_s<const S: usize>(&self, i: usize, x: &[f64]) -> V3 {
         if self.coef32.is_empty() {
-            self.row_with(&self.coef, i, x)
+            self.row_with::<_, S>(&self.coef, i, x)
         } else {
-            self.row_with(&self.coef32, i, x)
+            self.row_with::<_, S>(&self.coef32, i, x)
         }
     }
 
@@ -130,9 +137,10 @@ impl Compact {
     /// the same bits on any partition): one chain of dependent additions per sum would
     /// otherwise bound the speed by the add latency instead of the memory bandwidth.
     #[inline(always)]
-    fn row_with<C: Copy + Into<f64>>(&self, coef: &[C], i: usize, x: &[V3]) -> V3 {
+    fn row_with<C: Copy + Into<f64>, const S: usize>(&self, coef: &[C], i: usize, x: &[f64]) -> V3 {
         let (s, e) = (self.row_ptr[i] as usize, self.row_ptr[i + 1] as usize);
-        let xi = x[i];
+        let at = |j: usize| [x[S * j], x[S * j + 1], x[S * j + 2]];
+        let xi = at(i);
         let cols = &self.col[s..e];
         let coef = &coef[s..e];
         let mut a = [0.0; 3];
@@ -141,7 +149,7 @@ impl Compact {
         for k in 0..pairs {
             let (j0, j1) = (cols[2 * k] as usize, cols[2 * k + 1] as usize);
             let (c0, c1): (f64, f64) = (coef[2 * k].into(), coef[2 * k + 1].into());
-            let (x0, x1) = (x[j0], x[j1]);
+            let (x0, x1) = (at(j0), at(j1));
             for d in 0..3 {
                 a[d] += c0 * (x0[d] - xi[d]);
                 b[d] += c1 * (x1[d] - xi[d]);
@@ -150,7 +158,7 @@ impl Compact {
         if cols.len() % 2 == 1 {
             let j = cols[cols.len() - 1] as usize;
             let c: f64 = coef[cols.len() - 1].into();
-            let xj = x[j];
+            let xj = at(j);
             for d in 0..3 {
                 a[d] += c * (xj[d] - xi[d]);
             }
@@ -158,25 +166,119 @@ impl Compact {
         [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
     }
 
-    /// y_i = x_i + h (L x)_i for the rows `start..start + y.len()` with the vector kernel, when
-    /// it is chosen and this CPU has it; false (nothing done) otherwise.
+    /// y_i = x_i + h (L x)_i for the rows `start..start + y.len() / SO` with the vector kernel,
+    /// when it is chosen and this CPU has it; false (nothing done) otherwise.
     #[inline]
-    fn vector_step(&self, x: &[V3], y: &mut [V3], h: f64, start: usize) -> bool {
+    fn vector_step<const SI: usize, const SO: usize>(&self, x: &[f64], y: &mut [f64], h: f64, start: usize) -> bool {
         #[cfg(target_arch = "x86_64")]
         if self.kernel.vector && simd_available() {
             let pf = self.kernel.prefetch;
             // SAFETY: the CPU has AVX2 and FMA (`simd_available`), every column index is below
-            // `n_cols` and `x` is at least that long (checked by the caller).
+            // `n_cols` and `x` holds at least that many nodes (checked by the caller).
             unsafe {
                 if self.coef32.is_empty() {
-                    avx::step_rows(&self.row_ptr, &self.col, &self.coef, x, y, h, start, pf)
+                    avx::step_rows::<_, SI, SO>(&self.row_ptr, &self.col, &self.coef, x, y, h, start, pf)
                 } else {
-                    avx::step_rows(&self.row_ptr, &self.col, &self.coef32, x, y, h, start, pf)
+                    avx::step_rows::<_, SI, SO>(&self.row_ptr, &self.col, &self.coef32, x, y, h, start, pf)
                 }
             }
             return true;
         }
         let _ = (x, y, h, start);
+        false
+    }
+
+    /// y_i = x_i + h (L x)_i for the rows `start..start + y.len()` on this thread: the vector
+    /// kernel when chosen, the portable one otherwise. A row's bits do not depend on which
+    /// rows are taken together.
+    pub fn step_range(&self, x: &[V3], y: &mut [V3], h: f64, start: usize) {
+        self.step_strided::<3, 3>(x.as_flattened(), y.as_flattened_mut(), h, start)
+    }
+
+    /// `step_range` on flat arrays of `SI` (input) and `SO` (output) values per node, 3 or 4:
+    /// the first three are the potential; a fourth input value is never used in a sum (padding
+    /// that lets a node's potential be one 256-bit load); the fourth output value is the
+    /// fourth input value plus h times a sum of zeros. The potential's bits do not depend on
+    /// the strides.
+    pub fn step_strided<const SI: usize, const SO: usize>(&self, x: &[f64], y: &mut [f64], h: f64, start: usize) {
+        const { assert!((SI == 3 || SI == 4) && (SO == 3 || SO == 4)) };
+        assert!(
+            x.len() >= SI * self.n_cols,
+            "potential shorter than the operator's columns"
+        );
+        assert!(
+            y.len().is_multiple_of(SO) && self.row_ptr.len() > start + y.len() / SO,
+            "rows out of range"
+        );
+        if self.vector_step::<SI, SO>(x, y, h, start) {
+            return;
+        }
+        for (k, yi) in y.chunks_exact_mut(SO).enumerate() {
+            let i = start + k;
+            let l = self.row_s::<SI>(i, x);
+            for d in 0..3 {
+                yi[d] = x[SI * i + d] + h * l[d];
+            }
+            if SO == 4 {
+                yi[3] = if SI == 4 { x[SI * i + 3] } else { 0.0 };
+            }
+        }
+    }
+
+    /// The same operator with its rows and columns renumbered: old index i becomes `new_of[i]`
+    /// (a permutation of `0..n_cols`); each row keeps the order of its pairs, so its bits.
+    pub fn permuted(&self, new_of: &[u32]) -> Compact {
+        let n = self.row_ptr.len() - 1;
+        assert_eq!(new_of.len(), n, "one new index per row");
+        let mut old_of = vec![0u32; n];
+        for (i, &r) in new_of.iter().enumerate() {
+            old_of[r as usize] = i as u32;
+        }
+        let mut row_ptr = Vec::with_capacity(n + 1);
+        row_ptr.push(0u32);
+        let (mut col, mut coef, mut coef32) = (vec![], vec![], vec![]);
+        for &i in &old_of {
+            let r = self.row_ptr[i as usize] as usize..self.row_ptr[i as usize + 1] as usize;
+            col.extend(self.col[r.clone()].iter().map(|&j| new_of[j as usize]));
+            if self.coef32.is_empty() {
+                coef.extend_from_slice(&self.coef[r]);
+            } else {
+                coef32.extend_from_slice(&self.coef32[r]);
+            }
+            row_ptr.push(col.len() as u32);
+        }
+        Compact {
+            row_ptr,
+            col,
+            coef,
+            coef32,
+            n_cols: self.n_cols,
+            kernel: self.kernel,
+        }
+    }
+
+    /// y_i <- f(acc, i, x_i, (L x)_i, y_i) for the rows `start..start + y.len()` with the vector
+    /// kernel (the same row sums as the Euler step's), when it is chosen and this CPU has it;
+    /// false (nothing done) otherwise.
+    #[inline]
+    fn vector_update<A, F>(&self, x: &[V3], y: &mut [V3], start: usize, acc: &mut A, f: &F) -> bool
+    where
+        F: Fn(&mut A, usize, V3, V3, &mut V3),
+    {
+        #[cfg(target_arch = "x86_64")]
+        if self.kernel.vector && simd_available() {
+            let pf = self.kernel.prefetch;
+            // SAFETY: as in `vector_step`
+            unsafe {
+                if self.coef32.is_empty() {
+                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef, x, y, start, pf, acc, f)
+                } else {
+                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef32, x, y, start, pf, acc, f)
+                }
+            }
+            return true;
+        }
+        let _ = (x, y, start, acc, f);
         false
     }
 
@@ -218,6 +320,85 @@ pub fn simd_available() -> bool {
 /// sum k mod 4), so the bits do not depend on the partition or the thread count.
 #[cfg(target_arch = "x86_64")]
 mod avx {
+    use std::arch::x86_64::*;
+
+    #[inline(always)]
+    unsafe fn load3(p: *const f64) -> __m256d {
+        _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p)), _mm_load_sd(p.add(2)), 1)
+    }
+
+    /// A node's potential: three values (a masked load) or the first of four (one load).
+    #[inline(always)]
+    unsafe fn load<const S: usize>(p: *const f64) -> __m256d {
+        if S == 4 {
+            _mm256_loadu_pd(p)
+        } else {
+            load3(p)
+        }
+    }
+
+    /// Rows `start..start + y.len() / SO`; x holds `SI` values per node, y `SO` per row.
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::too_many_arguments)]
+    pub unsafe fn step_rows<C: Copy + Into<f64>, const SI: usize, const SO: usize>(
+        row_ptr: &[u32],
+        col: &[u32],
+        coef: &[C],
+        x: &[f64],
+        y: &mut [f64],
+        h: f64,
+        start: usize,
+        pf: usize,
+    ) {
+        let xp = x.as_ptr();
+        let hv = _mm256_set1_pd(h);
+        let n = y.len() / SO;
+        let rows = &row_ptr[start..start + n + 1];
+        for k in 0..n {
+            let i = start + k;
+            let (s, e) = (rows[k] as usize, rows[k + 1] as usize);
+            let (cols, cs) = (&col[s..e], &coef[s..e]);
+            let xi = load::<SI>(xp.add(SI * i));
+            if pf > 0 {
+                // the neighbours a few rows ahead: their gathers miss the caches less
+                let end = (e + pf).min(col.len());
+                for p in (s + pf).min(end)..end {
+                    _mm_prefetch::<_MM_HINT_T0>(xp.add(SI * *col.get_unchecked(p) as usize) as *const i8);
+                }
+            }
+            let mut acc = [_mm256_setzero_pd(); 4];
+            let quads = cols.len() / 4;
+            for q in 0..quads {
+                for (l, a) in acc.iter_mut().enumerate() {
+                    let j = *cols.get_unchecked(4 * q + l) as usize;
+                    debug_assert!(SI * j + 3 <= x.len());
+                    let c = _mm256_set1_pd((*cs.get_unchecked(4 * q + l)).into());
+                    let d = _mm256_sub_pd(load::<SI>(xp.add(SI * j)), xi);
+                    *a = _mm256_fmadd_pd(c, d, *a);
+                }
+            }
+            for l in 0..cols.len() - 4 * quads {
+                let j = *cols.get_unchecked(4 * quads + l) as usize;
+                debug_assert!(SI * j + 3 <= x.len());
+                let c = _mm256_set1_pd((*cs.get_unchecked(4 * quads + l)).into());
+                let d = _mm256_sub_pd(load::<SI>(xp.add(SI * j)), xi);
+                acc[l] = _mm256_fmadd_pd(c, d, acc[l]);
+            }
+            let sum = _mm256_add_pd(_mm256_add_pd(acc[0], acc[1]), _mm256_add_pd(acc[2], acc[3]));
+            let r = _mm256_fmadd_pd(hv, sum, xi);
+            let out = y.as_mut_ptr().add(SO * k);
+            if SO == 4 {
+                _mm256_storeu_pd(out, r);
+            } else {
+                _mm_storeu_pd(out, _mm256_castpd256_pd128(r));
+                _mm_store_sd(out.add(2), _mm256_extractf128_pd(r, 1));
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx_update {
     use super::V3;
     use std::arch::x86_64::*;
 
@@ -226,20 +407,22 @@ mod avx {
         _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p)), _mm_load_sd(p.add(2)), 1)
     }
 
+    /// `avx::step_rows`'s row sums, handed to `f` with the row's index, x_i and y_i.
     #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::too_many_arguments)]
-    pub unsafe fn step_rows<C: Copy + Into<f64>>(
+    pub unsafe fn update_rows<C: Copy + Into<f64>, A, F>(
         row_ptr: &[u32],
         col: &[u32],
         coef: &[C],
         x: &[V3],
         y: &mut [V3],
-        h: f64,
         start: usize,
         pf: usize,
-    ) {
+        acc: &mut A,
+        f: &F,
+    ) where
+        F: Fn(&mut A, usize, V3, V3, &mut V3),
+    {
         let xp = x.as_ptr() as *const f64;
-        let hv = _mm256_set1_pd(h);
         let rows = &row_ptr[start..start + y.len() + 1];
         for (k, yi) in y.iter_mut().enumerate() {
             let i = start + k;
@@ -247,16 +430,15 @@ mod avx {
             let (cols, cs) = (&col[s..e], &coef[s..e]);
             let xi = load3(xp.add(3 * i));
             if pf > 0 {
-                // the neighbours a few rows ahead: their gathers miss the caches less
                 let end = (e + pf).min(col.len());
                 for p in (s + pf).min(end)..end {
                     _mm_prefetch::<_MM_HINT_T0>(xp.add(3 * *col.get_unchecked(p) as usize) as *const i8);
                 }
             }
-            let mut acc = [_mm256_setzero_pd(); 4];
+            let mut acc4 = [_mm256_setzero_pd(); 4];
             let quads = cols.len() / 4;
             for q in 0..quads {
-                for (l, a) in acc.iter_mut().enumerate() {
+                for (l, a) in acc4.iter_mut().enumerate() {
                     let j = *cols.get_unchecked(4 * q + l) as usize;
                     debug_assert!(j < x.len());
                     let c = _mm256_set1_pd((*cs.get_unchecked(4 * q + l)).into());
@@ -269,16 +451,18 @@ mod avx {
                 debug_assert!(j < x.len());
                 let c = _mm256_set1_pd((*cs.get_unchecked(4 * quads + l)).into());
                 let d = _mm256_sub_pd(load3(xp.add(3 * j)), xi);
-                acc[l] = _mm256_fmadd_pd(c, d, acc[l]);
+                acc4[l] = _mm256_fmadd_pd(c, d, acc4[l]);
             }
-            let sum = _mm256_add_pd(_mm256_add_pd(acc[0], acc[1]), _mm256_add_pd(acc[2], acc[3]));
-            let r = _mm256_fmadd_pd(hv, sum, xi);
-            let out = yi.as_mut_ptr();
-            _mm_storeu_pd(out, _mm256_castpd256_pd128(r));
-            _mm_store_sd(out.add(2), _mm256_extractf128_pd(r, 1));
+            let sum = _mm256_add_pd(_mm256_add_pd(acc4[0], acc4[1]), _mm256_add_pd(acc4[2], acc4[3]));
+            let mut l = [0.0f64; 4];
+            _mm256_storeu_pd(l.as_mut_ptr(), sum);
+            f(acc, i, *x.get_unchecked(i), [l[0], l[1], l[2]], yi);
         }
     }
 }
+
+#[cfg(target_arch = "x86_64")]
+use avx_update as avx_u;
 
 /// `paper` scheme: nodal Green-Gauss gradients, averaged flux, optional edge correction.
 pub struct Paper {
@@ -458,6 +642,62 @@ impl Operator {
             }
         });
     }
+    /// y_i <- f(i, x_i, (L x)_i, y_i) for the rows in `range`: an operator application fused
+    /// with a pointwise update (`f` may read y_i's old value, so a stage can overwrite a buffer
+    /// in place). The row sums are those of the Euler step's kernel: the same bits on any
+    /// partition.
+    pub fn update_rows<F>(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3], range: std::ops::Range<usize>, f: &F)
+    where
+        F: Fn(usize, V3, V3, &mut V3) + Sync,
+    {
+        self.fold_rows(x, g, y, range, &|_: &mut (), i, xi, l, yi| f(i, xi, l, yi), &|_, _| ());
+    }
+
+    /// `update_rows` that also folds a value over the rows: every block of rows starts from
+    /// `A::default()`, `f` updates it row by row and `combine` merges the blocks (in an order
+    /// that depends on the threads: the fold must not depend on it, as exact integer sums do).
+    pub fn fold_rows<A, F, C>(
+        &self,
+        x: &[V3],
+        g: &[[f64; 9]],
+        y: &mut [V3],
+        range: std::ops::Range<usize>,
+        f: &F,
+        combine: &C,
+    ) -> A
+    where
+        A: Default + Send,
+        F: Fn(&mut A, usize, V3, V3, &mut V3) + Sync,
+        C: Fn(A, A) -> A + Sync,
+    {
+        let start = range.start;
+        if let Operator::Compact(c) = self {
+            assert!(x.len() >= c.n_cols, "potential shorter than the operator's columns");
+        }
+        y[range]
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .map(|(b, chunk)| {
+                let mut acc = A::default();
+                let first = start + b * CHUNK;
+                if let Operator::Compact(c) = self {
+                    if c.vector_update(x, chunk, first, &mut acc, f) {
+                        return acc;
+                    }
+                }
+                for (k, yi) in chunk.iter_mut().enumerate() {
+                    let i = first + k;
+                    let l = match self {
+                        Operator::Compact(c) => c.row(i, x),
+                        Operator::Paper(p) => p.row(i, x, g),
+                    };
+                    f(&mut acc, i, x[i], l, yi);
+                }
+                acc
+            })
+            .reduce(A::default, combine)
+    }
+
     /// One forward Euler substep without source: y_i = x_i + h (L x)_i, for rows in `range`.
     pub fn step_rows(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3], h: f64, range: std::ops::Range<usize>) {
         let start = range.start;
@@ -465,21 +705,19 @@ impl Operator {
             // the vector kernel reads x without bounds checks: every index is below n_cols
             assert!(x.len() >= c.n_cols, "potential shorter than the operator's columns");
         }
-        y[range].par_chunks_mut(CHUNK).enumerate().for_each(|(b, chunk)| {
-            if let Operator::Compact(c) = self {
-                if c.vector_step(x, chunk, h, start + b * CHUNK) {
-                    return;
+        y[range]
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(b, chunk)| match self {
+                Operator::Compact(c) => c.step_range(x, chunk, h, start + b * CHUNK),
+                Operator::Paper(p) => {
+                    for (k, yi) in chunk.iter_mut().enumerate() {
+                        let i = start + b * CHUNK + k;
+                        let l = p.row(i, x, g);
+                        let xi = x[i];
+                        *yi = [xi[0] + h * l[0], xi[1] + h * l[1], xi[2] + h * l[2]];
+                    }
                 }
-            }
-            for (k, yi) in chunk.iter_mut().enumerate() {
-                let i = start + b * CHUNK + k;
-                let l = match self {
-                    Operator::Compact(c) => c.row(i, x),
-                    Operator::Paper(p) => p.row(i, x, g),
-                };
-                let xi = x[i];
-                *yi = [xi[0] + h * l[0], xi[1] + h * l[1], xi[2] + h * l[2]];
-            }
-        });
+            });
     }
 }

@@ -102,6 +102,7 @@ impl Setup {
             fixed: pick(&self.fixed, plan),
             loads: self.loads.clone(),
             model: self.model.clone(),
+            integrator: self.integrator.clone(),
             law: self.law,
             time: self.time,
             output: self.output.clone(),
@@ -167,7 +168,7 @@ fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let weights = eprop_partition::degree_weights(&xadj);
     let part = eprop_partition::partition_weighted(&xadj, &adj, size, eprop_partition::Method::Metis, Some(&weights))
         .map_err(|e| anyhow!("{}: {e}", mesh.source))?;
-    Ok((part, eprop_partition::morton_keys(&mesh.points)))
+    Ok((part, eprop_partition::rcm_keys(&xadj, &adj)))
 }
 
 /// Rank 0 makes the whole-mesh setup (`make_setup`, called nowhere else), splits it and

@@ -59,6 +59,13 @@ impl Halo {
     /// the neighbours need are copied out now, so `data` may be read while the messages are in
     /// flight; `Exchange::finish` writes the halo entries.
     pub fn start(&self, data: &[f64], stride: usize) -> Exchange<'_> {
+        self.start_part(data, stride, stride)
+    }
+
+    /// `start` for items of `stride` f64 of which only the first `width` are exchanged (a
+    /// padded layout sends what an unpadded one does, so processes may use either).
+    pub fn start_part(&self, data: &[f64], stride: usize, width: usize) -> Exchange<'_> {
+        assert!(width <= stride);
         let mut bufs = self.bufs.borrow_mut();
         let nbs = &self.pattern.neighbours;
         let mut reqs = Vec::with_capacity(2 * nbs.len());
@@ -69,11 +76,11 @@ impl Halo {
             for (nb, b) in nbs.iter().zip(send.iter_mut()) {
                 b.clear();
                 for &l in &nb.send {
-                    b.extend_from_slice(&data[l as usize * stride..(l as usize + 1) * stride]);
+                    b.extend_from_slice(&data[l as usize * stride..l as usize * stride + width]);
                 }
             }
             for (nb, b) in nbs.iter().zip(recv.iter_mut()) {
-                b.resize(nb.recv.len() * stride, 0.0);
+                b.resize(nb.recv.len() * width, 0.0);
             }
             let raw = comm.as_raw();
             // SAFETY: the buffers stay borrowed (and so neither move nor change) by the
@@ -112,6 +119,7 @@ impl Halo {
             bufs,
             reqs,
             stride,
+            width,
             open: true,
         }
     }
@@ -119,6 +127,16 @@ impl Halo {
     /// Overwrites the halo entries of `data` with their owners' values (no overlap).
     pub fn exchange(&self, data: &mut [f64], stride: usize) {
         self.start(data, stride).finish(data);
+    }
+
+    /// The largest value of each entry over the processes of the exchange (a collective: every
+    /// process calls it at the same point; nothing to do on one process).
+    pub fn max_all(&self, v: &mut [f64]) {
+        if let Some(comm) = &self.comm {
+            use mpi::collective::{CommunicatorCollectives, SystemOperation};
+            let mine = v.to_vec();
+            comm.all_reduce_into(&mine[..], v, SystemOperation::max());
+        }
     }
 
     /// Seconds spent waiting in `finish` so far.
@@ -137,6 +155,7 @@ pub struct Exchange<'h> {
     bufs: RefMut<'h, Buffers>,
     reqs: Vec<ffi::MPI_Request>,
     stride: usize,
+    width: usize,
     open: bool,
 }
 
@@ -178,10 +197,10 @@ impl Exchange<'_> {
         self.wait();
         let halo = self.halo;
         halo.waited.set(halo.waited.get() + t.elapsed().as_secs_f64());
-        let s = self.stride;
+        let (s, w) = (self.stride, self.width);
         for (nb, buf) in halo.pattern.neighbours.iter().zip(self.bufs.recv.iter()) {
             for (k, &l) in nb.recv.iter().enumerate() {
-                data[l as usize * s..(l as usize + 1) * s].copy_from_slice(&buf[k * s..(k + 1) * s]);
+                data[l as usize * s..l as usize * s + w].copy_from_slice(&buf[k * w..(k + 1) * w]);
             }
         }
     }

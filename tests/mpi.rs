@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{assert_same, mpirun, serial};
+use common::{assert_same, mpirun, mpirun_env, serial};
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -75,6 +75,87 @@ fn bitwise_identical_on_1_to_4_ranks_mixed_elements() {
     }
 }
 
+/// Temporal blocking (`Propagation::substeps`, on by default) against one sweep per substep
+/// (`EPROP_FUSE=1`): bitwise the same output on one process and on 1-4 ranks, for fused sweeps
+/// of 2, 3 and 8 substeps (7 substeps per step: full and shorter sweeps both run), and with a
+/// different depth on each process.
+#[test]
+fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
+    let d = tempfile::Builder::new().prefix("fused").tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 4\n[output]\nevery = 1\n",
+            mesh.display()
+        ),
+    )
+    .unwrap();
+    let sc = sc.to_str().unwrap();
+    let plain = d.path().join("plain.h5");
+    let out = mpirun_env(
+        1,
+        &["run", sc, "-q", "-o", plain.to_str().unwrap()],
+        &[("EPROP_FUSE", "1")],
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("7 substeps"),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    for fuse in ["2", "3", "8"] {
+        for n in 1..=4 {
+            let f = d.path().join(format!("f{fuse}n{n}.h5"));
+            let out = mpirun_env(
+                n,
+                &["run", sc, "-q", "-o", f.to_str().unwrap()],
+                &[("EPROP_FUSE", fuse)],
+            );
+            assert!(
+                out.status.success(),
+                "fuse {fuse}, {n} ranks: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            assert_same(&plain, &f);
+        }
+    }
+    // processes that chose different depths (the tuner does so per process) still pair their
+    // halo messages and give the same bits
+    for depths in [&["1", "4"][..], &["8", "1", "3"]] {
+        let f = d.path().join(format!("mixed{}.h5", depths.len()));
+        let mut cmd = Command::new("mpirun");
+        cmd.arg("--oversubscribe");
+        for (k, fuse) in depths.iter().enumerate() {
+            if k > 0 {
+                cmd.arg(":");
+            }
+            cmd.args([
+                "-x",
+                &format!("EPROP_FUSE={fuse}"),
+                "-n",
+                "1",
+                env!("CARGO_BIN_EXE_eprop"),
+            ]);
+            cmd.args(["run", sc, "-q", "-o", f.to_str().unwrap()]);
+        }
+        let out = cmd
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+            .env("RAYON_NUM_THREADS", "1")
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "depths {depths:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert_same(&plain, &f);
+    }
+}
+
 /// Both schemes on a shared organ mesh (skipped without the shared data).
 fn organ(name: &str, setting: &str, tag: &str) {
     let Some(mesh) = common::shared_mesh(name) else {
@@ -106,6 +187,86 @@ fn bitwise_identical_on_1_to_4_ranks_vtu_liver() {
         "[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n",
         "vtu-liver",
     );
+}
+
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_every_deterministic_integrator() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    // stiff enough for tens of stages and iterations; a tolerance that is not the default
+    // (it travels in the part sent to every rank)
+    let stiff = format!("[material]\nconductivity = 2.0\n{CYL}");
+    check_ranks(&mesh, &format!("[model]\nintegrator = \"rkl2\"\n{stiff}"), "rkl2");
+    check_ranks(
+        &mesh,
+        &format!("[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\n{stiff}"),
+        "implicit",
+    );
+    check_ranks(&mesh, &stiff, "auto");
+}
+
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_every_integrator_organ_mesh() {
+    let Some(mesh) = common::shared_mesh("mor_liverFine.vtu") else {
+        return;
+    };
+    let case = "[material]\nconductivity = 0.3\n[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n";
+    for kind in ["rkl2", "implicit"] {
+        check_ranks(&mesh, &format!("[model]\nintegrator = \"{kind}\"\n{case}"), kind);
+    }
+}
+
+#[test]
+#[cfg(feature = "hypre")]
+fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
+    // hypre's V-cycle follows the partition: not bitwise, but the same solution to the
+    // tolerance; and the same as the deterministic Jacobi path
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    let scenario = |pre: &str| {
+        let sc = d.path().join(format!("{pre}.toml"));
+        std::fs::write(
+            &sc,
+            format!(
+                "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\npreconditioner = \"{pre}\"\n[material]\nconductivity = 2.0\n{CYL}[time]\nsteps = 8\n",
+                mesh.display()
+            ),
+        )
+        .unwrap();
+        sc
+    };
+    let read = |f: &Path| -> Vec<f64> {
+        let h = hdf5::File::open(f).unwrap();
+        h.dataset("VTKHDF/PointData/displacement")
+            .unwrap()
+            .read_raw::<f64>()
+            .unwrap()
+    };
+    let (amg, jacobi) = (scenario("amg"), scenario("jacobi"));
+    let reference = d.path().join("jacobi.h5");
+    let out = serial(
+        &["run", jacobi.to_str().unwrap(), "-q", "-o", reference.to_str().unwrap()],
+        1,
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let want = read(&reference);
+    let norm = want.iter().map(|x| x * x).sum::<f64>().sqrt();
+    for n in [1, 2, 3] {
+        let f = d.path().join(format!("amg{n}.h5"));
+        let out = mpirun(n, &["run", amg.to_str().unwrap(), "-q", "-o", f.to_str().unwrap()]);
+        assert!(out.status.success(), "{n}: {}", String::from_utf8_lossy(&out.stderr));
+        assert!(String::from_utf8_lossy(&out.stdout).contains("amg preconditioner"));
+        let got = read(&f);
+        let diff = got
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+        assert!(diff < 1e-8 * norm, "{n} ranks: relative difference {}", diff / norm);
+    }
 }
 
 /// A generated cylinder in `dir` and a scenario on it with `steps` steps.

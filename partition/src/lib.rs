@@ -395,6 +395,116 @@ pub fn morton_keys(points: &[[f64; 3]]) -> Vec<u64> {
         .collect()
 }
 
+/// Reverse Cuthill-McKee order of a graph in CSR form (`node_graph`): each connected component
+/// from a pseudo-peripheral node (George and Liu), neighbours taken by increasing degree, the
+/// whole order reversed. Neighbours of a node end up within a narrow band of positions (one or
+/// two breadth-first levels), which is what lets several substeps share one sweep over the rows.
+/// Returns the nodes in their new order; deterministic.
+pub fn rcm_order(xadj: &[usize], adj: &[u32]) -> Vec<u32> {
+    let n = xadj.len() - 1;
+    let deg = |v: usize| xadj[v + 1] - xadj[v];
+    let mut level = vec![u32::MAX; n];
+    let mut placed = vec![false; n];
+    let mut order = Vec::with_capacity(n);
+    let mut queue = Vec::new();
+    let mut buf = Vec::new();
+    // breadth-first levels of the component of `root` (among nodes not yet placed):
+    // (eccentricity, the last level's node of least degree), `level` left set on the component
+    let bfs = |root: usize, level: &mut [u32], placed: &[bool], queue: &mut Vec<u32>| -> (u32, usize) {
+        for &v in queue.iter() {
+            level[v as usize] = u32::MAX;
+        }
+        queue.clear();
+        queue.push(root as u32);
+        level[root] = 0;
+        let mut head = 0;
+        while head < queue.len() {
+            let v = queue[head] as usize;
+            head += 1;
+            for &w in &adj[xadj[v]..xadj[v + 1]] {
+                let w = w as usize;
+                if !placed[w] && level[w] == u32::MAX {
+                    level[w] = level[v] + 1;
+                    queue.push(w as u32);
+                }
+            }
+        }
+        let ecc = level[*queue.last().unwrap() as usize];
+        let far = queue
+            .iter()
+            .rev()
+            .take_while(|&&v| level[v as usize] == ecc)
+            .min_by_key(|&&v| (deg(v as usize), v))
+            .copied()
+            .unwrap() as usize;
+        (ecc, far)
+    };
+    for first in 0..n {
+        if placed[first] {
+            continue;
+        }
+        // pseudo-peripheral start: move to the far end while the eccentricity grows
+        let mut root = first;
+        let (mut ecc, mut far) = bfs(root, &mut level, &placed, &mut queue);
+        for _ in 0..8 {
+            let (e, f) = bfs(far, &mut level, &placed, &mut queue);
+            if e <= ecc {
+                break;
+            }
+            (root, ecc, far) = (far, e, f);
+        }
+        for &v in queue.iter() {
+            level[v as usize] = u32::MAX;
+        }
+        queue.clear();
+        // Cuthill-McKee from root
+        let start = order.len();
+        order.push(root as u32);
+        placed[root] = true;
+        let mut head = start;
+        while head < order.len() {
+            let v = order[head] as usize;
+            head += 1;
+            buf.clear();
+            buf.extend(
+                adj[xadj[v]..xadj[v + 1]]
+                    .iter()
+                    .copied()
+                    .filter(|&w| !placed[w as usize]),
+            );
+            buf.sort_unstable_by_key(|&w| (deg(w as usize), w));
+            for &w in &buf {
+                placed[w as usize] = true;
+            }
+            order.extend_from_slice(&buf);
+        }
+    }
+    order.reverse();
+    order
+}
+
+/// Locality keys from `rcm_order`: the position of every node in it (for `Plan::new`).
+pub fn rcm_keys(xadj: &[usize], adj: &[u32]) -> Vec<u64> {
+    let mut key = vec![0u64; xadj.len() - 1];
+    for (k, &v) in rcm_order(xadj, adj).iter().enumerate() {
+        key[v as usize] = k as u64;
+    }
+    key
+}
+
+/// The largest |position(i) - position(j)| over the edges of a graph under an order given by
+/// keys (the bandwidth of the reordered matrix).
+pub fn bandwidth(xadj: &[usize], adj: &[u32], key: &[u64]) -> u64 {
+    (0..xadj.len() - 1)
+        .flat_map(|i| {
+            adj[xadj[i]..xadj[i + 1]]
+                .iter()
+                .map(move |&j| key[i].abs_diff(key[j as usize]))
+        })
+        .max()
+        .unwrap_or(0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -475,5 +585,46 @@ mod tests {
         let total = sum[0] + sum[1];
         assert!(sum[0].max(sum[1]) as f64 <= 0.56 * total as f64, "weights {sum:?}");
         assert!(partition_weighted(&xadj, &adj, 2, Method::Metis, Some(&w[..10])).is_err());
+    }
+
+    #[test]
+    fn rcm_is_a_permutation_with_a_narrow_band() {
+        // a 12 x 12 grid numbered column by column with a scrambled id: RCM must bring the band
+        // down to about one grid line
+        let w = 12usize;
+        let n = w * w;
+        let id = |x: usize, y: usize| ((x * w + y) * 37 % n) as u32; // 37 is prime to 144
+        let mut nbrs = vec![vec![]; n];
+        for x in 0..w {
+            for y in 0..w {
+                if x + 1 < w {
+                    nbrs[id(x, y) as usize].push(id(x + 1, y));
+                    nbrs[id(x + 1, y) as usize].push(id(x, y));
+                }
+                if y + 1 < w {
+                    nbrs[id(x, y) as usize].push(id(x, y + 1));
+                    nbrs[id(x, y + 1) as usize].push(id(x, y));
+                }
+            }
+        }
+        // a second component: an isolated node
+        nbrs.push(vec![]);
+        let mut xadj = vec![0];
+        let mut adj = vec![];
+        for mut l in nbrs {
+            l.sort_unstable();
+            adj.extend(l);
+            xadj.push(adj.len());
+        }
+        let order = rcm_order(&xadj, &adj);
+        let mut seen = order.clone();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..n as u32 + 1).collect::<Vec<_>>());
+        let ident: Vec<u64> = (0..n as u64 + 1).collect();
+        let before = bandwidth(&xadj, &adj, &ident);
+        let after = bandwidth(&xadj, &adj, &rcm_keys(&xadj, &adj));
+        assert!(before > 60, "{before}");
+        assert!(after <= w as u64 + 1, "bandwidth {after}");
+        assert_eq!(rcm_order(&xadj, &adj), order, "deterministic");
     }
 }

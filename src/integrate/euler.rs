@@ -41,11 +41,20 @@ impl Euler {
                 integrator: "euler",
                 dt,
                 h: dt / substeps as f64,
+                step: dt / substeps as f64,
                 h_bound,
                 per_step: substeps,
+                cost: substeps as f64,
                 why,
             },
         })
+    }
+}
+
+impl Euler {
+    /// Replaces the plan's reason (the automatic choice says why it chose euler).
+    pub fn set_why(&mut self, why: String) {
+        self.plan.why = why;
     }
 }
 
@@ -54,9 +63,8 @@ impl Stepper for Euler {
         &self.plan
     }
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, _: &dyn Comm) -> Result<StepStats> {
-        for _ in 0..self.plan.per_step {
-            prop.substep(self.plan.h, q);
-        }
+        // fused sweeps where they apply: bitwise the same as one substep at a time
+        prop.substeps(self.plan.h, q, self.plan.per_step);
         Ok(StepStats {
             applications: self.plan.per_step,
         })

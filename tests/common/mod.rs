@@ -98,6 +98,11 @@ pub fn max_abs(v: &[[f64; 3]]) -> f64 {
 }
 
 pub fn mpirun(n: usize, args: &[&str]) -> std::process::Output {
+    mpirun_env(n, args, &[])
+}
+
+/// `mpirun` with extra environment variables for every process.
+pub fn mpirun_env(n: usize, args: &[&str], env: &[(&str, &str)]) -> std::process::Output {
     Command::new("mpirun")
         .args(["-n", &n.to_string(), "--oversubscribe"])
         .arg(env!("CARGO_BIN_EXE_eprop"))
@@ -106,6 +111,7 @@ pub fn mpirun(n: usize, args: &[&str]) -> std::process::Output {
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
         .env("RAYON_NUM_THREADS", "1")
+        .envs(env.iter().copied())
         .output()
         .expect("mpirun is installed (scripts/test.sh installs openmpi-bin)")
 }
