@@ -12,6 +12,9 @@ use anyhow::Result;
 pub const MAX_STEPS: u64 = 1_000_000_000;
 /// Most substeps (or stages) of the propagation per mechanics step.
 pub const MAX_SUBSTEPS: usize = 1_000_000;
+/// Most Euler substeps a mechanics step may stand for, whatever the integrator (the ratio of dt
+/// to the stable Euler substep; the benchmark liver has 1.8e4).
+pub const MAX_RATIO: f64 = 1e12;
 /// Smallest step size (dt or h) accepted: far below any unit system of a tissue simulation, so
 /// a smaller one comes from an overflow or a units mistake and would leave the time at 0.
 pub const MIN_STEP: f64 = 1e-30;
@@ -79,6 +82,15 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
             "{path}: {what} is below {MIN_STEP:e}: steps that small leave the time at 0; fix: {fix}"
         ));
     }
+    // the Euler substeps one mechanics step stands for: past MAX_RATIO the operator is too
+    // stiff against dt for any integrator in double precision (the implicit solve breaks down)
+    let ratio = dt / (crate::solver::SAFETY * plan.h_bound);
+    if plan.integrator != "euler" && !(ratio <= MAX_RATIO) {
+        return Err(format!(
+            "{path}: the mechanics step dt = {dt:.4e} spans {ratio:.3e} stable Euler substeps per mechanics step (Euler bound {:.3e} from [material] conductivity on this mesh), above the limit of {MAX_RATIO:e} for any integrator ({} included): no integrator resolves so stiff an operator in double precision; fix: a smaller [material] conductivity (check its units and the mesh's, [mesh] scale) or a smaller [time] dt",
+            plan.h_bound, plan.integrator
+        ));
+    }
     if plan.per_step > MAX_SUBSTEPS {
         // a count that saturated says nothing: the ratio it came from does
         let h_max = user_h.unwrap_or(crate::solver::SAFETY * plan.h_bound);
@@ -105,10 +117,14 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
             if user_h.is_some() { ", or a larger [time] h" } else { "" }
         ));
     }
-    if !(plan.h.is_normal() && plan.h >= MIN_STEP) {
+    // the integrator's own step (Euler's substep, the RKL2 super-step, dt for implicit): the
+    // Euler substep of another integrator is a yardstick, never taken
+    if !(plan.step.is_normal() && plan.step >= MIN_STEP) {
         return Err(format!(
-            "{path}: the propagation substep h = {:e} is below {MIN_STEP:e}; fix: check [material] conductivity and the mesh's units ([mesh] scale)",
-            plan.h
+            "{path}: the propagation step of {} ({}) = {:e} is below {MIN_STEP:e}; fix: check [material] conductivity and the mesh's units ([mesh] scale)",
+            plan.integrator,
+            if plan.integrator == "euler" { "its substep h" } else { "its own step" },
+            plan.step
         ));
     }
     Ok(())
@@ -284,6 +300,17 @@ mod tests {
         let e = step_sizes(&plan(0.1, 1e-300, usize::MAX), false, Some(1e-300), "s").unwrap_err();
         assert!(e.contains("[time] h = 1e-300") && e.contains("1.000e299"), "{e}");
         assert!(step_sizes(&plan(0.1, 0.1 / 2e6, 2_000_000), false, None, "s").is_err());
+        // another integrator takes no Euler substep, but past 1e12 of them per step no
+        // integrator resolves the operator (conductivity = 1e300 under auto)
+        let mut p = plan(0.1, 1e-302, 129);
+        (p.integrator, p.step, p.h_bound) = ("implicit", 0.1, 1e-302);
+        let e = step_sizes(&p, false, None, "s").unwrap_err();
+        assert!(
+            e.contains("substeps per mechanics step") && e.contains("implicit included") && e.contains("conductivity"),
+            "{e}"
+        );
+        (p.h, p.h_bound) = (1e-9, 1e-9);
+        assert!(step_sizes(&p, false, None, "s").is_ok());
     }
 
     #[test]

@@ -437,11 +437,7 @@ fn counts_and_step_sizes_past_their_limits_are_refused_by_check_and_run() {
         (
             "[material]\nconductivity = 1e300\n",
             "steps = 5",
-            &[
-                "substeps per mechanics step",
-                "above the limit of 1,000,000",
-                "conductivity",
-            ],
+            &["substeps per mechanics step", "above the limit", "conductivity"],
         ),
         ("", "steps = 5\nh = 1e-300", &["[time] h = 1e-300", "above the limit"]),
         (
@@ -622,9 +618,12 @@ fn misleading_messages_say_what_is_wrong() {
     // a huge mass: the bound does not overflow into "no step size is stable"
     let sc = cylinder(dir, "s.toml", "[material]\nmass = 1e308\n", 5);
     let o = eprop(1, &["check", s(&sc)]);
-    let e = stderr(&o);
+    let e = format!("{}{}", String::from_utf8_lossy(&o.stdout), stderr(&o));
     assert!(!e.contains("no step size is stable"), "{e}");
-    assert!(e.contains("dt = 1.8") && e.contains("fix:"), "{e}");
+    // dt = 2 sqrt(m / k) = 2e154 (0.9 of it): huge but right, and stepped by the implicit
+    // integrator (auto), whose counts stay readable
+    assert!(e.contains("dt = 1.8000e154"), "{e}");
+    assert!(!e.contains("18446744073709551615"), "{e}");
     // run --help names the real default output
     let o = eprop(1, &["run", "--help"]);
     let help = String::from_utf8_lossy(&o.stdout);
