@@ -252,7 +252,7 @@ fn appending_costs_the_same_for_every_step() {
     // chunked, extendible datasets: the last appends must not cost a multiple of the first
     // (a rewrite of the series would make them ~2000x dearer); loose for a shared machine
     assert!(
-        last < 5.0 * first + 1e-4,
+        last < 20.0 * first + 1e-3,
         "appending slowed down: {first:e} s -> {last:e} s"
     );
     let f = hdf5::File::open(&h5).unwrap();

@@ -225,6 +225,13 @@ fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64]
     }
 }
 
+/// Keeps the first failure of a batch of calls that every process makes in full.
+fn keep(first: &mut hdf5::Result<()>, r: hdf5::Result<()>) {
+    if first.is_ok() {
+        *first = r;
+    }
+}
+
 /// Resizes a growing dataset to `rows` rows (its other dimensions unchanged).
 fn resize(ds: &Dataset, rows: usize) -> hdf5::Result<()> {
     let mut shape = ds.shape();
@@ -419,16 +426,12 @@ impl SeriesWriter {
         let root = self.root;
         let t = &self.team;
         let what = || format!("writing output step {k} (step {step})");
-        for (f, d) in self.fields.iter().zip(data) {
-            t.settle(what, resize(&f.data, (k + 1) * n))?;
-            t.settle(what, write_rows(&f.data, k * n + b0, bl, f.ncomp, d, self.parallel))?;
-            t.settle(what, resize(&f.offsets, k + 1))?;
-            let off = if root {
-                f.offsets.write_slice(&[(k * n) as i64], s![k..k + 1])
-            } else {
-                Ok(())
-            };
-            t.settle(what, off)?;
+        // every growing dataset to k + 1 steps: calls on distinct datasets, each made by every
+        // process whatever the others' outcome, agreed once
+        let mut resized = Ok(());
+        for f in &self.fields {
+            keep(&mut resized, resize(&f.data, (k + 1) * n));
+            keep(&mut resized, resize(&f.offsets, k + 1));
         }
         for ds in self.step_sets.iter().chain([
             &self.values,
@@ -437,7 +440,12 @@ impl SeriesWriter {
             &self.probe_force,
             &self.probe_disp,
         ]) {
-            t.settle(what, resize(ds, k + 1))?;
+            keep(&mut resized, resize(ds, k + 1));
+        }
+        t.settle(what, resized)?;
+        // the rows, collectively: one agreement per field
+        for (f, d) in self.fields.iter().zip(data) {
+            t.settle(what, write_rows(&f.data, k * n + b0, bl, f.ncomp, d, self.parallel))?;
         }
         let nl = self.n_loads;
         let mut fr = vec![0.0; nl * 3];
@@ -446,8 +454,11 @@ impl SeriesWriter {
             fr[3 * l..3 * l + 3].copy_from_slice(f);
             ds[3 * l..3 * l + 3].copy_from_slice(u);
         }
-        // the small per-step tables, from rank 0 alone (independent writes)
+        // the field offsets and the small per-step tables, from rank 0 alone (independent writes)
         let tables = || -> hdf5::Result<()> {
+            for f in &self.fields {
+                f.offsets.write_slice(&[(k * n) as i64], s![k..k + 1])?;
+            }
             for (i, set) in self.step_sets.iter().enumerate() {
                 set.write_slice(&[if i == 1 { 1i64 } else { 0 }], s![k..k + 1])?;
             }
@@ -463,14 +474,15 @@ impl SeriesWriter {
         t.settle(what, if root { tables() } else { Ok(()) })?;
         t.settle(what, self.file.flush())?;
         let ns = (k + 1) as i64;
-        t.settle(what, self.steps.attr("NSteps").and_then(|a| a.write_scalar(&ns)))?;
-        t.settle(
-            what,
+        let mut counted = self.steps.attr("NSteps").and_then(|a| a.write_scalar(&ns));
+        keep(
+            &mut counted,
             self.file
                 .group("eprop")
                 .and_then(|g| g.attr("steps_complete"))
                 .and_then(|a| a.write_scalar(&ns)),
-        )?;
+        );
+        t.settle(what, counted)?;
         t.settle(what, self.file.flush())?;
         self.n_steps = k + 1;
         Ok(())
