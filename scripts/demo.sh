@@ -8,7 +8,8 @@ source scripts/env.sh
 mkdir -p out
 ./target/release/eprop mesh cylinder -o out/cylinder.msh
 cp scenarios/cylinder.toml out/cylinder.toml
-mpirun -n 2 ./target/release/eprop run out/cylinder.toml --output out/cylinder.h5 --quiet
+# --overwrite: the demo makes out/cylinder.h5 anew each time
+mpirun -n 2 ./target/release/eprop run out/cylinder.toml --output out/cylinder.h5 --quiet --overwrite
 echo
 echo "pictures:"
 py=.venv/bin/python

@@ -19,7 +19,11 @@ cargo test --release --workspace --no-fail-fast 2>&1 | tee "$log"
 status=${PIPESTATUS[0]}
 set -e
 # one "test result:" line per test binary: "ok. 12 passed; 0 failed; 1 ignored; ..."
-count() { grep -Eo "^test result: [A-Za-z]+\. .*" "$log" | grep -Eo "[0-9]+ $1" | awk '{s += $1} END {print s + 0}'; }
+# (no such line, as when the build failed, counts 0: grep's "no match" must not end the script)
+count() {
+  { grep -Eo "^test result: [A-Za-z]+\. .*" "$log" || true; } | { grep -Eo "[0-9]+ $1" || true; } |
+    awk '{s += $1} END {print s + 0}'
+}
 passed=$(count passed)
 failed=$(count failed)
 ignored=$(count ignored)
