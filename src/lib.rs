@@ -7,6 +7,7 @@
 
 pub mod bench;
 pub mod comm;
+pub mod contact;
 mod diagnostics;
 pub mod field;
 pub mod geometry;
@@ -24,6 +25,7 @@ pub mod scenario;
 mod series;
 pub mod solver;
 pub mod summary;
+pub mod tables;
 #[cfg(test)]
 mod testing;
 pub mod wavefront;

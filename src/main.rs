@@ -44,14 +44,17 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\
               halfspace = {point, normal} | nodes = [ids] | tag = N | group = \"name\"\n\
   [[load]]    node = ID | nearest = [x,y,z] | patch = {center, radius};\n\
-              force = [fx,fy,fz] | normal = magnitude;\n\
-              ramp = [[t0, s0], [t1, s1], ...] (optional scale in time)\n\
+              force = [fx,fy,fz] | normal = magnitude | table = \"forces.csv\" (columns t, fx, fy, fz);\n\
+              ramp = [[t0, s0], [t1, s1], ...] (optional scale in time); live = false (eprop serve)\n\
+  [[tool]]    shape = \"sphere\" | \"punch\", radius = R, normal = [nx,ny,nz] (punch: pressing direction);\n\
+              start = [x,y,z] and velocity = [vx,vy,vz] | table = \"path.csv\" (columns t, x, y, z);\n\
+              live = false (eprop serve: the client moves it). See docs/tools.md\n\
   [time]      steps = N | end = T | equilibrium = tol;  dt, h optional (automatic)\n\
   [output]    file = \"out.h5\", every = 1, fields = [\"displacement\", ...],\n\
               precision = \"float64\" | \"float32\", compression = 0..9 (gzip)\n\n\
-The summary gives the substep h, the steps, the speed, the largest displacement and the\n\
-contact displacement of each load. Run under mpirun for several processes; --restart FILE\n\
-continues an interrupted series from its last complete step.")]
+The summary gives the substep h, the steps, the speed, the largest displacement, the contact\n\
+displacement of each load and the state of each tool. Run under mpirun for several processes;\n\
+--restart FILE continues an interrupted series from its last complete step (not with tools).")]
     Run {
         /// Scenario file (TOML)
         scenario: PathBuf,
