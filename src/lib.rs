@@ -23,6 +23,7 @@ pub mod run;
 pub mod scatter;
 pub mod scenario;
 mod series;
+pub mod serve;
 pub mod solver;
 pub mod summary;
 pub mod tables;

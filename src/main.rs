@@ -4,6 +4,7 @@ use anyhow::{bail, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use eprop::launch::{is_root, launch};
 use eprop::run::{run_on, RunOptions};
+use eprop::serve::{serve_on, ServeOptions};
 use eprop::{bench, inspect};
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use std::path::PathBuf;
@@ -74,6 +75,42 @@ displacement of each load and the state of each tool. Run under mpirun for sever
         /// mesh) from its last complete step; the result is bit for bit the uninterrupted run's
         #[arg(long, value_name = "FILE")]
         restart: Option<PathBuf>,
+    },
+    /// Run a scenario whose live tools and loads a client drives over TCP (docs/protocol.md).
+    #[command(
+        long_about = "Run a scenario whose live tools and loads (`live = true`) a client drives over \
+a TCP socket, and write the HDF5 series as `eprop run` does.\n\n\
+The client (scripts/haptic_client.py, or any program speaking docs/protocol.md) sends a hello, then \
+tool poses and forces with time stamps, and gets one answer per message at once: the contact force \
+and displacement of the latest physics step, extrapolated linearly to the message's time. Physics \
+step k (time k dt) waits until the client has sent a sample of every live input at or beyond k dt \
+(or bye) and uses the samples interpolated at that time, as `eprop run` does with the same samples \
+in a table: a session is reproducible bit for bit. After bye the inputs hold their last samples \
+and the run goes on to its stop condition. A malformed message, a second client, or no sample \
+within --timeout seconds gets an error message; the run then stops, ends the series with the last \
+step computed, and exits with status 1. Under mpirun rank 0 holds the socket."
+    )]
+    Serve {
+        /// Scenario file (TOML) with at least one `live = true` tool or load
+        scenario: PathBuf,
+        /// Address to listen on, HOST:PORT (port 0 picks a free port; the chosen one is printed)
+        #[arg(long, value_name = "HOST:PORT")]
+        listen: String,
+        /// Seconds to wait for the client to connect, and for each step's samples
+        #[arg(long, default_value_t = 10.0)]
+        timeout: f64,
+        /// Output file (overrides [output] file)
+        #[arg(long, short)]
+        output: Option<PathBuf>,
+        /// Number of steps (overrides [time])
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Print the summary as JSON
+        #[arg(long)]
+        json: bool,
+        /// No progress lines
+        #[arg(long, short)]
+        quiet: bool,
     },
     /// Validate a scenario without running it and print what it derives: counts, fixed and
     /// loaded nodes, h, dt, substeps, estimated run time, memory and output size.
@@ -271,6 +308,32 @@ fn real_main(cli: Cli) -> Result<()> {
             };
             if let Some(s) = launch(|world| run_on(world, &scenario, &opts))? {
                 print(&s, json)?;
+            }
+        }
+        Cmd::Serve {
+            scenario,
+            listen,
+            timeout,
+            output,
+            steps,
+            json,
+            quiet,
+        } => {
+            if !(timeout > 0.0 && timeout.is_finite()) {
+                bail!("--timeout {timeout}: must be a positive number of seconds");
+            }
+            let opts = ServeOptions {
+                listen,
+                timeout,
+                run: RunOptions {
+                    output,
+                    steps,
+                    quiet: quiet || json,
+                    restart: None,
+                },
+            };
+            if let Some(r) = launch(|world| serve_on(world, &scenario, &opts))? {
+                print(&r, json)?;
             }
         }
         Cmd::Check { scenario, steps, json } => {
