@@ -319,8 +319,8 @@ fn real_main(cli: Cli) -> Result<()> {
             json,
             quiet,
         } => {
-            if !(timeout > 0.0 && timeout.is_finite()) {
-                bail!("--timeout {timeout}: must be a positive number of seconds");
+            if !(timeout > 0.0 && timeout <= 1e9) {
+                bail!("--timeout {timeout:?}: must be a positive number of seconds (at most 1e9); fix: give, say, --timeout 10");
             }
             let opts = ServeOptions {
                 listen,
