@@ -4,37 +4,9 @@
 //! the socket and the same trajectory in a table give the same values bit for bit.
 
 use anyhow::{anyhow, Result};
+use eprop_io::read_input_file;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-
-/// Reads an input file named by the user, refusing anything but a regular file (a directory,
-/// a device or a pipe would block or mislead); `role` says what the file is for in messages.
-pub fn read_input_file(path: &Path, role: &str) -> Result<Vec<u8>> {
-    let shown = path.display();
-    let regular = |m: &std::fs::Metadata| m.file_type().is_file();
-    let meta = std::fs::metadata(path)
-        .map_err(|e| anyhow!("{shown}: cannot read the {role}: {e}; fix: check the path (relative paths are relative to the scenario file)"))?;
-    if !regular(&meta) {
-        return Err(anyhow!(
-            "{shown}: the {role} is not a regular file (a directory, device or pipe); fix: name a file"
-        ));
-    }
-    let mut file = std::fs::File::open(path)
-        .map_err(|e| anyhow!("{shown}: cannot read the {role}: {e}; fix: check the permissions"))?;
-    // the name may have been replaced between the two looks: check what was opened
-    let meta = file
-        .metadata()
-        .map_err(|e| anyhow!("{shown}: cannot read the {role}: {e}"))?;
-    if !regular(&meta) {
-        return Err(anyhow!(
-            "{shown}: the {role} is not a regular file (a directory, device or pipe); fix: name a file"
-        ));
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    std::io::Read::read_to_end(&mut file, &mut bytes)
-        .map_err(|e| anyhow!("{shown}: cannot read the {role}: {e}; fix: check the file"))?;
-    Ok(bytes)
-}
 
 /// Samples `[t, a, b, c]` with strictly increasing, finite times and finite values, read as a
 /// function of time: linear between samples, constant before the first and after the last.
@@ -200,9 +172,9 @@ pub fn parse_table(name: &str, bytes: &[u8], role: &str, columns: [&str; 4]) -> 
     Ok(h)
 }
 
-/// Reads and parses a table file (`read_input_file`, then `parse_table`).
+/// Reads a table file (a regular file only, `eprop_io::read_input_file`) and parses it.
 pub fn read_table(path: &Path, role: &str, columns: [&str; 4]) -> Result<History> {
-    let bytes = read_input_file(path, role)?;
+    let bytes = read_input_file(path, "table")?;
     parse_table(&path.display().to_string(), &bytes, role, columns)
 }
 
@@ -306,25 +278,21 @@ mod tests {
     #[test]
     fn only_regular_files_are_read() {
         let d = tempfile::tempdir().unwrap();
-        let e = read_input_file(d.path(), "force table").unwrap_err().to_string();
-        assert!(e.contains("not a regular file") && e.contains("fix:"), "{e}");
-        let e = read_input_file(&d.path().join("none.csv"), "force table")
-            .unwrap_err()
-            .to_string();
+        let err = |p: &Path| format!("{:#}", read_table(p, "force table", FORCE).unwrap_err());
+        let e = err(d.path());
         assert!(
-            e.contains("none.csv: cannot read the force table") && e.contains("fix:"),
+            e.contains("is a directory, not a regular file") && e.contains("fix:"),
             "{e}"
         );
-        let e = read_input_file(Path::new("/dev/null"), "path table")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("path table is not a regular file"), "{e}");
+        let e = err(&d.path().join("none.csv"));
+        assert!(e.contains("none.csv: no such table file") && e.contains("fix:"), "{e}");
+        assert!(err(Path::new("/dev/null")).contains("character device"));
         // a named pipe would block a plain read
         let fifo = d.path().join("pipe.csv");
         let made = std::process::Command::new("mkfifo").arg(&fifo).status();
         if made.is_ok_and(|s| s.success()) {
-            let e = read_input_file(&fifo, "force table").unwrap_err().to_string();
-            assert!(e.contains("not a regular file"), "{e}");
+            let e = err(&fifo);
+            assert!(e.contains("FIFO") && e.contains("not a regular file"), "{e}");
         }
         let f = d.path().join("ok.csv");
         std::fs::write(&f, "0,1,2,3\n").unwrap();
