@@ -103,6 +103,7 @@ impl Setup {
             loads: self.loads.clone(),
             tools: self.tools.clone(),
             model: self.model.clone(),
+            integrator: self.integrator.clone(),
             law: self.law,
             time: self.time,
             output: self.output.clone(),
