@@ -240,9 +240,9 @@ fn drive(c: &mut Client, path: &[[f64; 4]], force: &[[f64; 4]], dt: f64) {
     }
 }
 
-fn live_equals_batch(ranks: usize) {
+fn live_equals_batch(ranks: usize, extra: &str) {
     let d = tempfile::tempdir().unwrap();
-    let (sc, path, force) = scenario(d.path(), "");
+    let (sc, path, force) = scenario(d.path(), extra);
     let one = d.path().join("batch.h5");
     batch(&sc, &one);
     let live = d.path().join("live.h5");
@@ -271,12 +271,18 @@ fn live_equals_batch(ranks: usize) {
 
 #[test]
 fn a_live_session_writes_the_batch_series_bit_for_bit() {
-    live_equals_batch(1);
+    live_equals_batch(1, "");
 }
 
 #[test]
 fn a_live_session_under_mpirun_writes_the_batch_series_bit_for_bit() {
-    live_equals_batch(2);
+    live_equals_batch(2, "");
+}
+
+#[test]
+fn a_live_session_writes_the_batch_series_with_rkl2_and_implicit() {
+    live_equals_batch(1, "[model]\nintegrator = \"implicit\"\n");
+    live_equals_batch(2, "[model]\nintegrator = \"rkl2\"\n");
 }
 
 /// A server on the scenario of `scenario` (with `extra` keys and options) and a client that
