@@ -101,6 +101,7 @@ impl Setup {
             damping: pick(&self.damping, plan),
             fixed: pick(&self.fixed, plan),
             loads: self.loads.clone(),
+            tools: self.tools.clone(),
             model: self.model.clone(),
             integrator: self.integrator.clone(),
             law: self.law,
@@ -233,7 +234,8 @@ mod tests {
         let text = "[mesh]\nfile = \"m.msh\"\n[material]\nconductivity = [0.08, 0.05, 0.05]\n\
                     [[material.region]]\nhalfspace = { point = [0.5, 0, 0], normal = [1, 0, 0] }\nmass = 3.0\n\
                     [model]\nscheme = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = { center = [1, 0.5, 0.5], radius = 0.3 }\n\
-                    normal = 1.0\nramp = [[0, 0], [1, 1]]\n[time]\nequilibrium = 1e-4\ndt = 0.01\n[output]\nfields = [\"energy\"]\n";
+                    normal = 1.0\nramp = [[0, 0], [1, 1]]\n\
+                    [[tool]]\nshape = \"punch\"\nradius = 0.2\nnormal = [0, 0, -1]\nstart = [0.5, 0.5, 1.1]\nvelocity = [0, 0, -0.1]\n[time]\nequilibrium = 1e-4\ndt = 0.01\n[output]\nfields = [\"energy\"]\n";
         let sc = Scenario::parse(std::path::Path::new("dir/s.toml"), text.into()).unwrap();
         let mut mesh = box_mesh([1.0; 3], [3; 3], BoxCells::Wedge).unwrap();
         mesh.warnings.push("a warning".into());
@@ -277,9 +279,11 @@ mod tests {
             (&b.r, &b.mass, &b.damping, &b.fixed)
         );
         assert_eq!((&a.loads, &a.model, &a.law), (&b.loads, &b.model, &b.law));
+        assert_eq!(a.tools, b.tools);
         assert_eq!((&a.time, &a.output), (&b.time, &b.output));
         // the values are the interesting ones, not defaults
         assert!(a.mass.contains(&3.0) && a.fixed.contains(&false) && a.loads[0].ramp.is_some());
+        assert_eq!(a.tools.len(), 1);
     }
 
     #[test]

@@ -63,6 +63,14 @@ fn resolve(scenario: Scenario, opts: &RunOptions) -> Result<Setup> {
     if let Some(s) = opts.steps {
         setup.time.stop = Stop::Steps(s);
     }
+    if let Some(r) = &opts.restart {
+        if !setup.tools.is_empty() {
+            bail!(
+                "{}: --restart cannot continue a run with [[tool]] tables (a tool's contact set and last reaction are not stored in the series); fix: run the scenario again from the start",
+                r.display()
+            );
+        }
+    }
     Ok(setup)
 }
 

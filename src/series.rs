@@ -10,7 +10,7 @@ use crate::solver::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
 use eprop_io::outcome::WriteFailed;
-use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter, CREATING};
+use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow, CREATING};
 use std::path::Path;
 use std::time::Instant;
 
@@ -41,6 +41,21 @@ pub fn field_blocks(sim: &Simulation, fields: &[Field]) -> Vec<Vec<f64>> {
                 let energy: Vec<f64> = sim.prop.phi[..no].iter().map(|p| norm(*p)).collect();
                 sim.blocks.collect(&energy, 1, c)
             }
+        })
+        .collect()
+}
+
+/// Each tool's row of the output (`/eprop/tools`).
+pub fn tool_rows(sim: &Simulation) -> Vec<ToolRow> {
+    sim.tool_states()
+        .iter()
+        .map(|t| ToolRow {
+            position: t.position,
+            force: t.force,
+            contact_nodes: t.contact_nodes,
+            contact_area: t.contact_area,
+            indentation: t.indentation,
+            displacement: t.displacement,
         })
         .collect()
 }
@@ -133,17 +148,21 @@ impl Series {
                 appends: Vec::new(),
             });
         }
-        let created = SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io).and_then(|writer| {
-            log_memory("the static output");
-            let mut series = Series {
-                writer,
-                fields,
-                appends: Vec::new(),
-            };
-            series.append(sim)?;
-            log_memory("the first output step");
-            Ok(series)
-        });
+        let created =
+            SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io).and_then(|mut writer| {
+                if !sim.tools.is_empty() {
+                    writer.add_tools(sim.tools.len())?;
+                }
+                log_memory("the static output");
+                let mut series = Series {
+                    writer,
+                    fields,
+                    appends: Vec::new(),
+                };
+                series.append(sim)?;
+                log_memory("the first output step");
+                Ok(series)
+            });
         match created {
             // a file this run began holds no complete step: it goes (once every process has
             // closed it), so that running again needs no --overwrite
@@ -162,6 +181,9 @@ impl Series {
         let t = Instant::now();
         let data = field_blocks(sim, &self.fields);
         let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
+        if !sim.tools.is_empty() {
+            self.writer.append_tools(sim.time, sim.step, &tool_rows(sim))?;
+        }
         self.writer.append(sim.time, sim.step, &refs, &sim.probes())?;
         self.appends.push(t.elapsed().as_secs_f64());
         Ok(())

@@ -871,3 +871,50 @@ fn restart_completes(dir: &Path, sc: &Path, h5: &Path, ranks: usize, filler: Pat
     assert_same(&whole, h5);
     std::fs::remove_file(h5).unwrap();
 }
+
+/// The tables a scenario reads (a tool's path, a load's forces) are inputs too: `-o`,
+/// `[output] file` and `serve -o` naming one are refused and the table stays as it was.
+#[test]
+fn an_output_that_is_a_load_or_tool_table_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    for f in ["cylinder_indent.toml", "cylinder_indent_path.csv", "cylinder.msh"] {
+        std::fs::copy(root.join(f), dir.join(f)).unwrap();
+    }
+    let sc = dir.join("cylinder_indent.toml");
+    let path = dir.join("cylinder_indent_path.csv");
+    std::fs::write(dir.join("forces.csv"), "0,0,0,0\n1,-0.1,0,0\n").unwrap();
+    let with_load = dir.join("load.toml");
+    std::fs::write(
+        &with_load,
+        format!(
+            "[mesh]\nfile = \"cylinder.msh\"\n{}\n[[load]]\nnearest = [1.0, 0.0, 2.0]\ntable = \"forces.csv\"\n[time]\nsteps = 3\n[output]\nfile = \"forces.csv\"\n",
+            "[[fixed]]\ngroup = \"bottom\""
+        ),
+    )
+    .unwrap();
+    let forces = dir.join("forces.csv");
+    let before = contents(&[&sc, &path, &forces, &dir.join("cylinder.msh")]);
+    refused(
+        &eprop(1, &["run", s(&sc), "-q", "-o", s(&path)]),
+        1,
+        &["is the path table of [[tool]] 1", "fix:"],
+    );
+    refused(
+        &eprop(2, &["run", s(&sc), "-q", "-o", s(&path)]),
+        1,
+        &["is the path table of [[tool]] 1"],
+    );
+    refused(
+        &eprop(1, &["run", s(&with_load), "-q"]),
+        1,
+        &["is the force table of [[load]] 1", "fix:"],
+    );
+    refused(
+        &eprop(1, &["export-operator", s(&sc), "-o", s(&path)]),
+        1,
+        &["the path table of [[tool]] 1"],
+    );
+    assert_eq!(before, contents(&[&sc, &path, &forces, &dir.join("cylinder.msh")]));
+}

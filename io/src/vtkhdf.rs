@@ -63,6 +63,30 @@ pub struct SeriesSpec<'a> {
     pub compression: u8,
 }
 
+/// One tool's row of an output step (`/eprop/tools`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ToolRow {
+    pub position: [f64; 3],
+    pub force: [f64; 3],
+    pub contact_nodes: u64,
+    pub contact_area: f64,
+    pub indentation: f64,
+    pub displacement: [f64; 3],
+}
+
+/// The growing datasets of `/eprop/tools`: per output step, and per step and tool.
+struct ToolSets {
+    n: usize,
+    time: Dataset,
+    step: Dataset,
+    /// (steps, tools, 3): position, force, displacement
+    vectors: [Dataset; 3],
+    /// (steps, tools): contact_area, indentation
+    scalars: [Dataset; 2],
+    /// (steps, tools)
+    contact_nodes: Dataset,
+}
+
 struct Field {
     name: String,
     ncomp: usize,
@@ -92,6 +116,7 @@ pub struct SeriesWriter {
     n_steps: usize,
     /// The writing processes; every call's outcome is agreed through it.
     team: Team,
+    tools: Option<ToolSets>,
 }
 
 /// `what` as a message maker for `Team::settle`.
@@ -410,7 +435,87 @@ impl SeriesWriter {
             n_loads: nl,
             n_steps: 0,
             team,
+            tools: None,
         })
+    }
+
+    /// Adds `/eprop/tools` for `n` tools to a new series, before its first step (every process
+    /// calls): `time`, `step` (output steps), `position`, `force`, `displacement` (output
+    /// steps, tools, 3), `contact_nodes`, `contact_area`, `indentation` (output steps, tools).
+    pub fn add_tools(&mut self, n: usize) -> Result<()> {
+        if self.n_steps > 0 || n == 0 {
+            return Err(anyhow!("internal: tools are added to a new series, and at least one"));
+        }
+        let t = &self.team;
+        let mk = |what: &str| at(format!("creating the output ({what})"));
+        let ep = t.settle(mk("/eprop"), self.file.group("eprop"))?;
+        let g = t.settle(mk("/eprop/tools"), ep.create_group("tools"))?;
+        let vector = |name: &str| t.settle(mk(name), growing(&g, name, &[n, 3], 256));
+        let scalar = |name: &str| t.settle(mk(name), growing(&g, name, &[n], 256));
+        let b = g
+            .new_dataset::<i64>()
+            .chunk([256, n])
+            .shape([Extent::resizable(0), Extent::fixed(n)]);
+        let b = b.alloc_time(Some(AllocTime::Early)).fill_time(FillTime::Never);
+        let contact_nodes = t.settle(mk("contact_nodes"), b.create("contact_nodes"))?;
+        let sets = ToolSets {
+            n,
+            time: t.settle(mk("tools/time"), growing(&g, "time", &[], 1024))?,
+            step: t.settle(mk("tools/step"), growing_i64(&g, "step"))?,
+            vectors: [vector("position")?, vector("force")?, vector("displacement")?],
+            scalars: [scalar("contact_area")?, scalar("indentation")?],
+            contact_nodes,
+        };
+        t.settle(at("writing the output (flush)"), self.file.flush())?;
+        self.tools = Some(sets);
+        Ok(())
+    }
+
+    /// Writes the tools' rows of the next output step (every process calls; rank 0's rows are
+    /// written): call before `append`, which completes the step. A failure is a `WriteFailed`
+    /// on every process.
+    pub fn append_tools(&mut self, time: f64, step: u64, rows: &[ToolRow]) -> Result<()> {
+        let (k, root) = (self.n_steps, self.root);
+        let tt = self
+            .tools
+            .as_ref()
+            .ok_or_else(|| anyhow!("internal: the series has no tools"))?;
+        if rows.len() != tt.n {
+            return Err(anyhow!("internal: {} tool rows for {} tools", rows.len(), tt.n));
+        }
+        let what = || format!("writing the tools of output step {k} (step {step})");
+        let n = tt.n;
+        // every table to k + 1 rows (made in full by every process, agreed once)
+        let mut resized = Ok(());
+        for d in [&tt.time, &tt.step]
+            .into_iter()
+            .chain(&tt.vectors)
+            .chain(&tt.scalars)
+            .chain([&tt.contact_nodes])
+        {
+            keep(&mut resized, resize(d, k + 1));
+        }
+        self.team.settle(what, resized)?;
+        let rows_of_root = || -> hdf5::Result<()> {
+            tt.time.write_slice(&[time], s![k..k + 1])?;
+            tt.step.write_slice(&[step as i64], s![k..k + 1])?;
+            let pick = |f: fn(&ToolRow) -> [f64; 3]| rows.iter().flat_map(f).collect::<Vec<f64>>();
+            let vectors = [pick(|r| r.position), pick(|r| r.force), pick(|r| r.displacement)];
+            for (d, v) in tt.vectors.iter().zip(&vectors) {
+                let view = ArrayView3::from_shape((1, n, 3), v).map_err(hdf5::Error::from)?;
+                d.write_slice(view, s![k..k + 1, .., ..])?;
+            }
+            let area: Vec<f64> = rows.iter().map(|r| r.contact_area).collect();
+            let depth: Vec<f64> = rows.iter().map(|r| r.indentation).collect();
+            for (d, v) in tt.scalars.iter().zip([area, depth]) {
+                let view = ndarray::ArrayView2::from_shape((1, n), &v).map_err(hdf5::Error::from)?;
+                d.write_slice(view, s![k..k + 1, ..])?;
+            }
+            let count: Vec<i64> = rows.iter().map(|r| r.contact_nodes as i64).collect();
+            let view = ndarray::ArrayView2::from_shape((1, n), &count).map_err(hdf5::Error::from)?;
+            tt.contact_nodes.write_slice(view, s![k..k + 1, ..])
+        };
+        self.team.settle(what, if root { rows_of_root() } else { Ok(()) })
     }
 
     /// Appends one output step (every process calls): `data[f]` holds field f for this
@@ -610,6 +715,7 @@ impl SeriesWriter {
             steps,
             file,
             team,
+            tools: None,
         };
         // drop the rows of a step that was being written when the run ended
         w.truncate()?;

@@ -11,7 +11,8 @@
 //! | `[material]`, `[[material.region]]` | `material` | per-node tensor R, mass, damping |
 //! | `[model]`, `[tissue]` | `model` | `Model` (as parsed), `TissueLaw` |
 //! | `[[fixed]]` | `fixed` | per-node fixed flag |
-//! | `[[load]]` | `loads` | `Load`s: contact nodes, weights, force |
+//! | `[[load]]` | `loads` | `Load`s: contact nodes, weights, force (constant, ramped or a table) |
+//! | `[[tool]]` | `tools` | `Tool`s: a rigid indenter's shape and path |
 //! | `[time]` | `time` | `Time`: the stop condition, dt, h |
 //! | `[output]` | `output` | `Output`: file, fields, precision |
 //!
@@ -26,16 +27,18 @@ mod model;
 mod output;
 mod select;
 mod time;
+mod tools;
 mod values;
 
 pub use fixed::FixedSet;
-pub use loads::{Load, Push};
+pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
 pub use mesh::MeshSec;
 pub use model::{IntegratorSec, Model, Scheme, SchemeName, TissueSec};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use select::{Entry, Keys, Selector};
 pub use time::{Stop, Time, TimeSec};
+pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
 pub use values::Precision;
 
 use crate::material::{Tensor, TissueLaw};
@@ -62,6 +65,8 @@ pub struct ScenarioFile {
     pub fixed: Vec<Entry<FixedSet>>,
     #[serde(default)]
     pub load: Vec<Entry<Push>>,
+    #[serde(default)]
+    pub tool: Vec<Spanned<ToolSec>>,
     pub time: Spanned<TimeSec>,
     #[serde(default = "defaults")]
     pub output: OutputSec,
@@ -159,7 +164,8 @@ impl Scenario {
     }
 
     /// Every file a run of this scenario reads, with its role (for the refusal to write over
-    /// one): the scenario and its mesh. A section that reads another file adds it here.
+    /// one): the scenario, its mesh, and the tables of loads and tools. A section that reads
+    /// another file adds it here.
     pub fn inputs(&self) -> Vec<crate::safety::Input> {
         let name = self.path.display();
         let mut out = vec![crate::safety::Input {
@@ -171,6 +177,23 @@ impl Scenario {
                 role: format!("the mesh ({}, [mesh] file of {name})", p.display()),
                 path: p,
             });
+        }
+        let base = self.path.parent().unwrap_or(Path::new("."));
+        for (k, l) in self.file.load.iter().enumerate() {
+            if let Some(t) = &l.with.table {
+                out.push(crate::safety::Input {
+                    role: format!("the force table of [[load]] {} ({}, in {name})", k + 1, t.get_ref()),
+                    path: base.join(t.get_ref()),
+                });
+            }
+        }
+        for (k, t) in self.file.tool.iter().enumerate() {
+            if let Some(f) = &t.get_ref().table {
+                out.push(crate::safety::Input {
+                    role: format!("the path table of [[tool]] {} ({}, in {name})", k + 1, f.get_ref()),
+                    path: base.join(f.get_ref()),
+                });
+            }
         }
         out
     }
@@ -258,6 +281,7 @@ pub struct Setup {
     pub damping: Vec<f64>,
     pub fixed: Vec<bool>,
     pub loads: Vec<Load>,
+    pub tools: Vec<Tool>,
     pub model: Model,
     /// The integrator of the propagation and its settings.
     pub integrator: crate::integrate::Settings,
@@ -281,7 +305,9 @@ impl Setup {
         let material::Materials { r, mass, damping } = material::resolve(sc, &f.material, &mesh)?;
         let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
+        let tools = tools::resolve(sc, &f.tool)?;
         Ok(Setup {
+            tools,
             model: f.model.clone(),
             integrator: f.integrator.settings(f.model.integrator),
             law: f.tissue.law(),
