@@ -57,6 +57,60 @@ fn bitwise_identical_on_1_to_4_ranks_generated_mesh() {
     );
 }
 
+/// Float32 output with deflate on several ranks (parallel HDF5 writes filtered chunks only
+/// without a type conversion): the same bits as one process, and each value is the float64
+/// run's value rounded to float32.
+#[test]
+fn float32_deflated_output_on_1_and_2_ranks() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    let scenario = |name: &str, output: &str| {
+        let sc = d.path().join(name);
+        std::fs::write(
+            &sc,
+            format!(
+                "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 6\n[output]\nevery = 2\n{output}",
+                mesh.display()
+            ),
+        )
+        .unwrap();
+        sc.to_str().unwrap().to_string()
+    };
+    let narrow = scenario("f32.toml", "precision = \"float32\"\ncompression = 4\n");
+    let wide = scenario("f64.toml", "");
+    let one = d.path().join("one.h5");
+    let out = serial(&["run", &narrow, "-q", "-o", one.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let two = d.path().join("two.h5");
+    let out = mpirun(2, &["run", &narrow, "-q", "-o", two.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "2 ranks: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_same(&one, &two);
+    let full = d.path().join("f64.h5");
+    let out = serial(&["run", &wide, "-q", "-o", full.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (a, b) = (hdf5::File::open(&two).unwrap(), hdf5::File::open(&full).unwrap());
+    let u32s = a.dataset("VTKHDF/PointData/displacement").unwrap();
+    assert!(u32s.dtype().unwrap().is::<f32>());
+    assert!(u32s
+        .filters()
+        .iter()
+        .any(|f| matches!(f, hdf5::filters::Filter::Deflate(_))));
+    let x = u32s.read_raw::<f32>().unwrap();
+    let y = b
+        .dataset("VTKHDF/PointData/displacement")
+        .unwrap()
+        .read_raw::<f64>()
+        .unwrap();
+    assert_eq!(x.len(), y.len());
+    assert!(x.iter().any(|&v| v != 0.0));
+    assert!(x.iter().zip(&y).all(|(&p, &q)| p.to_bits() == (q as f32).to_bits()));
+}
+
 #[test]
 fn bitwise_identical_on_1_to_4_ranks_mixed_elements() {
     use eprop_io::generate::{box_mesh, BoxCells};

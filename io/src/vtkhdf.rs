@@ -207,10 +207,13 @@ fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64]
     use hdf5_sys::h5d::H5Dwrite;
     use hdf5_sys::h5p::{H5Pclose, H5Pcreate, H5P_CLS_DATASET_XFER};
     use hdf5_sys::h5s::{H5S_seloper_t, H5Sclose, H5Screate_simple, H5Sselect_hyperslab, H5Sselect_none};
-    use hdf5_sys::h5t::H5T_NATIVE_DOUBLE;
+    use hdf5_sys::h5t::{H5T_NATIVE_DOUBLE, H5T_NATIVE_FLOAT};
     if data.len() != rows * ncomp {
         return Err(format!("internal: {} values for {rows} rows of {ncomp}", data.len()).into());
     }
+    // A float32 file array gets float32 values: parallel HDF5 writes no filtered (deflated)
+    // chunks through a type conversion, so the conversion is done here, the same on every path.
+    let narrow: Option<Vec<f32>> = (ds.dtype()?.size() == 4).then(|| data.iter().map(|&x| x as f32).collect());
     let nd = ds.ndim();
     let start = [row0 as u64, 0];
     let count = [rows as u64, ncomp as u64];
@@ -236,7 +239,10 @@ fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64]
         if parallel {
             hdf5_sys::h5p::H5Pset_dxpl_mpio(dxpl, hdf5_sys::h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
         }
-        let st = H5Dwrite(ds.id(), *H5T_NATIVE_DOUBLE, ms, fs, dxpl, data.as_ptr().cast());
+        let st = match &narrow {
+            Some(v) => H5Dwrite(ds.id(), *H5T_NATIVE_FLOAT, ms, fs, dxpl, v.as_ptr().cast()),
+            None => H5Dwrite(ds.id(), *H5T_NATIVE_DOUBLE, ms, fs, dxpl, data.as_ptr().cast()),
+        };
         // the error stack of the write, before the closes below add to it
         let err = (st < 0).then(|| hdf5::Error::query().unwrap_or_else(|e| e));
         H5Pclose(dxpl);

@@ -139,6 +139,12 @@ pub fn bits(f: &hdf5::File, name: &str) -> Vec<u64> {
     let t = ds.dtype().unwrap();
     if t.is::<f64>() {
         ds.read_raw::<f64>().unwrap().iter().map(|x| x.to_bits()).collect()
+    } else if t.is::<f32>() {
+        ds.read_raw::<f32>()
+            .unwrap()
+            .iter()
+            .map(|x| x.to_bits() as u64)
+            .collect()
     } else if t.is::<i64>() {
         ds.read_raw::<i64>().unwrap().iter().map(|&x| x as u64).collect()
     } else if t.is::<i32>() {
