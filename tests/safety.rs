@@ -746,10 +746,32 @@ impl Tmpfs {
     fn fill(&self) -> PathBuf {
         use std::io::Write;
         let p = self.path().join("filler");
-        let mut f = std::fs::File::create(&p).unwrap();
+        let mut f = std::fs::OpenOptions::new().create(true).append(true).open(&p).unwrap();
         let block = vec![0u8; 4096];
-        while f.write_all(&block).is_ok() {}
+        let e = loop {
+            if let Err(e) = f.write_all(&block) {
+                break e;
+            }
+        };
+        // only a full disk ends the filler (ENOSPC = 28 on Linux)
+        assert_eq!(e.raw_os_error(), Some(28), "filling {}: {e}", p.display());
         let _ = f.sync_all();
+        p
+    }
+    /// Fills the file system, then frees `bytes` of the filler: the disk has about that much
+    /// room (checked with statvfs).
+    fn leave_free(&self, bytes: u64) -> PathBuf {
+        let p = self.fill();
+        let f = std::fs::OpenOptions::new().write(true).open(&p).unwrap();
+        f.set_len(std::fs::metadata(&p).unwrap().len() - bytes).unwrap();
+        f.sync_all().unwrap();
+        drop(f);
+        let free = eprop_io::outcome::free_bytes(self.path()).unwrap();
+        assert!(
+            free <= bytes + 64 * 1024,
+            "{}: {free} bytes free after leaving {bytes}",
+            self.path().display()
+        );
         p
     }
 }
@@ -835,11 +857,7 @@ fn a_full_disk_at_creation_and_mid_run_on_2_ranks_stops_every_rank_cleanly() {
     // not forced: the run stops before an output step would leave the disk without room
     // (1 MiB and two steps); here 700 KiB are free from the start, and 3 steps fit in them
     let h5 = disk.path().join("tight.h5");
-    let filler = disk.fill();
-    let f = std::fs::OpenOptions::new().write(true).open(&filler).unwrap();
-    f.set_len(std::fs::metadata(&filler).unwrap().len() - 700 * 1024)
-        .unwrap();
-    drop(f);
+    let filler = disk.leave_free(700 * 1024);
     let o = eprop(2, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "3"]);
     refused(
         &o,
