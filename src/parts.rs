@@ -158,6 +158,25 @@ impl std::fmt::Display for Collective {
 
 impl std::error::Error for Collective {}
 
+/// Halo layers of the processes' plans by default on several processes running the compact
+/// scheme on one thread each: fused sweeps of up to this many substeps with one exchange each
+/// (`Propagation::substeps`, which chooses the depth by timing).
+pub const DEEP_HALO: usize = 4;
+
+/// Halo layers of every process's plan (`Plan::with_depth`): `EPROP_HALO=d` (1 to 16), else
+/// `DEEP_HALO` where fused sweeps run (several processes, the compact scheme, one thread per
+/// process), else 1. The paper scheme keeps one layer (it does not fuse).
+pub fn halo_depth(setup: &Setup, processes: usize) -> usize {
+    if !matches!(setup.model.scheme(), crate::scenario::Scheme::Compact) || processes < 2 {
+        return 1;
+    }
+    match std::env::var("EPROP_HALO").ok().and_then(|v| v.parse::<usize>().ok()) {
+        Some(d) => d.clamp(1, 16),
+        None if rayon::current_num_threads() == 1 => DEEP_HALO,
+        None => 1,
+    }
+}
+
 /// Rank 0's split of the whole mesh: the METIS part of every node and the locality keys.
 fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let mesh = &setup.mesh;
@@ -198,17 +217,23 @@ pub fn scatter(
     };
     let mesh = &setup.mesh;
     let sizes = GlobalSizes::of(mesh);
-    let plan_of = |r| Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys));
+    let depth = halo_depth(&setup, size);
+    let plan_of = |r| Plan::with_depth(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys), depth);
     for r in 1..size {
         let plan = plan_of(r);
-        let (owned, halo, neighbours) = (plan.numbering.n_owned, plan.n_halo(), plan.pattern.neighbours.len());
+        let (owned, halo, neighbours, rows) = (
+            plan.numbering.n_owned,
+            plan.n_halo(),
+            plan.pattern.neighbours.len(),
+            plan.rows(),
+        );
         let msg = encode(&Part {
             setup: setup.restrict(&plan),
             plan,
             sizes,
         })?;
         tracing::debug!(
-            "part {r}: {owned} owned, {halo} halo, {neighbours} neighbours; {} bytes",
+            "part {r}: {owned} owned, {halo} halo in {depth} layers, {rows} rows, {neighbours} neighbours; {} bytes",
             msg.len()
         );
         world.process_at_rank(r as i32).send(&msg[..]);

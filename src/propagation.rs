@@ -40,9 +40,18 @@ pub struct Propagation {
     /// Level buffers of the fused sweep with four values per node (one 256-bit load per
     /// neighbour), else three (for comparisons: `examples/kernel_ab.rs`).
     pub pad: bool,
+    /// Halo layers a fused sweep may use (1: a one-layer halo, exchanged once per level; d >= 2:
+    /// the operator has the rows of halo layers 1..d-1 and a sweep of up to d substeps
+    /// exchanges d layers once, `deep_sweep`).
+    deep: usize,
+    /// `layer_end[k]`: one past the last local index of halo layer k + 1.
+    layer_end: Vec<usize>,
+    /// Sources of the halo rows the deep sweep computes (copies of their owners' sources, in
+    /// the owners' order), set with `set_halo_sources`.
+    halo_q: Vec<(u32, V3)>,
 }
 
-/// The depths (substeps per sweep) the tuner tries.
+/// The depths (substeps per sweep) the tuner tries (under a deep halo, those up to its depth).
 pub const DEPTHS: [usize; 5] = [1, 2, 3, 4, 8];
 /// Sweeps of each depth the tuner times before it chooses.
 const TUNE_ROUNDS: usize = 3;
@@ -61,20 +70,30 @@ fn fuse_setting() -> Option<usize> {
 /// box, 4 on a 1M box and on a 749k-node kidney). The choice changes the speed only:
 /// every depth gives the same bits; processes agree on it (`choice`), though differing depths
 /// would still pair their messages (one exchange per substep whatever the grouping).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 struct Tuner {
-    /// Seconds per substep of the timed sweeps, per depth in `DEPTHS`.
+    /// The depths tried, in turn.
+    depths: Vec<usize>,
+    /// Seconds per substep of the timed sweeps, per depth in `depths`.
     times: Vec<Vec<f64>>,
     round: usize,
 }
 
 impl Tuner {
+    /// Tries the depths of `DEPTHS` up to `max`.
+    fn new(max: usize) -> Tuner {
+        let depths: Vec<usize> = DEPTHS.iter().copied().filter(|&d| d <= max).collect();
+        Tuner {
+            times: vec![vec![]; depths.len()],
+            depths,
+            round: 0,
+        }
+    }
     fn next(&self) -> usize {
-        DEPTHS[self.round % DEPTHS.len()]
+        self.depths[self.round % self.depths.len()]
     }
     fn record(&mut self, depth: usize, seconds_per_substep: f64) {
-        self.times.resize(DEPTHS.len(), vec![]);
-        if let Some(k) = DEPTHS.iter().position(|&d| d == depth) {
+        if let Some(k) = self.depths.iter().position(|&d| d == depth) {
             self.times[k].push(seconds_per_substep);
         }
         self.round += 1;
@@ -84,7 +103,7 @@ impl Tuner {
     /// whole sweep), once every depth had its rounds. Every process reaches the end of the
     /// rounds at the same call (the same substep counts everywhere), where `halo` reduces.
     fn choice(&self, halo: &Halo) -> Option<usize> {
-        if self.round < TUNE_ROUNDS * DEPTHS.len() {
+        if self.round < TUNE_ROUNDS * self.depths.len() {
             return None;
         }
         let mut medians: Vec<f64> = self
@@ -97,8 +116,8 @@ impl Tuner {
             })
             .collect();
         halo.max_all(&mut medians);
-        let best = (0..DEPTHS.len()).min_by(|&a, &b| medians[a].total_cmp(&medians[b]));
-        Some(best.map_or(1, |k| DEPTHS[k]))
+        let best = (0..self.depths.len()).min_by(|&a, &b| medians[a].total_cmp(&medians[b]));
+        Some(best.map_or(1, |k| self.depths[k]))
     }
 }
 
@@ -111,18 +130,52 @@ impl Propagation {
         } else {
             Layout::default()
         };
-        // Without a setting, one process tunes its depth; several processes do not fuse: a
-        // fused sweep makes one halo exchange per level with little work left to hide it, and
-        // on a loaded machine each of them waits for a descheduled neighbour (2 processes, 300k
-        // and 1M boxes: 1.2x faster to 3.5x slower than one substep per sweep, run to run).
-        // A collective (every process builds its propagation at the same point).
-        let mut several = [if halo.pattern().neighbours.is_empty() { 0.0 } else { 1.0 }];
-        halo.max_all(&mut several);
-        let (fuse, tuner) = match fuse_setting() {
+        // A deep halo serves sweeps of up to its depth, as far as the operator has the rows of
+        // its layers (the paper scheme never has them).
+        let pattern = halo.pattern();
+        let layer_end: Vec<usize> = pattern.layer_end.iter().map(|&e| e as usize).collect();
+        let rows = op.n_rows();
+        let deep = (1..=pattern.depth())
+            .take_while(|&d| d == 1 || (matches!(op, Operator::Compact(_)) && layer_end[d - 2] <= rows))
+            .last()
+            .unwrap_or(1);
+        // One collective (every process builds its propagation at the same point): whether
+        // there are several processes, the largest `EPROP_FUSE` and the smallest deep halo, and
+        // whether some process cannot fuse (several threads).
+        let setting = fuse_setting();
+        let can = rayon::current_num_threads() == 1;
+        let mut agreed = [
+            if pattern.neighbours.is_empty() { 0.0 } else { 1.0 },
+            setting.unwrap_or(0) as f64,
+            -(deep as f64),
+            if can { 0.0 } else { 1.0 },
+        ];
+        halo.max_all(&mut agreed);
+        let several = agreed[0] > 0.0;
+        let deep = if agreed[3] > 0.0 { 1 } else { (-agreed[2]) as usize };
+        // Without a setting, one process tunes its depth, and so do several over a deep halo
+        // (one exchange per sweep; the tuner's choice is the same on every process). Over a
+        // one-layer halo several processes do not fuse: a fused sweep makes one halo exchange
+        // per level with little work left to hide it, and on a loaded machine each of them
+        // waits for a descheduled neighbour (2 processes, 300k and 1M boxes: 1.2x faster to
+        // 3.5x slower than one substep per sweep, run to run). Over a deep halo every process
+        // sweeps the same depth (the exchanges pair sweep by sweep): the largest setting, at
+        // most the halo's depth.
+        let (fuse, tuner) = match setting {
+            Some(_) if deep >= 2 => ((agreed[1] as usize).clamp(1, deep), None),
             Some(d) => (d, None),
-            None if several[0] > 0.0 => (1, None),
-            None => (DEPTHS[DEPTHS.len() - 1], Some(Tuner::default())),
+            None if several && deep < 2 => (1, None),
+            None => {
+                let max = if several { deep } else { usize::MAX };
+                (DEPTHS[DEPTHS.len() - 1].min(max), Some(Tuner::new(max)))
+            }
         };
+        tracing::debug!(
+            "propagation: {} halo layers for fused sweeps, {} substeps per sweep{}",
+            deep,
+            fuse,
+            if tuner.is_some() { " (tuning)" } else { "" }
+        );
         Propagation {
             op,
             halo,
@@ -135,12 +188,32 @@ impl Propagation {
             wave: None,
             levels: vec![],
             pad: true,
+            deep,
+            layer_end,
+            halo_q: vec![],
         }
     }
 
-    /// Substeps per fused sweep from now on (1: every substep on its own); no tuning.
+    /// Halo layers a fused sweep uses (1: one exchange per level).
+    pub fn halo_depth(&self) -> usize {
+        self.deep
+    }
+
+    /// The sources of the halo rows of a deep halo (local index of a node in halo layers
+    /// 1..depth-1, Q), the same as their owners give `substeps`, in the same order; used by
+    /// deep sweeps, for the `substeps` calls until they are set again.
+    pub fn set_halo_sources(&mut self, q: Vec<(u32, V3)>) {
+        self.halo_q = q;
+    }
+
+    /// Substeps per fused sweep from now on (1: every substep on its own; over a deep halo at
+    /// most its depth); no tuning. Over a deep halo every process must set the same depth.
     pub fn set_fuse(&mut self, depth: usize) {
-        self.fuse = depth.max(1);
+        self.fuse = if self.deep >= 2 {
+            depth.clamp(1, self.deep)
+        } else {
+            depth.max(1)
+        };
         self.tuner = None;
     }
 
@@ -220,6 +293,12 @@ impl Propagation {
         while self.levels.len() + 1 < d {
             self.levels.push(NodeField::filled(self.layout, [0.0; 4]));
         }
+        let mut qs = q.to_vec();
+        let deep = self.deep >= d;
+        if deep {
+            // the halo rows' sources too (indices beyond the owned ones)
+            qs.extend_from_slice(&self.halo_q);
+        }
         let Propagation {
             op,
             halo,
@@ -228,12 +307,12 @@ impl Propagation {
             wave,
             levels,
             layout,
+            layer_end,
             ..
         } = self;
         let (Operator::Compact(c), Some(w)) = (&*op, wave.as_ref()) else {
             unreachable!("fused sweeps run the compact scheme")
         };
-        let mut qs = q.to_vec();
         qs.sort_by_key(|s| s.0); // stable: a node's sources keep their order
                                  // level l on rows r, then the sources of those rows
         let run = |phi: &NodeField<V3>,
@@ -280,8 +359,9 @@ impl Propagation {
                 y[2] += h * qi[2];
             }
         };
-        // the wavefront over the interior, phi's halo in flight
-        let mut ex = Some(halo.start(phi.flat(), 3));
+        // the wavefront over the interior, phi's halo in flight (over a deep halo, d layers:
+        // the only exchange of the sweep)
+        let mut ex = Some(halo.start_layers(phi.flat(), 3, 3, if deep { d } else { 1 }));
         let mut at = vec![0usize; d + 1];
         let mut front = vec![0usize; d + 1];
         front[0] = usize::MAX;
@@ -317,9 +397,28 @@ impl Propagation {
                 break;
             }
         }
+        let border = layout.border();
+        if deep {
+            // the rest of each level in level order: the interior rows outside the wavefront,
+            // the border rows and halo layers 1..d-l (each level's halo rows read the level
+            // before on one layer more, all computed here from phi's d layers)
+            if let Some(e) = ex.take() {
+                e.finish(phi.flat_mut());
+            }
+            for l in 1..=d {
+                for r in &w.rest[l - 1] {
+                    run(phi, next, levels, l, r.clone());
+                }
+                run(phi, next, levels, l, border.clone());
+                if l < d {
+                    run(phi, next, levels, l, layout.n_owned..layer_end[d - l - 1]);
+                }
+            }
+            std::mem::swap(phi, next);
+            return;
+        }
         // the rest of each level in level order, one halo exchange per level (that of level
         // l - 1 in flight while the interior rows of level l outside the wavefront run)
-        let border = layout.border();
         for l in 1..=d {
             for r in &w.rest[l - 1] {
                 run(phi, next, levels, l, r.clone());
