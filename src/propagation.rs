@@ -6,7 +6,7 @@
 use crate::field::NodeField;
 use crate::operator::{Operator, V3};
 use crate::scatter::{Exchange, Halo};
-use crate::wavefront::Wavefront;
+use crate::wavefront::{DeepFront, Wavefront};
 use eprop_partition::Layout;
 use std::ops::Range;
 
@@ -46,6 +46,10 @@ pub struct Propagation {
     deep: usize,
     /// `layer_end[k]`: one past the last local index of halo layer k + 1.
     layer_end: Vec<usize>,
+    /// The visiting order of the deep sweep's rows (`Plan::order`; empty: local order).
+    order: Vec<u32>,
+    /// The deep sweep's schedule, made on first use.
+    front: Option<DeepFront>,
     /// Sources of the halo rows the deep sweep computes (copies of their owners' sources, in
     /// the owners' order), set with `set_halo_sources`.
     halo_q: Vec<(u32, V3)>,
@@ -191,7 +195,15 @@ impl Propagation {
             deep,
             layer_end,
             halo_q: vec![],
+            order: vec![],
+            front: None,
         }
+    }
+
+    /// The order in which a fused sweep over a deep halo visits its rows (`Plan::order`).
+    pub fn set_sweep_order(&mut self, order: Vec<u32>) {
+        self.order = order;
+        self.front = None;
     }
 
     /// Halo layers a fused sweep uses (1: one exchange per level).
@@ -281,23 +293,100 @@ impl Propagation {
     /// and writes `levels[l - 1]`, the last level writes `next`, which becomes phi. The levels
     /// in between hold four values per node (one 256-bit load per neighbour).
     fn fused(&mut self, h: f64, q: &Sources, d: usize) {
-        if !self.pad {
+        if self.deep >= d {
+            if !self.pad {
+                self.deep_sweep::<3>(h, q, d)
+            } else {
+                self.deep_sweep::<4>(h, q, d)
+            }
+        } else if !self.pad {
             self.fused_p::<3>(h, q, d)
         } else {
             self.fused_p::<4>(h, q, d)
         }
     }
 
-    fn fused_p<const P: usize>(&mut self, h: f64, q: &Sources, d: usize) {
-        self.wavefront();
+    /// A fused sweep of `d` substeps over a deep halo (`DeepFront`): one exchange of d layers
+    /// of phi, then one wavefront over the owned rows and the halo rows still valid at each
+    /// level (level l: halo layers 1..d-l), the halo rows with their owners' sources.
+    fn deep_sweep<const P: usize>(&mut self, h: f64, q: &Sources, d: usize) {
+        if self.front.as_ref().is_none_or(|f| f.depth != d) {
+            let Operator::Compact(c) = &self.op else {
+                unreachable!("fused sweeps run the compact scheme")
+            };
+            self.front = Some(DeepFront::new(c, self.layout, &self.layer_end, &self.order, d));
+        }
         while self.levels.len() + 1 < d {
             self.levels.push(NodeField::filled(self.layout, [0.0; 4]));
         }
         let mut qs = q.to_vec();
-        let deep = self.deep >= d;
-        if deep {
-            // the halo rows' sources too (indices beyond the owned ones)
-            qs.extend_from_slice(&self.halo_q);
+        qs.extend_from_slice(&self.halo_q);
+        qs.sort_by_key(|s| s.0); // stable: a node's sources keep their order
+        let Propagation {
+            op,
+            halo,
+            phi,
+            next,
+            front,
+            levels,
+            ..
+        } = self;
+        let (Operator::Compact(c), Some(f)) = (&*op, front.as_ref()) else {
+            unreachable!("fused sweeps run the compact scheme")
+        };
+        let mut ex = Some(halo.start_layers(phi.flat(), 3, 3, d));
+        let mut at = vec![0usize; d + 1];
+        let mut done = vec![0u32; d + 1];
+        done[0] = u32::MAX;
+        let mut rows_since = 0;
+        loop {
+            let mut busy = false;
+            for l in 1..=d {
+                let segs = &f.levels[l - 1];
+                while let Some(s) = segs.get(at[l]) {
+                    if l > 1 && s.need >= done[l - 1] {
+                        break;
+                    }
+                    if s.halo {
+                        if let Some(e) = ex.take() {
+                            e.finish(phi.flat_mut());
+                        }
+                    }
+                    for r in &f.runs[s.runs.start as usize..s.runs.end as usize] {
+                        level_rows::<P>(c, h, &qs, phi, next, levels, l, d, r.start as usize..r.end as usize);
+                        rows_since += r.len();
+                    }
+                    done[l] = s.end;
+                    at[l] += 1;
+                    busy = true;
+                    if l == 1 {
+                        break; // one segment of level 1, then the others catch up
+                    }
+                }
+                if at[l] == segs.len() {
+                    done[l] = u32::MAX;
+                }
+            }
+            if rows_since >= 16 * 1024 {
+                if let Some(e) = ex.as_mut() {
+                    e.progress();
+                }
+                rows_since = 0;
+            }
+            if !busy {
+                break;
+            }
+        }
+        if let Some(e) = ex.take() {
+            e.finish(phi.flat_mut());
+        }
+        std::mem::swap(phi, next);
+    }
+
+    fn fused_p<const P: usize>(&mut self, h: f64, q: &Sources, d: usize) {
+        self.wavefront();
+        while self.levels.len() + 1 < d {
+            self.levels.push(NodeField::filled(self.layout, [0.0; 4]));
         }
         let Propagation {
             op,
@@ -307,12 +396,12 @@ impl Propagation {
             wave,
             levels,
             layout,
-            layer_end,
             ..
         } = self;
         let (Operator::Compact(c), Some(w)) = (&*op, wave.as_ref()) else {
             unreachable!("fused sweeps run the compact scheme")
         };
+        let mut qs = q.to_vec();
         qs.sort_by_key(|s| s.0); // stable: a node's sources keep their order
                                  // level l on rows r, then the sources of those rows
         let run = |phi: &NodeField<V3>,
@@ -359,9 +448,8 @@ impl Propagation {
                 y[2] += h * qi[2];
             }
         };
-        // the wavefront over the interior, phi's halo in flight (over a deep halo, d layers:
-        // the only exchange of the sweep)
-        let mut ex = Some(halo.start_layers(phi.flat(), 3, 3, if deep { d } else { 1 }));
+        // the wavefront over the interior, phi's halo in flight
+        let mut ex = Some(halo.start(phi.flat(), 3));
         let mut at = vec![0usize; d + 1];
         let mut front = vec![0usize; d + 1];
         front[0] = usize::MAX;
@@ -398,25 +486,6 @@ impl Propagation {
             }
         }
         let border = layout.border();
-        if deep {
-            // the rest of each level in level order: the interior rows outside the wavefront,
-            // the border rows and halo layers 1..d-l (each level's halo rows read the level
-            // before on one layer more, all computed here from phi's d layers)
-            if let Some(e) = ex.take() {
-                e.finish(phi.flat_mut());
-            }
-            for l in 1..=d {
-                for r in &w.rest[l - 1] {
-                    run(phi, next, levels, l, r.clone());
-                }
-                run(phi, next, levels, l, border.clone());
-                if l < d {
-                    run(phi, next, levels, l, layout.n_owned..layer_end[d - l - 1]);
-                }
-            }
-            std::mem::swap(phi, next);
-            return;
-        }
         // the rest of each level in level order, one halo exchange per level (that of level
         // l - 1 in flight while the interior rows of level l outside the wavefront run)
         for l in 1..=d {
@@ -498,6 +567,65 @@ impl Propagation {
     /// Overwrites the halo entries of `x` with their owners' values.
     pub fn refresh(&self, x: &mut NodeField<V3>) {
         self.halo.exchange(x.flat_mut(), 3);
+    }
+}
+
+/// Level l of a fused sweep of d levels on the rows r, then the sources of those rows: level l
+/// reads level l - 1 (level 0: phi) and writes `levels[l - 1]` (`P` values per node), the last
+/// level writes `next`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn level_rows<const P: usize>(
+    c: &crate::operator::Compact,
+    h: f64,
+    qs: &[(u32, V3)],
+    phi: &NodeField<V3>,
+    next: &mut NodeField<V3>,
+    levels: &mut [NodeField<[f64; 4]>],
+    l: usize,
+    d: usize,
+    r: Range<usize>,
+) {
+    let so = if l == d { 3 } else { P };
+    let y: &mut [f64] = match (l, l == d) {
+        (1, false) => {
+            c.step_strided::<3, P>(
+                phi.flat(),
+                &mut levels[0].flat_mut()[P * r.start..P * r.end],
+                h,
+                r.start,
+            );
+            levels[0].flat_mut()
+        }
+        (_, false) => {
+            let (a, b) = levels.split_at_mut(l - 1);
+            c.step_strided::<P, P>(
+                a[l - 2].flat(),
+                &mut b[0].flat_mut()[P * r.start..P * r.end],
+                h,
+                r.start,
+            );
+            b[0].flat_mut()
+        }
+        (_, true) => {
+            let y = &mut next.flat_mut()[3 * r.start..3 * r.end];
+            if l == 1 {
+                c.step_strided::<3, 3>(phi.flat(), y, h, r.start);
+            } else {
+                c.step_strided::<P, 3>(levels[l - 2].flat(), y, h, r.start);
+            }
+            next.flat_mut()
+        }
+    };
+    if qs.is_empty() {
+        return;
+    }
+    let first = qs.partition_point(|s| (s.0 as usize) < r.start);
+    for &(i, qi) in qs[first..].iter().take_while(|s| (s.0 as usize) < r.end) {
+        let y = &mut y[so * i as usize..so * i as usize + 3];
+        y[0] += h * qi[0];
+        y[1] += h * qi[1];
+        y[2] += h * qi[2];
     }
 }
 
@@ -628,5 +756,143 @@ mod tests {
         // the fused sweep changes phi (the test compares something that moves)
         let before = run(&c, layouts[0], 1, 0, h);
         assert_ne!(bits(&before), bits(&run(&c, layouts[0], 4, 4, h)));
+    }
+}
+
+#[cfg(test)]
+mod deep_tests {
+    use super::*;
+    use crate::geometry::{compact_coefficients, Dual, Incidence};
+    use crate::operator::Compact;
+    use crate::scenario::Setup;
+    use eprop_partition::Plan;
+
+    /// The compact operator of the rows `0..plan.rows()` of a process's part, built as the
+    /// simulation builds it (rows of halo layers 1..depth-1 included).
+    fn operator_of(whole: &Setup, plan: &Plan, f32: bool) -> Compact {
+        let s = whole.restrict(plan);
+        let rows = plan.rows();
+        let gid: Vec<u64> = plan.numbering.global.iter().map(|&g| g as u64).collect();
+        let inc = Incidence::new(&s.mesh);
+        let dual = Dual::build(&s.mesh, &inc, rows, Some(&gid));
+        let active: Vec<bool> = (0..gid.len())
+            .map(|i| !s.fixed[i] && (i >= rows || dual.vol[i] > 0.0))
+            .collect();
+        let a = compact_coefficients(&s.mesh, &inc, &dual, &s.r);
+        let c = Compact::from_pairs(&dual.row_ptr[..=rows], dual.col.clone(), a, &dual.vol, &active);
+        if f32 {
+            c.into_f32()
+        } else {
+            c
+        }
+    }
+
+    fn start(g: u32) -> V3 {
+        let x = g as f64;
+        [(x * 0.37).sin(), (x * 0.11).cos(), 1.0 / (1.0 + x)]
+    }
+
+    /// Sources on global nodes (two on one node, in order).
+    const SOURCES: [(u32, V3); 5] = [
+        (40, [1.0, 0.5, 0.0]),
+        (200, [0.0, 2.0, 1.0]),
+        (40, [1e-3, 0.0, 3.0]),
+        (170, [0.5; 3]),
+        (301, [1.0, -1.0, 0.25]),
+    ];
+
+    /// One process of a split, its halo values written by hand from the run of the whole mesh
+    /// before every sweep (the exchange a deep sweep makes once): the owned values after each
+    /// sweep of d substeps are bitwise those of the whole mesh's single substeps, for halos of
+    /// 2, 3 and 8 layers, sweeps of 2 to 8 substeps, float64 and float32 coefficients.
+    #[test]
+    fn deep_sweeps_are_bitwise_the_whole_meshs_substeps() {
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        one.install(deep_bitwise);
+    }
+
+    fn deep_bitwise() {
+        let whole = crate::bench::box_setup(7, "compact").unwrap();
+        let m = &whole.mesh;
+        let n = m.n_nodes();
+        let (xadj, adj) = eprop_partition::node_graph(n, &m.offsets, &m.conn);
+        let key = eprop_partition::rcm_keys(&xadj, &adj);
+        let h = 2e-3;
+        for f32 in [false, true] {
+            // the whole mesh, one substep at a time: the state after every substep, by global id
+            let serial = Plan::new(n, &m.offsets, &m.conn, &vec![0; n], 0, Some(&key));
+            let mut all = Propagation::new(
+                Operator::Compact(operator_of(&whole, &serial, f32)),
+                Halo::serial(),
+                serial.numbering.layout(),
+            );
+            all.set_fuse(1);
+            let g_all = &serial.numbering.global;
+            for (x, &g) in all.phi.iter_mut().zip(g_all) {
+                *x = start(g);
+            }
+            let local_of = |plan: &Plan, g: u32| plan.numbering.global.iter().position(|&x| x == g);
+            let q_all: Vec<(u32, V3)> = SOURCES
+                .iter()
+                .map(|&(g, q)| (local_of(&serial, g).unwrap() as u32, q))
+                .collect();
+            let mut states = vec![];
+            for _ in 0..=16 {
+                let mut by_gid = vec![[0.0; 3]; n];
+                for (x, &g) in all.phi.iter().zip(g_all) {
+                    by_gid[g as usize] = *x;
+                }
+                states.push(by_gid);
+                all.substep(h, &q_all);
+            }
+            for parts in [2, 3] {
+                let part = eprop_partition::partition(&xadj, &adj, parts, eprop_partition::Method::Metis).unwrap();
+                for (depth, sweeps) in [(2, &[2][..]), (3, &[2, 3]), (8, &[2, 3, 8])] {
+                    for rank in 0..parts {
+                        let plan = Plan::with_depth(n, &m.offsets, &m.conn, &part, rank, Some(&key), depth);
+                        assert!(plan.rows() > plan.numbering.n_owned, "halo rows to compute");
+                        let nb = &plan.numbering;
+                        let (q, hq): (Vec<(u32, V3)>, Vec<(u32, V3)>) = SOURCES
+                            .iter()
+                            .filter_map(|&(g, q)| local_of(&plan, g).map(|l| (l as u32, q)))
+                            .filter(|&(l, _)| (l as usize) < plan.rows())
+                            .partition(|&(l, _)| (l as usize) < nb.n_owned);
+                        for &d in sweeps {
+                            let mut p = Propagation::new(
+                                Operator::Compact(operator_of(&whole, &plan, f32)),
+                                Halo::without_comm(plan.pattern.clone()),
+                                nb.layout(),
+                            );
+                            assert_eq!(p.halo_depth(), depth);
+                            p.set_fuse(d);
+                            assert!(p.fuses());
+                            p.set_halo_sources(hq.clone());
+                            if rank == 1 {
+                                p.set_sweep_order(plan.order.clone()); // else the local order
+                            }
+                            for (x, &g) in p.phi.iter_mut().zip(&nb.global) {
+                                *x = start(g);
+                            }
+                            for sweep in 1..=2 {
+                                p.substeps(h, &q, d);
+                                let want = &states[sweep * d];
+                                for (l, x) in p.phi.owned().iter().enumerate() {
+                                    let g = nb.global[l] as usize;
+                                    assert!(
+                                        x.iter().zip(&want[g]).all(|(a, b)| a.to_bits() == b.to_bits()),
+                                        "f32 {f32}, {parts} parts, rank {rank}, {depth} layers, sweep {sweep} of {d}: node {g}"
+                                    );
+                                }
+                                // the exchange, by hand
+                                for l in nb.n_owned..nb.n_local() {
+                                    p.phi[l] = want[nb.global[l] as usize];
+                                }
+                            }
+                            assert_ne!(states[2 * d], states[0], "the values move");
+                        }
+                    }
+                }
+            }
+        }
     }
 }

@@ -315,6 +315,7 @@ impl Simulation {
         dual.row_ptr = Vec::new();
         crate::diagnostics::log_memory("the operator");
         let mut prop = Propagation::new(op, halo, layout);
+        prop.set_sweep_order(plan.order);
         tracing::info!(
             "geometry and operator built ({} rows); searching the stable substep",
             n_owned

@@ -303,6 +303,10 @@ pub struct Plan {
     pub pattern: HaloPattern,
     /// Global ids of the local cells, increasing.
     pub cells: Vec<u32>,
+    /// A plan of two layers or more: the rows `0..rows()` by locality key (ties: global id),
+    /// the order a fused sweep over a deep halo visits them (owned and halo rows of one region
+    /// together); empty otherwise.
+    pub order: Vec<u32>,
 }
 
 impl Plan {
@@ -454,6 +458,24 @@ impl Plan {
                 recv: recv.iter().map(|r| r.1).collect(),
             });
         }
+        let rows = if depth >= 2 {
+            layer_end[depth - 2] as usize
+        } else {
+            n_owned
+        };
+        let order = match (depth, key) {
+            (1, _) => vec![],
+            (_, Some(k)) => {
+                let mut o: Vec<u32> = (0..rows as u32).collect();
+                o.sort_by_key(|&l| (k[global[l as usize] as usize], global[l as usize]));
+                o
+            }
+            (_, None) => {
+                let mut o: Vec<u32> = (0..rows as u32).collect();
+                o.sort_by_key(|&l| global[l as usize]);
+                o
+            }
+        };
         Plan {
             rank,
             numbering: LocalNumbering {
@@ -463,6 +485,7 @@ impl Plan {
             },
             pattern: HaloPattern { neighbours, layer_end },
             cells,
+            order,
         }
     }
 
@@ -839,6 +862,12 @@ mod tests {
                         assert!(nb.global[e..].iter().all(|&g| d[g as usize] > l as u32));
                     }
                     assert_eq!(p.rows(), p.pattern.layers_end(depth - 1, nb.n_owned));
+                    // the visiting order: every row once, by key
+                    let keys: Vec<u64> = p.order.iter().map(|&l| key[nb.global[l as usize] as usize]).collect();
+                    assert!(keys.windows(2).all(|w| w[0] <= w[1]));
+                    let mut o = p.order.clone();
+                    o.sort_unstable();
+                    assert_eq!(o, (0..p.rows() as u32).collect::<Vec<_>>());
                     // the cells: every cell with a node in a row (owned or layers 1..depth-1)
                     let want: Vec<u32> = (0..off.len() - 1)
                         .filter(|&c| conn[off[c]..off[c + 1]].iter().any(|&v| d[v as usize] < depth as u32))
