@@ -26,6 +26,11 @@ pub trait Comm {
     fn all_gather(&self, x: &[f64]) -> Vec<f64>;
     /// Ends every process after an error on this one.
     fn abort(&self, code: i32) -> !;
+    /// The MPI communicator of these processes, for libraries that take one (None on one
+    /// process without MPI).
+    fn raw_comm(&self) -> Option<mpi::ffi::MPI_Comm> {
+        None
+    }
 }
 
 /// A 256-bit two's-complement integer (`hi * 2^128 + lo`): the accumulator of `exact_sum`.
@@ -146,6 +151,137 @@ pub fn exact_sums<const K: usize>(comm: &dyn Comm, local: impl Iterator<Item = [
         }
     }
     out
+}
+
+/// `exact_sums` of K sums over the terms `term(0..n)`, computed by the rayon threads in
+/// blocks (the same result: the terms are truncated to the same grid and added exactly, so the
+/// grouping does not matter). For the dot products of the implicit solves, where one pass
+/// over a few hundred thousand nodes must cost no more than an operator application.
+pub fn exact_sums_par<const K: usize, F>(comm: &dyn Comm, n: usize, term: F) -> [f64; K]
+where
+    F: Fn(usize) -> [f64; K] + Sync,
+{
+    use rayon::prelude::*;
+    const BLOCK: usize = 4096;
+    let blocks = n.div_ceil(BLOCK);
+    let range = |b: usize| b * BLOCK..((b + 1) * BLOCK).min(n);
+    let m = (0..blocks)
+        .into_par_iter()
+        .map(|b| {
+            let mut m = [0.0f64; K];
+            for i in range(b) {
+                let x = term(i);
+                for k in 0..K {
+                    m[k] = if x[k].is_finite() {
+                        m[k].max(x[k].abs())
+                    } else {
+                        f64::INFINITY
+                    };
+                }
+            }
+            m
+        })
+        .reduce(
+            || [0.0; K],
+            |a, b| {
+                let mut c = [0.0; K];
+                for k in 0..K {
+                    c[k] = a[k].max(b[k]);
+                }
+                c
+            },
+        );
+    let m = comm.max_each(&m);
+    let grids: [Grid; K] = std::array::from_fn(|k| Grid::new(m[k]));
+    let part = (0..blocks)
+        .into_par_iter()
+        .map(|b| {
+            // one block's integers fit an i128: 4096 terms of at most 2^100
+            let mut part = [0i128; K];
+            for i in range(b) {
+                let x = term(i);
+                for k in 0..K {
+                    part[k] += grids[k].fixed(x[k]);
+                }
+            }
+            part.map(Wide::from_i128)
+        })
+        .reduce(
+            || [Wide::default(); K],
+            |a, b| {
+                let mut c = a;
+                for k in 0..K {
+                    c[k] = c[k].plus(b[k]);
+                }
+                c
+            },
+        );
+    let total = comm.sum_wide(&part);
+    std::array::from_fn(|k| grids[k].value(total[k]))
+}
+
+/// The fixed-point grid of an exact sum whose terms are at most `m` in magnitude (`m` the same
+/// on every process: a maximum or a bound reduced with `Comm::max`): terms are truncated to
+/// 2^(e-100), e = ceil(log2 m), and added as integers, as `exact_sums` does. A bound above the
+/// largest term only coarsens the grid (each doubling costs one of the 100 bits); a
+/// non-finite bound makes the sum NaN.
+#[derive(Clone, Copy, Debug)]
+pub struct Grid {
+    sa: f64,
+    sb: f64,
+    /// 0: every term is zero; 1: a grid; 2: NaN
+    state: u8,
+}
+
+impl Grid {
+    pub fn new(m: f64) -> Grid {
+        if !m.is_finite() {
+            return Grid {
+                sa: 0.0,
+                sb: 0.0,
+                state: 2,
+            };
+        }
+        if !(m > 0.0) {
+            return Grid {
+                sa: 0.0,
+                sb: 0.0,
+                state: 0,
+            };
+        }
+        let e = m.log2().ceil() as i32;
+        let q = 100 - e; // |x| * 2^q <= 2^100
+        Grid {
+            sa: 2f64.powi(q / 2),
+            sb: 2f64.powi(q - q / 2),
+            state: 1,
+        }
+    }
+    /// The term on the grid, as an integer (|x| <= m).
+    #[inline(always)]
+    pub fn fixed(&self, x: f64) -> i128 {
+        truncate(x * self.sa * self.sb)
+    }
+    /// The sum of the integers of every process, as f64.
+    pub fn value(&self, total: Wide) -> f64 {
+        match self.state {
+            0 => 0.0,
+            1 => total.to_f64() / self.sa / self.sb,
+            _ => f64::NAN,
+        }
+    }
+}
+
+/// `y as i128` (truncation toward zero) for |y| <= 2^100, by two 64-bit conversions (one
+/// instruction each) instead of the 128-bit library call: y = hi 2^62 + lo exactly, with
+/// hi = trunc(y 2^-62) and lo = y - hi 2^62 (exact: it keeps the low bits of y), |lo| < 2^62,
+/// and lo has the sign of y, so truncating lo truncates y.
+#[inline(always)]
+fn truncate(y: f64) -> i128 {
+    const S: f64 = (1u64 << 62) as f64;
+    let hi = (y * (1.0 / S)) as i64; // truncates; |hi| <= 2^38
+    let lo = y - hi as f64 * S;
+    ((hi as i128) << 62) + lo as i64 as i128
 }
 
 /// Exclusive prefix sums of message sizes (MPI displacements).
@@ -278,6 +414,10 @@ impl Comm for Mpi {
     fn abort(&self, code: i32) -> ! {
         self.world.abort(code)
     }
+    fn raw_comm(&self) -> Option<mpi::ffi::MPI_Comm> {
+        use mpi::raw::AsRaw;
+        Some(self.world.as_raw())
+    }
 }
 
 #[cfg(test)]
@@ -338,5 +478,36 @@ mod tests {
         assert_eq!(exact_sum(&Serial, std::iter::empty()), 0.0);
         let [a, b] = exact_sums(&Serial, [[1.0, 2.0], [3.0, -2.0]].into_iter());
         assert_eq!((a, b), (4.0, 0.0));
+    }
+
+    #[test]
+    fn parallel_exact_sums_equal_the_serial_ones() {
+        let x: Vec<f64> = (0..100_003u64)
+            .map(|i| {
+                let r = crate::integrate::stability::hash_unit(i);
+                r * 10f64.powi((i % 37) as i32 - 18)
+            })
+            .collect();
+        let serial = exact_sums(&Serial, x.iter().map(|&v| [v, v * v, -v, 0.0]));
+        let par = exact_sums_par(&Serial, x.len(), |i| [x[i], x[i] * x[i], -x[i], 0.0]);
+        assert_eq!(serial.map(f64::to_bits), par.map(f64::to_bits));
+        for y in [
+            0.0,
+            -0.0,
+            1.5,
+            -1.5,
+            2f64.powi(100),
+            -(2f64.powi(100)),
+            2f64.powi(62) - 512.0,
+            -(2f64.powi(70)) - 4096.0,
+            0.999,
+            -0.999,
+            3.7e25,
+            -3.7e25,
+        ] {
+            assert_eq!(truncate(y), y as i128, "{y}");
+        }
+        assert!(exact_sums_par(&Serial, 2, |i| [if i == 1 { f64::NAN } else { 1.0 }])[0].is_nan());
+        assert_eq!(exact_sums_par(&Serial, 0, |_| [1.0]), [0.0]);
     }
 }

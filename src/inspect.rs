@@ -32,6 +32,8 @@ pub struct MeshInfo {
     pub min_quality: f64,
     pub max_quality: f64,
     pub stable_h_r005: f64,
+    /// Which nodes and cells set the stable substep (conductivity 0.05).
+    pub stiffness: crate::integrate::stiffness::Stiffness,
     pub unreferenced_nodes: usize,
     pub warnings: Vec<String>,
 }
@@ -52,7 +54,9 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
     let r = vec![Tensor::identity() * 0.05; n];
     let a = compact_coefficients(mesh, &inc, &dual, &r);
     let active: Vec<bool> = dual.vol.iter().map(|&v| v > 0.0).collect();
-    let g = Compact::new(&dual, &a, &active).gershgorin();
+    let op = Compact::new(&dual, &a, &active);
+    let g = op.gershgorin();
+    let stiffness = crate::integrate::stiffness::analyse(mesh, &op, &dual.vol, &r, &|c| mesh.cell_id(c));
     let (lo, hi) = mesh.bounds();
     let unref = dual.vol.iter().filter(|&&v| v <= 0.0).count();
     let mut warnings = mesh.warnings.clone();
@@ -77,6 +81,7 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
         min_quality: qmin,
         max_quality: qmax,
         stable_h_r005: SAFETY * 2.0 / g,
+        stiffness,
         unreferenced_nodes: unref,
         warnings,
     }
@@ -121,8 +126,9 @@ impl std::fmt::Display for MeshInfo {
         )?;
         write!(
             f,
-            "  stable h         {:.4e} (compact, conductivity 0.05, {SAFETY} of the bound)",
-            self.stable_h_r005
+            "  stable h         {:.4e} (compact, conductivity 0.05, {SAFETY} of the bound)\n{}",
+            self.stable_h_r005,
+            self.stiffness.describe(17)
         )?;
         for w in &self.warnings {
             write!(f, "\n  warning          {w}")?;
@@ -229,6 +235,11 @@ pub struct CheckReport {
     pub loads: Vec<(usize, f64)>,
     pub scheme: String,
     pub integrator: String,
+    pub integrator_why: String,
+    /// What `substeps` counts, with its unit ("4 substeps", "14 stages").
+    pub per_step: String,
+    /// Which nodes and cells set the Euler substep (compact scheme).
+    pub stiffness: Option<crate::integrate::stiffness::Stiffness>,
     pub h: f64,
     pub h_bound: f64,
     pub dt: f64,
@@ -281,6 +292,9 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         loads: sim.loads.iter().map(|l| (l.nodes.len(), l.area)).collect(),
         scheme: scheme_name(sim.setup.model.scheme()).to_string(),
         integrator: sim.step_plan().integrator.to_string(),
+        integrator_why: sim.step_plan().why.clone(),
+        per_step: sim.step_plan().per_step_phrase(),
+        stiffness: crate::integrate::stiffness::of_simulation(&sim),
         h: sim.step_plan().h,
         h_bound: sim.step_plan().h_bound,
         dt: sim.dt,
@@ -291,7 +305,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         output_steps,
         output_mib: (n * fields) as f64 * width * output_steps as f64 / 1048576.0,
         memory_mib: peak_rss() as f64 / 1048576.0,
-        estimated_seconds: per_substep * 1.3 * sim.step_plan().per_step as f64 * steps as f64,
+        estimated_seconds: per_substep * 1.3 * sim.step_plan().cost * steps as f64,
         warnings,
     })
 }
@@ -310,9 +324,13 @@ impl std::fmt::Display for CheckReport {
         }
         writeln!(
             f,
-            "  scheme      {}, h = {:.4e} (bound {:.4e}), dt = {:.4e} (bound {:.4e}), {} substeps per step",
-            self.scheme, self.h, self.h_bound, self.dt, self.dt_bound, self.substeps
+            "  scheme      {}, Euler substep h = {:.4e} (bound {:.4e}), dt = {:.4e} (bound {:.4e}), {} per step",
+            self.scheme, self.h, self.h_bound, self.dt, self.dt_bound, self.per_step
         )?;
+        writeln!(f, "  integrator  {}: {}", self.integrator, self.integrator_why)?;
+        if let Some(s) = &self.stiffness {
+            writeln!(f, "{}", s.describe(12))?;
+        }
         writeln!(
             f,
             "  run         {} steps, about {:.3} s on one process; {:.1} MiB of memory",

@@ -15,7 +15,8 @@ use std::process::ExitCode;
     version,
     about = "Soft-tissue deformation by Poisson energy propagation",
     long_about = "eprop turns a force on an organ into a directional energy source, spreads that energy \
-through the volume with a vector Poisson equation (median-dual finite volumes, explicit Euler) \
+through the volume with a vector Poisson equation (median-dual finite volumes, explicit Euler or \
+super-time-stepping or implicit TR-BDF2) \
 and moves the nodes with damped dynamics driven by the propagated potential.\n\n\
 A run is described by a scenario file (TOML): mesh, material, model, fixed set, loads, time, output.\n\
 Results go to one HDF5 file (VTKHDF) that ParaView opens and h5py reads.",
@@ -39,7 +40,10 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [material]  mass = 1.0, damping = 2.0, conductivity = 0.05 | [rx, ry, rz] | 3x3 table\n\
   [[material.region]]  box | sphere | halfspace | tag | group, and conductivity / mass / damping\n\
   [model]     scheme = \"compact\" | \"paper\", paper_correction = true, operator_precision = \"float64\" | \"float32\",\n\
-              stiffness = 1.0 (k_e), coupling = 1.0 (kappa), exponent = 1.0 (p)\n\
+              stiffness = 1.0 (k_e), coupling = 1.0 (kappa), exponent = 1.0 (p),\n\
+              integrator = \"auto\" | \"euler\" | \"rkl2\" | \"implicit\" (docs/integrators.md)\n\
+  [integrator] tolerance = 1e-8, preconditioner = \"jacobi\" | \"amg\", max_iterations = 2000 (implicit);\n\
+              max_stages = 4096 (rkl2)\n\
   [tissue]    young = 100.0, beta = 0.0 (exponential law when > 0)\n\
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\
               halfspace = {point, normal} | nodes = [ids] | tag = N | group = \"name\"\n\
@@ -84,7 +88,8 @@ continues an interrupted series from its last complete step.")]
         #[arg(long)]
         json: bool,
     },
-    /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep.
+    /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep and the
+    /// nodes and cells that set it.
     Info {
         /// Mesh file (.msh, .vtk, .vtu, .node/.ele, .mesh)
         mesh: PathBuf,

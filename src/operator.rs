@@ -257,6 +257,31 @@ impl Compact {
         }
     }
 
+    /// y_i <- f(acc, i, x_i, (L x)_i, y_i) for the rows `start..start + y.len()` with the vector
+    /// kernel (the same row sums as the Euler step's), when it is chosen and this CPU has it;
+    /// false (nothing done) otherwise.
+    #[inline]
+    fn vector_update<A, F>(&self, x: &[V3], y: &mut [V3], start: usize, acc: &mut A, f: &F) -> bool
+    where
+        F: Fn(&mut A, usize, V3, V3, &mut V3),
+    {
+        #[cfg(target_arch = "x86_64")]
+        if self.kernel.vector && simd_available() {
+            let pf = self.kernel.prefetch;
+            // SAFETY: as in `vector_step`
+            unsafe {
+                if self.coef32.is_empty() {
+                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef, x, y, start, pf, acc, f)
+                } else {
+                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef32, x, y, start, pf, acc, f)
+                }
+            }
+            return true;
+        }
+        let _ = (x, y, start, acc, f);
+        false
+    }
+
     /// Gershgorin bound of the spectral radius of L.
     pub fn gershgorin(&self) -> f64 {
         (0..self.row_ptr.len() - 1)
@@ -371,6 +396,73 @@ mod avx {
         }
     }
 }
+
+#[cfg(target_arch = "x86_64")]
+mod avx_update {
+    use super::V3;
+    use std::arch::x86_64::*;
+
+    #[inline(always)]
+    unsafe fn load3(p: *const f64) -> __m256d {
+        _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p)), _mm_load_sd(p.add(2)), 1)
+    }
+
+    /// `avx::step_rows`'s row sums, handed to `f` with the row's index, x_i and y_i.
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn update_rows<C: Copy + Into<f64>, A, F>(
+        row_ptr: &[u32],
+        col: &[u32],
+        coef: &[C],
+        x: &[V3],
+        y: &mut [V3],
+        start: usize,
+        pf: usize,
+        acc: &mut A,
+        f: &F,
+    ) where
+        F: Fn(&mut A, usize, V3, V3, &mut V3),
+    {
+        let xp = x.as_ptr() as *const f64;
+        let rows = &row_ptr[start..start + y.len() + 1];
+        for (k, yi) in y.iter_mut().enumerate() {
+            let i = start + k;
+            let (s, e) = (rows[k] as usize, rows[k + 1] as usize);
+            let (cols, cs) = (&col[s..e], &coef[s..e]);
+            let xi = load3(xp.add(3 * i));
+            if pf > 0 {
+                let end = (e + pf).min(col.len());
+                for p in (s + pf).min(end)..end {
+                    _mm_prefetch::<_MM_HINT_T0>(xp.add(3 * *col.get_unchecked(p) as usize) as *const i8);
+                }
+            }
+            let mut acc4 = [_mm256_setzero_pd(); 4];
+            let quads = cols.len() / 4;
+            for q in 0..quads {
+                for (l, a) in acc4.iter_mut().enumerate() {
+                    let j = *cols.get_unchecked(4 * q + l) as usize;
+                    debug_assert!(j < x.len());
+                    let c = _mm256_set1_pd((*cs.get_unchecked(4 * q + l)).into());
+                    let d = _mm256_sub_pd(load3(xp.add(3 * j)), xi);
+                    *a = _mm256_fmadd_pd(c, d, *a);
+                }
+            }
+            for l in 0..cols.len() - 4 * quads {
+                let j = *cols.get_unchecked(4 * quads + l) as usize;
+                debug_assert!(j < x.len());
+                let c = _mm256_set1_pd((*cs.get_unchecked(4 * quads + l)).into());
+                let d = _mm256_sub_pd(load3(xp.add(3 * j)), xi);
+                acc4[l] = _mm256_fmadd_pd(c, d, acc4[l]);
+            }
+            let sum = _mm256_add_pd(_mm256_add_pd(acc4[0], acc4[1]), _mm256_add_pd(acc4[2], acc4[3]));
+            let mut l = [0.0f64; 4];
+            _mm256_storeu_pd(l.as_mut_ptr(), sum);
+            f(acc, i, *x.get_unchecked(i), [l[0], l[1], l[2]], yi);
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+use avx_update as avx_u;
 
 /// `paper` scheme: nodal Green-Gauss gradients, averaged flux, optional edge correction.
 pub struct Paper {
@@ -555,6 +647,62 @@ impl Operator {
             }
         });
     }
+    /// y_i <- f(i, x_i, (L x)_i, y_i) for the rows in `range`: an operator application fused
+    /// with a pointwise update (`f` may read y_i's old value, so a stage can overwrite a buffer
+    /// in place). The row sums are those of the Euler step's kernel: the same bits on any
+    /// partition.
+    pub fn update_rows<F>(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3], range: std::ops::Range<usize>, f: &F)
+    where
+        F: Fn(usize, V3, V3, &mut V3) + Sync,
+    {
+        self.fold_rows(x, g, y, range, &|_: &mut (), i, xi, l, yi| f(i, xi, l, yi), &|_, _| ());
+    }
+
+    /// `update_rows` that also folds a value over the rows: every block of rows starts from
+    /// `A::default()`, `f` updates it row by row and `combine` merges the blocks (in an order
+    /// that depends on the threads: the fold must not depend on it, as exact integer sums do).
+    pub fn fold_rows<A, F, C>(
+        &self,
+        x: &[V3],
+        g: &[[f64; 9]],
+        y: &mut [V3],
+        range: std::ops::Range<usize>,
+        f: &F,
+        combine: &C,
+    ) -> A
+    where
+        A: Default + Send,
+        F: Fn(&mut A, usize, V3, V3, &mut V3) + Sync,
+        C: Fn(A, A) -> A + Sync,
+    {
+        let start = range.start;
+        if let Operator::Compact(c) = self {
+            assert!(x.len() >= c.n_cols, "potential shorter than the operator's columns");
+        }
+        y[range]
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .map(|(b, chunk)| {
+                let mut acc = A::default();
+                let first = start + b * CHUNK;
+                if let Operator::Compact(c) = self {
+                    if c.vector_update(x, chunk, first, &mut acc, f) {
+                        return acc;
+                    }
+                }
+                for (k, yi) in chunk.iter_mut().enumerate() {
+                    let i = first + k;
+                    let l = match self {
+                        Operator::Compact(c) => c.row(i, x),
+                        Operator::Paper(p) => p.row(i, x, g),
+                    };
+                    f(&mut acc, i, x[i], l, yi);
+                }
+                acc
+            })
+            .reduce(A::default, combine)
+    }
+
     /// One forward Euler substep without source: y_i = x_i + h (L x)_i, for rows in `range`.
     pub fn step_rows(&self, x: &[V3], g: &[[f64; 9]], y: &mut [V3], h: f64, range: std::ops::Range<usize>) {
         let start = range.start;

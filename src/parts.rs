@@ -102,6 +102,7 @@ impl Setup {
             fixed: pick(&self.fixed, plan),
             loads: self.loads.clone(),
             model: self.model.clone(),
+            integrator: self.integrator.clone(),
             law: self.law,
             time: self.time,
             output: self.output.clone(),

@@ -558,6 +558,35 @@ impl Propagation {
         });
     }
 
+    /// y_i <- f(i, x_i, (L x)_i, y_i) on the owned rows, refreshing the halo of x first (overlapped
+    /// with the interior rows): one operator application fused with the pointwise part of a
+    /// stage or a solver iteration. Entries of y beyond the owned rows are left alone.
+    pub fn update_to<F>(&mut self, x: &mut NodeField<V3>, y: &mut [V3], f: F)
+    where
+        F: Fn(usize, V3, V3, &mut V3) + Sync,
+    {
+        self.fold_to(x, y, |_: &mut (), i, xi, l, yi| f(i, xi, l, yi), |_, _| ());
+    }
+
+    /// `update_to` that also folds a value over the owned rows (`Operator::fold_rows`): each
+    /// block of rows starts from `A::default()`, `combine` merges blocks in no fixed order.
+    pub fn fold_to<A, F, C>(&mut self, x: &mut NodeField<V3>, y: &mut [V3], f: F, combine: C) -> A
+    where
+        A: Default + Send,
+        F: Fn(&mut A, usize, V3, V3, &mut V3) + Sync,
+        C: Fn(A, A) -> A + Sync,
+    {
+        let Propagation {
+            op, halo, grad, layout, ..
+        } = self;
+        let mut total = Some(A::default());
+        sweep(op, halo, grad, x, *layout, |op, x, g, rows| {
+            let part = op.fold_rows(x, g, y, rows, &f, &combine);
+            total = Some(combine(total.take().unwrap_or_default(), part));
+        });
+        total.unwrap_or_default()
+    }
+
     /// y = L x on the owned rows of one process, x taken as it is (tests).
     pub fn apply(&mut self, x: &[V3], y: &mut [V3]) {
         let mut xf = NodeField::from_vec(self.layout, x.to_vec());

@@ -93,11 +93,12 @@ fn run_simulation(
 ) -> Result<Option<Summary>> {
     let plan = sim.step_plan();
     tracing::info!(
-        "h = {:.4e} (bound {:.4e}), dt = {:.4e}, {} substeps per step; writing {}",
+        "{}: Euler substep h = {:.4e} (bound {:.4e}), dt = {:.4e}, {} per step; writing {}",
+        plan.integrator,
         plan.h,
         plan.h_bound,
         sim.dt,
-        plan.per_step,
+        plan.per_step_phrase(),
         sim.setup.output.file.display()
     );
     let mut series = Series::start(&mut sim, &sizes, opts.restart.is_some(), io_comm)?;

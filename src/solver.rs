@@ -5,7 +5,7 @@
 use crate::comm::{exact_sum, Comm, Serial};
 use crate::field::NodeField;
 use crate::geometry::{compact_coefficients, Dual, Incidence};
-use crate::integrate::{stability, Euler, StepPlan, StepStats, Stepper};
+use crate::integrate::{stability, StepPlan, StepStats, Stepper};
 use crate::operator::{Compact, Operator, Paper, V3};
 use crate::propagation::Propagation;
 use crate::scatter::{BlockScatter, Halo};
@@ -46,20 +46,20 @@ pub struct Applied {
 pub struct Simulation {
     /// This process's view of the scenario: its local mesh and per-node arrays in local
     /// numbering (loads keep global node indices).
-    pub(crate) setup: Setup,
-    pub(crate) comm: Box<dyn Comm>,
+    pub setup: Setup,
+    pub comm: Box<dyn Comm>,
     /// The whole mesh, on the process that writes the static part of the output (rank 0).
     pub global: Option<Mesh>,
-    pub(crate) n_global: usize,
+    pub n_global: usize,
     numbering: LocalNumbering,
     /// Global node index of each local node.
     pub gid: Vec<u64>,
     /// Output blocks of the global node order.
-    pub(crate) blocks: BlockScatter,
+    pub blocks: BlockScatter,
     pub dual: Dual,
     pub prop: Propagation,
     /// The integrator of the propagation.
-    stepper: Box<dyn Stepper>,
+    pub stepper: Box<dyn Stepper>,
     /// nodes that move: not fixed and with a control volume
     pub active: Vec<bool>,
     pub u: NodeField<V3>,
@@ -67,7 +67,7 @@ pub struct Simulation {
     force: NodeField<V3>,
     pub loads: Vec<Load>,
     /// owned contact nodes of each load (local index, probe weight, force weight, source weight)
-    load_local: Vec<Vec<(u32, f64, f64, f64)>>,
+    pub load_local: Vec<Vec<(u32, f64, f64, f64)>>,
     /// contact nodes of each load among the halo rows (local index, source weight)
     load_halo: Vec<Vec<(u32, f64)>>,
     /// control volumes of this process's output block
@@ -128,16 +128,32 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
 }
 
 /// The stepper of the scenario for the mechanics step dt, on an operator whose forward Euler
-/// stability bound is `h_bound`.
-fn build_stepper(setup: &Setup, h_bound: f64, dt: f64) -> Result<Box<dyn Stepper>> {
+/// stability bound is `h_bound` (`integrate::choose`).
+fn build_stepper(
+    setup: &Setup,
+    prop: &mut Propagation,
+    vol: &[f64],
+    active: &[bool],
+    gid: &[u64],
+    h_bound: f64,
+    dt: f64,
+    comm: &dyn Comm,
+) -> Result<Box<dyn Stepper>> {
     let path = setup.scenario.path.display().to_string();
-    Ok(Box::new(Euler::new(
+    crate::integrate::choose::build(&mut crate::integrate::choose::Context {
+        settings: &setup.integrator,
+        scheme: scheme_name(setup.model.scheme()),
+        compact: setup.model.scheme() == Scheme::Compact,
         h_bound,
         dt,
-        setup.time.h,
-        &path,
-        scheme_name(setup.model.scheme()),
-    )?))
+        user_h: setup.time.h,
+        path: &path,
+        prop,
+        vol,
+        active,
+        gid,
+        comm,
+    })
 }
 
 /// Per load: its contact area and force direction (summed over the owners of its contact
@@ -322,7 +338,7 @@ impl Simulation {
         );
         let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
         let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
-        let stepper = build_stepper(&setup, h_bound, dt)?;
+        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, c)?;
         let (loads, load_local, load_halo) = resolve_loads(&setup, &dual, &numbering, n_rows, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
@@ -368,7 +384,16 @@ impl Simulation {
 
     /// Replaces the mechanics step (and re-plans the propagation for it).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
-        self.stepper = build_stepper(&self.setup, self.stepper.plan().h_bound, dt)?;
+        self.stepper = build_stepper(
+            &self.setup,
+            &mut self.prop,
+            &self.dual.vol,
+            &self.active,
+            &self.gid,
+            self.stepper.plan().h_bound,
+            dt,
+            self.comm.as_ref(),
+        )?;
         self.dt = dt;
         Ok(())
     }

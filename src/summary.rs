@@ -29,8 +29,11 @@ pub struct Summary {
     pub processes: usize,
     pub fixed_nodes: usize,
     pub scheme: String,
-    /// The integrator of the propagation.
+    /// The integrator of the propagation, and why it was chosen.
     pub integrator: String,
+    pub integrator_why: String,
+    /// What `substeps` counts, with its unit ("4 substeps", "14 stages").
+    pub per_step: String,
     pub h: f64,
     pub h_bound: f64,
     /// Substeps (or stages) per step as planned.
@@ -77,14 +80,14 @@ impl std::fmt::Display for Summary {
         )?;
         writeln!(
             f,
-            "  scheme      {}, h = {:.4e} (bound {:.4e}), {} substeps per step, dt = {:.4e}",
-            self.scheme, self.h, self.h_bound, self.substeps, self.dt
+            "  scheme      {}, Euler substep h = {:.4e} (bound {:.4e}), {} per step, dt = {:.4e}",
+            self.scheme, self.h, self.h_bound, self.per_step, self.dt
         )?;
         let [lo, med, hi] = self.applications_per_step;
         writeln!(
             f,
-            "  integrator  {}, operator applications per step {lo} / {med} / {hi} (min / median / max)",
-            self.integrator
+            "  integrator  {}, operator applications per step {lo} / {med} / {hi} (min / median / max): {}",
+            self.integrator, self.integrator_why
         )?;
         match self.restarted_from_step {
             Some(k) => writeln!(
@@ -206,6 +209,8 @@ pub fn summarize(sim: &Simulation, sizes: &GlobalSizes, series: &Series, t: Timi
         fixed_nodes: sim.fixed_nodes,
         scheme: scheme_name(sim.setup.model.scheme()).to_string(),
         integrator: plan.integrator.to_string(),
+        integrator_why: plan.why.clone(),
+        per_step: plan.per_step_phrase(),
         h: plan.h,
         h_bound: plan.h_bound,
         substeps: plan.per_step,

@@ -265,6 +265,86 @@ fn bitwise_identical_on_1_to_4_ranks_vtu_liver() {
     );
 }
 
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_every_deterministic_integrator() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    // stiff enough for tens of stages and iterations; a tolerance that is not the default
+    // (it travels in the part sent to every rank)
+    let stiff = format!("[material]\nconductivity = 2.0\n{CYL}");
+    check_ranks(&mesh, &format!("[model]\nintegrator = \"rkl2\"\n{stiff}"), "rkl2");
+    check_ranks(
+        &mesh,
+        &format!("[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\n{stiff}"),
+        "implicit",
+    );
+    check_ranks(&mesh, &stiff, "auto");
+}
+
+#[test]
+fn bitwise_identical_on_1_to_4_ranks_every_integrator_organ_mesh() {
+    let Some(mesh) = common::shared_mesh("mor_liverFine.vtu") else {
+        return;
+    };
+    let case = "[material]\nconductivity = 0.3\n[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n";
+    for kind in ["rkl2", "implicit"] {
+        check_ranks(&mesh, &format!("[model]\nintegrator = \"{kind}\"\n{case}"), kind);
+    }
+}
+
+#[test]
+#[cfg(feature = "hypre")]
+fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
+    // hypre's V-cycle follows the partition: not bitwise, but the same solution to the
+    // tolerance; and the same as the deterministic Jacobi path
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    let scenario = |pre: &str| {
+        let sc = d.path().join(format!("{pre}.toml"));
+        std::fs::write(
+            &sc,
+            format!(
+                "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\npreconditioner = \"{pre}\"\n[material]\nconductivity = 2.0\n{CYL}[time]\nsteps = 8\n",
+                mesh.display()
+            ),
+        )
+        .unwrap();
+        sc
+    };
+    let read = |f: &Path| -> Vec<f64> {
+        let h = hdf5::File::open(f).unwrap();
+        h.dataset("VTKHDF/PointData/displacement")
+            .unwrap()
+            .read_raw::<f64>()
+            .unwrap()
+    };
+    let (amg, jacobi) = (scenario("amg"), scenario("jacobi"));
+    let reference = d.path().join("jacobi.h5");
+    let out = serial(
+        &["run", jacobi.to_str().unwrap(), "-q", "-o", reference.to_str().unwrap()],
+        1,
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let want = read(&reference);
+    let norm = want.iter().map(|x| x * x).sum::<f64>().sqrt();
+    for n in [1, 2, 3] {
+        let f = d.path().join(format!("amg{n}.h5"));
+        let out = mpirun(n, &["run", amg.to_str().unwrap(), "-q", "-o", f.to_str().unwrap()]);
+        assert!(out.status.success(), "{n}: {}", String::from_utf8_lossy(&out.stderr));
+        assert!(String::from_utf8_lossy(&out.stdout).contains("amg preconditioner"));
+        let got = read(&f);
+        let diff = got
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+        assert!(diff < 1e-8 * norm, "{n} ranks: relative difference {}", diff / norm);
+    }
+}
+
 /// A generated cylinder in `dir` and a scenario on it with `steps` steps.
 fn cylinder_scenario(dir: &Path, rings: usize, layers: usize, steps: u64) -> std::path::PathBuf {
     let mesh = dir.join("cyl.msh");

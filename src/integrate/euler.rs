@@ -41,11 +41,20 @@ impl Euler {
                 integrator: "euler",
                 dt,
                 h: dt / substeps as f64,
+                step: dt / substeps as f64,
                 h_bound,
                 per_step: substeps,
+                cost: substeps as f64,
                 why,
             },
         })
+    }
+}
+
+impl Euler {
+    /// Replaces the plan's reason (the automatic choice says why it chose euler).
+    pub fn set_why(&mut self, why: String) {
+        self.plan.why = why;
     }
 }
 

@@ -32,7 +32,7 @@ pub use fixed::FixedSet;
 pub use loads::{Load, Push};
 pub use material::{Conductivity, MaterialSec, Region};
 pub use mesh::MeshSec;
-pub use model::{Model, Scheme, SchemeName, TissueSec};
+pub use model::{IntegratorSec, Model, Scheme, SchemeName, TissueSec};
 pub use output::{Field, Output, OutputSec};
 pub use select::{Entry, Keys, Selector};
 pub use time::{Stop, Time, TimeSec};
@@ -65,6 +65,8 @@ pub struct ScenarioFile {
     pub time: Spanned<TimeSec>,
     #[serde(default = "defaults")]
     pub output: OutputSec,
+    #[serde(default = "defaults")]
+    pub integrator: IntegratorSec,
 }
 
 /// A scenario file, parsed. It travels to other processes as its path and text.
@@ -241,6 +243,8 @@ pub struct Setup {
     pub fixed: Vec<bool>,
     pub loads: Vec<Load>,
     pub model: Model,
+    /// The integrator of the propagation and its settings.
+    pub integrator: crate::integrate::Settings,
     pub law: TissueLaw,
     pub time: Time,
     pub output: Output,
@@ -263,6 +267,7 @@ impl Setup {
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         Ok(Setup {
             model: f.model.clone(),
+            integrator: f.integrator.settings(f.model.integrator),
             law: f.tissue.law(),
             time,
             output,

@@ -8,8 +8,9 @@
 //! `values`). `Setup::model` carries it to every process and to the simulation.
 
 use super::values::{finite, non_negative, one, positive, yes, Precision};
+use crate::integrate::{self, Kind, Preconditioner, Settings};
 use crate::material::TissueLaw;
-use serde::{Deserialize, Serialize};
+use serde::{de::Error, Deserialize, Deserializer, Serialize};
 
 /// The scheme of the propagation operator, as the scenario spells it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -48,6 +49,85 @@ pub struct Model {
     /// p
     #[serde(default = "one", deserialize_with = "positive")]
     pub exponent: f64,
+    /// The integrator of the propagation (docs/integrators.md).
+    #[serde(default)]
+    pub integrator: Kind,
+}
+
+/// `[integrator]`: the settings of `rkl2` and `implicit`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IntegratorSec {
+    /// implicit: relative residual of every solve
+    #[serde(default = "default_tolerance", deserialize_with = "tolerance")]
+    pub tolerance: f64,
+    /// implicit: conjugate-gradient iterations per solve before it is an error
+    #[serde(default = "default_max_iterations", deserialize_with = "max_iterations")]
+    pub max_iterations: u64,
+    /// rkl2: stages per mechanics step before it is an error
+    #[serde(default = "default_max_stages", deserialize_with = "max_stages")]
+    pub max_stages: u64,
+    /// implicit: "jacobi" (deterministic) or "amg" (hypre BoomerAMG)
+    #[serde(default)]
+    pub preconditioner: Preconditioner,
+}
+
+fn default_tolerance() -> f64 {
+    integrate::DEFAULT_TOLERANCE
+}
+fn default_max_iterations() -> u64 {
+    integrate::DEFAULT_MAX_ITERATIONS as u64
+}
+fn default_max_stages() -> u64 {
+    integrate::DEFAULT_MAX_STAGES as u64
+}
+
+fn tolerance<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    let t = f64::deserialize(d)?;
+    if t > 0.0 && t < 1.0 {
+        Ok(t)
+    } else {
+        Err(D::Error::custom(format!(
+            "{t} is not a relative residual; fix: a number between 0 and 1, such as 1e-8 (the default)"
+        )))
+    }
+}
+
+fn max_iterations<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    let m = u64::deserialize(d)?;
+    if m >= 1 {
+        Ok(m.min(u32::MAX as u64))
+    } else {
+        Err(D::Error::custom(format!(
+            "must be at least 1; fix: leave it out (default {})",
+            integrate::DEFAULT_MAX_ITERATIONS
+        )))
+    }
+}
+
+fn max_stages<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    let m = u64::deserialize(d)?;
+    if m >= 2 {
+        Ok(m.min(u32::MAX as u64))
+    } else {
+        Err(D::Error::custom(format!(
+            "rkl2 needs at least 2 stages; fix: leave it out (default {})",
+            integrate::DEFAULT_MAX_STAGES
+        )))
+    }
+}
+
+impl IntegratorSec {
+    /// The integrator `kind` with these settings.
+    pub fn settings(&self, kind: Kind) -> Settings {
+        Settings {
+            kind,
+            tolerance: self.tolerance,
+            max_iterations: self.max_iterations as usize,
+            max_stages: self.max_stages as usize,
+            preconditioner: self.preconditioner,
+        }
+    }
 }
 
 impl Model {
