@@ -159,23 +159,20 @@ impl std::fmt::Display for Collective {
 
 impl std::error::Error for Collective {}
 
-/// Halo layers of the processes' plans by default on several processes running the compact
-/// scheme on one thread each: fused sweeps of up to this many substeps with one exchange each
-/// (`Propagation::substeps`, which chooses the depth by timing).
-pub const DEEP_HALO: usize = 4;
-
-/// Halo layers of every process's plan (`Plan::with_depth`): `EPROP_HALO=d` (1 to 16), else
-/// `DEEP_HALO` where fused sweeps run (several processes, the compact scheme, one thread per
-/// process), else 1. The paper scheme keeps one layer (it does not fuse).
+/// Halo layers of every process's plan (`Plan::with_depth`): `EPROP_HALO=d` (1 to 16) on
+/// several processes running the compact scheme, else 1. A deep halo (d >= 2) lets several
+/// processes fuse sweeps of up to d substeps with one exchange each (`Propagation::substeps`,
+/// which then chooses the depth by timing unless `EPROP_FUSE` says). It is off by default: on
+/// the loaded two-core machine of BENCHMARKS.md the fused sweeps of two processes waited on
+/// each other and ran slower than one substep per sweep. The paper scheme keeps one layer.
 pub fn halo_depth(setup: &Setup, processes: usize) -> usize {
     if !matches!(setup.model.scheme(), crate::scenario::Scheme::Compact) || processes < 2 {
         return 1;
     }
-    match std::env::var("EPROP_HALO").ok().and_then(|v| v.parse::<usize>().ok()) {
-        Some(d) => d.clamp(1, 16),
-        None if rayon::current_num_threads() == 1 => DEEP_HALO,
-        None => 1,
-    }
+    std::env::var("EPROP_HALO")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+        .map_or(1, |d| d.clamp(1, 16))
 }
 
 /// Rank 0's split of the whole mesh: the METIS part of every node and the locality keys.

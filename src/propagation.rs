@@ -40,6 +40,10 @@ pub struct Propagation {
     /// Level buffers of the fused sweep with four values per node (one 256-bit load per
     /// neighbour), else three (for comparisons: `examples/kernel_ab.rs`).
     pub pad: bool,
+    /// Over a deep halo, sweep the owned and halo rows in one wavefront in the plan's locality
+    /// order (`DeepFront`, `EPROP_DEEPFRONT=1`) rather than the interior wavefront then the
+    /// rest of each level (the default: the exchange hides behind the interior rows).
+    pub deep_front: bool,
     /// Halo layers a fused sweep may use (1: a one-layer halo, exchanged once per level; d >= 2:
     /// the operator has the rows of halo layers 1..d-1 and a sweep of up to d substeps
     /// exchanges d layers once, `deep_sweep`).
@@ -192,6 +196,7 @@ impl Propagation {
             wave: None,
             levels: vec![],
             pad: true,
+            deep_front: std::env::var("EPROP_DEEPFRONT").is_ok_and(|v| v == "1"),
             deep,
             layer_end,
             halo_q: vec![],
@@ -293,16 +298,22 @@ impl Propagation {
     /// and writes `levels[l - 1]`, the last level writes `next`, which becomes phi. The levels
     /// in between hold four values per node (one 256-bit load per neighbour).
     fn fused(&mut self, h: f64, q: &Sources, d: usize) {
-        if self.deep >= d {
+        if self.deep >= d && !self.deep_front {
+            if !self.pad {
+                self.fused_p::<3, true>(h, q, d)
+            } else {
+                self.fused_p::<4, true>(h, q, d)
+            }
+        } else if self.deep >= d {
             if !self.pad {
                 self.deep_sweep::<3>(h, q, d)
             } else {
                 self.deep_sweep::<4>(h, q, d)
             }
         } else if !self.pad {
-            self.fused_p::<3>(h, q, d)
+            self.fused_p::<3, false>(h, q, d)
         } else {
-            self.fused_p::<4>(h, q, d)
+            self.fused_p::<4, false>(h, q, d)
         }
     }
 
@@ -314,7 +325,16 @@ impl Propagation {
             let Operator::Compact(c) = &self.op else {
                 unreachable!("fused sweeps run the compact scheme")
             };
-            self.front = Some(DeepFront::new(c, self.layout, &self.layer_end, &self.order, d));
+            let f = DeepFront::new(c, self.layout, &self.layer_end, &self.order, d);
+            tracing::debug!(
+                "deep front: {} levels, {} runs, {} segments per level, owned {}, rows {}",
+                d,
+                f.runs.len(),
+                f.levels[0].len(),
+                self.layout.n_owned,
+                self.layer_end.get(d.saturating_sub(2)).copied().unwrap_or(0)
+            );
+            self.front = Some(f);
         }
         while self.levels.len() + 1 < d {
             self.levels.push(NodeField::filled(self.layout, [0.0; 4]));
@@ -383,10 +403,15 @@ impl Propagation {
         std::mem::swap(phi, next);
     }
 
-    fn fused_p<const P: usize>(&mut self, h: f64, q: &Sources, d: usize) {
+    fn fused_p<const P: usize, const DEEP: bool>(&mut self, h: f64, q: &Sources, d: usize) {
         self.wavefront();
         while self.levels.len() + 1 < d {
             self.levels.push(NodeField::filled(self.layout, [0.0; 4]));
+        }
+        let mut qs = q.to_vec();
+        if DEEP {
+            // the halo rows' sources too (indices beyond the owned ones)
+            qs.extend_from_slice(&self.halo_q);
         }
         let Propagation {
             op,
@@ -396,12 +421,12 @@ impl Propagation {
             wave,
             levels,
             layout,
+            layer_end,
             ..
         } = self;
         let (Operator::Compact(c), Some(w)) = (&*op, wave.as_ref()) else {
             unreachable!("fused sweeps run the compact scheme")
         };
-        let mut qs = q.to_vec();
         qs.sort_by_key(|s| s.0); // stable: a node's sources keep their order
                                  // level l on rows r, then the sources of those rows
         let run = |phi: &NodeField<V3>,
@@ -449,7 +474,7 @@ impl Propagation {
             }
         };
         // the wavefront over the interior, phi's halo in flight
-        let mut ex = Some(halo.start(phi.flat(), 3));
+        let mut ex = Some(halo.start_layers(phi.flat(), 3, 3, if DEEP { d } else { 1 }));
         let mut at = vec![0usize; d + 1];
         let mut front = vec![0usize; d + 1];
         front[0] = usize::MAX;
@@ -486,6 +511,25 @@ impl Propagation {
             }
         }
         let border = layout.border();
+        if DEEP {
+            // the rest of each level in level order: the interior rows outside the wavefront,
+            // the border rows and halo layers 1..d-l (each level's halo rows read the level
+            // before on one layer more, all computed here from phi's d layers)
+            if let Some(e) = ex.take() {
+                e.finish(phi.flat_mut());
+            }
+            for l in 1..=d {
+                for r in &w.rest[l - 1] {
+                    run(phi, next, levels, l, r.clone());
+                }
+                run(phi, next, levels, l, border.clone());
+                if l < d {
+                    run(phi, next, levels, l, layout.n_owned..layer_end[d - l - 1]);
+                }
+            }
+            std::mem::swap(phi, next);
+            return;
+        }
         // the rest of each level in level order, one halo exchange per level (that of level
         // l - 1 in flight while the interior rows of level l outside the wavefront run)
         for l in 1..=d {
@@ -833,7 +877,8 @@ mod deep_tests {
     /// One process of a split, its halo values written by hand from the run of the whole mesh
     /// before every sweep (the exchange a deep sweep makes once): the owned values after each
     /// sweep of d substeps are bitwise those of the whole mesh's single substeps, for halos of
-    /// 2, 3 and 8 layers, sweeps of 2 to 8 substeps, float64 and float32 coefficients.
+    /// 2, 3 and 8 layers, sweeps of 2 to 8 substeps, float64 and float32 coefficients, both
+    /// deep sweeps (the interior wavefront then the rest; `DeepFront`).
     #[test]
     fn deep_sweeps_are_bitwise_the_whole_meshs_substeps() {
         let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
@@ -886,7 +931,7 @@ mod deep_tests {
                             .filter_map(|&(g, q)| local_of(&plan, g).map(|l| (l as u32, q)))
                             .filter(|&(l, _)| (l as usize) < plan.rows())
                             .partition(|&(l, _)| (l as usize) < nb.n_owned);
-                        for &d in sweeps {
+                        for (&d, front) in sweeps.iter().flat_map(|d| [(d, false), (d, true)]) {
                             let mut p = Propagation::new(
                                 Operator::Compact(operator_of(&whole, &plan, f32)),
                                 Halo::without_comm(plan.pattern.clone()),
@@ -896,6 +941,7 @@ mod deep_tests {
                             p.set_fuse(d);
                             assert!(p.fuses());
                             p.set_halo_sources(hq.clone());
+                            p.deep_front = front;
                             if rank == 1 {
                                 p.set_sweep_order(plan.order.clone()); // else the local order
                             }
@@ -909,7 +955,7 @@ mod deep_tests {
                                     let g = nb.global[l] as usize;
                                     assert!(
                                         x.iter().zip(&want[g]).all(|(a, b)| a.to_bits() == b.to_bits()),
-                                        "f32 {f32}, {parts} parts, rank {rank}, {depth} layers, sweep {sweep} of {d}: node {g}"
+                                        "f32 {f32}, {parts} parts, rank {rank}, {depth} layers, front {front}, sweep {sweep} of {d}: node {g}"
                                     );
                                 }
                                 // the exchange, by hand

@@ -163,7 +163,7 @@ fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
 /// of the inner layers computed by every process that holds them) against one sweep per
 /// substep on one process: bitwise the same output on 2-4 ranks for halos of 2, 3, 4 and 8
 /// layers, full sweeps and shorter ones (7 substeps per step), a point load and a patch load
-/// (sources on halo rows), and the run logs that the deep sweep ran.
+/// (sources on halo rows), both deep sweeps, and the run logs that the deep sweep ran.
 fn check_deep(mesh: &Path, setting: &str, tag: &str, cases: &[(&str, &str)]) {
     let d = tempfile::Builder::new().prefix(tag).tempdir().unwrap();
     let sc = d.path().join("s.toml");
@@ -183,22 +183,23 @@ fn check_deep(mesh: &Path, setting: &str, tag: &str, cases: &[(&str, &str)]) {
         &[("EPROP_FUSE", "1")],
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    for &(halo, fuse) in cases {
+    // both deep sweeps: the interior wavefront then the rest of each level, and one wavefront
+    // over owned and halo rows in the locality order (`EPROP_DEEPFRONT=1`)
+    let fronts = cases.iter().flat_map(|&(h, f)| [(h, f, "0"), (h, f, "1")]);
+    for (halo, fuse, front) in fronts {
         for n in 2..=4 {
-            let f = d.path().join(format!("h{halo}f{fuse}n{n}.h5"));
+            let f = d.path().join(format!("h{halo}f{fuse}d{front}n{n}.h5"));
             let out = mpirun_env(
                 n,
                 &["-vv", "run", sc, "-q", "-o", f.to_str().unwrap()],
-                &[("EPROP_HALO", halo), ("EPROP_FUSE", fuse)],
+                &[("EPROP_HALO", halo), ("EPROP_FUSE", fuse), ("EPROP_DEEPFRONT", front)],
             );
             let log = String::from_utf8_lossy(&out.stderr);
-            assert!(out.status.success(), "halo {halo}, fuse {fuse}, {n} ranks: {log}");
+            let case = format!("halo {halo}, fuse {fuse}, front {front}, {n} ranks");
+            assert!(out.status.success(), "{case}: {log}");
             let want = format!("propagation: {halo} halo layers for fused sweeps, {fuse} substeps per sweep");
-            assert_eq!(
-                log.matches(&want).count(),
-                n,
-                "halo {halo}, fuse {fuse}, {n} ranks: {log}"
-            );
+            assert_eq!(log.matches(&want).count(), n, "{case}: {log}");
+            assert_eq!(log.contains("deep front: "), front == "1", "{case}: {log}");
             assert_same(&plain, &f);
         }
     }
