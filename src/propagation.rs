@@ -289,6 +289,7 @@ impl Propagation {
             return None;
         };
         if self.wave.as_ref().is_none_or(|w| w.depth < self.fuse) {
+            tracing::debug!("wavefront: {} levels", self.fuse);
             self.wave = Some(Wavefront::new(c, self.layout, self.fuse));
         }
         self.wave.as_ref()
