@@ -67,6 +67,14 @@ class Series:
         p = self.f["eprop/probes"]
         return p["force"][: self.steps], p["displacement"][: self.steps]
 
+    def tools(self):
+        """Per tool, over the complete steps: dict of time (S,), position, force, displacement
+        (S, T, 3), contact_nodes, contact_area, indentation (S, T)."""
+        if "eprop/tools" not in self.f:
+            raise Fail(f"{self.path}: the run has no [[tool]] (no /eprop/tools)")
+        g = self.f["eprop/tools"]
+        return {k: g[k][: self.steps] for k in g.keys()}
+
     def scenario(self):
         raw = self.f["eprop/scenario"][()]
         return bytes(np.asarray(raw, dtype=np.uint8)).decode("utf-8", "replace")

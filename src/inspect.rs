@@ -233,6 +233,9 @@ pub struct CheckReport {
     pub fixed_nodes: usize,
     /// Per load: contact nodes and contact area.
     pub loads: Vec<(usize, f64)>,
+    /// Per tool: what it is, where it starts and how deep it is in the organ then.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub tools: Vec<String>,
     pub scheme: String,
     pub integrator: String,
     pub integrator_why: String,
@@ -290,11 +293,28 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         cells: mesh.n_cells(),
         fixed_nodes: sim.fixed_nodes,
         loads: sim.loads.iter().map(|l| (l.nodes.len(), l.area)).collect(),
+        tools: sim
+            .tools
+            .iter()
+            .map(|t| {
+                let (s, p) = (&t.tool.shape, t.state.position);
+                format!(
+                    "{} of radius {} at ({:.4}, {:.4}, {:.4}) at t = 0, indentation {:.4e}{}",
+                    s.name(),
+                    s.radius(),
+                    p[0],
+                    p[1],
+                    p[2],
+                    t.state.indentation,
+                    if t.tool.live { "; live (eprop serve)" } else { "" }
+                )
+            })
+            .collect(),
         scheme: scheme_name(sim.setup.model.scheme()).to_string(),
         integrator: sim.step_plan().integrator.to_string(),
         integrator_why: sim.step_plan().why.clone(),
         per_step: sim.step_plan().per_step_phrase(),
-        stiffness: crate::integrate::stiffness::of_simulation(&sim),
+        stiffness: sim.stiffness(),
         h: sim.step_plan().h,
         h_bound: sim.step_plan().h_bound,
         dt: sim.dt,
@@ -321,6 +341,9 @@ impl std::fmt::Display for CheckReport {
         writeln!(f, "  fixed       {} nodes", self.fixed_nodes)?;
         for (k, (n, a)) in self.loads.iter().enumerate() {
             writeln!(f, "  load {}      {n} contact node(s), contact area {a:.4e}", k + 1)?;
+        }
+        for (k, t) in self.tools.iter().enumerate() {
+            writeln!(f, "  tool {}      {t}", k + 1)?;
         }
         writeln!(
             f,

@@ -8,6 +8,7 @@
 
 pub mod bench;
 pub mod comm;
+pub mod contact;
 mod diagnostics;
 pub mod field;
 pub mod geometry;
@@ -23,8 +24,10 @@ pub mod run;
 pub mod scatter;
 pub mod scenario;
 mod series;
+pub mod serve;
 pub mod solver;
 pub mod summary;
+pub mod tables;
 #[cfg(test)]
 mod testing;
 pub mod wavefront;

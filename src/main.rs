@@ -4,6 +4,7 @@ use anyhow::{bail, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use eprop::launch::{is_root, launch};
 use eprop::run::{run_on, RunOptions};
+use eprop::serve::{serve_on, ServeOptions};
 use eprop::{bench, inspect};
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use std::path::PathBuf;
@@ -48,14 +49,17 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\
               halfspace = {point, normal} | nodes = [ids] | tag = N | group = \"name\"\n\
   [[load]]    node = ID | nearest = [x,y,z] | patch = {center, radius};\n\
-              force = [fx,fy,fz] | normal = magnitude;\n\
-              ramp = [[t0, s0], [t1, s1], ...] (optional scale in time)\n\
+              force = [fx,fy,fz] | normal = magnitude | table = \"forces.csv\" (columns t, fx, fy, fz);\n\
+              ramp = [[t0, s0], [t1, s1], ...] (optional scale in time); live = false (eprop serve)\n\
+  [[tool]]    shape = \"sphere\" | \"punch\", radius = R, normal = [nx,ny,nz] (punch: pressing direction);\n\
+              start = [x,y,z] and velocity = [vx,vy,vz] | table = \"path.csv\" (columns t, x, y, z);\n\
+              live = false (eprop serve: the client moves it). See docs/tools.md\n\
   [time]      steps = N | end = T | equilibrium = tol;  dt, h optional (automatic)\n\
   [output]    file = \"out.h5\", every = 1, fields = [\"displacement\", ...],\n\
               precision = \"float64\" | \"float32\", compression = 0..9 (gzip)\n\n\
-The summary gives the substep h, the steps, the speed, the largest displacement and the\n\
-contact displacement of each load. Run under mpirun for several processes; --restart FILE\n\
-continues an interrupted series from its last complete step.")]
+The summary gives the substep h, the steps, the speed, the largest displacement, the contact\n\
+displacement of each load and the state of each tool. Run under mpirun for several processes;\n\
+--restart FILE continues an interrupted series from its last complete step (not with tools).")]
     Run {
         /// Scenario file (TOML)
         scenario: PathBuf,
@@ -75,6 +79,42 @@ continues an interrupted series from its last complete step.")]
         /// mesh) from its last complete step; the result is bit for bit the uninterrupted run's
         #[arg(long, value_name = "FILE")]
         restart: Option<PathBuf>,
+    },
+    /// Run a scenario whose live tools and loads a client drives over TCP (docs/protocol.md).
+    #[command(
+        long_about = "Run a scenario whose live tools and loads (`live = true`) a client drives over \
+a TCP socket, and write the HDF5 series as `eprop run` does.\n\n\
+The client (scripts/haptic_client.py, or any program speaking docs/protocol.md) sends a hello, then \
+tool poses and forces with time stamps, and gets one answer per message at once: the contact force \
+and displacement of the latest physics step, extrapolated linearly to the message's time. Physics \
+step k (time k dt) waits until the client has sent a sample of every live input at or beyond k dt \
+(or bye) and uses the samples interpolated at that time, as `eprop run` does with the same samples \
+in a table: a session is reproducible bit for bit. After bye the inputs hold their last samples \
+and the run goes on to its stop condition. A malformed message, a second client, or no sample \
+within --timeout seconds gets an error message; the run then stops, ends the series with the last \
+step computed, and exits with status 1. Under mpirun rank 0 holds the socket."
+    )]
+    Serve {
+        /// Scenario file (TOML) with at least one `live = true` tool or load
+        scenario: PathBuf,
+        /// Address to listen on, HOST:PORT (port 0 picks a free port; the chosen one is printed)
+        #[arg(long, value_name = "HOST:PORT")]
+        listen: String,
+        /// Seconds to wait for the client to connect, and for each step's samples
+        #[arg(long, default_value_t = 10.0)]
+        timeout: f64,
+        /// Output file (overrides [output] file)
+        #[arg(long, short)]
+        output: Option<PathBuf>,
+        /// Number of steps (overrides [time])
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Print the summary as JSON
+        #[arg(long)]
+        json: bool,
+        /// No progress lines
+        #[arg(long, short)]
+        quiet: bool,
     },
     /// Validate a scenario without running it and print what it derives: counts, fixed and
     /// loaded nodes, h, dt, substeps, estimated run time, memory and output size.
@@ -273,6 +313,32 @@ fn real_main(cli: Cli) -> Result<()> {
             };
             if let Some(s) = launch(|world| run_on(world, &scenario, &opts))? {
                 print(&s, json)?;
+            }
+        }
+        Cmd::Serve {
+            scenario,
+            listen,
+            timeout,
+            output,
+            steps,
+            json,
+            quiet,
+        } => {
+            if !(timeout > 0.0 && timeout <= 1e9) {
+                bail!("--timeout {timeout:?}: must be a positive number of seconds (at most 1e9); fix: give, say, --timeout 10");
+            }
+            let opts = ServeOptions {
+                listen,
+                timeout,
+                run: RunOptions {
+                    output,
+                    steps,
+                    quiet: quiet || json,
+                    restart: None,
+                },
+            };
+            if let Some(r) = launch(|world| serve_on(world, &scenario, &opts))? {
+                print(&r, json)?;
             }
         }
         Cmd::Check { scenario, steps, json } => {

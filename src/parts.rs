@@ -101,6 +101,7 @@ impl Setup {
             damping: pick(&self.damping, plan),
             fixed: pick(&self.fixed, plan),
             loads: self.loads.clone(),
+            tools: self.tools.clone(),
             model: self.model.clone(),
             integrator: self.integrator.clone(),
             law: self.law,
@@ -165,14 +166,22 @@ impl std::error::Error for Collective {}
 /// which then chooses the depth by timing unless `EPROP_FUSE` says). It is off by default: on
 /// the loaded two-core machine of BENCHMARKS.md the fused sweeps of two processes waited on
 /// each other and ran slower than one substep per sweep. The paper scheme keeps one layer.
+///
+/// Tools keep one layer: their sources fall on the owned nodes they reach, step by step, and
+/// the halo rows a deep sweep computes would lack them.
 pub fn halo_depth(setup: &Setup, processes: usize) -> usize {
     if !matches!(setup.model.scheme(), crate::scenario::Scheme::Compact) || processes < 2 {
         return 1;
     }
-    std::env::var("EPROP_HALO")
+    let d = std::env::var("EPROP_HALO")
         .ok()
         .and_then(|v| v.parse::<usize>().ok())
-        .map_or(1, |d| d.clamp(1, 16))
+        .map_or(1, |d| d.clamp(1, 16));
+    if d > 1 && !setup.tools.is_empty() {
+        tracing::warn!("EPROP_HALO={d} ignored: a scenario with [[tool]] keeps one halo layer");
+        return 1;
+    }
+    d
 }
 
 /// Rank 0's split of the whole mesh: the METIS part of every node and the locality keys.
@@ -255,7 +264,8 @@ mod tests {
         let text = "[mesh]\nfile = \"m.msh\"\n[material]\nconductivity = [0.08, 0.05, 0.05]\n\
                     [[material.region]]\nhalfspace = { point = [0.5, 0, 0], normal = [1, 0, 0] }\nmass = 3.0\n\
                     [model]\nscheme = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = { center = [1, 0.5, 0.5], radius = 0.3 }\n\
-                    normal = 1.0\nramp = [[0, 0], [1, 1]]\n[time]\nequilibrium = 1e-4\ndt = 0.01\n[output]\nfields = [\"energy\"]\n";
+                    normal = 1.0\nramp = [[0, 0], [1, 1]]\n\
+                    [[tool]]\nshape = \"punch\"\nradius = 0.2\nnormal = [0, 0, -1]\nstart = [0.5, 0.5, 1.1]\nvelocity = [0, 0, -0.1]\n[time]\nequilibrium = 1e-4\ndt = 0.01\n[output]\nfields = [\"energy\"]\n";
         let sc = Scenario::parse(std::path::Path::new("dir/s.toml"), text.into()).unwrap();
         let mut mesh = box_mesh([1.0; 3], [3; 3], BoxCells::Wedge).unwrap();
         mesh.warnings.push("a warning".into());
@@ -299,9 +309,11 @@ mod tests {
             (&b.r, &b.mass, &b.damping, &b.fixed)
         );
         assert_eq!((&a.loads, &a.model, &a.law), (&b.loads, &b.model, &b.law));
+        assert_eq!(a.tools, b.tools);
         assert_eq!((&a.time, &a.output), (&b.time, &b.output));
         // the values are the interesting ones, not defaults
         assert!(a.mass.contains(&3.0) && a.fixed.contains(&false) && a.loads[0].ramp.is_some());
+        assert_eq!(a.tools.len(), 1);
     }
 
     #[test]

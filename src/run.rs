@@ -47,6 +47,12 @@ pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
                 r.display()
             );
         }
+        if !setup.tools.is_empty() {
+            bail!(
+                "{}: --restart cannot continue a run with [[tool]] tables (a tool's contact set and last reaction are not stored in the series); fix: run the scenario again from the start",
+                r.display()
+            );
+        }
         setup.output.file = r.clone();
     }
     check_output_dir(&setup.output.file)?;

@@ -8,7 +8,7 @@ use crate::scenario::{Field, Precision};
 use crate::solver::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
-use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter};
+use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow};
 use std::path::Path;
 use std::time::Instant;
 
@@ -39,6 +39,21 @@ pub fn field_blocks(sim: &Simulation, fields: &[Field]) -> Vec<Vec<f64>> {
                 let energy: Vec<f64> = sim.prop.phi[..no].iter().map(|p| norm(*p)).collect();
                 sim.blocks.collect(&energy, 1, c)
             }
+        })
+        .collect()
+}
+
+/// Each tool's row of the output (`/eprop/tools`).
+pub fn tool_rows(sim: &Simulation) -> Vec<ToolRow> {
+    sim.tool_states()
+        .iter()
+        .map(|t| ToolRow {
+            position: t.position,
+            force: t.force,
+            contact_nodes: t.contact_nodes,
+            contact_area: t.contact_area,
+            indentation: t.indentation,
+            displacement: t.displacement,
         })
         .collect()
 }
@@ -111,7 +126,10 @@ impl Series {
                 appends: Vec::new(),
             });
         }
-        let writer = SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io)?;
+        let mut writer = SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io)?;
+        if !sim.tools.is_empty() {
+            writer.add_tools(sim.tools.len())?;
+        }
         log_memory("the static output");
         let mut series = Series {
             writer,
@@ -128,6 +146,9 @@ impl Series {
         let t = Instant::now();
         let data = field_blocks(sim, &self.fields);
         let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
+        if !sim.tools.is_empty() {
+            self.writer.append_tools(sim.time, sim.step, &tool_rows(sim))?;
+        }
         self.writer.append(sim.time, sim.step, &refs, &sim.probes())?;
         self.appends.push(t.elapsed().as_secs_f64());
         Ok(())

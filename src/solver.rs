@@ -3,6 +3,7 @@
 //! sources Q and the forces f; the stepper advances the potential over dt; the nodes move.
 
 use crate::comm::{exact_sum, Comm, Serial};
+use crate::contact::{self, ToolRun, ToolState};
 use crate::field::NodeField;
 use crate::geometry::{compact_coefficients, Dual, Incidence};
 use crate::integrate::{stability, StepPlan, StepStats, Stepper};
@@ -83,6 +84,12 @@ pub struct Simulation {
     pub(crate) inactive_nodes: usize,
     /// Operator applications of every step this process advanced.
     pub(crate) applications: Vec<u32>,
+    /// The scenario's tools (docs/tools.md).
+    pub tools: Vec<ToolRun>,
+    /// Owned surface nodes that move (the tools' contact candidates; empty without tools)
+    /// and a flag per owned node for them.
+    surface: Vec<u32>,
+    on_surface: Vec<bool>,
 }
 
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
@@ -226,13 +233,15 @@ fn resolve_loads(
 }
 
 /// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):
-/// v += dt/m (f - k_e u + kappa |phi|^(p-1) phi - g v); u += dt v. Returns the largest |v|^2.
+/// v += dt/m (f - k_e u + kappa |phi|^(p-1) phi - g v); u += dt v. Returns the largest |v|^2
+/// of the nodes not flagged in `speed_elsewhere` (empty: of every node).
 fn mechanics_step(
     setup: &Setup,
     dt: f64,
     phi: &[V3],
     force: &[V3],
     active: &[bool],
+    speed_elsewhere: &[bool],
     u: &mut [V3],
     v: &mut [V3],
 ) -> f64 {
@@ -267,7 +276,9 @@ fn mechanics_step(
                     v[d] += dt * a;
                     u[d] += dt * v[d];
                 }
-                m2 = m2.max(dot(*v, *v));
+                if speed_elsewhere.is_empty() || !speed_elsewhere[i] {
+                    m2 = m2.max(dot(*v, *v));
+                }
             }
             m2
         })
@@ -283,6 +294,26 @@ pub fn locality_keys(m: &Mesh) -> Vec<u64> {
 }
 
 impl Simulation {
+    /// The stiffness of the compact operator on one process (`eprop check`); None for the
+    /// paper scheme or a distributed simulation.
+    pub fn stiffness(&self) -> Option<crate::integrate::stiffness::Stiffness> {
+        let Operator::Compact(op) = &self.prop.op else {
+            return None;
+        };
+        if self.comm.size() > 1 {
+            return None;
+        }
+        // one process: the local cells are the mesh's cells in their order
+        let ids = self.global.as_ref();
+        Some(crate::integrate::stiffness::analyse(
+            self.mesh(),
+            op,
+            &self.dual.vol,
+            &self.setup.r,
+            &|c| ids.map(|m| m.cell_id(c)).unwrap_or(c as u64 + 1),
+        ))
+    }
+
     /// A simulation on one process (nodes reordered for locality, `locality_keys`; output in
     /// input order).
     pub fn new(setup: Setup) -> Result<Simulation> {
@@ -342,7 +373,27 @@ impl Simulation {
         let (loads, load_local, load_halo) = resolve_loads(&setup, &dual, &numbering, n_rows, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
+        let mut tools: Vec<ToolRun> = setup.tools.iter().cloned().map(ToolRun::new).collect();
+        let (mut surface, mut on_surface) = (Vec::new(), Vec::new());
+        if !tools.is_empty() {
+            surface = contact::surface_nodes(n_owned, &active, &dual.area);
+            on_surface = vec![false; n_owned];
+            for &i in &surface {
+                on_surface[i as usize] = true;
+            }
+            let nodes = contact::Nodes {
+                surface: &surface,
+                points: &setup.mesh.points,
+                area: &dual.area,
+                vol: &dual.vol,
+                mass: &setup.mass,
+            };
+            contact::at_rest(&mut tools, 0.0, &nodes, c);
+        }
         Ok(Simulation {
+            tools,
+            surface,
+            on_surface,
             u: NodeField::filled(layout, [0.0; 3]),
             v: NodeField::filled(layout, [0.0; 3]),
             force: NodeField::filled(layout, [0.0; 3]),
@@ -403,7 +454,7 @@ impl Simulation {
         self.loads
             .iter()
             .map(|l| {
-                let f = scale(l.force, l.scale(t));
+                let f = l.force_at(t);
                 let sigma = norm(f) / l.area;
                 Applied {
                     force: f,
@@ -437,10 +488,15 @@ impl Simulation {
         q
     }
 
-    /// One mechanics step: the loads at t_n give the sources and forces; the stepper advances
-    /// the potential over dt; the owned nodes move; max |v| is reduced over every process.
+    /// One mechanics step: the loads at t_n (and the tools' forces of the last step) give the
+    /// sources and forces; the stepper advances the potential over dt; the owned nodes move
+    /// and the tools at t_{n+1} hold the nodes they reach; max |v| is reduced over every
+    /// process.
     pub fn advance(&mut self) -> Result<StepStats> {
-        let q = self.sources(self.time);
+        let mut q = self.sources(self.time);
+        for t in &self.tools {
+            t.sources(&self.setup.law, &mut q);
+        }
         let stats = self.stepper.advance(&mut self.prop, &q, self.comm.as_ref())?;
         let n = self.numbering.n_owned;
         let m2 = mechanics_step(
@@ -449,10 +505,39 @@ impl Simulation {
             &self.prop.phi,
             &self.force,
             &self.active,
+            &self.on_surface,
             &mut self.u[..n],
             &mut self.v[..n],
         );
-        self.max_speed = self.comm.max(m2.sqrt());
+        if self.tools.is_empty() {
+            self.max_speed = self.comm.max(m2.sqrt());
+        } else {
+            let t_next = (self.step + 1) as f64 * self.dt;
+            let nodes = contact::Nodes {
+                surface: &self.surface,
+                points: &self.setup.mesh.points,
+                area: &self.dual.area,
+                vol: &self.dual.vol,
+                mass: &self.setup.mass,
+            };
+            let c = self.comm.as_ref();
+            let (m2s, overlaps) = contact::constrain(
+                &mut self.tools,
+                t_next,
+                self.dt,
+                &nodes,
+                &mut self.u[..n],
+                &mut self.v[..n],
+                c,
+            );
+            let mut local = vec![m2.max(m2s).sqrt()];
+            local.extend(overlaps);
+            let all = c.max_each(&local);
+            self.max_speed = all[0];
+            for (t, d) in self.tools.iter_mut().zip(&all[1..]) {
+                t.state.indentation = *d;
+            }
+        }
         self.applications.push(stats.applications.min(u32::MAX as usize) as u32);
         self.step += 1;
         self.time = self.step as f64 * self.dt;
@@ -497,6 +582,24 @@ impl Simulation {
                 (a.force, d)
             })
             .collect()
+    }
+
+    /// Each tool's state at the end of the last step (at rest before the first).
+    pub fn tool_states(&self) -> Vec<ToolState> {
+        self.tools.iter().map(|t| t.state).collect()
+    }
+
+    /// Recomputes the tools' state before the first step at the current time (after their
+    /// paths changed, as `serve` does for live tools); every process calls.
+    pub fn tools_at_rest(&mut self) {
+        let nodes = contact::Nodes {
+            surface: &self.surface,
+            points: &self.setup.mesh.points,
+            area: &self.dual.area,
+            vol: &self.dual.vol,
+            mass: &self.setup.mass,
+        };
+        contact::at_rest(&mut self.tools, self.time, &nodes, self.comm.as_ref());
     }
 
     /// Sum of V_i |phi_i| over the mesh (exact sum).

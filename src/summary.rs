@@ -19,6 +19,20 @@ pub struct LoadSummary {
     pub displacement: [f64; 3],
 }
 
+/// A tool at the end of a run.
+#[derive(Serialize, Debug, Clone)]
+pub struct ToolSummary {
+    pub shape: String,
+    pub radius: f64,
+    pub position: [f64; 3],
+    /// The force the tool exerts on the organ (sum of the reactions of its contact nodes).
+    pub force: [f64; 3],
+    pub contact_nodes: u64,
+    pub contact_area: f64,
+    pub indentation: f64,
+    pub displacement: [f64; 3],
+}
+
 /// What a run reports at the end.
 #[derive(Serialize, Debug, Clone)]
 pub struct Summary {
@@ -65,6 +79,8 @@ pub struct Summary {
     pub total_energy: f64,
     pub max_speed: f64,
     pub loads: Vec<LoadSummary>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub tools: Vec<ToolSummary>,
     pub output: String,
     pub output_steps: usize,
     pub warnings: Vec<String>,
@@ -145,6 +161,24 @@ impl std::fmt::Display for Summary {
                 l.displacement[0],
                 l.displacement[1],
                 l.displacement[2]
+            )?;
+        }
+        for (k, t) in self.tools.iter().enumerate() {
+            writeln!(
+                f,
+                "  tool {}      {} r = {} at ({:.4}, {:.4}, {:.4}), indentation {:.4e}, {} contact nodes (area {:.4e}), F = ({:.4e}, {:.4e}, {:.4e})",
+                k + 1,
+                t.shape,
+                t.radius,
+                t.position[0],
+                t.position[1],
+                t.position[2],
+                t.indentation,
+                t.contact_nodes,
+                t.contact_area,
+                t.force[0],
+                t.force[1],
+                t.force[2]
             )?;
         }
         for w in &self.warnings {
@@ -244,6 +278,20 @@ pub fn summarize(sim: &Simulation, sizes: &GlobalSizes, series: &Series, t: Timi
                 contact_area: l.area,
                 force: *f,
                 displacement: *d,
+            })
+            .collect(),
+        tools: sim
+            .tools
+            .iter()
+            .map(|t| ToolSummary {
+                shape: t.tool.shape.name().to_string(),
+                radius: t.tool.shape.radius(),
+                position: t.state.position,
+                force: t.state.force,
+                contact_nodes: t.state.contact_nodes,
+                contact_area: t.state.contact_area,
+                indentation: t.state.indentation,
+                displacement: t.state.displacement,
             })
             .collect(),
         output: series.path().display().to_string(),

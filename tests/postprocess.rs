@@ -106,6 +106,8 @@ fn scripts_teach_and_fail_cleanly() {
         "render.py",
         "plot_series.py",
         "bench_petsc.py",
+        "force_indentation.py",
+        "haptic_client.py",
     ] {
         let out = py(&[script(s).to_str().unwrap(), "--help"]);
         assert!(out.status.success(), "{s} --help");
@@ -114,12 +116,166 @@ fn scripts_teach_and_fail_cleanly() {
             "{s}: --help shows no example"
         );
     }
-    for s in ["history.py", "force_displacement.py", "render.py"] {
+    for s in [
+        "history.py",
+        "force_displacement.py",
+        "render.py",
+        "force_indentation.py",
+    ] {
         let out = py(&[script(s).to_str().unwrap(), "/nonexistent.h5", "-o", "/tmp/x.png"]);
         assert!(!out.status.success());
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains("no such file") && !err.contains("Traceback"), "{s}: {err}");
     }
+}
+
+/// The demo's indentation in `dir` (a shorter press): the scenario and its series.
+fn indentation(dir: &Path, ranks: usize) -> (PathBuf, PathBuf) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    eprop_io::write_mesh(
+        &eprop_io::generate::cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
+        &dir.join("cylinder.msh"),
+    )
+    .unwrap();
+    for f in ["cylinder_indent.toml", "cylinder_live.toml", "cylinder_indent_path.csv"] {
+        std::fs::copy(root.join(f), dir.join(f)).unwrap();
+    }
+    let sc = dir.join("cylinder_indent.toml");
+    let h5 = dir.join(format!("indent{ranks}.h5"));
+    let args = [
+        "run",
+        sc.to_str().unwrap(),
+        "-q",
+        "-o",
+        h5.to_str().unwrap(),
+        "--steps",
+        "90",
+    ];
+    let out = if ranks == 1 {
+        common::serial(&args, 1)
+    } else {
+        common::mpirun(ranks, &args)
+    };
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    (sc, h5)
+}
+
+#[test]
+fn the_tool_scripts_draw_an_indentation_and_drive_a_live_session() {
+    use std::io::BufRead;
+    let d = tempfile::tempdir().unwrap();
+    for ranks in [1, 2] {
+        let (_, h5) = indentation(d.path(), ranks);
+        let png = d.path().join(format!("fi{ranks}.png"));
+        let out = py(&[
+            script("force_indentation.py").to_str().unwrap(),
+            h5.to_str().unwrap(),
+            "-o",
+            png.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(String::from_utf8_lossy(&out.stdout).contains(png.to_str().unwrap()));
+        not_blank(&png);
+    }
+    // a run without tools is named as such
+    let plain = run(d.path(), 1);
+    let out = py(&[
+        script("force_indentation.py").to_str().unwrap(),
+        plain.to_str().unwrap(),
+        "-o",
+        "/tmp/x.png",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("no [[tool]]") && !err.contains("Traceback"),
+        "{err}"
+    );
+    // the haptic client drives a served sphere in and out at 500 messages a second
+    let sc = d.path().join("cylinder_live.toml");
+    let mut server = Command::new(env!("CARGO_BIN_EXE_eprop"))
+        .args([
+            "serve",
+            sc.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+            "-q",
+            "--timeout",
+            "30",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = std::io::BufReader::new(server.stderr.take().unwrap()).lines();
+    let addr = loop {
+        let l = err.next().expect("eprop serve says where it listens").unwrap();
+        if let Some(a) = l.strip_prefix("eprop serve: listening on ") {
+            break a.to_string();
+        }
+    };
+    let png = d.path().join("haptic.png");
+    let csv = d.path().join("answers.csv");
+    let out = py(&[
+        script("haptic_client.py").to_str().unwrap(),
+        &addr,
+        "--from",
+        "1.85,0,2",
+        "--to",
+        "1.5,0,2",
+        "--duration",
+        "40",
+        "--back",
+        "--speed",
+        "100",
+        "--rate",
+        "500",
+        "-o",
+        png.to_str().unwrap(),
+        "--csv",
+        csv.to_str().unwrap(),
+    ]);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    let status = loop {
+        if let Some(s) = server.try_wait().unwrap() {
+            break s;
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = server.kill();
+            panic!("eprop serve did not end");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(status.success(), "eprop serve failed");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("round trip p50"));
+    not_blank(&png);
+    let rows = std::fs::read_to_string(&csv).unwrap();
+    assert!(rows.lines().count() > 300, "{} answers", rows.lines().count());
+    // the sphere pressed: some answer carries a force into the cylinder (-x)
+    let fx_min = rows
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(7).unwrap().parse::<f64>().unwrap())
+        .fold(0.0, f64::min);
+    assert!(fx_min < -0.1, "{fx_min}");
+    // a client without a server says so
+    let out = py(&[
+        script("haptic_client.py").to_str().unwrap(),
+        "127.0.0.1:1",
+        "--from",
+        "0,0,0",
+        "--to",
+        "1,0,0",
+        "--connect-timeout",
+        "0.3",
+        "-o",
+        "/tmp/x.png",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("cannot connect") && !err.contains("Traceback"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -62,6 +62,30 @@ pub struct SeriesSpec<'a> {
     pub compression: u8,
 }
 
+/// One tool's row of an output step (`/eprop/tools`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ToolRow {
+    pub position: [f64; 3],
+    pub force: [f64; 3],
+    pub contact_nodes: u64,
+    pub contact_area: f64,
+    pub indentation: f64,
+    pub displacement: [f64; 3],
+}
+
+/// The growing datasets of `/eprop/tools`: per output step, and per step and tool.
+struct ToolSets {
+    n: usize,
+    time: Dataset,
+    step: Dataset,
+    /// (steps, tools, 3): position, force, displacement
+    vectors: [Dataset; 3],
+    /// (steps, tools): contact_area, indentation
+    scalars: [Dataset; 2],
+    /// (steps, tools)
+    contact_nodes: Dataset,
+}
+
 struct Field {
     name: String,
     ncomp: usize,
@@ -89,6 +113,7 @@ pub struct SeriesWriter {
     probe_disp: Dataset,
     n_loads: usize,
     n_steps: usize,
+    tools: Option<ToolSets>,
 }
 
 fn h5<T>(r: hdf5::Result<T>, path: &Path, what: &str) -> Result<T> {
@@ -419,7 +444,79 @@ impl SeriesWriter {
             probe_disp,
             n_loads: nl,
             n_steps: 0,
+            tools: None,
         })
+    }
+
+    /// Adds `/eprop/tools` for `n` tools to a new series, before its first step (every process
+    /// calls): `time`, `step` (output steps), `position`, `force`, `displacement` (output
+    /// steps, tools, 3), `contact_nodes`, `contact_area`, `indentation` (output steps, tools).
+    pub fn add_tools(&mut self, n: usize) -> Result<()> {
+        let p = &self.path;
+        if self.n_steps > 0 || n == 0 {
+            return Err(anyhow!("internal: tools are added to a new series, and at least one"));
+        }
+        let ep = h5(self.file.group("eprop"), p, "/eprop")?;
+        let g = h5(ep.create_group("tools"), p, "create /eprop/tools")?;
+        let vector = |name: &str| growing(&g, name, &[n, 3], 256, p);
+        let scalar = |name: &str| growing(&g, name, &[n], 256, p);
+        let b = g
+            .new_dataset::<i64>()
+            .chunk([256, n])
+            .shape([Extent::resizable(0), Extent::fixed(n)]);
+        let b = b.alloc_time(Some(AllocTime::Early)).fill_time(FillTime::Never);
+        let contact_nodes = h5(b.create("contact_nodes"), p, "create contact_nodes")?;
+        self.tools = Some(ToolSets {
+            n,
+            time: growing(&g, "time", &[], 1024, p)?,
+            step: growing_i64(&g, "step", p)?,
+            vectors: [vector("position")?, vector("force")?, vector("displacement")?],
+            scalars: [scalar("contact_area")?, scalar("indentation")?],
+            contact_nodes,
+        });
+        h5(self.file.flush(), p, "flush")
+    }
+
+    /// Writes the tools' rows of the next output step (every process calls; rank 0's rows are
+    /// written): call before `append`, which completes the step.
+    pub fn append_tools(&mut self, time: f64, step: u64, rows: &[ToolRow]) -> Result<()> {
+        let (k, p, root) = (self.n_steps, &self.path, self.root);
+        let t = self
+            .tools
+            .as_ref()
+            .ok_or_else(|| anyhow!("internal: the series has no tools"))?;
+        if rows.len() != t.n {
+            return Err(anyhow!("internal: {} tool rows for {} tools", rows.len(), t.n));
+        }
+        let n = t.n;
+        h5(t.time.resize([k + 1]), p, "tools/time")?;
+        h5(t.step.resize([k + 1]), p, "tools/step")?;
+        for d in &t.vectors {
+            h5(d.resize([k + 1, n, 3]), p, "tools")?;
+        }
+        for d in t.scalars.iter().chain([&t.contact_nodes]) {
+            h5(d.resize([k + 1, n]), p, "tools")?;
+        }
+        if root {
+            h5(t.time.write_slice(&[time], s![k..k + 1]), p, "tools/time")?;
+            h5(t.step.write_slice(&[step as i64], s![k..k + 1]), p, "tools/step")?;
+            let pick = |f: fn(&ToolRow) -> [f64; 3]| rows.iter().flat_map(f).collect::<Vec<f64>>();
+            let vectors = [pick(|r| r.position), pick(|r| r.force), pick(|r| r.displacement)];
+            for (d, v) in t.vectors.iter().zip(&vectors) {
+                let view = ArrayView3::from_shape((1, n, 3), v).unwrap();
+                h5(d.write_slice(view, s![k..k + 1, .., ..]), p, "tools")?;
+            }
+            let area: Vec<f64> = rows.iter().map(|r| r.contact_area).collect();
+            let depth: Vec<f64> = rows.iter().map(|r| r.indentation).collect();
+            for (d, v) in t.scalars.iter().zip([area, depth]) {
+                let view = ndarray::ArrayView2::from_shape((1, n), &v).unwrap();
+                h5(d.write_slice(view, s![k..k + 1, ..]), p, "tools")?;
+            }
+            let count: Vec<i64> = rows.iter().map(|r| r.contact_nodes as i64).collect();
+            let view = ndarray::ArrayView2::from_shape((1, n), &count).unwrap();
+            h5(t.contact_nodes.write_slice(view, s![k..k + 1, ..]), p, "tools")?;
+        }
+        Ok(())
     }
 
     /// Appends one output step (every process calls): `data[f]` holds field f for this
@@ -620,6 +717,7 @@ impl SeriesWriter {
             n_steps: k,
             steps,
             file,
+            tools: None,
         };
         // drop the rows of a step that was being written when the run ended
         w.truncate()?;

@@ -8,7 +8,7 @@
 //! follow the partition), so results agree across process counts to the solver tolerance,
 //! not bitwise. Jacobi is the deterministic default.
 
-use super::implicit::Precond;
+use super::Precond;
 use crate::comm::Comm;
 use crate::operator::{Operator, V3};
 use crate::propagation::Propagation;

@@ -11,18 +11,15 @@
 //! besides euler; euler stays unless another is MARGIN times cheaper.
 
 use super::euler::SAFETY;
-use super::rkl2::stages_for;
+use super::rkl2::{stages_for, STAGE_COST};
 use super::{Euler, Implicit, Kind, Rkl2, Settings, Stepper};
 use crate::comm::Comm;
 use crate::propagation::Propagation;
 use anyhow::{bail, Result};
 
-/// Cost of one RKL2 stage in forward Euler substeps: the same operator sweep, plus three
-/// more vectors read (Y(j-2), Y0, M(Y0)). Measured (examples/sweeps.rs) on a 271k-node liver.
-pub const STAGE_COST: f64 = 1.3;
 /// Cost of one conjugate-gradient iteration of `implicit` (Jacobi) in forward Euler
 /// substeps: the operator sweep with its dot products and a pass over eleven vectors.
-/// Measured as STAGE_COST.
+/// Measured as `rkl2::STAGE_COST`.
 pub const CG_COST: f64 = 2.4;
 /// `rkl2` takes super-steps short enough that the median node's modes see tau / h <= Z_RKL2
 /// (past that, its stages damp them little and they lose accuracy).

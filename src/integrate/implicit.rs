@@ -14,7 +14,7 @@
 //! into one exact reduction (Chronopoulos-Gear conjugate gradients, one reduction per
 //! iteration), so the iterates do not depend on the number of processes or threads.
 
-use super::{Preconditioner, Settings, StepPlan, StepStats, Stepper};
+use super::{Precond, Preconditioner, Settings, StepPlan, StepStats, Stepper};
 use crate::comm::{exact_sums_par, Comm, Grid, Wide};
 use crate::field::NodeField;
 use crate::operator::{Operator, V3};
@@ -35,16 +35,6 @@ pub fn amplification(z: f64) -> f64 {
     let (c1, c2) = (1.0 / g2, (1.0 - GAMMA) * (1.0 - GAMMA) / g2);
     let y = (1.0 + THETA * z) / (1.0 - THETA * z);
     (c1 * y - c2) / (1.0 - THETA * z)
-}
-
-/// A preconditioner M ~ A^-1 of the implicit solves, applied to the owned rows.
-pub trait Precond: Send {
-    /// z = M r on the owned rows (three components).
-    fn apply(&mut self, r: &[V3], z: &mut [V3]);
-    /// The inverse diagonal when M is diagonal (the solver fuses it into its vector update).
-    fn inverse_diagonal(&self) -> Option<&[f64]> {
-        None
-    }
 }
 
 /// Jacobi: z_i = r_i / A_ii.

@@ -17,6 +17,7 @@ pub mod stability;
 pub mod stiffness;
 
 use crate::comm::Comm;
+use crate::operator::V3;
 use crate::propagation::{Propagation, Sources};
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
@@ -158,5 +159,15 @@ pub fn euler_substep(dt: f64, h_bound: f64) -> f64 {
         dt / (dt / (euler::SAFETY * h_bound)).ceil().max(1.0)
     } else {
         dt
+    }
+}
+
+/// A preconditioner M ~ A^-1 of the implicit solves, applied to the owned rows.
+pub trait Precond: Send {
+    /// z = M r on the owned rows (three components).
+    fn apply(&mut self, r: &[V3], z: &mut [V3]);
+    /// The inverse diagonal when M is diagonal (the solver fuses it into its vector update).
+    fn inverse_diagonal(&self) -> Option<&[f64]> {
+        None
     }
 }

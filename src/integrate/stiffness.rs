@@ -205,22 +205,6 @@ fn cell_weight(mesh: &Mesh, c: usize, li: usize, r: &[Tensor]) -> f64 {
         .sum()
 }
 
-/// The stiffness of a simulation's compact operator on one process (`eprop check`); None for
-/// the paper scheme or a distributed simulation.
-pub fn of_simulation(sim: &crate::solver::Simulation) -> Option<Stiffness> {
-    let crate::operator::Operator::Compact(op) = &sim.prop.op else {
-        return None;
-    };
-    if sim.comm.size() > 1 {
-        return None;
-    }
-    // one process: the local cells are the mesh's cells in their order
-    let ids = sim.global.as_ref();
-    Some(analyse(sim.mesh(), op, &sim.dual.vol, &sim.setup.r, &|c| {
-        ids.map(|m| m.cell_id(c)).unwrap_or(c as u64 + 1)
-    }))
-}
-
 impl Stiffness {
     /// The report as lines under a key column of `width` characters (after two spaces).
     pub fn describe(&self, width: usize) -> String {

@@ -11,7 +11,8 @@
 //! | `[material]`, `[[material.region]]` | `material` | per-node tensor R, mass, damping |
 //! | `[model]`, `[tissue]` | `model` | `Model` (as parsed), `TissueLaw` |
 //! | `[[fixed]]` | `fixed` | per-node fixed flag |
-//! | `[[load]]` | `loads` | `Load`s: contact nodes, weights, force |
+//! | `[[load]]` | `loads` | `Load`s: contact nodes, weights, force (constant, ramped or a table) |
+//! | `[[tool]]` | `tools` | `Tool`s: a rigid indenter's shape and path |
 //! | `[time]` | `time` | `Time`: the stop condition, dt, h |
 //! | `[output]` | `output` | `Output`: file, fields, precision |
 //!
@@ -26,16 +27,18 @@ mod model;
 mod output;
 mod select;
 mod time;
+mod tools;
 mod values;
 
 pub use fixed::FixedSet;
-pub use loads::{Load, Push};
+pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
 pub use mesh::MeshSec;
 pub use model::{IntegratorSec, Model, Scheme, SchemeName, TissueSec};
 pub use output::{Field, Output, OutputSec};
 pub use select::{Entry, Keys, Selector};
 pub use time::{Stop, Time, TimeSec};
+pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
 pub use values::Precision;
 
 use crate::material::{Tensor, TissueLaw};
@@ -62,6 +65,8 @@ pub struct ScenarioFile {
     pub fixed: Vec<Entry<FixedSet>>,
     #[serde(default)]
     pub load: Vec<Entry<Push>>,
+    #[serde(default)]
+    pub tool: Vec<Spanned<ToolSec>>,
     pub time: Spanned<TimeSec>,
     #[serde(default = "defaults")]
     pub output: OutputSec,
@@ -242,6 +247,7 @@ pub struct Setup {
     pub damping: Vec<f64>,
     pub fixed: Vec<bool>,
     pub loads: Vec<Load>,
+    pub tools: Vec<Tool>,
     pub model: Model,
     /// The integrator of the propagation and its settings.
     pub integrator: crate::integrate::Settings,
@@ -265,7 +271,9 @@ impl Setup {
         let material::Materials { r, mass, damping } = material::resolve(sc, &f.material, &mesh)?;
         let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
+        let tools = tools::resolve(sc, &f.tool)?;
         Ok(Setup {
+            tools,
             model: f.model.clone(),
             integrator: f.integrator.settings(f.model.integrator),
             law: f.tissue.law(),

@@ -1,0 +1,498 @@
+//! `eprop serve` over loopback: a live session that sends a trajectory writes the same series,
+//! bit for bit, as the trajectory run in batch from a table (one process and mpirun -n 2);
+//! every bad message, a second client, a stall and a vanished client get their error, the
+//! server exits cleanly and its series stays readable. Every server runs under a deadline.
+
+mod common;
+
+use eprop::serve::protocol::{self as p, Reply};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{channel, Receiver};
+use std::time::{Duration, Instant};
+
+/// A running `eprop serve` (or `mpirun ... eprop serve`).
+struct Server {
+    child: Child,
+    addr: String,
+    lines: Receiver<String>,
+    stderr: Vec<String>,
+}
+
+fn eprop_cmd(ranks: usize) -> Command {
+    if ranks == 1 {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_eprop"));
+        c.env("RAYON_NUM_THREADS", "1");
+        c
+    } else {
+        let mut c = Command::new("mpirun");
+        c.args(["-n", &ranks.to_string(), "--oversubscribe"])
+            .arg(env!("CARGO_BIN_EXE_eprop"))
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+            .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
+            .env("RAYON_NUM_THREADS", "1");
+        c
+    }
+}
+
+fn serve(ranks: usize, scenario: &Path, out: &Path, extra: &[&str]) -> Server {
+    let mut child = eprop_cmd(ranks)
+        .args([
+            "serve",
+            scenario.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+            "-q",
+            "-o",
+        ])
+        .arg(out)
+        .args(extra)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = child.stderr.take().unwrap();
+    let (tx, lines) = channel();
+    std::thread::spawn(move || {
+        for l in BufReader::new(err).lines().map_while(Result::ok) {
+            if tx.send(l).is_err() {
+                break;
+            }
+        }
+    });
+    let mut stderr = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let addr = loop {
+        let l = lines
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .unwrap_or_else(|_| {
+                let _ = child.kill();
+                panic!("no `listening on` line; stderr: {stderr:?}")
+            });
+        if let Some(a) = l.strip_prefix("eprop serve: listening on ") {
+            break a.trim().to_string();
+        }
+        stderr.push(l);
+    };
+    Server {
+        child,
+        addr,
+        lines,
+        stderr,
+    }
+}
+
+impl Server {
+    /// Waits for the server to exit (killing it and failing past the deadline); returns its
+    /// success, stdout and stderr.
+    fn finish(mut self, seconds: u64) -> (bool, String, String) {
+        let deadline = Instant::now() + Duration::from_secs(seconds);
+        let status = loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                break s;
+            }
+            if Instant::now() > deadline {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                panic!("the server did not exit within {seconds} s; stderr: {:?}", self.stderr);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let mut out = String::new();
+        self.child.stdout.take().unwrap().read_to_string(&mut out).unwrap();
+        while let Ok(l) = self.lines.recv_timeout(Duration::from_millis(500)) {
+            self.stderr.push(l);
+        }
+        (status.success(), out, self.stderr.join("\n"))
+    }
+}
+
+struct Client {
+    s: TcpStream,
+}
+
+impl Client {
+    fn connect(addr: &str) -> Client {
+        let s = TcpStream::connect(addr).unwrap();
+        s.set_nodelay(true).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+        Client { s }
+    }
+
+    fn raw(&mut self, b: &[u8]) {
+        self.s.write_all(b).unwrap();
+    }
+
+    fn reply(&mut self) -> Reply {
+        let mut b = [0u8; p::SERVER_SIZE];
+        self.s.read_exact(&mut b).unwrap();
+        p::read_reply(&b)
+    }
+
+    fn hello(&mut self) -> p::Hello {
+        self.raw(&p::client_hello(p::VERSION));
+        match self.reply() {
+            Reply::Hello(h) => h,
+            r => panic!("{r:?}"),
+        }
+    }
+
+    fn send(&mut self, kind: u32, index: u32, t: f64, v: [f64; 3]) -> Reply {
+        self.raw(&p::client_message(kind, index, t, v));
+        self.reply()
+    }
+
+    fn answer(&mut self, kind: u32, index: u32, t: f64, v: [f64; 3]) -> p::Answer {
+        match self.send(kind, index, t, v) {
+            Reply::Answer(a) => a,
+            r => panic!("{r:?}"),
+        }
+    }
+
+    fn error(&mut self) -> (u32, String) {
+        match self.reply() {
+            Reply::Error { code, message } => (code, message),
+            r => panic!("expected an error, got {r:?}"),
+        }
+    }
+}
+
+/// A small cylinder scenario in `dir` with a live sphere on a path table and a live patch
+/// load on a force table; returns the scenario and the two tables' rows.
+fn scenario(dir: &Path, extra: &str) -> (PathBuf, Vec<[f64; 4]>, Vec<[f64; 4]>) {
+    eprop_io::write_mesh(
+        &eprop_io::generate::cylinder_mesh(1.0, 4.0, 3, 11).unwrap(),
+        &dir.join("cyl.msh"),
+    )
+    .unwrap();
+    // a press and release at times that are not step times, finely sampled
+    let path: Vec<[f64; 4]> = (0..=240)
+        .map(|k| {
+            let t = k as f64 * 0.25 + 0.0137;
+            [
+                t,
+                1.55 - 0.32 * (std::f64::consts::PI * t / 60.0).sin().max(0.0),
+                0.01 * t,
+                2.0,
+            ]
+        })
+        .collect();
+    let force: Vec<[f64; 4]> = (0..=30)
+        .map(|k| {
+            let t = k as f64 * 1.7;
+            [t, 0.0, -0.05 * (t / 10.0).min(1.0), 0.002 * k as f64]
+        })
+        .collect();
+    let csv = |rows: &[[f64; 4]], head: &str| {
+        let mut s = format!("{head}\n");
+        for r in rows {
+            s += &format!("{},{},{},{}\n", r[0], r[1], r[2], r[3]);
+        }
+        s
+    };
+    std::fs::write(dir.join("path.csv"), csv(&path, "t,x,y,z")).unwrap();
+    std::fs::write(dir.join("force.csv"), csv(&force, "t,fx,fy,fz")).unwrap();
+    let sc = dir.join("s.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n\
+             [[load]]\npatch = {{ center = [0.0, 1.0, 3.0], radius = 0.4 }}\ntable = \"force.csv\"\nlive = true\n\
+             [[tool]]\nshape = \"sphere\"\nradius = 0.5\ntable = \"path.csv\"\nlive = true\n{extra}\
+             [time]\nend = 70\n[output]\nevery = 3\n"
+        ),
+    )
+    .unwrap();
+    (sc, path, force)
+}
+
+fn batch(sc: &Path, out: &Path) {
+    let o = common::serial(&["run", sc.to_str().unwrap(), "-q", "-o", out.to_str().unwrap()], 1);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// Sends both tables' rows in time order, in small bursts so that the physics runs between
+/// them, checking every answer; then bye.
+fn drive(c: &mut Client, path: &[[f64; 4]], force: &[[f64; 4]], dt: f64) {
+    let mut all: Vec<(u32, [f64; 4])> = path.iter().map(|r| (p::kind::POSE, *r)).collect();
+    all.extend(force.iter().map(|r| (p::kind::FORCE, *r)));
+    all.sort_by(|a, b| a.1[0].total_cmp(&b.1[0]));
+    let mut last_step = 0;
+    for (k, (kind, r)) in all.iter().enumerate() {
+        let a = c.answer(*kind, 0, r[0], [r[1], r[2], r[3]]);
+        assert_eq!(a.kind, if *kind == p::kind::POSE { 2 } else { 3 });
+        // the physics never runs ahead of the samples; the answer is from a step at or
+        // before the sample, extrapolated towards it by at most one step
+        assert!(a.t_step <= r[0] + 1e-12 && a.step >= last_step, "{a:?} at {r:?}");
+        assert!(a.t >= a.t_step && a.t <= a.t_step + dt * (1.0 + 1e-12), "{a:?}");
+        assert!(a.force.iter().chain(&a.displacement).all(|x| x.is_finite()));
+        last_step = a.step;
+        if k % 25 == 0 {
+            std::thread::sleep(Duration::from_millis(3));
+        }
+    }
+    match c.send(p::kind::BYE, 0, 0.0, [0.0; 3]) {
+        Reply::Answer(a) => assert_eq!(a.kind, p::answer::BYE),
+        r => panic!("{r:?}"),
+    }
+}
+
+fn live_equals_batch(ranks: usize, extra: &str) {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, path, force) = scenario(d.path(), extra);
+    let one = d.path().join("batch.h5");
+    batch(&sc, &one);
+    let live = d.path().join("live.h5");
+    let server = serve(ranks, &sc, &live, &["--timeout", "30", "--json"]);
+    let mut c = Client::connect(&server.addr);
+    let h = c.hello();
+    assert_eq!((h.tools, h.loads, h.live_tools, h.live_loads, h.t0), (1, 1, 1, 1, 0.0));
+    drive(&mut c, &path, &force, h.dt);
+    let (ok, out, err) = server.finish(120);
+    assert!(ok, "{err}");
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(report["session"]["ended"], "bye");
+    assert_eq!(report["session"]["messages"], (path.len() + force.len() + 1) as u64);
+    assert_eq!(report["processes"], ranks as u64);
+    assert!(report["tools"][0]["contact_nodes"].as_u64().is_some());
+    common::assert_same(&one, &live);
+    // the tool did press: contact, force into the organ, then let go
+    let f = hdf5::File::open(&live).unwrap();
+    let n = f
+        .dataset("eprop/tools/contact_nodes")
+        .unwrap()
+        .read_raw::<i64>()
+        .unwrap();
+    assert!(n.iter().max().unwrap() >= &2 && *n.last().unwrap() == 0, "{n:?}");
+}
+
+#[test]
+fn a_live_session_writes_the_batch_series_bit_for_bit() {
+    live_equals_batch(1, "");
+}
+
+#[test]
+fn a_live_session_under_mpirun_writes_the_batch_series_bit_for_bit() {
+    live_equals_batch(2, "");
+}
+
+#[test]
+fn a_live_session_writes_the_batch_series_with_rkl2_and_implicit() {
+    live_equals_batch(1, "[model]\nintegrator = \"implicit\"\n");
+    live_equals_batch(2, "[model]\nintegrator = \"rkl2\"\n");
+}
+
+/// A server on the scenario of `scenario` (with `extra` keys and options) and a client that
+/// has said hello; for the catalogue of bad sessions.
+fn session(d: &Path, extra: &str, args: &[&str]) -> (Server, Client) {
+    let (sc, _, _) = scenario(d, extra);
+    let server = serve(1, &sc, &d.join("live.h5"), args);
+    let mut c = Client::connect(&server.addr);
+    c.hello();
+    (server, c)
+}
+
+#[test]
+fn every_bad_message_gets_its_error_and_the_server_exits_cleanly() {
+    let d = tempfile::tempdir().unwrap();
+    let d = d.path();
+    type Case = (&'static str, Box<dyn Fn(&mut Client)>, u32, &'static str);
+    let cases: Vec<Case> = vec![
+        (
+            "unknown kind",
+            Box::new(|c| c.raw(&p::client_message(9, 0, 0.0, [0.0; 3]))),
+            4,
+            "unknown message kind 9",
+        ),
+        (
+            "no such tool",
+            Box::new(|c| c.raw(&p::client_message(p::kind::POSE, 3, 0.0, [0.0; 3]))),
+            5,
+            "no live tool 3",
+        ),
+        (
+            "a tool that is not live",
+            Box::new(|c| c.raw(&p::client_message(p::kind::POSE, 1, 0.0, [0.0; 3]))),
+            5,
+            "no live tool 1",
+        ),
+        (
+            "no such load",
+            Box::new(|c| c.raw(&p::client_message(p::kind::FORCE, 1, 0.0, [0.0; 3]))),
+            5,
+            "no live load 1",
+        ),
+        (
+            "not finite",
+            Box::new(|c| c.raw(&p::client_message(p::kind::POSE, 0, 0.0, [0.0, f64::NAN, 0.0]))),
+            6,
+            "not finite",
+        ),
+        (
+            "back in time",
+            Box::new(|c| {
+                c.answer(p::kind::POSE, 0, 1.0, [1.6, 0.0, 2.0]);
+                c.raw(&p::client_message(p::kind::POSE, 0, 0.5, [1.6, 0.0, 2.0]));
+            }),
+            6,
+            "time 0.5 of tool 0 is not after its last sample's 1",
+        ),
+        (
+            "a repeated time",
+            Box::new(|c| {
+                c.answer(p::kind::FORCE, 0, 2.0, [0.0; 3]);
+                c.raw(&p::client_message(p::kind::FORCE, 0, 2.0, [0.0; 3]));
+            }),
+            6,
+            "time 2 of load 0 is not after",
+        ),
+        (
+            "a stall",
+            Box::new(|c| {
+                // tool samples only: the load's never come
+                c.answer(p::kind::POSE, 0, 5.0, [1.6, 0.0, 2.0]);
+            }),
+            7,
+            "no sample of load 0 at or beyond t = 0 within 1 s",
+        ),
+    ];
+    let extra = "[[tool]]\nshape = \"sphere\"\nradius = 0.1\nstart = [5, 5, 5]\n";
+    for (what, act, code, text) in cases {
+        let (server, mut c) = session(d, extra, &["--timeout", "1"]);
+        act(&mut c);
+        let (got, message) = c.error();
+        assert_eq!(got, code, "{what}: {message}");
+        assert!(message.contains(text), "{what}: {message}");
+        let (ok, _, err) = server.finish(60);
+        assert!(!ok, "{what}: the server should fail");
+        assert!(
+            err.contains("error: eprop serve:") && err.contains(text),
+            "{what}: {err}"
+        );
+    }
+}
+
+#[test]
+fn a_bad_hello_a_vanished_client_and_no_client_end_the_run_cleanly() {
+    let d = tempfile::tempdir().unwrap();
+    let d = d.path();
+    let (sc, _, _) = scenario(d, "");
+    let out = d.join("live.h5");
+    // not eprop at all, then a version from the future
+    for (hello, code, text) in [
+        (
+            b"GET / HTTP/1.1\r\nHost: x\r\n\r\n..........".to_vec(),
+            1,
+            "not an eprop client",
+        ),
+        (p::client_hello(2).to_vec(), 2, "protocol version 2 is not supported"),
+    ] {
+        let server = serve(1, &sc, &out, &["--timeout", "20"]);
+        let mut c = Client::connect(&server.addr);
+        c.raw(&hello);
+        let (got, message) = c.error();
+        assert_eq!(got, code, "{message}");
+        assert!(message.contains(text), "{message}");
+        let (ok, _, err) = server.finish(60);
+        assert!(!ok && err.contains(text), "{err}");
+    }
+    // nobody connects
+    let server = serve(1, &sc, &out, &["--timeout", "1"]);
+    let (ok, _, err) = server.finish(60);
+    assert!(!ok && err.contains("no client connected within 1 s; fix:"), "{err}");
+    // the client vanishes: without bye, and in the middle of a message; the series holds
+    // every step computed, and reads back
+    for (cut, text) in [
+        (0, "closed the connection without bye"),
+        (17, "in the middle of a message (17 of 40 bytes)"),
+    ] {
+        let server = serve(1, &sc, &out, &["--timeout", "20"]);
+        let mut c = Client::connect(&server.addr);
+        c.hello();
+        c.answer(p::kind::FORCE, 0, 30.0, [0.0, -0.05, 0.0]);
+        c.answer(p::kind::POSE, 0, 10.0, [1.5, 0.0, 2.0]);
+        // wait until the physics has caught up with the samples
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let mut k = 0;
+        loop {
+            k += 1;
+            let a = c.answer(p::kind::POSE, 0, 10.0 + k as f64 * 1e-6, [1.5, 0.0, 2.0]);
+            if a.t_step >= 9.0 {
+                break;
+            }
+            assert!(Instant::now() < deadline, "the physics does not advance: {a:?}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        c.raw(&[0u8; 40][..cut]);
+        drop(c);
+        let (ok, _, err) = server.finish(60);
+        assert!(!ok && err.contains(text), "{err}");
+        let f = hdf5::File::open(&out).unwrap();
+        let k: i64 = f
+            .group("eprop")
+            .unwrap()
+            .attr("steps_complete")
+            .unwrap()
+            .read_scalar()
+            .unwrap();
+        let steps = f.dataset("eprop/tools/step").unwrap().read_raw::<i64>().unwrap();
+        assert_eq!(steps.len(), k as usize);
+        assert!(*steps.last().unwrap() >= 12, "{steps:?}");
+    }
+}
+
+#[test]
+fn a_second_client_is_refused_while_the_first_goes_on() {
+    let d = tempfile::tempdir().unwrap();
+    let (server, mut c) = session(d.path(), "", &["--timeout", "20"]);
+    c.answer(p::kind::POSE, 0, 0.5, [1.6, 0.0, 2.0]);
+    let mut second = Client::connect(&server.addr);
+    second.raw(&p::client_hello(p::VERSION));
+    let (code, message) = second.error();
+    assert_eq!(code, 3);
+    assert!(message.contains("another client holds the session"), "{message}");
+    // the first goes on, then the run ends while it is connected: it gets END
+    c.answer(p::kind::FORCE, 0, 1e6, [0.0; 3]);
+    let mut t = 1e6;
+    let end = loop {
+        t += 1.0;
+        let _ = c.s.write_all(&p::client_message(p::kind::POSE, 0, t, [1.6, 0.0, 2.0]));
+        match c.reply() {
+            Reply::Answer(a) if a.kind == p::answer::END => break a,
+            Reply::Answer(_) => std::thread::sleep(Duration::from_millis(2)),
+            r => panic!("{r:?}"),
+        }
+    };
+    assert!(end.t_step >= 70.0 - 1.0, "{end:?}");
+    let (ok, out, err) = server.finish(60);
+    assert!(ok, "{err}");
+    assert!(out.contains("ended: run over"), "{out}");
+}
+
+#[test]
+fn a_scenario_without_live_inputs_or_a_busy_port_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, _, _) = scenario(d.path(), "");
+    let text = std::fs::read_to_string(&sc)
+        .unwrap()
+        .replace("live = true", "live = false");
+    std::fs::write(&sc, text).unwrap();
+    let o = common::serial(&["serve", sc.to_str().unwrap(), "--listen", "127.0.0.1:0"], 1);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("no [[tool]] or [[load]] has `live = true`") && err.contains("fix:"),
+        "{err}"
+    );
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = taken.local_addr().unwrap().to_string();
+    let o = common::serial(&["serve", sc.to_str().unwrap(), "--listen", &addr], 1);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("cannot listen") && err.contains("fix:"),
+        "{err}"
+    );
+}
