@@ -170,11 +170,15 @@ impl std::error::Error for Collective {}
 /// Tools keep one layer: their sources fall on the owned nodes they reach, step by step, and
 /// the halo rows a deep sweep computes would lack them.
 pub fn halo_depth(setup: &Setup, processes: usize) -> usize {
+    halo_depth_for(setup, processes, std::env::var("EPROP_HALO").ok().as_deref())
+}
+
+/// `halo_depth` with `EPROP_HALO`'s value.
+fn halo_depth_for(setup: &Setup, processes: usize, setting: Option<&str>) -> usize {
     if !matches!(setup.model.scheme(), crate::scenario::Scheme::Compact) || processes < 2 {
         return 1;
     }
-    let d = std::env::var("EPROP_HALO")
-        .ok()
+    let d = setting
         .and_then(|v| v.parse::<usize>().ok())
         .map_or(1, |d| d.clamp(1, 16));
     if d > 1 && !setup.tools.is_empty() {
@@ -270,6 +274,23 @@ mod tests {
         let mut mesh = box_mesh([1.0; 3], [3; 3], BoxCells::Wedge).unwrap();
         mesh.warnings.push("a warning".into());
         Setup::with_mesh(sc, mesh).unwrap()
+    }
+
+    #[test]
+    fn a_deep_halo_needs_several_compact_processes_and_no_tools() {
+        let compact = crate::bench::box_setup(3, "compact").unwrap();
+        assert_eq!(halo_depth_for(&compact, 2, Some("4")), 4);
+        assert_eq!(halo_depth_for(&compact, 3, Some("40")), 16);
+        assert_eq!(halo_depth_for(&compact, 2, None), 1, "off by default");
+        assert_eq!(halo_depth_for(&compact, 2, Some("four")), 1);
+        assert_eq!(halo_depth_for(&compact, 1, Some("4")), 1);
+        let paper = crate::bench::box_setup(3, "paper").unwrap();
+        assert_eq!(halo_depth_for(&paper, 2, Some("4")), 1);
+        // the halo rows would lack the tools' sources
+        let mut tools = compact;
+        tools.tools = setup().tools;
+        assert!(!tools.tools.is_empty());
+        assert_eq!(halo_depth_for(&tools, 2, Some("4")), 1);
     }
 
     /// A split into two parts by x < 0.5.

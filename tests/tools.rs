@@ -248,17 +248,6 @@ fn tools_are_bitwise_identical_on_1_to_4_ranks() {
         );
         common::assert_same(&one, &out_n);
     }
-    // a deep halo would lack the tools' sources on its halo rows: it is refused, with a word
-    let deep = d.path().join("deep.h5");
-    let out = common::mpirun_env(
-        3,
-        &["-vv", "run", sc, "-q", "-o", deep.to_str().unwrap()],
-        &[("EPROP_HALO", "4"), ("EPROP_FUSE", "4")],
-    );
-    let log = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{log}");
-    assert!(log.contains("EPROP_HALO=4 ignored"), "{log}");
-    common::assert_same(&one, &deep);
 }
 
 #[test]
