@@ -8,8 +8,9 @@ scripts/setup.sh
 source scripts/env.sh
 mkdir -p out
 ./target/release/eprop mesh cylinder -o out/cylinder.msh
+# --overwrite: the demo makes out/cylinder.h5 anew each time
 cp scenarios/cylinder_indent.toml scenarios/cylinder_indent_path.csv out/
-mpirun -n 2 ./target/release/eprop run out/cylinder_indent.toml --output out/cylinder.h5 --quiet
+mpirun -n 2 ./target/release/eprop run out/cylinder_indent.toml --output out/cylinder.h5 --quiet --overwrite
 echo
 echo "pictures (the dent at output step 70, the end of the hold):"
 py=.venv/bin/python

@@ -37,7 +37,7 @@ dt = 0.1
 [output]
 every = 20
 TOML
-    RAYON_NUM_THREADS=1 "$eprop" run "$sc" -q -o "$out/g${g}_f${f}.h5" >/dev/null
+    RAYON_NUM_THREADS=1 "$eprop" run "$sc" -q --overwrite -o "$out/g${g}_f${f}.h5" >/dev/null
     files+=("$out/g${g}_f${f}.h5")
   done
 done

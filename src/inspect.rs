@@ -4,10 +4,11 @@
 
 use crate::diagnostics::peak_rss;
 use crate::geometry::{compact_coefficients, Dual, Incidence};
+use crate::limits::Budget;
 use crate::material::Tensor;
 use crate::operator::{Compact, Operator};
 use crate::run::{prepare, RunOptions};
-use crate::scenario::{Precision, Scenario, Setup};
+use crate::scenario::{Scenario, Setup};
 use crate::solver::{scheme_name, Simulation, SAFETY};
 use anyhow::{bail, Result};
 use eprop_io::geom::{cell_quality, cell_volume};
@@ -257,10 +258,14 @@ pub struct CheckReport {
     pub warnings: Vec<String>,
 }
 
-/// Validates a scenario, builds its simulation on one process and times a few substeps.
+/// Validates a scenario, builds its simulation on one process and times a few substeps. The
+/// limits a run applies (steps, substeps, step sizes) are errors here too; what a run would
+/// refuse about its output file or disk, and implausible loads, are warnings.
 pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     let setup = prepare(path, opts)?;
+    let sizes = crate::parts::GlobalSizes::of(&setup.mesh);
     let mut sim = Simulation::new(setup)?;
+    let budget = Budget::of(&sim, &sizes, opts.steps.is_some(), true).map_err(|e| anyhow::anyhow!(e))?;
     let n = sim.n_global;
     let q: Vec<(u32, [f64; 3])> = vec![];
     let t = Instant::now();
@@ -269,22 +274,31 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         sim.prop.substep(sim.step_plan().h, &q);
     }
     let per_substep = t.elapsed().as_secs_f64() / reps as f64;
-    let steps = sim.max_steps();
-    let every = sim.setup.output.every.max(1);
-    let output_steps = steps / every + 1 + u64::from(!steps.is_multiple_of(every));
-    let fields: usize = sim.setup.output.fields().iter().map(|f| f.components()).sum();
-    let width = if sim.setup.output.precision == Precision::Float32 {
-        4.0
-    } else {
-        8.0
-    };
+    let steps = budget.steps;
     let mesh = sim.global.as_ref().unwrap_or(&sim.setup.mesh);
     let mut warnings = crate::summary::warnings(&sim, mesh);
+    warnings.extend(crate::plausible::load_warnings(&sim, mesh));
     if sim.loads.iter().any(|l| l.nodes.len() == 1) {
         warnings.push(
             "a load on a single node is mesh-dependent (the source is singular); a `patch = { center, radius }` is not"
                 .into(),
         );
+    }
+    let file = &sim.setup.output.file;
+    let inputs = sim.setup.scenario.inputs();
+    if let Err(e) = crate::safety::refuse_inputs(file, "the output file", &inputs) {
+        warnings.push(format!("`eprop run` will refuse: {e:#}"));
+    } else if file.exists() {
+        let overwrite = sim.setup.output.overwrite;
+        let again = crate::safety::restart_command(path, file, 1);
+        if let Err(e) = crate::safety::check_existing(file, "the output file", overwrite, &again) {
+            warnings.push(format!("`eprop run` will refuse: {e:#}"));
+        }
+    }
+    let reclaimed = std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
+    let what = format!("{} output steps", budget.output_steps);
+    if let Err(e) = crate::safety::check_space(file, budget.output_bytes, reclaimed, &what, false) {
+        warnings.push(format!("`eprop run` will refuse without --force: {e:#}"));
     }
     Ok(CheckReport {
         scenario: path.display().to_string(),
@@ -321,9 +335,9 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         dt_bound: sim.dt_bound,
         substeps: sim.step_plan().per_step,
         steps,
-        output: sim.setup.output.file.display().to_string(),
-        output_steps,
-        output_mib: (n * fields) as f64 * width * output_steps as f64 / 1048576.0,
+        output: file.display().to_string(),
+        output_steps: budget.output_steps,
+        output_mib: budget.output_bytes / 1048576.0,
         memory_mib: peak_rss() as f64 / 1048576.0,
         estimated_seconds: per_substep * 1.3 * sim.step_plan().cost * steps as f64,
         warnings,
@@ -427,7 +441,9 @@ pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<
 /// Writes a scenario's compact operator L to `output` (HDF5: row_ptr, col, val; attributes
 /// h, the substep eprop would use, and nodes), built on one process.
 pub fn export_operator(scenario: &Path, output: &Path) -> Result<ExportReport> {
-    let setup = Setup::new(Scenario::load(scenario)?)?;
+    let sc = Scenario::load(scenario)?;
+    crate::safety::refuse_inputs(output, "the operator file (export-operator -o)", &sc.inputs())?;
+    let setup = Setup::new(sc)?;
     let sim = Simulation::new(setup)?;
     let Operator::Compact(op) = &sim.prop.op else {
         bail!(

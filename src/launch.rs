@@ -3,13 +3,15 @@
 //! process's geometry and operator).
 //!
 //! The policy: an error every process knows (a bad scenario or mesh, found by rank 0 before
-//! the parts were sent and sent to all) is printed once and every process exits with status
-//! 1; an error on one process prints its message with its rank and ends every process
-//! (MPI_Abort), so a batch job never hangs.
+//! the parts were sent and sent to all; or one the processes agreed on, `safety::Agreed`: a
+//! stop by a signal, a failed write, a non-finite state) is printed once and every process
+//! exits with its status; an error on one process prints its message with its rank and ends
+//! every process (MPI_Abort), so a batch job never hangs.
 
 use crate::comm::Mpi;
 use crate::diagnostics::peak_rss;
 use crate::parts::{self, Collective, GlobalSizes, ReportedElsewhere};
+use crate::safety::{Agreed, EXIT_ERROR, EXIT_STOPPED};
 use crate::scatter::Halo;
 use crate::scenario::Setup;
 use crate::solver::Simulation;
@@ -45,36 +47,46 @@ pub fn launch<T>(body: impl FnOnce(Option<SimpleCommunicator>) -> Result<T>) -> 
         Ok(v) => return Ok(v),
         Err(e) => e,
     };
-    match ending(&err, rank, size) {
-        Ending::Quiet => {}
-        Ending::Once(msg) => eprintln!("{msg}"),
+    let status = match ending(&err, rank, size) {
+        Ending::Quiet(status) => status,
+        Ending::Once(msg, status) => {
+            eprintln!("{msg}");
+            status
+        }
         Ending::Abort(msg) => {
             eprintln!("{msg}");
             universe.world().abort(1)
         }
-    }
+    };
     drop(universe);
-    std::process::exit(1)
+    std::process::exit(status.into())
 }
 
 /// How a process of a job ends after an error.
 #[derive(Debug, PartialEq)]
 enum Ending {
-    /// Rank 0 printed it.
-    Quiet,
-    /// Printed by this process, then every process exits with status 1.
-    Once(String),
+    /// Rank 0 printed it; exit with this status.
+    Quiet(u8),
+    /// Printed by this process, then every process exits with this status.
+    Once(String, u8),
     /// Printed by this process, which ends the whole job.
     Abort(String),
 }
 
 fn ending(e: &anyhow::Error, rank: usize, size: usize) -> Ending {
-    if e.is::<ReportedElsewhere>() {
-        Ending::Quiet
+    if let Some(a) = e.downcast_ref::<Agreed>() {
+        // a stop says so itself ("stopped by SIGTERM ...")
+        let word = if a.status == EXIT_STOPPED { "" } else { "error: " };
+        match rank {
+            0 => Ending::Once(format!("{word}{}", a.message), a.status),
+            _ => Ending::Quiet(a.status),
+        }
+    } else if e.is::<ReportedElsewhere>() {
+        Ending::Quiet(EXIT_ERROR)
     } else if e.is::<Collective>() {
         match rank {
-            0 => Ending::Once(format!("error: {e:#}")),
-            _ => Ending::Quiet,
+            0 => Ending::Once(format!("error: {e:#}"), EXIT_ERROR),
+            _ => Ending::Quiet(EXIT_ERROR),
         }
     } else if size > 1 {
         Ending::Abort(format!("error (rank {rank} of {size}): {e:#}"))
@@ -128,10 +140,18 @@ mod tests {
         let collective = || anyhow::Error::from(Collective("bad.toml: no mesh".into()));
         assert_eq!(
             ending(&collective(), 0, 3),
-            Ending::Once("error: bad.toml: no mesh".into())
+            Ending::Once("error: bad.toml: no mesh".into(), 1)
         );
-        assert_eq!(ending(&collective(), 2, 3), Ending::Quiet);
-        assert_eq!(ending(&ReportedElsewhere.into(), 1, 3), Ending::Quiet);
+        assert_eq!(ending(&collective(), 2, 3), Ending::Quiet(1));
+        assert_eq!(ending(&ReportedElsewhere.into(), 1, 3), Ending::Quiet(1));
+        let stopped = || Agreed::error(EXIT_STOPPED, "stopped by SIGTERM after step 3");
+        assert_eq!(
+            ending(&stopped(), 0, 2),
+            Ending::Once("stopped by SIGTERM after step 3".into(), 3)
+        );
+        assert_eq!(ending(&stopped(), 1, 2), Ending::Quiet(3));
+        let full = Agreed::error(crate::safety::EXIT_WRITE, "out.h5: disk full");
+        assert_eq!(ending(&full, 0, 2), Ending::Once("error: out.h5: disk full".into(), 4));
         assert_eq!(
             ending(&anyhow!("out.h5: write failed"), 1, 3),
             Ending::Abort("error (rank 1 of 3): out.h5: write failed".into())

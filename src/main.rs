@@ -55,15 +55,24 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
               start = [x,y,z] and velocity = [vx,vy,vz] | table = \"path.csv\" (columns t, x, y, z);\n\
               live = false (eprop serve: the client moves it). See docs/tools.md\n\
   [time]      steps = N | end = T | equilibrium = tol;  dt, h optional (automatic)\n\
-  [output]    file = \"out.h5\", every = 1, fields = [\"displacement\", ...],\n\
-              precision = \"float64\" | \"float32\", compression = 0..9 (gzip)\n\n\
+  [output]    file = \"out.h5\" (default: <scenario stem>.h5 beside the scenario), every = 1,\n\
+              fields = [\"displacement\", ...], precision = \"float64\" | \"float32\",\n\
+              compression = 0..9 (gzip), overwrite = false (replace an existing series)\n\n\
 The summary gives the substep h, the steps, the speed, the largest displacement, the contact\n\
-displacement of each load and the state of each tool. Run under mpirun for several processes;\n\
---restart FILE continues an interrupted series from its last complete step (not with tools).")]
+displacement of each load and the state of each tool, and warnings about implausible inputs and\n\
+results. Run under mpirun for several processes; --restart FILE continues an interrupted series\n\
+from its last complete step (not with tools).\n\n\
+Safety: an output that is one of the run's inputs is refused; an existing series is replaced\n\
+only with --overwrite, any other existing file never; one run writes a file at a time (a lock,\n\
+<output>.lock); a run whose output would not fit on its disk is refused (--force starts it\n\
+anyway). SIGTERM, SIGINT and SIGHUP stop the run after a complete, written step.\n\
+Exit status: 0 done, 1 error or refusal (or a state that is no longer finite), 2 bad command\n\
+line, 3 stopped by a signal (continue with --restart), 4 the output could not be written\n\
+(disk full: free space, then continue with --restart).")]
     Run {
         /// Scenario file (TOML)
         scenario: PathBuf,
-        /// Output file (overrides [output] file)
+        /// Output file (overrides [output] file; default <scenario stem>.h5 beside the scenario)
         #[arg(long, short)]
         output: Option<PathBuf>,
         /// Number of steps (overrides [time])
@@ -79,6 +88,13 @@ displacement of each load and the state of each tool. Run under mpirun for sever
         /// mesh) from its last complete step; the result is bit for bit the uninterrupted run's
         #[arg(long, value_name = "FILE")]
         restart: Option<PathBuf>,
+        /// Replace the series in the output file if there is one (never a file of another kind)
+        #[arg(long)]
+        overwrite: bool,
+        /// Start even when the estimated output exceeds the free space of its disk (the run
+        /// then writes until the disk refuses, and stops cleanly)
+        #[arg(long)]
+        force: bool,
     },
     /// Run a scenario whose live tools and loads a client drives over TCP (docs/protocol.md).
     #[command(
@@ -115,6 +131,9 @@ step computed, and exits with status 1. Under mpirun rank 0 holds the socket."
         /// No progress lines
         #[arg(long, short)]
         quiet: bool,
+        /// Replace the series in the output file if there is one (never a file of another kind)
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Validate a scenario without running it and print what it derives: counts, fixed and
     /// loaded nodes, h, dt, substeps, estimated run time, memory and output size.
@@ -275,10 +294,22 @@ fn main() -> ExitCode {
     }
     match real_main(cli) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
+        Err(e) => match e.downcast_ref::<eprop::safety::Agreed>() {
+            Some(a) => {
+                // a stop says so itself ("stopped by SIGTERM ...")
+                let word = if a.status == eprop::safety::EXIT_STOPPED {
+                    ""
+                } else {
+                    "error: "
+                };
+                eprintln!("{word}{}", a.message);
+                ExitCode::from(a.status)
+            }
+            None => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
     }
 }
 
@@ -301,15 +332,22 @@ fn real_main(cli: Cli) -> Result<()> {
             json,
             quiet,
             restart,
+            overwrite,
+            force,
         } => {
             if restart.is_some() && output.is_some() {
                 bail!("--restart continues the series in its FILE; fix: leave out --output");
+            }
+            if restart.is_some() && overwrite {
+                bail!("--restart continues the series in its FILE and --overwrite replaces it; fix: give one of them");
             }
             let opts = RunOptions {
                 output,
                 steps,
                 quiet: quiet || json,
                 restart,
+                overwrite,
+                force,
             };
             if let Some(s) = launch(|world| run_on(world, &scenario, &opts))? {
                 print(&s, json)?;
@@ -323,6 +361,7 @@ fn real_main(cli: Cli) -> Result<()> {
             steps,
             json,
             quiet,
+            overwrite,
         } => {
             if !(timeout > 0.0 && timeout <= 1e9) {
                 bail!("--timeout {timeout:?}: must be a positive number of seconds (at most 1e9); fix: give, say, --timeout 10");
@@ -335,6 +374,8 @@ fn real_main(cli: Cli) -> Result<()> {
                     steps,
                     quiet: quiet || json,
                     restart: None,
+                    overwrite,
+                    force: false,
                 },
             };
             if let Some(r) = launch(|world| serve_on(world, &scenario, &opts))? {
@@ -353,6 +394,14 @@ fn real_main(cli: Cli) -> Result<()> {
             print(&inspect::mesh_info(&m), json)?;
         }
         Cmd::Convert { input, output, strict } => {
+            let inputs: Vec<eprop::safety::Input> = eprop_io::mesh_files(&input)
+                .into_iter()
+                .map(|p| eprop::safety::Input {
+                    role: format!("the input mesh ({})", p.display()),
+                    path: p,
+                })
+                .collect();
+            eprop::safety::refuse_inputs(&output, "the converted mesh (OUTPUT)", &inputs)?;
             let m = eprop_io::read_mesh_with(&input, &eprop_io::ReadOptions { strict })?;
             for w in &m.warnings {
                 eprintln!("warning: {w}");

@@ -32,6 +32,14 @@ impl Progress {
         }
     }
 
+    /// Prints a line on stderr above the bar.
+    pub fn println(&self, line: &str) {
+        match &self.bar {
+            Some(b) => b.println(line),
+            None => eprintln!("{line}"),
+        }
+    }
+
     /// Removes the bar.
     pub fn finish(self) {
         if let Some(b) = self.bar {

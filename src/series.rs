@@ -4,11 +4,13 @@
 
 use crate::diagnostics::{log_memory, median};
 use crate::parts::{Fnv, GlobalSizes};
+use crate::safety::{Agreed, EXIT_ERROR};
 use crate::scenario::{Field, Precision};
 use crate::solver::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
-use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow};
+use eprop_io::outcome::WriteFailed;
+use eprop_io::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow, CREATING};
 use std::path::Path;
 use std::time::Instant;
 
@@ -118,27 +120,60 @@ impl Series {
         };
         let file = output.file.clone();
         if restart {
-            let (writer, resume) = SeriesWriter::reopen(&file, layout(sizes), &spec, io)?;
+            let (mut writer, resume) = SeriesWriter::reopen(&file, layout(sizes), &spec, io)?;
+            let finite = [&resume.u, &resume.v, &resume.phi]
+                .iter()
+                .all(|x| x.iter().all(|c| c.is_finite()));
+            if !writer.all(finite) {
+                return Err(Agreed::error(
+                    EXIT_ERROR,
+                    format!(
+                        "{}: cannot restart: its last complete step (step {}) holds NaN or inf values, which a restart would continue; fix: find the cause (see the warnings of `eprop check`) and start a new run (--overwrite)",
+                        file.display(),
+                        resume.step
+                    ),
+                ));
+            }
             sim.restore(resume.step, &resume.u, &resume.v, &resume.phi);
+            // a step off the output grid (a run stopped by a signal, or a shorter run's last
+            // step) is a restart point only: continuing drops it, so the series is the one an
+            // uninterrupted run writes
+            let every = sim.setup.output.every;
+            if !resume.step.is_multiple_of(every) && resume.step < sim.max_steps() && writer.steps_written() > 1 {
+                writer.forget_last()?;
+            }
             return Ok(Series {
                 writer,
                 fields,
                 appends: Vec::new(),
             });
         }
-        let mut writer = SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io)?;
-        if !sim.tools.is_empty() {
-            writer.add_tools(sim.tools.len())?;
+        let created =
+            SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io).and_then(|mut writer| {
+                if !sim.tools.is_empty() {
+                    writer.add_tools(sim.tools.len())?;
+                }
+                log_memory("the static output");
+                let mut series = Series {
+                    writer,
+                    fields,
+                    appends: Vec::new(),
+                };
+                series.append(sim)?;
+                log_memory("the first output step");
+                Ok(series)
+            });
+        match created {
+            // a file this run began holds no complete step: it goes (once every process has
+            // closed it), so that running again needs no --overwrite
+            Err(e) if e.downcast_ref::<WriteFailed>().is_some_and(|w| w.what != CREATING) => {
+                if sim.comm.rank() == 0 {
+                    let _ = std::fs::remove_file(&file);
+                }
+                Err(e)
+            }
+            other => other,
         }
-        log_memory("the static output");
-        let mut series = Series {
-            writer,
-            fields,
-            appends: Vec::new(),
-        };
-        series.append(sim)?;
-        log_memory("the first output step");
-        Ok(series)
     }
 
     /// Appends the simulation's current step (every process calls).

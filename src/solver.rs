@@ -23,7 +23,14 @@ pub use crate::integrate::euler::SAFETY;
 /// and unsprung.
 fn dt_bound_node(m: f64, g: f64, k: f64) -> f64 {
     if k > 0.0 {
-        (-g + (g * g + 4.0 * m * k).sqrt()) / k
+        let direct = (-g + (g * g + 4.0 * m * k).sqrt()) / k;
+        if direct.is_finite() && direct > 0.0 && 4.0 * m * k > 1e-8 * g * g {
+            return direct;
+        }
+        // the same bound where the direct form overflows (m k huge) or cancels (m k tiny
+        // against g^2): 2 sqrt(m/k) / (sqrt(1 + a^2) + a), a = g / (2 sqrt(m k))
+        let a = g / (2.0 * m.sqrt() * k.sqrt());
+        2.0 * (m.sqrt() / k.sqrt()) / (a.hypot(1.0) + a)
     } else if g > 0.0 {
         2.0 * m / g
     } else {
@@ -84,6 +91,9 @@ pub struct Simulation {
     pub(crate) inactive_nodes: usize,
     /// Operator applications of every step this process advanced.
     pub(crate) applications: Vec<u32>,
+    /// The stop signal some process received before the last step (0: none), agreed by every
+    /// process in the step's reduction (`crate::signals`).
+    pub stop_signal: i32,
     /// The scenario's tools (docs/tools.md).
     pub tools: Vec<ToolRun>,
     /// Owned surface nodes that move (the tools' contact candidates; empty without tools)
@@ -415,6 +425,7 @@ impl Simulation {
             max_speed: 0.0,
             inactive_nodes,
             applications: Vec::new(),
+            stop_signal: 0,
             setup,
             comm,
             global,
@@ -509,8 +520,12 @@ impl Simulation {
             &mut self.u[..n],
             &mut self.v[..n],
         );
+        // a stop signal rides on the step's reduction, so every process stops after this step
+        let signal = crate::signals::pending() as f64;
         if self.tools.is_empty() {
-            self.max_speed = self.comm.max(m2.sqrt());
+            let all = self.comm.max_each(&[m2.sqrt(), signal]);
+            self.max_speed = all[0];
+            self.stop_signal = all[1] as i32;
         } else {
             let t_next = (self.step + 1) as f64 * self.dt;
             let nodes = contact::Nodes {
@@ -530,11 +545,12 @@ impl Simulation {
                 &mut self.v[..n],
                 c,
             );
-            let mut local = vec![m2.max(m2s).sqrt()];
+            let mut local = vec![m2.max(m2s).sqrt(), signal];
             local.extend(overlaps);
             let all = c.max_each(&local);
             self.max_speed = all[0];
-            for (t, d) in self.tools.iter_mut().zip(&all[1..]) {
+            self.stop_signal = all[1] as i32;
+            for (t, d) in self.tools.iter_mut().zip(&all[2..]) {
                 t.state.indentation = *d;
             }
         }

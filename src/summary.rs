@@ -214,7 +214,13 @@ pub fn warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
 
 /// The summary of a finished run, on the process that holds the whole mesh (rank 0); every
 /// process calls (reductions inside).
-pub fn summarize(sim: &Simulation, sizes: &GlobalSizes, series: &Series, t: Timing) -> Option<Summary> {
+pub fn summarize(
+    sim: &Simulation,
+    sizes: &GlobalSizes,
+    series: &Series,
+    t: Timing,
+    run_warnings: Vec<String>,
+) -> Option<Summary> {
     let (umax, imax) = sim.max_displacement();
     let total = sim.total_energy();
     let probes = sim.probes();
@@ -222,6 +228,7 @@ pub fn summarize(sim: &Simulation, sizes: &GlobalSizes, series: &Series, t: Timi
     let peak = sim.comm.max(peak_rss() as f64);
     let mesh = sim.global.as_ref()?;
     let mut warnings = warnings(sim, mesh);
+    warnings.extend(run_warnings);
     if let Stop::Equilibrium { tol, .. } = sim.setup.time.stop {
         if sim.max_speed >= tol {
             warnings.push(format!(

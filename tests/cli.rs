@@ -252,6 +252,6 @@ fn verbose_logs_the_setup_phases_and_quiet_prints_nothing_else() {
     }
     assert!(!err.contains('\u{1b}'), "colour codes on a pipe");
     assert!(out.contains("max |u|"));
-    let (ok, _, err) = eprop(&["run", sc.to_str().unwrap(), "-q"]);
+    let (ok, _, err) = eprop(&["run", sc.to_str().unwrap(), "-q", "--overwrite"]);
     assert!(ok && err.is_empty(), "quiet run wrote to stderr: {err}");
 }

@@ -2,6 +2,8 @@
 //! by tetgen and gmsh (when installed) read alike, a catalogue of malformed files gives clear
 //! errors without panics, and every fuzzing regression input is handled.
 
+mod common;
+
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use eprop_io::testwrite;
 use eprop_io::vtu::{to_bytes, Encoding, VtuOptions};
@@ -19,13 +21,7 @@ fn eprop(args: &[&str]) -> (bool, String, String) {
 }
 
 fn shared(sub: &str) -> Option<PathBuf> {
-    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes").join(sub);
-    if d.is_dir() {
-        Some(d)
-    } else {
-        println!("skipped: {} is absent", d.display());
-        None
-    }
+    common::shared_dir(sub)
 }
 
 #[test]
@@ -187,11 +183,7 @@ fn convert_cli_round_trips() {
 }
 
 fn tool(name: &str) -> bool {
-    let ok = Command::new(name).arg("-h").output().is_ok();
-    if !ok {
-        println!("skipped: `{name}` is not installed (scripts/setup.sh installs it)");
-    }
-    ok
+    common::tool(name)
 }
 
 #[test]
@@ -735,7 +727,8 @@ fn fuzz_regressions_do_not_panic() {
                 .and_then(|mut m| eprop_io::validate(&mut m, &ReadOptions::default()))
         });
         assert!(r.is_ok(), "{name} panics");
-        assert!(t.elapsed().as_secs_f64() < 2.0, "{name} is slow");
+        // a hang detector, generous for a loaded machine (each input takes milliseconds)
+        assert!(t.elapsed().as_secs_f64() < 60.0, "{name} hangs");
         n += 1;
     }
     assert!(n >= seeds.len() && !seeds.is_empty(), "no fuzzing inputs found");
@@ -962,7 +955,8 @@ fn zlib_bombs_are_refused_before_inflating() {
             e.contains(&format!("bomb{which}-{present}.vtu")) && e.contains(key) && e.contains("fix:"),
             "{e}"
         );
-        assert!(took < 2.0, "{e}: {took:.1} s");
+        // a hang detector (inflating the bomb would take minutes); generous for a loaded machine
+        assert!(took < 60.0, "{e}: {took:.1} s");
         if let (Some(a), Some(b)) = (before, peak_rss_kib()) {
             assert!(b < a + (256 << 10), "{e}: peak memory grew from {a} to {b} KiB");
         }

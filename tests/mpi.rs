@@ -57,6 +57,60 @@ fn bitwise_identical_on_1_to_4_ranks_generated_mesh() {
     );
 }
 
+/// Float32 output with deflate on several ranks (parallel HDF5 writes filtered chunks only
+/// without a type conversion): the same bits as one process, and each value is the float64
+/// run's value rounded to float32.
+#[test]
+fn float32_deflated_output_on_1_and_2_ranks() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    let scenario = |name: &str, output: &str| {
+        let sc = d.path().join(name);
+        std::fs::write(
+            &sc,
+            format!(
+                "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 6\n[output]\nevery = 2\n{output}",
+                mesh.display()
+            ),
+        )
+        .unwrap();
+        sc.to_str().unwrap().to_string()
+    };
+    let narrow = scenario("f32.toml", "precision = \"float32\"\ncompression = 4\n");
+    let wide = scenario("f64.toml", "");
+    let one = d.path().join("one.h5");
+    let out = serial(&["run", &narrow, "-q", "-o", one.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let two = d.path().join("two.h5");
+    let out = mpirun(2, &["run", &narrow, "-q", "-o", two.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "2 ranks: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_same(&one, &two);
+    let full = d.path().join("f64.h5");
+    let out = serial(&["run", &wide, "-q", "-o", full.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (a, b) = (hdf5::File::open(&two).unwrap(), hdf5::File::open(&full).unwrap());
+    let u32s = a.dataset("VTKHDF/PointData/displacement").unwrap();
+    assert!(u32s.dtype().unwrap().is::<f32>());
+    assert!(u32s
+        .filters()
+        .iter()
+        .any(|f| matches!(f, hdf5::filters::Filter::Deflate(_))));
+    let x = u32s.read_raw::<f32>().unwrap();
+    let y = b
+        .dataset("VTKHDF/PointData/displacement")
+        .unwrap()
+        .read_raw::<f64>()
+        .unwrap();
+    assert_eq!(x.len(), y.len());
+    assert!(x.iter().any(|&v| v != 0.0));
+    assert!(x.iter().zip(&y).all(|(&p, &q)| p.to_bits() == (q as f32).to_bits()));
+}
+
 #[test]
 fn bitwise_identical_on_1_to_4_ranks_mixed_elements() {
     use eprop_io::generate::{box_mesh, BoxCells};
@@ -394,7 +448,8 @@ fn a_failing_rank_ends_the_job_quickly() {
     let out = mpirun(2, &["run", sc.to_str().unwrap(), "-q", "-o", "/nonexistent/dir/x.h5"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("output directory"));
-    assert!(t.elapsed() < Duration::from_secs(30));
+    // a hang detector, generous for a loaded machine
+    assert!(t.elapsed() < Duration::from_secs(120));
     // more ranks than nodes of a tiny mesh
     let sc = tiny_box_scenario(d.path());
     let t = Instant::now();
@@ -413,32 +468,8 @@ fn a_failing_rank_ends_the_job_quickly() {
         "2 ranks on 8 nodes must work: {}",
         String::from_utf8_lossy(&out.stderr)
     );
-    assert!(t.elapsed() < Duration::from_secs(30));
-}
-
-/// Pids of the `eprop` processes started by `parent` (mpirun).
-fn children(parent: u32) -> Vec<i32> {
-    let mut out = vec![];
-    for e in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-            continue;
-        };
-        // pid (comm) state ppid ...
-        let Some(close) = stat.rfind(')') else { continue };
-        let comm = &stat[stat.find('(').unwrap_or(0) + 1..close];
-        let ppid: u32 = stat[close + 2..]
-            .split_whitespace()
-            .nth(1)
-            .and_then(|x| x.parse().ok())
-            .unwrap_or(0);
-        if ppid == parent && comm == "eprop" {
-            out.push(pid);
-        }
-    }
-    out
+    // a hang detector, generous for a loaded machine
+    assert!(t.elapsed() < Duration::from_secs(120));
 }
 
 #[test]
@@ -449,7 +480,8 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
     let mut child = Command::new("mpirun")
         .args(["-n", "2", "--oversubscribe"])
         .arg(env!("CARGO_BIN_EXE_eprop"))
-        .args(["run", sc.to_str().unwrap(), "-q", "-o", h5.to_str().unwrap()])
+        // --force: the step count is a stand-in for "until killed", far more than the disk holds
+        .args(["run", sc.to_str().unwrap(), "-q", "--force", "-o", h5.to_str().unwrap()])
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("RAYON_NUM_THREADS", "1")
@@ -460,7 +492,7 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
     // wait until both ranks run and some steps are in the file
     let t = Instant::now();
     let ranks = loop {
-        let r = children(child.id());
+        let r = common::children(child.id());
         if r.len() == 2 && h5.exists() && t.elapsed() > Duration::from_secs(2) {
             break r;
         }
@@ -476,9 +508,9 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
         if let Some(s) = child.try_wait().unwrap() {
             break s;
         }
-        if killed.elapsed() > Duration::from_secs(20) {
+        if killed.elapsed() > Duration::from_secs(90) {
             let _ = child.kill();
-            panic!("mpirun still runs 20 s after a rank was killed");
+            panic!("mpirun still runs 90 s after a rank was killed");
         }
         std::thread::sleep(Duration::from_millis(50));
     };

@@ -233,9 +233,11 @@ fn tetgen_files_read_with_markers_and_both_numberings() {
 fn tetgen_made_organ_meshes_read() {
     let surf = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/meshes/surface/hubmap_VH_M_prostate_peripheral_zone_L.off");
-    let have = std::process::Command::new("tetgen").arg("-h").output().is_ok();
-    if !surf.exists() || !have {
-        eprintln!("skipped: tetgen or the shared surfaces are missing");
+    if !surf.exists() {
+        common::skip(&format!("{} not found (the shared surfaces)", surf.display()));
+        return;
+    }
+    if !common::tool("tetgen") {
         return;
     }
     let d = tempfile::tempdir().unwrap();

@@ -32,7 +32,7 @@ fn shared_present() -> bool {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let ok = root.join("../shared/meshes").is_dir();
     if !ok {
-        eprintln!("skipped: the shared organ meshes are not beside this checkout");
+        common::skip("../shared/meshes not found (the shared organ meshes are not beside this checkout)");
         return false;
     }
     MADE.call_once(|| {
@@ -92,6 +92,7 @@ fn organ_scenarios_run_on_one_and_two_ranks() {
                 "--steps",
                 "20",
                 "--json",
+                "--overwrite",
                 "-o",
                 h5.to_str().unwrap(),
             ];
@@ -113,8 +114,7 @@ fn organ_scenarios_run_on_one_and_two_ranks() {
 /// lowest 15 % in x, pressed at the surface node nearest the middle of its top (largest y).
 #[test]
 fn every_shared_tet_mesh_runs_twenty_steps() {
-    let Some(dir) = common::shared_mesh("").filter(|d| d.is_dir()) else {
-        eprintln!("skipped: the shared organ meshes are not beside this checkout");
+    let Some(dir) = common::shared_dir("tet") else {
         return;
     };
     let d = tempfile::tempdir().unwrap();

@@ -120,7 +120,8 @@ fn spawn(ranks: usize, sc: &Path, h5: &Path) -> std::process::Child {
             .arg(env!("CARGO_BIN_EXE_eprop"));
         c
     };
-    cmd.args(["run", sc.to_str().unwrap(), "-q", "-o", h5.to_str().unwrap()])
+    // --force: the step count is a stand-in for "until killed", far more than the disk holds
+    cmd.args(["run", sc.to_str().unwrap(), "-q", "--force", "-o", h5.to_str().unwrap()])
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("RAYON_NUM_THREADS", "1")
@@ -251,7 +252,7 @@ fn appending_costs_the_same_for_every_step() {
     // chunked, extendible datasets: the last appends must not cost a multiple of the first
     // (a rewrite of the series would make them ~2000x dearer); loose for a shared machine
     assert!(
-        last < 5.0 * first + 1e-4,
+        last < 20.0 * first + 1e-3,
         "appending slowed down: {first:e} s -> {last:e} s"
     );
     let f = hdf5::File::open(&h5).unwrap();

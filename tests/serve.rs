@@ -46,6 +46,8 @@ fn serve(ranks: usize, scenario: &Path, out: &Path, extra: &[&str]) -> Server {
             "--listen",
             "127.0.0.1:0",
             "-q",
+            // the sessions of a test write one file in turn
+            "--overwrite",
             "-o",
         ])
         .arg(out)

@@ -11,6 +11,7 @@
 pub mod gmsh;
 pub mod input;
 pub mod medit;
+pub mod outcome;
 pub mod scan;
 #[cfg(feature = "test-writers")]
 pub mod testwrite;
@@ -99,6 +100,19 @@ pub fn read_mesh_with(path: &Path, opts: &ReadOptions) -> Result<Mesh> {
     };
     validate(&mut mesh, opts)?;
     Ok(mesh)
+}
+
+/// Every file `read_mesh` reads for `path`: the file itself, or a TetGen mesh's `.node`,
+/// `.ele` and `.face` (so that writers can refuse to replace any of them).
+pub fn mesh_files(path: &Path) -> Vec<std::path::PathBuf> {
+    if Format::of(path) != Some(Format::TetGen) {
+        return vec![path.to_path_buf()];
+    }
+    let base = path.with_extension("").display().to_string();
+    ["node", "ele", "face"]
+        .iter()
+        .map(|ext| std::path::PathBuf::from(format!("{base}.{ext}")))
+        .collect()
 }
 
 /// Writes a mesh, choosing the writer by extension: Gmsh 4.1 `.msh` or `.vtu`.

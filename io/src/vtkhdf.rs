@@ -8,8 +8,9 @@
 //! chunked and extendible, so appending step k costs the same for every k.
 
 use crate::mesh::Mesh;
+use crate::outcome::Team;
 use crate::vtk::vtk_order;
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, Result};
 use hdf5::dataset::{AllocTime, FillTime};
 use hdf5::types::{FixedAscii, VarLenUnicode};
 use hdf5::{Dataset, Extent, File};
@@ -113,14 +114,17 @@ pub struct SeriesWriter {
     probe_disp: Dataset,
     n_loads: usize,
     n_steps: usize,
+    /// The writing processes; every call's outcome is agreed through it.
+    team: Team,
     tools: Option<ToolSets>,
 }
 
-fn h5<T>(r: hdf5::Result<T>, path: &Path, what: &str) -> Result<T> {
-    r.map_err(|e| anyhow!("{}: {what}: {e}", path.display()))
+/// `what` as a message maker for `Team::settle`.
+fn at(what: impl std::fmt::Display) -> impl FnOnce() -> String {
+    move || what.to_string()
 }
 
-fn growing(group: &hdf5::Group, name: &str, tail: &[usize], chunk_rows: usize, path: &Path) -> Result<Dataset> {
+fn growing(group: &hdf5::Group, name: &str, tail: &[usize], chunk_rows: usize) -> hdf5::Result<Dataset> {
     let mut ext = vec![Extent::resizable(0)];
     let mut chunk = vec![chunk_rows.max(1)];
     for &t in tail {
@@ -130,14 +134,14 @@ fn growing(group: &hdf5::Group, name: &str, tail: &[usize], chunk_rows: usize, p
     let b = group.new_dataset::<f64>().chunk(chunk).shape(ext);
     // allocated early in every file, so that a serial file can be continued under MPI-IO
     let b = b.alloc_time(Some(AllocTime::Early)).fill_time(FillTime::Never);
-    h5(b.create(name), path, &format!("create {name}"))
+    b.create(name)
 }
 
-fn growing_i64(group: &hdf5::Group, name: &str, path: &Path) -> Result<Dataset> {
+fn growing_i64(group: &hdf5::Group, name: &str) -> hdf5::Result<Dataset> {
     let b = group.new_dataset::<i64>().chunk(1024).shape(Extent::resizable(0));
     // allocated early in every file, so that a serial file can be continued under MPI-IO
     let b = b.alloc_time(Some(AllocTime::Early)).fill_time(FillTime::Never);
-    h5(b.create(name), path, &format!("create {name}"))
+    b.create(name)
 }
 
 /// A growing point array: float64 or float32, optionally deflated.
@@ -147,8 +151,7 @@ fn point_array(
     tail: &[usize],
     chunk_rows: usize,
     spec: &SeriesSpec,
-    path: &Path,
-) -> Result<Dataset> {
+) -> hdf5::Result<Dataset> {
     let mut ext = vec![Extent::resizable(0)];
     let mut chunk = vec![chunk_rows.max(1)];
     for &t in tail {
@@ -168,37 +171,49 @@ fn point_array(
     } else {
         b
     };
-    h5(b.create(name), path, &format!("create {name}"))
+    b.create(name)
 }
 
 /// A fixed-size dataset created by every process and filled by the one holding `data`.
 fn fixed<T: hdf5::H5Type>(
+    team: &Team,
     group: &hdf5::Group,
     name: &str,
     shape: &[usize],
     data: Option<&[T]>,
-    path: &Path,
 ) -> Result<()> {
-    let ds = h5(group.new_dataset::<T>().shape(shape).create(name), path, name)?;
-    if let Some(d) = data {
-        if !d.is_empty() {
-            let v = ndarray::ArrayViewD::from_shape(shape, d).map_err(|e| anyhow!("{name}: {e}"))?;
-            h5(ds.write(v), path, name)?;
-        }
-    }
-    Ok(())
+    let what = at(format!("creating the output ({name})"));
+    let ds = team.settle(what, group.new_dataset::<T>().shape(shape).create(name))?;
+    let written = match data {
+        Some(d) if !d.is_empty() => ndarray::ArrayViewD::from_shape(shape, d)
+            .map_err(hdf5::Error::from)
+            .and_then(|v| ds.write(v)),
+        _ => Ok(()),
+    };
+    team.settle(at(format!("writing the output ({name})")), written)
+}
+
+/// A scalar attribute created and written by every process (the same value).
+fn scalar_attr<T: hdf5::H5Type>(team: &Team, loc: &hdf5::Location, name: &str, v: &T) -> Result<()> {
+    team.settle(
+        at(format!("creating the output (attribute {name})")),
+        loc.new_attr::<T>().create(name).and_then(|a| a.write_scalar(v)),
+    )
 }
 
 /// Writes rows `row0..row0 + rows` (`ncomp` values each) of a dataset, collectively under MPI
 /// (every process calls, some with no rows).
-fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64], parallel: bool) -> Result<()> {
+fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64], parallel: bool) -> hdf5::Result<()> {
     use hdf5_sys::h5d::H5Dwrite;
     use hdf5_sys::h5p::{H5Pclose, H5Pcreate, H5P_CLS_DATASET_XFER};
     use hdf5_sys::h5s::{H5S_seloper_t, H5Sclose, H5Screate_simple, H5Sselect_hyperslab, H5Sselect_none};
-    use hdf5_sys::h5t::H5T_NATIVE_DOUBLE;
+    use hdf5_sys::h5t::{H5T_NATIVE_DOUBLE, H5T_NATIVE_FLOAT};
     if data.len() != rows * ncomp {
-        return Err(anyhow!("internal: {} values for {rows} rows of {ncomp}", data.len()));
+        return Err(format!("internal: {} values for {rows} rows of {ncomp}", data.len()).into());
     }
+    // A float32 file array gets float32 values: parallel HDF5 writes no filtered (deflated)
+    // chunks through a type conversion, so the conversion is done here, the same on every path.
+    let narrow: Option<Vec<f32>> = (ds.dtype()?.size() == 4).then(|| data.iter().map(|&x| x as f32).collect());
     let nd = ds.ndim();
     let start = [row0 as u64, 0];
     let count = [rows as u64, ncomp as u64];
@@ -224,16 +239,35 @@ fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64]
         if parallel {
             hdf5_sys::h5p::H5Pset_dxpl_mpio(dxpl, hdf5_sys::h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
         }
-        let st = H5Dwrite(ds.id(), *H5T_NATIVE_DOUBLE, ms, fs, dxpl, data.as_ptr().cast());
+        let st = match &narrow {
+            Some(v) => H5Dwrite(ds.id(), *H5T_NATIVE_FLOAT, ms, fs, dxpl, v.as_ptr().cast()),
+            None => H5Dwrite(ds.id(), *H5T_NATIVE_DOUBLE, ms, fs, dxpl, data.as_ptr().cast()),
+        };
+        // the error stack of the write, before the closes below add to it
+        let err = (st < 0).then(|| hdf5::Error::query().unwrap_or_else(|e| e));
         H5Pclose(dxpl);
         H5Sclose(ms);
         H5Sclose(fs);
-        st
+        err
     };
-    if status < 0 {
-        return Err(anyhow!("writing rows {row0}..{} of {} failed", row0 + rows, ds.name()));
+    match status {
+        Some(e) => Err(e),
+        None => Ok(()),
     }
-    Ok(())
+}
+
+/// Keeps the first failure of a batch of calls that every process makes in full.
+fn keep(first: &mut hdf5::Result<()>, r: hdf5::Result<()>) {
+    if first.is_ok() {
+        *first = r;
+    }
+}
+
+/// Resizes a growing dataset to `rows` rows (its other dimensions unchanged).
+fn resize(ds: &Dataset, rows: usize) -> hdf5::Result<()> {
+    let mut shape = ds.shape();
+    shape[0] = rows;
+    ds.resize(shape)
 }
 
 /// The state stored at the last complete step of a series (this process's block).
@@ -245,9 +279,27 @@ pub struct Resume {
     pub phi: Vec<f64>,
 }
 
+/// The file access of every process: MPI-IO under MPI, else without HDF5's file lock so
+/// that readers (h5py, ParaView) may open the file while the run goes on.
+fn access(comm: Option<&mpi::topology::SimpleCommunicator>) -> hdf5::FileBuilder {
+    let mut b = File::with_options();
+    match comm {
+        Some(c) => {
+            use mpi::raw::AsRaw;
+            let raw = c.as_raw();
+            b.with_fapl(|p| p.mpio(raw, None));
+        }
+        None => {
+            b.with_fapl(|p| p.file_locking(false));
+        }
+    }
+    b
+}
+
 impl SeriesWriter {
     /// Creates (truncates) the file and writes the static mesh. `mesh` is given on exactly one
-    /// process (rank 0), `comm` under MPI (then every process of it must call).
+    /// process (rank 0), `comm` under MPI (then every process of it must call). A failure is a
+    /// `WriteFailed` on every process (the file is closed on every process when it returns).
     pub fn create(
         path: &Path,
         layout: Layout,
@@ -257,39 +309,20 @@ impl SeriesWriter {
     ) -> Result<Self> {
         let parallel = comm.is_some();
         let root = mesh.is_some();
-        let file = match comm {
-            Some(c) => {
-                use mpi::raw::AsRaw;
-                let raw = c.as_raw();
-                File::with_options().with_fapl(|p| p.mpio(raw, None)).create(path)
-            }
-            // no lock: readers (h5py, ParaView) may open the file while the run goes on
-            None => File::with_options().with_fapl(|p| p.file_locking(false)).create(path),
-        }
-        .map_err(|e| {
-            anyhow!(
-                "{}: cannot create the output file: {e}; fix: check that the directory exists and is writable",
-                path.display()
-            )
-        })?;
+        let team = Team::new(path, comm);
+        let file = team.settle_open(at(CREATING), access(comm).create(path))?;
+        let t = &team;
         let n = layout.nodes;
-        let top = h5(file.create_group("VTKHDF"), path, "create /VTKHDF")?;
-        h5(
+        let top = t.settle(at("creating the output (/VTKHDF)"), file.create_group("VTKHDF"))?;
+        t.settle(
+            at("creating the output (Version)"),
             top.new_attr::<i64>()
                 .shape([2])
                 .create("Version")
                 .and_then(|a| a.write(&[2i64, 1])),
-            path,
-            "Version",
         )?;
         let ty = FixedAscii::<16>::from_ascii(b"UnstructuredGrid").unwrap();
-        h5(
-            top.new_attr::<FixedAscii<16>>()
-                .create("Type")
-                .and_then(|a| a.write_scalar(&ty)),
-            path,
-            "Type",
-        )?;
+        scalar_attr(t, &top, "Type", &ty)?;
 
         let (mut conn, mut offs, mut types, mut pts) = (vec![], vec![], vec![], vec![]);
         if let Some(mesh) = mesh {
@@ -304,63 +337,51 @@ impl SeriesWriter {
         }
         let on_root = |v: &[i64]| Some(v.to_vec()).filter(|_| root);
         let counts = [n as i64, layout.cells as i64, layout.conn as i64];
-        fixed(&top, "NumberOfPoints", &[1], on_root(&counts[0..1]).as_deref(), path)?;
-        fixed(&top, "NumberOfCells", &[1], on_root(&counts[1..2]).as_deref(), path)?;
+        fixed(t, &top, "NumberOfPoints", &[1], on_root(&counts[0..1]).as_deref())?;
+        fixed(t, &top, "NumberOfCells", &[1], on_root(&counts[1..2]).as_deref())?;
         fixed(
+            t,
             &top,
             "NumberOfConnectivityIds",
             &[1],
             on_root(&counts[2..3]).as_deref(),
-            path,
         )?;
         fixed(
+            t,
             &top,
             "Connectivity",
             &[layout.conn],
             Some(&conn[..]).filter(|_| root),
-            path,
         )?;
         fixed(
+            t,
             &top,
             "Offsets",
             &[layout.cells + 1],
             Some(&offs[..]).filter(|_| root),
-            path,
         )?;
-        fixed(&top, "Types", &[layout.cells], Some(&types[..]).filter(|_| root), path)?;
-        fixed(&top, "Points", &[n, 3], Some(&pts[..]).filter(|_| root), path)?;
+        fixed(t, &top, "Types", &[layout.cells], Some(&types[..]).filter(|_| root))?;
+        fixed(t, &top, "Points", &[n, 3], Some(&pts[..]).filter(|_| root))?;
         drop((conn, offs, types, pts));
 
-        let pd = h5(top.create_group("PointData"), path, "PointData")?;
-        let steps = h5(top.create_group("Steps"), path, "Steps")?;
-        h5(
-            steps
-                .new_attr::<i64>()
-                .create("NSteps")
-                .and_then(|a| a.write_scalar(&0i64)),
-            path,
-            "NSteps",
-        )?;
-        let pdo = h5(steps.create_group("PointDataOffsets"), path, "PointDataOffsets")?;
-        h5(steps.create_group("CellDataOffsets"), path, "CellDataOffsets")?;
-        h5(steps.create_group("FieldDataOffsets"), path, "FieldDataOffsets")?;
-        let values = growing(&steps, "Values", &[], 1024, path)?;
+        let mk = |what: &str| at(format!("creating the output ({what})"));
+        let pd = t.settle(mk("PointData"), top.create_group("PointData"))?;
+        let steps = t.settle(mk("Steps"), top.create_group("Steps"))?;
+        scalar_attr(t, &steps, "NSteps", &0i64)?;
+        let pdo = t.settle(mk("PointDataOffsets"), steps.create_group("PointDataOffsets"))?;
+        t.settle(mk("CellDataOffsets"), steps.create_group("CellDataOffsets"))?;
+        t.settle(mk("FieldDataOffsets"), steps.create_group("FieldDataOffsets"))?;
+        let values = t.settle(mk("Values"), growing(&steps, "Values", &[], 1024))?;
         let mut step_sets = Vec::new();
-        for name in [
-            "PartOffsets",
-            "NumberOfParts",
-            "PointOffsets",
-            "CellOffsets",
-            "ConnectivityIdOffsets",
-        ] {
-            step_sets.push(growing_i64(&steps, name, path)?);
+        for name in STEP_SETS {
+            step_sets.push(t.settle(mk(name), growing_i64(&steps, name))?);
         }
         let mut fields = Vec::new();
         for &(name, ncomp) in &spec.fields {
             let rows = n.clamp(1, (1 << 20) / (8 * ncomp));
             let tail: &[usize] = if ncomp == 1 { &[] } else { &[ncomp] };
-            let data = point_array(&pd, name, tail, rows, spec, path)?;
-            let offsets = growing_i64(&pdo, name, path)?;
+            let data = t.settle(mk(name), point_array(&pd, name, tail, rows, spec))?;
+            let offsets = t.settle(mk(name), growing_i64(&pdo, name))?;
             fields.push(Field {
                 name: name.to_string(),
                 ncomp,
@@ -369,64 +390,39 @@ impl SeriesWriter {
             });
         }
 
-        let ep = h5(file.create_group("eprop"), path, "create /eprop")?;
+        let ep = t.settle(mk("/eprop"), file.create_group("eprop"))?;
         let vs = VarLenUnicode::from_str(spec.version).unwrap();
-        h5(
-            ep.new_attr::<VarLenUnicode>()
-                .create("version")
-                .and_then(|a| a.write_scalar(&vs)),
-            path,
-            "version",
-        )?;
-        h5(
-            ep.new_attr::<i64>()
-                .create("steps_complete")
-                .and_then(|a| a.write_scalar(&0i64)),
-            path,
-            "steps_complete",
-        )?;
+        scalar_attr(t, &ep, "version", &vs)?;
+        scalar_attr(t, &ep, "steps_complete", &0i64)?;
         for (name, v) in &spec.attrs {
-            h5(
-                ep.new_attr::<f64>().create(*name).and_then(|a| a.write_scalar(v)),
-                path,
-                name,
-            )?;
+            scalar_attr(t, &ep, name, v)?;
         }
         for (name, v) in &spec.ids {
-            h5(
-                ep.new_attr::<u64>().create(*name).and_then(|a| a.write_scalar(v)),
-                path,
-                name,
-            )?;
+            scalar_attr(t, &ep, name, v)?;
         }
-        h5(
-            ep.new_attr::<u8>()
-                .create("float32")
-                .and_then(|a| a.write_scalar(&(spec.float32 as u8))),
-            path,
-            "float32",
-        )?;
+        scalar_attr(t, &ep, "float32", &(spec.float32 as u8))?;
         let text = spec.scenario.as_bytes();
-        fixed(&ep, "scenario", &[text.len()], Some(text).filter(|_| root), path)?;
-        let cv = h5(
+        fixed(t, &ep, "scenario", &[text.len()], Some(text).filter(|_| root))?;
+        let cv = t.settle(
+            mk("control_volumes"),
             ep.new_dataset::<f64>().shape([n]).create("control_volumes"),
-            path,
-            "control_volumes",
         )?;
-        write_rows(&cv, spec.block_start, spec.block_len, 1, spec.control_volumes, parallel)
-            .with_context(|| format!("{}: control_volumes", path.display()))?;
+        t.settle(
+            at("writing the output (control_volumes)"),
+            write_rows(&cv, spec.block_start, spec.block_len, 1, spec.control_volumes, parallel),
+        )?;
         let ids: Option<Vec<i64>> = mesh.map(|m| m.node_ids.iter().map(|&x| x as i64).collect());
-        fixed(&ep, "node_ids", &[n], ids.as_deref(), path)?;
-        fixed(&ep, "cell_tags", &[layout.cells], mesh.map(|m| &m.cell_tags[..]), path)?;
-        let pr = h5(ep.create_group("probes"), path, "probes")?;
+        fixed(t, &ep, "node_ids", &[n], ids.as_deref())?;
+        fixed(t, &ep, "cell_tags", &[layout.cells], mesh.map(|m| &m.cell_tags[..]))?;
+        let pr = t.settle(mk("probes"), ep.create_group("probes"))?;
         let ln: Vec<i64> = spec.load_nodes.iter().map(|&x| x as i64).collect();
-        fixed(&pr, "node", &[ln.len()], Some(&ln[..]).filter(|_| root), path)?;
+        fixed(t, &pr, "node", &[ln.len()], Some(&ln[..]).filter(|_| root))?;
         let nl = spec.n_loads.max(1);
-        let probe_time = growing(&pr, "time", &[], 1024, path)?;
-        let probe_step = growing_i64(&pr, "step", path)?;
-        let probe_force = growing(&pr, "force", &[nl, 3], 256, path)?;
-        let probe_disp = growing(&pr, "displacement", &[nl, 3], 256, path)?;
-        h5(file.flush(), path, "flush")?;
+        let probe_time = t.settle(mk("probes/time"), growing(&pr, "time", &[], 1024))?;
+        let probe_step = t.settle(mk("probes/step"), growing_i64(&pr, "step"))?;
+        let probe_force = t.settle(mk("probes/force"), growing(&pr, "force", &[nl, 3], 256))?;
+        let probe_disp = t.settle(mk("probes/displacement"), growing(&pr, "displacement", &[nl, 3], 256))?;
+        t.settle(at("writing the output (flush)"), file.flush())?;
         Ok(SeriesWriter {
             path: path.to_path_buf(),
             file,
@@ -444,6 +440,7 @@ impl SeriesWriter {
             probe_disp,
             n_loads: nl,
             n_steps: 0,
+            team,
             tools: None,
         })
     }
@@ -452,103 +449,115 @@ impl SeriesWriter {
     /// calls): `time`, `step` (output steps), `position`, `force`, `displacement` (output
     /// steps, tools, 3), `contact_nodes`, `contact_area`, `indentation` (output steps, tools).
     pub fn add_tools(&mut self, n: usize) -> Result<()> {
-        let p = &self.path;
         if self.n_steps > 0 || n == 0 {
             return Err(anyhow!("internal: tools are added to a new series, and at least one"));
         }
-        let ep = h5(self.file.group("eprop"), p, "/eprop")?;
-        let g = h5(ep.create_group("tools"), p, "create /eprop/tools")?;
-        let vector = |name: &str| growing(&g, name, &[n, 3], 256, p);
-        let scalar = |name: &str| growing(&g, name, &[n], 256, p);
+        let t = &self.team;
+        let mk = |what: &str| at(format!("creating the output ({what})"));
+        let ep = t.settle(mk("/eprop"), self.file.group("eprop"))?;
+        let g = t.settle(mk("/eprop/tools"), ep.create_group("tools"))?;
+        let vector = |name: &str| t.settle(mk(name), growing(&g, name, &[n, 3], 256));
+        let scalar = |name: &str| t.settle(mk(name), growing(&g, name, &[n], 256));
         let b = g
             .new_dataset::<i64>()
             .chunk([256, n])
             .shape([Extent::resizable(0), Extent::fixed(n)]);
         let b = b.alloc_time(Some(AllocTime::Early)).fill_time(FillTime::Never);
-        let contact_nodes = h5(b.create("contact_nodes"), p, "create contact_nodes")?;
-        self.tools = Some(ToolSets {
+        let contact_nodes = t.settle(mk("contact_nodes"), b.create("contact_nodes"))?;
+        let sets = ToolSets {
             n,
-            time: growing(&g, "time", &[], 1024, p)?,
-            step: growing_i64(&g, "step", p)?,
+            time: t.settle(mk("tools/time"), growing(&g, "time", &[], 1024))?,
+            step: t.settle(mk("tools/step"), growing_i64(&g, "step"))?,
             vectors: [vector("position")?, vector("force")?, vector("displacement")?],
             scalars: [scalar("contact_area")?, scalar("indentation")?],
             contact_nodes,
-        });
-        h5(self.file.flush(), p, "flush")
+        };
+        t.settle(at("writing the output (flush)"), self.file.flush())?;
+        self.tools = Some(sets);
+        Ok(())
     }
 
     /// Writes the tools' rows of the next output step (every process calls; rank 0's rows are
-    /// written): call before `append`, which completes the step.
+    /// written): call before `append`, which completes the step. A failure is a `WriteFailed`
+    /// on every process.
     pub fn append_tools(&mut self, time: f64, step: u64, rows: &[ToolRow]) -> Result<()> {
-        let (k, p, root) = (self.n_steps, &self.path, self.root);
-        let t = self
+        let (k, root) = (self.n_steps, self.root);
+        let tt = self
             .tools
             .as_ref()
             .ok_or_else(|| anyhow!("internal: the series has no tools"))?;
-        if rows.len() != t.n {
-            return Err(anyhow!("internal: {} tool rows for {} tools", rows.len(), t.n));
+        if rows.len() != tt.n {
+            return Err(anyhow!("internal: {} tool rows for {} tools", rows.len(), tt.n));
         }
-        let n = t.n;
-        h5(t.time.resize([k + 1]), p, "tools/time")?;
-        h5(t.step.resize([k + 1]), p, "tools/step")?;
-        for d in &t.vectors {
-            h5(d.resize([k + 1, n, 3]), p, "tools")?;
+        let what = || format!("writing the tools of output step {k} (step {step})");
+        let n = tt.n;
+        // every table to k + 1 rows (made in full by every process, agreed once)
+        let mut resized = Ok(());
+        for d in [&tt.time, &tt.step]
+            .into_iter()
+            .chain(&tt.vectors)
+            .chain(&tt.scalars)
+            .chain([&tt.contact_nodes])
+        {
+            keep(&mut resized, resize(d, k + 1));
         }
-        for d in t.scalars.iter().chain([&t.contact_nodes]) {
-            h5(d.resize([k + 1, n]), p, "tools")?;
-        }
-        if root {
-            h5(t.time.write_slice(&[time], s![k..k + 1]), p, "tools/time")?;
-            h5(t.step.write_slice(&[step as i64], s![k..k + 1]), p, "tools/step")?;
+        self.team.settle(what, resized)?;
+        let rows_of_root = || -> hdf5::Result<()> {
+            tt.time.write_slice(&[time], s![k..k + 1])?;
+            tt.step.write_slice(&[step as i64], s![k..k + 1])?;
             let pick = |f: fn(&ToolRow) -> [f64; 3]| rows.iter().flat_map(f).collect::<Vec<f64>>();
             let vectors = [pick(|r| r.position), pick(|r| r.force), pick(|r| r.displacement)];
-            for (d, v) in t.vectors.iter().zip(&vectors) {
-                let view = ArrayView3::from_shape((1, n, 3), v).unwrap();
-                h5(d.write_slice(view, s![k..k + 1, .., ..]), p, "tools")?;
+            for (d, v) in tt.vectors.iter().zip(&vectors) {
+                let view = ArrayView3::from_shape((1, n, 3), v).map_err(hdf5::Error::from)?;
+                d.write_slice(view, s![k..k + 1, .., ..])?;
             }
             let area: Vec<f64> = rows.iter().map(|r| r.contact_area).collect();
             let depth: Vec<f64> = rows.iter().map(|r| r.indentation).collect();
-            for (d, v) in t.scalars.iter().zip([area, depth]) {
-                let view = ndarray::ArrayView2::from_shape((1, n), &v).unwrap();
-                h5(d.write_slice(view, s![k..k + 1, ..]), p, "tools")?;
+            for (d, v) in tt.scalars.iter().zip([area, depth]) {
+                let view = ndarray::ArrayView2::from_shape((1, n), &v).map_err(hdf5::Error::from)?;
+                d.write_slice(view, s![k..k + 1, ..])?;
             }
             let count: Vec<i64> = rows.iter().map(|r| r.contact_nodes as i64).collect();
-            let view = ndarray::ArrayView2::from_shape((1, n), &count).unwrap();
-            h5(t.contact_nodes.write_slice(view, s![k..k + 1, ..]), p, "tools")?;
-        }
-        Ok(())
+            let view = ndarray::ArrayView2::from_shape((1, n), &count).map_err(hdf5::Error::from)?;
+            tt.contact_nodes.write_slice(view, s![k..k + 1, ..])
+        };
+        self.team.settle(what, if root { rows_of_root() } else { Ok(()) })
     }
 
     /// Appends one output step (every process calls): `data[f]` holds field f for this
     /// process's block of nodes (node-major, components interleaved); `probes[l]` = (applied
-    /// force, contact displacement) of load l (used on rank 0).
+    /// force, contact displacement) of load l (used on rank 0). The step's rows and tables are
+    /// written and flushed before `steps_complete` counts it (a second flush), so a failure at
+    /// any point leaves the file at its previous complete step; a failure is a `WriteFailed` on
+    /// every process.
     pub fn append(&mut self, time: f64, step: u64, data: &[&[f64]], probes: &[([f64; 3], [f64; 3])]) -> Result<()> {
         let k = self.n_steps;
         let n = self.n_points;
         let (b0, bl) = self.block;
-        let p = &self.path;
         let root = self.root;
+        let t = &self.team;
+        let what = || format!("writing output step {k} (step {step})");
+        // every growing dataset to k + 1 steps: calls on distinct datasets, each made by every
+        // process whatever the others' outcome, agreed once
+        let mut resized = Ok(());
+        for f in &self.fields {
+            keep(&mut resized, resize(&f.data, (k + 1) * n));
+            keep(&mut resized, resize(&f.offsets, k + 1));
+        }
+        for ds in self.step_sets.iter().chain([
+            &self.values,
+            &self.probe_time,
+            &self.probe_step,
+            &self.probe_force,
+            &self.probe_disp,
+        ]) {
+            keep(&mut resized, resize(ds, k + 1));
+        }
+        t.settle(what, resized)?;
+        // the rows, collectively: one agreement per field
         for (f, d) in self.fields.iter().zip(data) {
-            if f.ncomp == 1 {
-                h5(f.data.resize([(k + 1) * n]), p, &f.name)?;
-            } else {
-                h5(f.data.resize([(k + 1) * n, f.ncomp]), p, &f.name)?;
-            }
-            write_rows(&f.data, k * n + b0, bl, f.ncomp, d, self.parallel)
-                .with_context(|| format!("{}: {}", p.display(), f.name))?;
-            h5(f.offsets.resize([k + 1]), p, &f.name)?;
-            if root {
-                h5(f.offsets.write_slice(&[(k * n) as i64], s![k..k + 1]), p, &f.name)?;
-            }
+            t.settle(what, write_rows(&f.data, k * n + b0, bl, f.ncomp, d, self.parallel))?;
         }
-        for (i, ds) in self.step_sets.iter().enumerate() {
-            let v = if i == 1 { 1i64 } else { 0 };
-            h5(ds.resize([k + 1]), p, "Steps")?;
-            if root {
-                h5(ds.write_slice(&[v], s![k..k + 1]), p, "Steps")?;
-            }
-        }
-        h5(self.values.resize([k + 1]), p, "Values")?;
         let nl = self.n_loads;
         let mut fr = vec![0.0; nl * 3];
         let mut ds = vec![0.0; nl * 3];
@@ -556,32 +565,37 @@ impl SeriesWriter {
             fr[3 * l..3 * l + 3].copy_from_slice(f);
             ds[3 * l..3 * l + 3].copy_from_slice(u);
         }
-        h5(self.probe_time.resize([k + 1]), p, "probes")?;
-        h5(self.probe_step.resize([k + 1]), p, "probes")?;
-        for dset in [&self.probe_force, &self.probe_disp] {
-            h5(dset.resize([k + 1, nl, 3]), p, "probes")?;
-        }
-        if root {
-            h5(self.values.write_slice(&[time], s![k..k + 1]), p, "Values")?;
-            h5(self.probe_time.write_slice(&[time], s![k..k + 1]), p, "probes")?;
-            h5(self.probe_step.write_slice(&[step as i64], s![k..k + 1]), p, "probes")?;
-            for (dset, v) in [(&self.probe_force, &fr), (&self.probe_disp, &ds)] {
-                let view = ArrayView3::from_shape((1, nl, 3), v).unwrap();
-                h5(dset.write_slice(view, s![k..k + 1, .., ..]), p, "probes")?;
+        // the field offsets and the small per-step tables, from rank 0 alone (independent writes)
+        let tables = || -> hdf5::Result<()> {
+            for f in &self.fields {
+                f.offsets.write_slice(&[(k * n) as i64], s![k..k + 1])?;
             }
-        }
-        self.n_steps = k + 1;
-        let ns = self.n_steps as i64;
-        h5(self.steps.attr("NSteps").and_then(|a| a.write_scalar(&ns)), p, "NSteps")?;
-        h5(
+            for (i, set) in self.step_sets.iter().enumerate() {
+                set.write_slice(&[if i == 1 { 1i64 } else { 0 }], s![k..k + 1])?;
+            }
+            self.values.write_slice(&[time], s![k..k + 1])?;
+            self.probe_time.write_slice(&[time], s![k..k + 1])?;
+            self.probe_step.write_slice(&[step as i64], s![k..k + 1])?;
+            for (dset, v) in [(&self.probe_force, &fr), (&self.probe_disp, &ds)] {
+                let view = ArrayView3::from_shape((1, nl, 3), v).map_err(hdf5::Error::from)?;
+                dset.write_slice(view, s![k..k + 1, .., ..])?;
+            }
+            Ok(())
+        };
+        t.settle(what, if root { tables() } else { Ok(()) })?;
+        t.settle(what, self.file.flush())?;
+        let ns = (k + 1) as i64;
+        let mut counted = self.steps.attr("NSteps").and_then(|a| a.write_scalar(&ns));
+        keep(
+            &mut counted,
             self.file
                 .group("eprop")
                 .and_then(|g| g.attr("steps_complete"))
                 .and_then(|a| a.write_scalar(&ns)),
-            p,
-            "steps_complete",
-        )?;
-        h5(self.file.flush(), p, "flush").context("writing an output step")?;
+        );
+        t.settle(what, counted)?;
+        t.settle(what, self.file.flush())?;
+        self.n_steps = k + 1;
         Ok(())
     }
 
@@ -599,34 +613,24 @@ impl SeriesWriter {
             use mpi::topology::Communicator;
             c.rank() == 0
         });
-        let file = match comm {
-            Some(c) => {
-                use mpi::raw::AsRaw;
-                let raw = c.as_raw();
-                File::with_options().with_fapl(|p| p.mpio(raw, None)).open_rw(path)
-            }
-            None => File::with_options().with_fapl(|p| p.file_locking(false)).open_rw(path),
-        }
-        .map_err(|e| {
-            anyhow!(
-                "{}: cannot open the file to restart: {e}; fix: give the output file of the interrupted run",
-                path.display()
-            )
-        })?;
+        let team = Team::new(path, comm);
+        let t = &team;
+        let file = t.settle_open(at("opening the file to restart"), access(comm).open_rw(path))?;
         let bad = |what: String| {
             anyhow!(
                 "{}: cannot restart: {what}; fix: restart with the scenario and mesh that wrote the file, or start a new run",
                 path.display()
             )
         };
-        let ep = file
-            .group("eprop")
-            .map_err(|_| bad("no /eprop group (not an eprop series)".into()))?;
+        let read = |what: &str| at(format!("reading the file to restart ({what})"));
+        // what a file may lack (then it is refused alike on every process)
+        let ep = t
+            .settle_opt(read("/eprop"), file.group("eprop"))?
+            .ok_or_else(|| bad("no /eprop group (not an eprop series)".into()))?;
         for (name, v) in &spec.ids {
-            let got: u64 = ep
-                .attr(name)
-                .and_then(|a| a.read_scalar())
-                .map_err(|_| bad(format!("no {name} attribute")))?;
+            let got: u64 = t
+                .settle_opt(read(name), ep.attr(name).and_then(|a| a.read_scalar()))?
+                .ok_or_else(|| bad(format!("no {name} attribute")))?;
             if got != *v {
                 return Err(bad(format!(
                     "it was written for a different {}",
@@ -634,37 +638,39 @@ impl SeriesWriter {
                 )));
             }
         }
-        let f32_file: u8 = ep.attr("float32").and_then(|a| a.read_scalar()).unwrap_or(0);
+        let f32_file: u8 = t
+            .settle_opt(read("float32"), ep.attr("float32").and_then(|a| a.read_scalar()))?
+            .unwrap_or(0);
         if f32_file != 0 || spec.float32 {
             return Err(bad(
                 "float32 output cannot restart exactly (precision = \"float64\" is)".into(),
             ));
         }
-        let n: i64 = h5(
+        let n: i64 = t.settle(
+            read("NumberOfPoints"),
             file.dataset("VTKHDF/NumberOfPoints").and_then(|d| d.read_raw::<i64>()),
-            path,
-            "NumberOfPoints",
         )?[0];
         if n as usize != layout.nodes {
             return Err(bad(format!("the file has {n} nodes, the mesh {}", layout.nodes)));
         }
-        let k: i64 = h5(
+        let k: i64 = t.settle(
+            read("steps_complete"),
             ep.attr("steps_complete").and_then(|a| a.read_scalar()),
-            path,
-            "steps_complete",
         )?;
         if k < 1 {
             return Err(bad("the file holds no complete step".into()));
         }
         let k = k as usize;
-        let top = h5(file.group("VTKHDF"), path, "VTKHDF")?;
-        let pd = h5(top.group("PointData"), path, "PointData")?;
-        let steps = h5(top.group("Steps"), path, "Steps")?;
-        let pdo = h5(steps.group("PointDataOffsets"), path, "PointDataOffsets")?;
+        let top = t.settle(read("VTKHDF"), file.group("VTKHDF"))?;
+        let pd = t.settle(read("PointData"), top.group("PointData"))?;
+        let steps = t.settle(read("Steps"), top.group("Steps"))?;
+        let pdo = t.settle(read("PointDataOffsets"), steps.group("PointDataOffsets"))?;
         let mut fields = Vec::new();
         for &(name, ncomp) in &spec.fields {
-            let data = pd.dataset(name).map_err(|_| bad(format!("no field {name}")))?;
-            let offsets = h5(pdo.dataset(name), path, name)?;
+            let data = t
+                .settle_opt(read(name), pd.dataset(name))?
+                .ok_or_else(|| bad(format!("no field {name}")))?;
+            let offsets = t.settle(read(name), pdo.dataset(name))?;
             fields.push(Field {
                 name: name.to_string(),
                 ncomp,
@@ -682,24 +688,21 @@ impl SeriesWriter {
                 .find(|f| f.name == name)
                 .ok_or_else(|| bad(format!("the run did not write `{name}`, which a restart needs")))?;
             let rows = (k - 1) * nd + b0;
-            let v = h5(f.data.read_slice_2d::<f64, _>(s![rows..rows + bl, ..]), path, name)?;
+            let v = t.settle(read(name), f.data.read_slice_2d::<f64, _>(s![rows..rows + bl, ..]))?;
             state.push(v.iter().copied().collect::<Vec<f64>>());
         }
-        let values = h5(steps.dataset("Values"), path, "Values")?;
-        let time = h5(values.read_slice_1d::<f64, _>(s![k - 1..k]), path, "Values")?[0];
-        let pr = h5(ep.group("probes"), path, "probes")?;
-        let probe_step = h5(pr.dataset("step"), path, "probes/step")?;
-        let step = h5(probe_step.read_slice_1d::<i64, _>(s![k - 1..k]), path, "probes/step")?[0];
-        let step_sets = [
-            "PartOffsets",
-            "NumberOfParts",
-            "PointOffsets",
-            "CellOffsets",
-            "ConnectivityIdOffsets",
-        ]
-        .iter()
-        .map(|nm| h5(steps.dataset(nm), path, nm))
-        .collect::<Result<Vec<_>>>()?;
+        let values = t.settle(read("Values"), steps.dataset("Values"))?;
+        let time = t.settle(read("Values"), values.read_slice_1d::<f64, _>(s![k - 1..k]))?[0];
+        let pr = t.settle(read("probes"), ep.group("probes"))?;
+        let probe_step = t.settle(read("probes/step"), pr.dataset("step"))?;
+        let step = t.settle(read("probes/step"), probe_step.read_slice_1d::<i64, _>(s![k - 1..k]))?[0];
+        let mut step_sets = Vec::new();
+        for name in STEP_SETS {
+            step_sets.push(t.settle(read(name), steps.dataset(name))?);
+        }
+        let probe_time = t.settle(read("probes/time"), pr.dataset("time"))?;
+        let probe_force = t.settle(read("probes/force"), pr.dataset("force"))?;
+        let probe_disp = t.settle(read("probes/displacement"), pr.dataset("displacement"))?;
         let w = SeriesWriter {
             path: path.to_path_buf(),
             n_points: nd,
@@ -709,14 +712,15 @@ impl SeriesWriter {
             fields,
             step_sets,
             values,
-            probe_time: h5(pr.dataset("time"), path, "probes/time")?,
+            probe_time,
             probe_step,
-            probe_force: h5(pr.dataset("force"), path, "probes/force")?,
-            probe_disp: h5(pr.dataset("displacement"), path, "probes/displacement")?,
+            probe_force,
+            probe_disp,
             n_loads: spec.n_loads.max(1),
             n_steps: k,
             steps,
             file,
+            team,
             tools: None,
         };
         // drop the rows of a step that was being written when the run ended
@@ -732,28 +736,44 @@ impl SeriesWriter {
         Ok((w, resume))
     }
 
+    /// Drops the last complete step (every process calls): the file then holds one step less.
+    pub fn forget_last(&mut self) -> Result<()> {
+        let k = self.n_steps.saturating_sub(1);
+        let ns = k as i64;
+        let t = &self.team;
+        let what = || format!("dropping output step {k}");
+        // the count first: a reader never sees a step whose rows are gone
+        t.settle(what, self.steps.attr("NSteps").and_then(|a| a.write_scalar(&ns)))?;
+        t.settle(
+            what,
+            self.file
+                .group("eprop")
+                .and_then(|g| g.attr("steps_complete"))
+                .and_then(|a| a.write_scalar(&ns)),
+        )?;
+        t.settle(what, self.file.flush())?;
+        self.n_steps = k;
+        self.truncate()
+    }
+
     /// Cuts every growing dataset to the complete steps.
     fn truncate(&self) -> Result<()> {
-        let (k, n, p) = (self.n_steps, self.n_points, &self.path);
+        let (k, n, t) = (self.n_steps, self.n_points, &self.team);
+        let what = || "dropping the rows of an incomplete step".to_string();
         for f in &self.fields {
-            if f.ncomp == 1 {
-                h5(f.data.resize([k * n]), p, &f.name)?;
-            } else {
-                h5(f.data.resize([k * n, f.ncomp]), p, &f.name)?;
-            }
-            h5(f.offsets.resize([k]), p, &f.name)?;
+            t.settle(what, resize(&f.data, k * n))?;
+            t.settle(what, resize(&f.offsets, k))?;
         }
-        for ds in self
-            .step_sets
-            .iter()
-            .chain([&self.values, &self.probe_time, &self.probe_step])
-        {
-            h5(ds.resize([k]), p, "Steps")?;
+        for ds in self.step_sets.iter().chain([
+            &self.values,
+            &self.probe_time,
+            &self.probe_step,
+            &self.probe_force,
+            &self.probe_disp,
+        ]) {
+            t.settle(what, resize(ds, k))?;
         }
-        for ds in [&self.probe_force, &self.probe_disp] {
-            h5(ds.resize([k, self.n_loads, 3]), p, "probes")?;
-        }
-        h5(self.file.flush(), p, "flush")
+        t.settle(what, self.file.flush())
     }
 
     pub fn steps_written(&self) -> usize {
@@ -761,6 +781,69 @@ impl SeriesWriter {
     }
     pub fn path(&self) -> &Path {
         &self.path
+    }
+    /// True when every writing process says `ok` (a reduction; every process calls).
+    pub fn all(&self, ok: bool) -> bool {
+        self.team.all(ok)
+    }
+}
+
+/// What a failure to create (open) the file is called; a failure after it left a file behind.
+pub const CREATING: &str = "creating the output file";
+
+/// The per-step tables of `/VTKHDF/Steps` besides `Values`.
+const STEP_SETS: [&str; 5] = [
+    "PartOffsets",
+    "NumberOfParts",
+    "PointOffsets",
+    "CellOffsets",
+    "ConnectivityIdOffsets",
+];
+
+/// What a file is, for the refusal to replace it: not HDF5, HDF5 but not an eprop series, or
+/// a series with its count of complete steps and the program that wrote it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Kind {
+    NotHdf5,
+    OtherHdf5,
+    Series { steps: i64, version: String },
+}
+
+/// Looks at an existing file (read only, without HDF5's file lock).
+pub fn kind_of(path: &Path) -> Result<Kind> {
+    use std::io::Read;
+    let mut head = [0u8; 8];
+    let mut f = std::fs::File::open(path).map_err(|e| anyhow!("{}: cannot open: {e}", path.display()))?;
+    let signature = *b"\x89HDF\r\n\x1a\n";
+    // the signature is at 0 or, after a user block, at 512, 1024, 2048, ...
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let mut found = false;
+    let mut at = 0u64;
+    while at + 8 <= len {
+        use std::io::Seek;
+        if f.seek(std::io::SeekFrom::Start(at)).is_ok() && f.read_exact(&mut head).is_ok() && head == signature {
+            found = true;
+            break;
+        }
+        at = if at == 0 { 512 } else { at * 2 };
+    }
+    if !found {
+        return Ok(Kind::NotHdf5);
+    }
+    let Ok(h) = File::with_options().with_fapl(|p| p.file_locking(false)).open(path) else {
+        return Ok(Kind::OtherHdf5);
+    };
+    let Ok(ep) = h.group("eprop") else {
+        return Ok(Kind::OtherHdf5);
+    };
+    let version: Option<VarLenUnicode> = ep.attr("version").and_then(|a| a.read_scalar()).ok();
+    let steps: Option<i64> = ep.attr("steps_complete").and_then(|a| a.read_scalar()).ok();
+    match (version, steps) {
+        (Some(v), Some(steps)) if v.as_str().starts_with("eprop") && h.group("VTKHDF").is_ok() => Ok(Kind::Series {
+            steps,
+            version: v.as_str().to_string(),
+        }),
+        _ => Ok(Kind::OtherHdf5),
     }
 }
 
@@ -788,6 +871,10 @@ pub fn read_step(path: &Path, name: &str, k: usize) -> Result<Vec<f64>> {
             .copied()
             .collect())
     }
+}
+
+fn h5<T>(r: hdf5::Result<T>, path: &Path, what: &str) -> Result<T> {
+    r.map_err(|e| anyhow!("{}: {what}: {e}", path.display()))
 }
 
 /// Writes a sparse matrix in CSR form (global rows in input node order) with scalar

@@ -49,6 +49,16 @@ pub struct Context<'a> {
     pub comm: &'a dyn Comm,
 }
 
+/// A count for a message: whole below 1e9, else in exponent form (a saturated count is
+/// `usize::MAX`, which says nothing in full).
+fn count(x: f64) -> String {
+    if x < 1e9 {
+        format!("{x:.0}")
+    } else {
+        format!("{x:.3e}")
+    }
+}
+
 /// Super-steps per mechanics step for RKL2: enough that tau / h_median <= Z_RKL2.
 fn rkl2_supersteps(dt: f64, h_median: f64) -> usize {
     if h_median.is_finite() && h_median > 0.0 {
@@ -163,9 +173,9 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             };
             let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
             let st = stages_for(cx.dt / n as f64, cx.h_bound);
-            let rkl2_cost = STAGE_COST * (st * n) as f64;
+            let rkl2_cost = STAGE_COST * st.saturating_mul(n) as f64;
             let (mut best, mut best_cost) = (Kind::Euler, substeps);
-            if st * n <= s.max_stages && rkl2_cost * MARGIN < best_cost {
+            if st.saturating_mul(n) <= s.max_stages && rkl2_cost * MARGIN < best_cost {
                 (best, best_cost) = (Kind::Rkl2, rkl2_cost);
             }
             // implicit costs at least one iteration per stage: try it only where it can win
@@ -185,8 +195,10 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             }
             let _ = best_cost;
             let others = format!(
-                "per step euler {substeps:.0} substeps, rkl2 {} stages (~{rkl2_cost:.0} substeps){}",
-                st * n,
+                "per step euler {} substeps, rkl2 {} stages (~{} substeps){}",
+                count(substeps),
+                count(st.saturating_mul(n) as f64),
+                count(rkl2_cost),
                 match &trial {
                     Some((_, it, apps, cost)) => format!(
                         ", implicit ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps)"

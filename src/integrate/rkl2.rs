@@ -69,17 +69,27 @@ pub fn amplification(s: usize, z: f64) -> f64 {
 
 /// The fewest stages whose super-step `tau` is stable with the safety margin on an operator
 /// whose forward Euler bound is `h_bound`: SAFETY h_bound (s^2 + s - 2) / 4 >= tau.
+/// A count past `MAX_COUNT` (or a ratio that is not finite) is `usize::MAX`: the callers
+/// refuse it by its size (`crate::limits`), and no arithmetic on it wraps.
 pub fn stages_for(tau: f64, h_bound: f64) -> usize {
     if !h_bound.is_finite() {
         return 2;
     }
     let r = tau / (SAFETY * h_bound); // s^2 + s - 2 >= 4 r
-    let mut s = ((-1.0 + (9.0 + 16.0 * r).sqrt()) / 2.0).ceil().max(2.0) as usize;
-    while ((s * s + s - 2) as f64) < 4.0 * r {
-        s += 1;
+    let s0 = ((-1.0 + (9.0 + 16.0 * r).sqrt()) / 2.0).ceil().max(2.0);
+    if !(s0 <= MAX_COUNT) {
+        return usize::MAX;
     }
-    s
+    // in floating point: s^2 of a count near MAX_COUNT does not fit in 64 bits
+    let mut s = s0;
+    while s * s + s - 2.0 < 4.0 * r {
+        s += 1.0;
+    }
+    s as usize
 }
+
+/// Stage and super-step counts above this are saturated to `usize::MAX` (far above any limit).
+pub const MAX_COUNT: f64 = 1e15;
 
 pub struct Rkl2 {
     plan: StepPlan,
@@ -110,10 +120,15 @@ impl Rkl2 {
         let supersteps = supersteps.max(1);
         let tau = dt / supersteps as f64;
         let stages = stages_for(tau, h_bound);
-        let per_step = stages * supersteps;
+        let per_step = stages.saturating_mul(supersteps);
         if per_step > max_stages {
+            let count = if per_step == usize::MAX {
+                format!("more than {MAX_COUNT:e}")
+            } else {
+                per_step.to_string()
+            };
             bail!(
-                "{path}: rkl2 needs {per_step} stages per step on this mesh (dt = {dt:.4e}, stable Euler substep {h_bound:.4e}), more than [integrator] max_stages = {max_stages}; \
+                "{path}: rkl2 needs {count} stages per step on this mesh (dt = {dt:.4e}, stable Euler substep {h_bound:.4e}), more than [integrator] max_stages = {max_stages}; \
                  fix: use [model] integrator = \"implicit\", or repair the cells `eprop check` names as the stiffest, or lower dt, or raise max_stages"
             );
         }

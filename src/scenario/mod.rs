@@ -35,7 +35,7 @@ pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
 pub use mesh::MeshSec;
 pub use model::{IntegratorSec, Model, Scheme, SchemeName, TissueSec};
-pub use output::{Field, Output, OutputSec};
+pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use select::{Entry, Keys, Selector};
 pub use time::{Stop, Time, TimeSec};
 pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
@@ -159,9 +159,43 @@ fn plain(message: &str) -> String {
 
 impl Scenario {
     pub fn load(path: &Path) -> Result<Scenario> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| anyhow!("{}: cannot read the scenario: {e}; fix: check the path", path.display()))?;
+        let text = eprop_io::read_input_text(path, "scenario")?;
         Self::parse(path, text)
+    }
+
+    /// Every file a run of this scenario reads, with its role (for the refusal to write over
+    /// one): the scenario, its mesh, and the tables of loads and tools. A section that reads
+    /// another file adds it here.
+    pub fn inputs(&self) -> Vec<crate::safety::Input> {
+        let name = self.path.display();
+        let mut out = vec![crate::safety::Input {
+            role: format!("the scenario ({name})"),
+            path: self.path.clone(),
+        }];
+        for p in eprop_io::mesh_files(&self.mesh_path()) {
+            out.push(crate::safety::Input {
+                role: format!("the mesh ({}, [mesh] file of {name})", p.display()),
+                path: p,
+            });
+        }
+        let base = self.path.parent().unwrap_or(Path::new("."));
+        for (k, l) in self.file.load.iter().enumerate() {
+            if let Some(t) = &l.with.table {
+                out.push(crate::safety::Input {
+                    role: format!("the force table of [[load]] {} ({}, in {name})", k + 1, t.get_ref()),
+                    path: base.join(t.get_ref()),
+                });
+            }
+        }
+        for (k, t) in self.file.tool.iter().enumerate() {
+            if let Some(f) = &t.get_ref().table {
+                out.push(crate::safety::Input {
+                    role: format!("the path table of [[tool]] {} ({}, in {name})", k + 1, f.get_ref()),
+                    path: base.join(f.get_ref()),
+                });
+            }
+        }
+        out
     }
 
     /// Parses and checks a scenario; an error names its line, column, table and key.

@@ -53,6 +53,9 @@ pub struct OutputSec {
     /// gzip (deflate) level of the point arrays, 0 (off) to 9.
     #[serde(default, deserialize_with = "gzip_level")]
     pub compression: u8,
+    /// Replace an existing series in `file` (as `--overwrite`).
+    #[serde(default)]
+    pub overwrite: bool,
 }
 
 fn every_step() -> u64 {
@@ -108,6 +111,8 @@ pub struct Output {
     pub fields: Vec<Field>,
     pub precision: Precision,
     pub compression: u8,
+    /// An existing series in `file` may be replaced.
+    pub overwrite: bool,
 }
 
 impl Output {
@@ -118,22 +123,27 @@ impl Output {
 }
 
 /// The output file: the scenario's, relative to the scenario file, or `<stem>.h5` beside it.
-pub fn resolve(sc: &Scenario) -> Output {
-    let o = &sc.file.output;
+pub fn file_of(sc: &Scenario) -> PathBuf {
     let base = sc.path.parent().unwrap_or(std::path::Path::new("."));
-    let file = match &o.file {
+    match &sc.file.output.file {
         Some(f) => base.join(f),
         None => base.join(format!(
             "{}.h5",
             sc.path.file_stem().and_then(|s| s.to_str()).unwrap_or("out")
         )),
-    };
+    }
+}
+
+/// `[output]` resolved.
+pub fn resolve(sc: &Scenario) -> Output {
+    let o = &sc.file.output;
     Output {
-        file,
+        file: file_of(sc),
         every: o.every,
         fields: o.fields.clone(),
         precision: o.precision,
         compression: o.compression,
+        overwrite: o.overwrite,
     }
 }
 

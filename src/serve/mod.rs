@@ -15,7 +15,7 @@ use crate::launch::build_mpi;
 use crate::operator::V3;
 use crate::parts::{Collective, GlobalSizes, ReportedElsewhere};
 use crate::progress::Progress;
-use crate::run::{prepare, RunOptions};
+use crate::run::{prepare_claimed, RunOptions};
 use crate::scenario::{Setup, Trajectory};
 use crate::series::Series;
 use crate::solver::Simulation;
@@ -99,9 +99,13 @@ fn check_live(setup: &Setup) -> Result<()> {
 pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOptions) -> Result<Option<ServeReport>> {
     let t0 = Instant::now();
     let listener = std::cell::RefCell::new(None);
+    // the output claimed as `eprop run` claims it (not an input, one writer, no silent
+    // replacement), held to the end of the session
+    let claim = std::cell::RefCell::new(None);
     let make = || -> Result<Setup> {
         *listener.borrow_mut() = Some(bind(&opts.listen)?);
-        let setup = prepare(path, &opts.run)?;
+        let (setup, c) = prepare_claimed(path, &opts.run)?;
+        *claim.borrow_mut() = Some(c);
         check_live(&setup)?;
         Ok(setup)
     };
@@ -116,7 +120,9 @@ pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOpti
             (b.sim, b.sizes, Some(b.io_comm))
         }
     };
-    serve_simulation(sim, sizes, listener.into_inner(), io_comm.as_ref(), opts, t0)
+    let report = serve_simulation(sim, sizes, listener.into_inner(), io_comm.as_ref(), opts, t0);
+    drop(claim);
+    report
 }
 
 /// The live inputs, tools first (`Entities`).
@@ -333,7 +339,11 @@ fn serve_simulation(
         restarted_from_step: None,
         rank0_scatter_peak: 0,
     };
-    let summary = summarize(&sim, &sizes, &series, timing);
+    let warnings = match &sim.global {
+        Some(mesh) => crate::plausible::load_warnings(&sim, mesh),
+        None => vec![],
+    };
+    let summary = summarize(&sim, &sizes, &series, timing, warnings);
     let session = session.map(Session::finish);
     Ok(summary
         .zip(session)

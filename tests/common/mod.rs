@@ -7,7 +7,55 @@ use eprop_io::Mesh;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// `../shared/meshes/tet/NAME`, or None (with a message) when the shared data is absent.
+/// The log of tests that did not test what they are for (one line each: test, reason);
+/// `scripts/test.sh` empties it before the tests and prints it after.
+pub fn skip_log() -> PathBuf {
+    Path::new(env!("CARGO_TARGET_TMPDIR")).join("eprop-skipped.log")
+}
+
+fn log_skip(line: &str) {
+    use std::io::Write;
+    println!("skipped: {line}");
+    eprintln!("skipped: {line}");
+    if let Ok(mut f) = std::fs::OpenOptions::new().create(true).append(true).open(skip_log()) {
+        let _ = writeln!(f, "{line}");
+    }
+}
+
+/// The test calling this does not test what it is for because `reason` (a tool or the shared
+/// data is missing): it says so, is logged (`skip_log`) and, under `EPROP_REQUIRE_ALL=1` (set
+/// by CI, where everything is installed), fails.
+pub fn skip(reason: &str) {
+    let test = std::thread::current().name().unwrap_or("?").to_string();
+    let line = format!("{test}: {reason}");
+    log_skip(&line);
+    if std::env::var("EPROP_REQUIRE_ALL").is_ok_and(|v| v == "1") {
+        panic!("skipped with EPROP_REQUIRE_ALL=1 (everything must be installed here): {line}");
+    }
+}
+
+/// Like `skip`, for what a machine may lawfully lack (a CPU feature, the right to mount a
+/// file system): logged and said, never a failure.
+pub fn unsupported(reason: &str) {
+    let test = std::thread::current().name().unwrap_or("?").to_string();
+    log_skip(&format!("{test}: {reason} (not required)"));
+}
+
+/// `../shared/meshes/DIR`, or None (a `skip`) when the shared data is absent.
+pub fn shared_dir(dir: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes").join(dir);
+    if p.is_dir() {
+        Some(p)
+    } else {
+        skip(&format!(
+            "{} not found (the shared organ meshes are not beside this checkout)",
+            p.display()
+        ));
+        None
+    }
+}
+
+/// `../shared/meshes/tet/NAME`, or None (a `skip`) when the shared data is absent.
 pub fn shared_mesh(name: &str) -> Option<PathBuf> {
     let p = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/meshes/tet")
@@ -15,12 +63,21 @@ pub fn shared_mesh(name: &str) -> Option<PathBuf> {
     if p.exists() {
         Some(p)
     } else {
-        eprintln!(
-            "skipped: {} not found (the shared organ meshes are not beside this checkout)",
+        skip(&format!(
+            "{} not found (the shared organ meshes are not beside this checkout)",
             p.display()
-        );
+        ));
         None
     }
+}
+
+/// Whether a command-line tool runs (`NAME -h`); a `skip` when it does not.
+pub fn tool(name: &str) -> bool {
+    let ok = Command::new(name).arg("-h").output().is_ok();
+    if !ok {
+        skip(&format!("`{name}` is not installed (scripts/setup.sh installs it)"));
+    }
+    ok
 }
 
 /// A scenario from text, resolved against a mesh already in memory.
@@ -82,6 +139,12 @@ pub fn bits(f: &hdf5::File, name: &str) -> Vec<u64> {
     let t = ds.dtype().unwrap();
     if t.is::<f64>() {
         ds.read_raw::<f64>().unwrap().iter().map(|x| x.to_bits()).collect()
+    } else if t.is::<f32>() {
+        ds.read_raw::<f32>()
+            .unwrap()
+            .iter()
+            .map(|x| x.to_bits() as u64)
+            .collect()
     } else if t.is::<i64>() {
         ds.read_raw::<i64>().unwrap().iter().map(|&x| x as u64).collect()
     } else if t.is::<i32>() {
@@ -116,4 +179,29 @@ pub fn assert_same(a: &Path, b: &Path) {
             b.display()
         );
     }
+}
+
+/// Pids of the `eprop` processes started by `parent` (mpirun).
+pub fn children(parent: u32) -> Vec<i32> {
+    let mut out = vec![];
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        // pid (comm) state ppid ...
+        let Some(close) = stat.rfind(')') else { continue };
+        let comm = &stat[stat.find('(').unwrap_or(0) + 1..close];
+        let ppid: u32 = stat[close + 2..]
+            .split_whitespace()
+            .nth(1)
+            .and_then(|x| x.parse().ok())
+            .unwrap_or(0);
+        if ppid == parent && comm == "eprop" {
+            out.push(pid);
+        }
+    }
+    out
 }

@@ -1,0 +1,920 @@
+//! Data safety and honest results, one catalogue per promise: an output never replaces an
+//! input; a series is replaced only when asked and another file never; one writer per file;
+//! implausible inputs and results are warned about; counts and step sizes are bounded and a
+//! state that is not finite stops the run; SIGTERM stops a job after a complete step that a
+//! restart continues bit for bit; a full disk (at creation and mid-run, on 2 ranks) stops
+//! every rank cleanly, never hangs, and the file is restartable once space is free.
+
+mod common;
+
+use common::assert_same;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const CYL: &str = "[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 0.3\n";
+
+/// `eprop ARGS` on one process (`ranks` 1) or under mpirun.
+fn command(ranks: usize, args: &[&str]) -> Command {
+    let mut c = if ranks == 1 {
+        Command::new(env!("CARGO_BIN_EXE_eprop"))
+    } else {
+        let mut c = Command::new("mpirun");
+        c.args(["-n", &ranks.to_string(), "--oversubscribe"])
+            .arg(env!("CARGO_BIN_EXE_eprop"));
+        c
+    };
+    c.args(args)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
+        .env("RAYON_NUM_THREADS", "1")
+        .env_remove("EPROP_SIMD");
+    c
+}
+
+fn spawn(ranks: usize, args: &[&str]) -> Child {
+    command(ranks, args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Waits for a child; a hang detector: kills it and fails after `secs` seconds.
+fn finish(mut child: Child, secs: u64, what: &str) -> Output {
+    let t = Instant::now();
+    loop {
+        if child.try_wait().unwrap().is_some() {
+            return child.wait_with_output().unwrap();
+        }
+        if t.elapsed() > Duration::from_secs(secs) {
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            panic!(
+                "{what}: still running after {secs} s (a hang): {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// `eprop ARGS` to its end, under a hang detector of 180 s.
+fn eprop(ranks: usize, args: &[&str]) -> Output {
+    finish(spawn(ranks, args), 180, &args.join(" "))
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).to_string()
+}
+
+fn ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        stderr(o)
+    );
+}
+
+/// The command failed with `status` and its message holds every needle.
+fn refused(o: &Output, status: i32, needles: &[&str]) {
+    let e = stderr(o);
+    assert_eq!(o.status.code(), Some(status), "{e}");
+    for n in needles {
+        assert!(e.contains(n), "`{n}` is not in: {e}");
+    }
+}
+
+/// A generated cylinder `cyl.msh` (once) and a scenario `NAME` in `dir`.
+fn cylinder(dir: &Path, name: &str, extra: &str, steps: u64) -> PathBuf {
+    let mesh = dir.join("cyl.msh");
+    if !mesh.exists() {
+        eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &mesh).unwrap();
+    }
+    let sc = dir.join(name);
+    std::fs::write(
+        &sc,
+        format!("[mesh]\nfile = \"cyl.msh\"\n{CYL}{extra}[time]\nsteps = {steps}\n"),
+    )
+    .unwrap();
+    sc
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The bytes of files, to show they did not change.
+fn contents(paths: &[&Path]) -> Vec<Vec<u8>> {
+    paths.iter().map(|p| std::fs::read(p).unwrap()).collect()
+}
+
+fn steps_complete(h5: &Path) -> i64 {
+    let f = hdf5::File::open(h5).unwrap();
+    f.group("eprop")
+        .unwrap()
+        .attr("steps_complete")
+        .unwrap()
+        .read_scalar()
+        .unwrap()
+}
+
+/// steps_complete of a file another process writes (None while it cannot be opened).
+fn live_steps(h5: &Path) -> Option<i64> {
+    let f = hdf5::File::open(h5).ok()?;
+    f.group("eprop").ok()?.attr("steps_complete").ok()?.read_scalar().ok()
+}
+
+/// Waits until a running job has written `k` complete steps.
+fn wait_for_steps(h5: &Path, k: i64, child: &mut Child) {
+    let t = Instant::now();
+    while live_steps(h5).unwrap_or(0) < k {
+        if let Some(st) = child.try_wait().unwrap() {
+            panic!("the run ended ({st}) before it wrote {k} steps");
+        }
+        assert!(t.elapsed() < Duration::from_secs(120), "no {k} steps after 120 s");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The last complete step of a series: its step number, and every value of u, v and phi
+/// finite.
+fn last_step(h5: &Path) -> (u64, bool) {
+    let f = hdf5::File::open(h5).unwrap();
+    let k = steps_complete(h5) as usize;
+    let n = f.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
+    let step = f.dataset("eprop/probes/step").unwrap().read_raw::<i64>().unwrap()[k - 1] as u64;
+    let mut finite = true;
+    for name in ["displacement", "velocity", "potential"] {
+        let v = eprop_io::vtkhdf::read_step(h5, name, k - 1).unwrap();
+        assert_eq!(v.len(), 3 * n);
+        finite &= v.iter().all(|x| x.is_finite());
+    }
+    (step, finite)
+}
+
+#[test]
+fn an_output_that_is_an_input_is_refused_and_the_inputs_stay_unchanged() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 3);
+    let mesh = dir.join("cyl.msh");
+    std::os::unix::fs::symlink(&mesh, dir.join("soft.h5")).unwrap();
+    std::fs::hard_link(&mesh, dir.join("hard.h5")).unwrap();
+    std::fs::hard_link(&mesh, dir.join("hard.msh")).unwrap();
+    std::fs::create_dir(dir.join("sub")).unwrap();
+    let before = contents(&[&mesh, &sc]);
+    let up = dir.join("sub/../cyl.msh");
+    let cases: Vec<(usize, Vec<&str>, &str)> = vec![
+        (1, vec!["run", s(&sc), "-o", s(&mesh)], "is the mesh"),
+        (1, vec!["run", s(&sc), "-o", s(&sc)], "is the scenario"),
+        (1, vec!["run", s(&sc), "-o", s(&up)], "is the mesh"),
+        (1, vec!["run", s(&sc), "-o", "soft.h5"], "is the mesh"),
+        (1, vec!["run", s(&sc), "-o", "hard.h5"], "a link to the same file"),
+        (
+            1,
+            vec!["run", s(&sc), "--restart", s(&mesh)],
+            "the restart file (--restart) is the mesh",
+        ),
+        (2, vec!["run", s(&sc), "-o", s(&mesh)], "is the mesh"),
+        (2, vec!["run", s(&sc), "-o", "hard.h5"], "a link to the same file"),
+        (1, vec!["export-operator", s(&sc), "-o", s(&mesh)], "the operator file"),
+        (1, vec!["export-operator", s(&sc), "-o", "soft.h5"], "is the mesh"),
+        (1, vec!["convert", s(&mesh), "hard.msh"], "the converted mesh"),
+    ];
+    for (ranks, args, needle) in cases {
+        let o = finish(
+            command(ranks, &args)
+                .current_dir(dir)
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap(),
+            120,
+            &args.join(" "),
+        );
+        refused(&o, 1, &[needle, "destroy that input", "fix:"]);
+        assert_eq!(contents(&[&mesh, &sc]), before, "{args:?} changed an input");
+    }
+    // [output] file naming the mesh
+    let named = cylinder(dir, "named.toml", "[output]\nfile = \"cyl.msh\"\n", 3);
+    let o = eprop(1, &["run", s(&named)]);
+    refused(&o, 1, &["[output] file of", "is the mesh"]);
+    assert_eq!(contents(&[&mesh, &sc]), before);
+    // a TetGen mesh is three files: each is an input
+    let tet = eprop_io::generate::box_mesh([1.0; 3], [2; 3], eprop_io::generate::BoxCells::Tet).unwrap();
+    let (node, ele, face) = eprop_io::testwrite::tetgen(&tet);
+    for (ext, text) in [("node", &node), ("ele", &ele), ("face", &face)] {
+        std::fs::write(dir.join(format!("b.{ext}")), text).unwrap();
+    }
+    std::fs::write(
+        dir.join("t.toml"),
+        "[mesh]\nfile = \"b.ele\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+    )
+    .unwrap();
+    let tet_before = contents(&[&dir.join("b.node"), &dir.join("b.face")]);
+    for out in ["b.node", "b.face"] {
+        let o = eprop(1, &["run", s(&dir.join("t.toml")), "-o", s(&dir.join(out))]);
+        refused(&o, 1, &["is the mesh", "destroy that input"]);
+    }
+    assert_eq!(contents(&[&dir.join("b.node"), &dir.join("b.face")]), tet_before);
+}
+
+#[test]
+fn a_series_is_replaced_only_when_asked_and_another_file_never() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 3);
+    let h5 = dir.join("s.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q"]));
+    let first = contents(&[&h5]);
+    // again: refused, with the steps it holds and the three choices
+    let o = eprop(1, &["run", s(&sc), "-q"]);
+    refused(
+        &o,
+        1,
+        &[
+            "s.h5",
+            "holds an eprop series of 4 complete step(s)",
+            "--restart",
+            "--overwrite",
+            "-o FILE.h5",
+        ],
+    );
+    assert_eq!(contents(&[&h5]), first, "a refused run changed the series");
+    // on 2 ranks too
+    refused(&eprop(2, &["run", s(&sc), "-q"]), 1, &["holds an eprop series"]);
+    // replaced when asked: --overwrite, or [output] overwrite = true
+    ok(&eprop(1, &["run", s(&sc), "-q", "--overwrite", "--steps", "5"]));
+    assert_eq!(steps_complete(&h5), 6);
+    let again = cylinder(dir, "s.toml", "[output]\noverwrite = true\n", 3);
+    ok(&eprop(2, &["run", s(&again), "-q"]));
+    assert_eq!(steps_complete(&h5), 4);
+    // a file that is not a series: never, not even with --overwrite
+    let txt = dir.join("notes.txt");
+    std::fs::write(&txt, "keep me").unwrap();
+    let op = dir.join("op.h5");
+    ok(&eprop(1, &["export-operator", s(&sc), "-o", s(&op)]));
+    let others = contents(&[&txt, &op]);
+    for out in [&txt, &op] {
+        for extra in [&[][..], &["--overwrite"][..]] {
+            let mut args = vec!["run", s(&sc), "-q", "-o", s(out)];
+            args.extend(extra);
+            let o = eprop(1, &args);
+            refused(
+                &o,
+                1,
+                &["eprop never replaces such a file, not even with --overwrite", "fix:"],
+            );
+        }
+    }
+    assert_eq!(contents(&[&txt, &op]), others);
+    // --restart continues a series as before
+    ok(&eprop(1, &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "5"]));
+    assert_eq!(steps_complete(&h5), 6);
+}
+
+#[test]
+fn a_second_writer_is_refused_while_a_job_writes() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // slow steps (many substeps) so that the first job runs while the others try
+    let sc = cylinder(dir, "s.toml", "", 20_000);
+    std::fs::write(
+        &sc,
+        std::fs::read_to_string(&sc)
+            .unwrap()
+            .replace("steps = 20000", "steps = 20000\nh = 0.002\n"),
+    )
+    .unwrap();
+    let h5 = dir.join("shared.h5");
+    let mut first = spawn(2, &["run", s(&sc), "-q", "-o", s(&h5)]);
+    wait_for_steps(&h5, 2, &mut first);
+    for (ranks, extra) in [(1, None), (1, Some("--overwrite")), (2, None)] {
+        let mut args = vec!["run", s(&sc), "-q", "-o", s(&h5)];
+        args.extend(extra);
+        let o = eprop(ranks, &args);
+        refused(&o, 1, &["another eprop run (pid", "is writing this file now", "fix:"]);
+    }
+    let o = eprop(1, &["run", s(&sc), "-q", "--restart", s(&h5)]);
+    refused(&o, 1, &["is writing this file now"]);
+    // readers are not writers: the file opens while the job runs
+    assert!(live_steps(&h5).is_some());
+    // the job goes on undisturbed and stops cleanly
+    assert!(first.try_wait().unwrap().is_none(), "the first job ended");
+    for pid in common::children(first.id()) {
+        Command::new("kill").args(["-TERM", &pid.to_string()]).status().unwrap();
+    }
+    let o = finish(first, 120, "the first job");
+    refused(&o, 3, &["stopped by SIGTERM"]);
+    assert!(!dir.join("shared.h5.lock").exists(), "the lock file stays");
+    let (_, finite) = last_step(&h5);
+    assert!(finite);
+}
+
+/// The run's JSON summary (it must succeed).
+fn summary(args: &[&str]) -> serde_json::Value {
+    let o = eprop(1, args);
+    ok(&o);
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+fn warnings(v: &serde_json::Value) -> Vec<String> {
+    v["warnings"]
+        .as_array()
+        .expect("warnings is a list")
+        .iter()
+        .map(|w| w.as_str().unwrap().to_string())
+        .collect()
+}
+
+fn has(ws: &[String], needles: &[&str]) -> bool {
+    ws.iter().any(|w| needles.iter().all(|n| w.contains(n)))
+}
+
+#[test]
+fn implausible_loads_and_displacements_are_warned_about() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // the cylinder pressed with 1000 (sigma/young about 80): a warning, the same numbers
+    let sc = cylinder(dir, "s.toml", "", 20);
+    std::fs::write(
+        &sc,
+        std::fs::read_to_string(&sc)
+            .unwrap()
+            .replace("normal = 0.3", "normal = 1000.0"),
+    )
+    .unwrap();
+    let run = summary(&["run", s(&sc), "--json", "-o", s(&dir.join("a.h5"))]);
+    let ws = warnings(&run);
+    assert!(has(&ws, &["load 1", "times [tissue] young = 100", "fix:"]), "{ws:?}");
+    assert!(
+        has(&ws, &["max |u|", "at step 1 ", "passed 10 % of the mesh's diagonal"]),
+        "{ws:?}"
+    );
+    assert_eq!(
+        ws.iter().filter(|w| w.contains("passed 10 %")).count(),
+        1,
+        "warned once"
+    );
+    // the warnings change no number: the library's simulation of the same scenario, which
+    // has no warnings, gives the same max |u| to the last bit
+    let u = run["max_displacement"].as_f64().unwrap();
+    assert!(u > 1e3, "max |u| = {u}");
+    let mesh = eprop_io::read_mesh(&dir.join("cyl.msh")).unwrap();
+    let mut sim = common::sim(
+        mesh,
+        &std::fs::read_to_string(&sc)
+            .unwrap()
+            .replace("[mesh]\nfile = \"cyl.msh\"\n", ""),
+    );
+    while !sim.done() {
+        sim.advance().unwrap();
+    }
+    assert_eq!(sim.max_displacement().0.to_bits(), u.to_bits());
+    let chk = summary(&["check", s(&sc), "--json"]);
+    assert!(has(&warnings(&chk), &["times [tissue] young"]), "{chk}");
+    // a plausible scenario has none of these
+    let fine = cylinder(dir, "fine.toml", "", 20);
+    let ws = warnings(&summary(&["run", s(&fine), "--json"]));
+    assert!(
+        !has(&ws, &["young"]) && !has(&ws, &["passed 10 %"]) && !has(&ws, &["nearest"]),
+        "{ws:?}"
+    );
+    // an organ in metres (0.1 units) pressed with 1: the warning suggests [mesh] scale
+    let small = eprop_io::generate::box_mesh([0.1; 3], [6; 3], eprop_io::generate::BoxCells::Tet).unwrap();
+    eprop_io::write_mesh(&small, &dir.join("m.msh")).unwrap();
+    std::fs::write(
+        dir.join("metres.toml"),
+        "[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [0.1, 0.05, 0.05]\nforce = [-1.0, 0.0, 0.0]\n[time]\nsteps = 2\n",
+    )
+    .unwrap();
+    for cmd in ["check", "run"] {
+        let ws = warnings(&summary(&[cmd, s(&dir.join("metres.toml")), "--json"]));
+        assert!(has(&ws, &["young", "`[mesh] scale = 1000`"]), "{cmd}: {ws:?}");
+    }
+    // nearest far from every node; a contact area tiny for the mesh
+    let far = cylinder(dir, "far.toml", "", 2);
+    std::fs::write(
+        &far,
+        std::fs::read_to_string(&far)
+            .unwrap()
+            .replace("[1.0, 0.0, 2.0]", "[1000.0, 0.0, 2.0]"),
+    )
+    .unwrap();
+    for cmd in ["check", "run"] {
+        let ws = warnings(&summary(&[cmd, s(&far), "--json"]));
+        assert!(
+            has(
+                &ws,
+                &["`nearest = [1000, 0, 2]` picks node", "away from the point", "fix:"]
+            ),
+            "{ws:?}"
+        );
+    }
+    // a needle 10 km long and 1 cm thick: a node's boundary area is tiny for its extent
+    let needle = eprop_io::generate::box_mesh([1e4, 0.01, 0.01], [1, 1, 1], eprop_io::generate::BoxCells::Tet).unwrap();
+    eprop_io::write_mesh(&needle, &dir.join("plate.msh")).unwrap();
+    std::fs::write(
+        dir.join("plate.toml"),
+        "[mesh]\nfile = \"plate.msh\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [1e4, 0.01, 0.01]\nforce = [0.0, 0.0, -1e-9]\n[time]\nsteps = 1\n",
+    )
+    .unwrap();
+    let ws = warnings(&summary(&["check", s(&dir.join("plate.toml")), "--json"]));
+    assert!(
+        has(&ws, &["contact area", "below 1e-6 of the squared extent"]),
+        "{ws:?}"
+    );
+}
+
+#[test]
+fn counts_and_step_sizes_past_their_limits_are_refused_by_check_and_run() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let cases: [(&str, &str, &[&str]); 8] = [
+        (
+            "[material]\nconductivity = 1e300\n",
+            "steps = 5",
+            &["substeps per mechanics step", "above the limit", "conductivity"],
+        ),
+        ("", "steps = 5\nh = 1e-300", &["[time] h = 1e-300", "above the limit"]),
+        (
+            "",
+            "steps = 1000000000000",
+            &["[time] steps = 1,000,000,000,000", "above the limit of 1,000,000,000"],
+        ),
+        ("", "end = 1e300", &["[time] end = 1e300", "above the limit"]),
+        (
+            "",
+            "equilibrium = 1e-300",
+            &["[time] equilibrium = 1e-300", "double precision", "all 1,000,000 steps"],
+        ),
+        (
+            "[material]\nmass = 1e-308\n",
+            "steps = 5",
+            &["dt = ", "is below 1e-30", "mass, damping and stiffness"],
+        ),
+        ("", "steps = 5\ndt = 1e-300", &["[time] dt = 1e-300 is below 1e-30"]),
+        (
+            "[model]\nstiffness = 1e300\n",
+            "steps = 5",
+            &["is below 1e-30", "stiffness"],
+        ),
+    ];
+    for (k, (extra, time, needles)) in cases.iter().enumerate() {
+        let sc = cylinder(dir, &format!("c{k}.toml"), extra, 5);
+        std::fs::write(&sc, std::fs::read_to_string(&sc).unwrap().replace("steps = 5", time)).unwrap();
+        for args in [vec!["check", s(&sc)], vec!["run", s(&sc), "-q"]] {
+            let o = eprop(1, &args);
+            let mut all = needles.to_vec();
+            all.push("fix:");
+            refused(&o, 1, &all);
+        }
+        assert!(!dir.join(format!("c{k}.h5")).exists(), "case {k} wrote output");
+    }
+    // --steps past the limit
+    let sc = cylinder(dir, "s.toml", "", 5);
+    refused(
+        &eprop(1, &["run", s(&sc), "--steps", "1000000000000"]),
+        1,
+        &["--steps = 1,000,000,000,000"],
+    );
+    // 2 ranks refuse alike and end
+    let sc = cylinder(dir, "c2r.toml", "[material]\nconductivity = 1e300\n", 5);
+    refused(&eprop(2, &["run", s(&sc), "-q"]), 1, &["substeps per mechanics step"]);
+}
+
+#[test]
+fn check_estimates_steps_and_output_size_for_any_input() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    for (extra, steps) in [
+        ("", 40u64),
+        ("[output]\nevery = 7\n", 40),
+        ("[output]\nprecision = \"float32\"\nfields = [\"energy\"]\n", 40),
+    ] {
+        let sc = cylinder(dir, "s.toml", extra, steps);
+        let chk = summary(&["check", s(&sc), "--json"]);
+        let h5 = dir.join("s.h5");
+        let _ = std::fs::remove_file(&h5);
+        let run = summary(&["run", s(&sc), "--json"]);
+        assert_eq!(chk["steps"].as_u64(), Some(steps));
+        assert_eq!(chk["output_steps"].as_u64(), run["output_steps"].as_u64(), "{extra}");
+        let size = std::fs::metadata(&h5).unwrap().len() as f64;
+        let est = chk["output_mib"].as_f64().unwrap() * 1048576.0;
+        // an upper bound (uncompressed, with room for metadata), not a wild one
+        assert!(
+            est >= size && est < 3.0 * size + 2e6,
+            "{extra}: estimated {est}, wrote {size}"
+        );
+    }
+    // the largest count check accepts, estimated without wrapping
+    let sc = cylinder(dir, "big.toml", "[output]\nevery = 1000000\n", 1_000_000_000);
+    let chk = summary(&["check", s(&sc), "--json"]);
+    assert_eq!(chk["steps"].as_u64(), Some(1_000_000_000));
+    assert_eq!(chk["output_steps"].as_u64(), Some(1001));
+    assert!(chk["estimated_seconds"].as_f64().unwrap() > 1.0);
+    // a run whose output would not fit is refused before it starts
+    let sc = cylinder(dir, "huge.toml", "", 1_000_000_000);
+    let o = eprop(1, &["run", s(&sc), "-q"]);
+    refused(&o, 1, &["the run would write about", "free", "--force"]);
+    assert!(!dir.join("huge.h5").exists());
+    let chk = summary(&["check", s(&sc), "--json"]);
+    assert!(has(&warnings(&chk), &["will refuse without --force"]), "{chk}");
+}
+
+#[test]
+fn a_state_that_is_not_finite_stops_the_run_on_1_and_2_ranks() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 10);
+    std::fs::write(
+        &sc,
+        std::fs::read_to_string(&sc)
+            .unwrap()
+            .replace("normal = 0.3", "force = [1e200, 0.0, 0.0]"),
+    )
+    .unwrap();
+    for ranks in [1, 2] {
+        let h5 = dir.join(format!("nan{ranks}.h5"));
+        let o = eprop(ranks, &["run", s(&sc), "-q", "-o", s(&h5)]);
+        refused(
+            &o,
+            1,
+            &[
+                "at step 1 ",
+                "no longer finite (NaN or inf)",
+                "keeps its 1 complete output steps (to step 0)",
+                "Likely cause: load 1",
+                "fix:",
+            ],
+        );
+        assert!(!stderr(&o).contains("max |u|"));
+        assert_eq!(steps_complete(&h5), 1);
+        let (step, finite) = last_step(&h5);
+        assert!(step == 0 && finite);
+    }
+}
+
+#[test]
+fn a_restart_from_a_state_that_is_not_finite_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 4);
+    let h5 = dir.join("s.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q"]));
+    {
+        // one NaN in the velocity of the last step
+        let f = hdf5::File::open_rw(&h5).unwrap();
+        let n = f.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
+        let v = f.dataset("VTKHDF/PointData/velocity").unwrap();
+        let row = 4 * n + n / 2;
+        v.write_slice(&ndarray::arr2(&[[f64::NAN, 0.0, 0.0]]), ndarray::s![row..row + 1, ..])
+            .unwrap();
+    }
+    let before = contents(&[&h5]);
+    for ranks in [1, 2] {
+        let o = eprop(ranks, &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "8"]);
+        refused(&o, 1, &["cannot restart", "(step 4) holds NaN or inf", "fix:"]);
+    }
+    assert_eq!(contents(&[&h5]), before);
+}
+
+#[test]
+fn only_regular_files_are_read() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 2);
+    let fifo = |name: &str| {
+        let p = dir.join(name);
+        assert!(Command::new("mkfifo").arg(&p).status().unwrap().success());
+        p
+    };
+    let mesh = fifo("pipe.msh");
+    std::fs::write(
+        &sc,
+        std::fs::read_to_string(&sc).unwrap().replace("cyl.msh", "pipe.msh"),
+    )
+    .unwrap();
+    let scenario = fifo("pipe.toml");
+    for args in [
+        vec!["run", s(&sc), "-q"],
+        vec!["check", s(&sc)],
+        vec!["run", s(&scenario), "-q"],
+        vec!["info", s(&mesh)],
+    ] {
+        let o = finish(spawn(1, &args), 60, &args.join(" "));
+        refused(&o, 1, &["is a FIFO (named pipe), not a regular file", "fix:"]);
+    }
+    let _ = mesh;
+}
+
+#[test]
+fn misleading_messages_say_what_is_wrong() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // a huge mass: the bound does not overflow into "no step size is stable"
+    let sc = cylinder(dir, "s.toml", "[material]\nmass = 1e308\n", 5);
+    let o = eprop(1, &["check", s(&sc)]);
+    let e = format!("{}{}", String::from_utf8_lossy(&o.stdout), stderr(&o));
+    assert!(!e.contains("no step size is stable"), "{e}");
+    // dt = 2 sqrt(m / k) = 2e154 (0.9 of it): huge but right, and stepped by the implicit
+    // integrator (auto), whose counts stay readable
+    assert!(e.contains("dt = 1.8000e154"), "{e}");
+    assert!(!e.contains("18446744073709551615"), "{e}");
+    // run --help names the real default output
+    let o = eprop(1, &["run", "--help"]);
+    let help = String::from_utf8_lossy(&o.stdout);
+    assert!(help.contains("<scenario stem>.h5"), "{help}");
+    assert!(help.contains("Exit status") && help.contains("--overwrite") && help.contains("--force"));
+    // the reader's messages (io crate): a link loop, a file that ends before its elements
+    std::os::unix::fs::symlink(dir.join("l2.msh"), dir.join("l1.msh")).unwrap();
+    std::os::unix::fs::symlink(dir.join("l1.msh"), dir.join("l2.msh")).unwrap();
+    refused(
+        &eprop(1, &["info", s(&dir.join("l1.msh"))]),
+        1,
+        &["symbolic link loop", "fix:"],
+    );
+    let text = std::fs::read_to_string(dir.join("cyl.msh")).unwrap();
+    std::fs::write(dir.join("cut.msh"), &text[..text.find("$Elements").unwrap()]).unwrap();
+    refused(
+        &eprop(1, &["info", s(&dir.join("cut.msh"))]),
+        1,
+        &["$Elements", "truncated"],
+    );
+}
+
+#[test]
+fn sigterm_on_2_ranks_stops_after_one_step_and_the_restart_is_bit_for_bit() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // every 3rd step is written; slow steps (many substeps) so the signal lands mid-run
+    let sc = cylinder(dir, "s.toml", "[output]\nevery = 3\n", 2000);
+    std::fs::write(
+        &sc,
+        std::fs::read_to_string(&sc)
+            .unwrap()
+            .replace("steps = 2000", "steps = 2000\nh = 0.002\n"),
+    )
+    .unwrap();
+    let cut = dir.join("cut.h5");
+    let mut job = spawn(2, &["run", s(&sc), "-q", "-o", s(&cut)]);
+    wait_for_steps(&cut, 3, &mut job);
+    // SLURM signals every process of the job; one rank alone is enough to stop them all
+    let ranks = common::children(job.id());
+    assert_eq!(ranks.len(), 2, "{ranks:?}");
+    Command::new("kill")
+        .args(["-TERM", &ranks[1].to_string()])
+        .status()
+        .unwrap();
+    let o = finish(job, 120, "the signalled job");
+    refused(
+        &o,
+        3,
+        &[
+            "stopped by SIGTERM after step ",
+            "continue with `mpirun -n 2 eprop run",
+            "--restart",
+        ],
+    );
+    let e = stderr(&o);
+    let at: u64 = e
+        .split("after step ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{e}"));
+    let (last, finite) = last_step(&cut);
+    assert_eq!(last, at, "the step it stopped after is the last in the file");
+    assert!(finite && at < 2000);
+    // continue (on 2 ranks) to step at + 10 and compare with a run that never stopped
+    let target = (at + 10).to_string();
+    ok(&eprop(
+        2,
+        &["run", s(&sc), "-q", "--restart", s(&cut), "--steps", &target],
+    ));
+    let whole = dir.join("whole.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q", "-o", s(&whole), "--steps", &target]));
+    assert_same(&whole, &cut);
+    // one process: SIGINT (Ctrl-C) alike
+    let one = dir.join("one.h5");
+    let mut run = spawn(1, &["run", s(&sc), "-q", "-o", s(&one)]);
+    wait_for_steps(&one, 3, &mut run);
+    Command::new("kill")
+        .args(["-INT", &run.id().to_string()])
+        .status()
+        .unwrap();
+    let o = finish(run, 120, "the interrupted run");
+    refused(&o, 3, &["stopped by SIGINT", "continue with `eprop run"]);
+    assert!(last_step(&one).1);
+}
+
+/// A tmpfs of `size` mounted in a temporary directory, unmounted when dropped; None (said and
+/// logged) where mounting is not permitted.
+struct Tmpfs {
+    dir: tempfile::TempDir,
+}
+
+impl Tmpfs {
+    fn mount(size: &str) -> Option<Tmpfs> {
+        let dir = tempfile::tempdir().unwrap();
+        let st = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir.path())
+            .output();
+        match st {
+            Ok(o) if o.status.success() => Some(Tmpfs { dir }),
+            Ok(o) => {
+                common::unsupported(&format!(
+                    "cannot mount a tmpfs ({}): the full-disk cases did not run",
+                    String::from_utf8_lossy(&o.stderr).trim()
+                ));
+                None
+            }
+            Err(e) => {
+                common::unsupported(&format!("no `mount` ({e}): the full-disk cases did not run"));
+                None
+            }
+        }
+    }
+    fn path(&self) -> &Path {
+        self.dir.path()
+    }
+    /// Fills the file system (a filler file takes every free byte).
+    fn fill(&self) -> PathBuf {
+        use std::io::Write;
+        let p = self.path().join("filler");
+        let mut f = std::fs::File::create(&p).unwrap();
+        let block = vec![0u8; 4096];
+        while f.write_all(&block).is_ok() {}
+        let _ = f.sync_all();
+        p
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg("-l").arg(self.dir.path()).status();
+    }
+}
+
+#[test]
+fn a_full_disk_at_creation_and_mid_run_on_2_ranks_stops_every_rank_cleanly() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // at creation: the static mesh alone does not fit (a 6727-node cylinder in 512 KiB)
+    let Some(small) = Tmpfs::mount("512k") else { return };
+    eprop_io::write_mesh(
+        &eprop_io::generate::cylinder_mesh(1.0, 4.0, 8, 30).unwrap(),
+        &dir.join("big.msh"),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("big.toml"),
+        format!("[mesh]\nfile = \"big.msh\"\n{CYL}[time]\nsteps = 20\n"),
+    )
+    .unwrap();
+    let out = small.path().join("big.h5");
+    for ranks in [1, 2] {
+        // refused before it starts: the estimate does not fit
+        let o = eprop(ranks, &["run", s(&dir.join("big.toml")), "-q", "-o", s(&out)]);
+        refused(&o, 1, &["the run would write about", "--force"]);
+        // forced: the disk refuses the static part; every rank ends with the same message
+        let o = eprop(
+            ranks,
+            &["run", s(&dir.join("big.toml")), "-q", "-o", s(&out), "--force"],
+        );
+        refused(
+            &o,
+            4,
+            &[
+                "big.h5",
+                "no space left on device (ENOSPC)",
+                "nothing was written",
+                "fix: free space",
+            ],
+        );
+        assert!(!out.exists(), "an unfinished file stays");
+        assert!(!small.path().join("big.h5.lock").exists());
+    }
+    drop(small);
+
+    // mid-run: a filler takes the free space while the job writes (forced: past the start's
+    // refusal, so the disk itself says ENOSPC)
+    let Some(disk) = Tmpfs::mount("64m") else { return };
+    let sc = cylinder(dir, "s.toml", "", 20_000);
+    std::fs::write(
+        &sc,
+        std::fs::read_to_string(&sc)
+            .unwrap()
+            .replace("steps = 20000", "steps = 20000\nh = 0.002\n"),
+    )
+    .unwrap();
+    for ranks in [2, 1] {
+        let h5 = disk.path().join(format!("run{ranks}.h5"));
+        let mut job = spawn(ranks, &["run", s(&sc), "-q", "-o", s(&h5), "--force"]);
+        wait_for_steps(&h5, 3, &mut job);
+        let filler = disk.fill();
+        let o = finish(job, 180, "the job on a full disk");
+        refused(
+            &o,
+            4,
+            &[
+                "writing output step",
+                "no space left on device (ENOSPC)",
+                "fix: free space",
+                "then continue with `",
+                "--restart",
+            ],
+        );
+        assert_eq!(stderr(&o).matches("ENOSPC").count(), 1, "one message: {}", stderr(&o));
+        restart_completes(dir, &sc, &h5, ranks, filler);
+    }
+    // not forced: the run stops before an output step would leave the disk without room
+    // (1 MiB and two steps); here 700 KiB are free from the start, and 3 steps fit in them
+    let h5 = disk.path().join("tight.h5");
+    let filler = disk.fill();
+    let f = std::fs::OpenOptions::new().write(true).open(&filler).unwrap();
+    f.set_len(std::fs::metadata(&filler).unwrap().len() - 700 * 1024)
+        .unwrap();
+    drop(f);
+    let o = eprop(2, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "3"]);
+    refused(
+        &o,
+        4,
+        &[
+            "the disk is full",
+            "ENOSPC",
+            "then continue with `mpirun -n 2 eprop run",
+            "--restart",
+        ],
+    );
+    restart_completes(dir, &sc, &h5, 2, filler);
+}
+
+/// The series a full disk stopped is readable to its last complete step, which is finite;
+/// once the `filler` is gone, `--restart` on `ranks` completes it bit for bit.
+fn restart_completes(dir: &Path, sc: &Path, h5: &Path, ranks: usize, filler: PathBuf) {
+    let (last, finite) = last_step(h5);
+    assert!(finite, "the last complete step is not finite");
+    std::fs::remove_file(&filler).unwrap();
+    let target = (last + 10).to_string();
+    ok(&eprop(
+        ranks,
+        &["run", s(sc), "-q", "--restart", s(h5), "--steps", &target],
+    ));
+    let whole = dir.join("whole.h5");
+    let _ = std::fs::remove_file(&whole);
+    ok(&eprop(1, &["run", s(sc), "-q", "-o", s(&whole), "--steps", &target]));
+    assert_same(&whole, h5);
+    std::fs::remove_file(h5).unwrap();
+}
+
+/// The tables a scenario reads (a tool's path, a load's forces) are inputs too: `-o`,
+/// `[output] file` and `serve -o` naming one are refused and the table stays as it was.
+#[test]
+fn an_output_that_is_a_load_or_tool_table_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    for f in ["cylinder_indent.toml", "cylinder_indent_path.csv", "cylinder.msh"] {
+        std::fs::copy(root.join(f), dir.join(f)).unwrap();
+    }
+    let sc = dir.join("cylinder_indent.toml");
+    let path = dir.join("cylinder_indent_path.csv");
+    std::fs::write(dir.join("forces.csv"), "0,0,0,0\n1,-0.1,0,0\n").unwrap();
+    let with_load = dir.join("load.toml");
+    std::fs::write(
+        &with_load,
+        format!(
+            "[mesh]\nfile = \"cylinder.msh\"\n{}\n[[load]]\nnearest = [1.0, 0.0, 2.0]\ntable = \"forces.csv\"\n[time]\nsteps = 3\n[output]\nfile = \"forces.csv\"\n",
+            "[[fixed]]\ngroup = \"bottom\""
+        ),
+    )
+    .unwrap();
+    let forces = dir.join("forces.csv");
+    let before = contents(&[&sc, &path, &forces, &dir.join("cylinder.msh")]);
+    refused(
+        &eprop(1, &["run", s(&sc), "-q", "-o", s(&path)]),
+        1,
+        &["is the path table of [[tool]] 1", "fix:"],
+    );
+    refused(
+        &eprop(2, &["run", s(&sc), "-q", "-o", s(&path)]),
+        1,
+        &["is the path table of [[tool]] 1"],
+    );
+    refused(
+        &eprop(1, &["run", s(&with_load), "-q"]),
+        1,
+        &["is the force table of [[load]] 1", "fix:"],
+    );
+    refused(
+        &eprop(1, &["export-operator", s(&sc), "-o", s(&path)]),
+        1,
+        &["the path table of [[tool]] 1"],
+    );
+    assert_eq!(before, contents(&[&sc, &path, &forces, &dir.join("cylinder.msh")]));
+}
