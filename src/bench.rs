@@ -109,7 +109,8 @@ pub fn measure(
     tmp: &Path,
 ) -> Result<Case> {
     let n = sizes.nodes;
-    let q: Vec<(u32, [f64; 3])> = (0..sim.n_owned().min(1)).map(|i| (i as u32, [1.0, 0.0, 0.0])).collect();
+    // the scenario's sources (over a deep halo, the halo rows' too)
+    let q = sim.sources(0.0);
     let h = sim.step_plan().h;
     // the substep as the Euler stepper runs it (fused sweeps of `fuse` substeps where they
     // apply), and one substep per sweep, in alternating chunks
@@ -149,7 +150,7 @@ pub fn measure(
     let per_substep = median(&times);
     let per_single = median(&single);
     let waited = sim.comm.max(waited) / (10 * chunk) as f64;
-    let bytes = sim.comm.sum_i128(sim.prop.op.stream_bytes() as i128) as f64 / n as f64;
+    let bytes = sim.comm.sum_i128(sim.prop.op.stream_bytes_rows(sim.n_owned()) as i128) as f64 / n as f64;
     // full steps with one substep each (dt = h)
     sim.set_dt(sim.dt.min(h))?;
     let mut steps = Vec::new();

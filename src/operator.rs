@@ -600,16 +600,21 @@ impl Operator {
     /// Bytes one substep must stream at least on this process: every operator array once, the
     /// potential read once and written once (gradients: written once, read once).
     pub fn stream_bytes(&self) -> usize {
-        let n = self.n_rows();
+        self.stream_bytes_rows(self.n_rows())
+    }
+    /// `stream_bytes` of rows `0..n` (the owned rows, without the halo rows of a deep halo).
+    pub fn stream_bytes_rows(&self, n: usize) -> usize {
         match self {
             Operator::Compact(c) => {
-                c.row_ptr.len() * 4 + c.col.len() * 4 + c.coef.len() * 8 + c.coef32.len() * 4 + n * 48
+                let pairs = c.row_ptr[n] as usize;
+                let cb = if c.coef32.is_empty() { 8 } else { 4 };
+                (n + 1) * 4 + pairs * (4 + cb) + n * 48
             }
             Operator::Paper(p) => {
-                let pairs = p.col.len();
+                let pairs = p.row_ptr[n] as usize;
                 // gradient pass: row_ptr, col, s, inv_vol; update pass: all arrays
-                (p.row_ptr.len() * 4 + pairs * (4 + 24) + n * 8)
-                    + (p.row_ptr.len() * 4 + pairs * (4 + 4 * 24 + 8) + n * 9)
+                ((n + 1) * 4 + pairs * (4 + 24) + n * 8)
+                    + ((n + 1) * 4 + pairs * (4 + 4 * 24 + 8) + n * 9)
                     + n * (24 + 72) // gradient pass: phi in, gradients out
                     + n * (24 + 72 + 24) // update pass: phi and gradients in, next out
             }

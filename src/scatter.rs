@@ -41,6 +41,17 @@ impl Halo {
         }
     }
 
+    /// A halo along `pattern` that exchanges nothing (tests: halo entries written by hand
+    /// stand for the owners' values).
+    pub fn without_comm(pattern: HaloPattern) -> Halo {
+        Halo {
+            pattern,
+            comm: None,
+            bufs: Default::default(),
+            waited: Default::default(),
+        }
+    }
+
     /// Exchanges along `pattern` over `comm` (which the halo keeps to itself).
     pub fn new(pattern: HaloPattern, comm: mpi::topology::SimpleCommunicator) -> Halo {
         Halo {
@@ -65,6 +76,13 @@ impl Halo {
     /// `start` for items of `stride` f64 of which only the first `width` are exchanged (a
     /// padded layout sends what an unpadded one does, so processes may use either).
     pub fn start_part(&self, data: &[f64], stride: usize, width: usize) -> Exchange<'_> {
+        self.start_layers(data, stride, width, 1)
+    }
+
+    /// `start_part` for the first `layers` layers of a deep halo (`Plan::with_depth`): one
+    /// message per neighbour holds every layer. A neighbour with nothing to send or receive in
+    /// those layers (one farther away) gets no message, on both sides alike.
+    pub fn start_layers(&self, data: &[f64], stride: usize, width: usize, layers: usize) -> Exchange<'_> {
         assert!(width <= stride);
         let mut bufs = self.bufs.borrow_mut();
         let nbs = &self.pattern.neighbours;
@@ -75,18 +93,20 @@ impl Halo {
             recv.resize_with(nbs.len(), Vec::new);
             for (nb, b) in nbs.iter().zip(send.iter_mut()) {
                 b.clear();
-                for &l in &nb.send {
+                for &l in nb.send_to(layers) {
                     b.extend_from_slice(&data[l as usize * stride..l as usize * stride + width]);
                 }
             }
             for (nb, b) in nbs.iter().zip(recv.iter_mut()) {
-                b.resize(nb.recv.len() * width, 0.0);
+                b.resize(nb.recv_from(layers).len() * width, 0.0);
             }
             let raw = comm.as_raw();
+            let idle = |k: usize| send[k].is_empty() && recv[k].is_empty();
+            let idle: Vec<bool> = (0..nbs.len()).map(idle).collect();
             // SAFETY: the buffers stay borrowed (and so neither move nor change) by the
             // returned `Exchange` until every request completes, in `finish` or in its drop.
             unsafe {
-                for (nb, b) in nbs.iter().zip(recv.iter_mut()) {
+                for ((nb, b), _) in nbs.iter().zip(recv.iter_mut()).zip(&idle).filter(|x| !*x.1) {
                     let mut r = ffi::RSMPI_REQUEST_NULL;
                     ffi::MPI_Irecv(
                         b.as_mut_ptr().cast(),
@@ -99,7 +119,7 @@ impl Halo {
                     );
                     reqs.push(r);
                 }
-                for (nb, b) in nbs.iter().zip(send.iter()) {
+                for ((nb, b), _) in nbs.iter().zip(send.iter()).zip(&idle).filter(|x| !*x.1) {
                     let mut r = ffi::RSMPI_REQUEST_NULL;
                     ffi::MPI_Isend(
                         b.as_ptr().cast(),
@@ -120,6 +140,7 @@ impl Halo {
             reqs,
             stride,
             width,
+            layers,
             open: true,
         }
     }
@@ -156,6 +177,8 @@ pub struct Exchange<'h> {
     reqs: Vec<ffi::MPI_Request>,
     stride: usize,
     width: usize,
+    /// Halo layers exchanged.
+    layers: usize,
     open: bool,
 }
 
@@ -199,7 +222,7 @@ impl Exchange<'_> {
         halo.waited.set(halo.waited.get() + t.elapsed().as_secs_f64());
         let (s, w) = (self.stride, self.width);
         for (nb, buf) in halo.pattern.neighbours.iter().zip(self.bufs.recv.iter()) {
-            for (k, &l) in nb.recv.iter().enumerate() {
+            for (k, &l) in nb.recv_from(self.layers).iter().enumerate() {
                 data[l as usize * s..l as usize * s + w].copy_from_slice(&buf[k * w..(k + 1) * w]);
             }
         }

@@ -76,6 +76,8 @@ pub struct Simulation {
     pub loads: Vec<Load>,
     /// owned contact nodes of each load (local index, probe weight, force weight, source weight)
     pub load_local: Vec<Vec<(u32, f64, f64, f64)>>,
+    /// contact nodes of each load among the halo rows (local index, source weight)
+    load_halo: Vec<Vec<(u32, f64)>>,
     /// control volumes of this process's output block
     pub(crate) vol_block: Vec<f64>,
     /// fixed nodes of the whole mesh
@@ -102,7 +104,7 @@ pub struct Simulation {
 
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
 /// faces before its coefficients are computed and takes the pair columns over).
-fn build_operator(setup: &Setup, inc: &Incidence, dual: &mut Dual, active: &[bool], n_owned: usize) -> Operator {
+fn build_operator(setup: &Setup, inc: &Incidence, dual: &mut Dual, active: &[bool], n_rows: usize) -> Operator {
     let (mesh, r) = (&setup.mesh, &setup.r);
     match setup.model.scheme() {
         Scheme::Compact => {
@@ -110,7 +112,7 @@ fn build_operator(setup: &Setup, inc: &Incidence, dual: &mut Dual, active: &[boo
             let a = compact_coefficients(mesh, inc, dual, r);
             crate::diagnostics::log_memory("the coefficients");
             let col = std::mem::take(&mut dual.col);
-            let c = Compact::from_pairs(&dual.row_ptr[..=n_owned], col, a, &dual.vol, active);
+            let c = Compact::from_pairs(&dual.row_ptr[..=n_rows], col, a, &dual.vol, active);
             if setup.model.operator_precision == Precision::Float32 {
                 Operator::Compact(c.into_f32())
             } else {
@@ -172,19 +174,28 @@ fn build_stepper(
 }
 
 /// Per load: its contact area and force direction (summed over the owners of its contact
-/// nodes), and the owned contact nodes with their probe, force and source weights.
+/// nodes), the owned contact nodes with their probe, force and source weights, and the contact
+/// nodes among the halo rows (`rows`: the owned nodes and the halo layers whose operator rows
+/// this process builds) with their source weights, computed as their owners compute them.
+#[allow(clippy::type_complexity)]
 fn resolve_loads(
     setup: &Setup,
     dual: &Dual,
     numbering: &LocalNumbering,
+    rows: usize,
     comm: &dyn Comm,
-) -> Result<(Vec<Load>, Vec<Vec<(u32, f64, f64, f64)>>)> {
+) -> Result<(Vec<Load>, Vec<Vec<(u32, f64, f64, f64)>>, Vec<Vec<(u32, f64)>>)> {
     let mut local_of = std::collections::HashMap::new();
     for i in 0..numbering.n_owned {
         local_of.insert(numbering.global[i], i as u32);
     }
+    let mut halo_of = std::collections::HashMap::new();
+    for i in numbering.n_owned..rows {
+        halo_of.insert(numbering.global[i], i as u32);
+    }
     let mut loads = setup.loads.clone();
     let mut load_local = Vec::new();
+    let mut load_halo = Vec::new();
     for (k, l) in loads.iter_mut().enumerate() {
         let mine: Vec<(u32, f64)> = l
             .nodes
@@ -209,18 +220,26 @@ fn resolve_loads(
         if let Some(mag) = l.normal {
             l.force = scale(a, -mag / an);
         }
+        // a patch: every contact node is pressed by F (the mechanics are nodal) and the source
+        // enters through the patch surface as a flux
+        let source = |li: u32, w: f64| match l.depth {
+            Some(depth) => norm(dual.area[li as usize]) * depth / dual.vol[li as usize],
+            None => w,
+        };
         let mine = mine
             .iter()
-            .map(|&(li, w)| match l.depth {
-                // a patch: every contact node is pressed by F (the mechanics are nodal) and
-                // the source enters through the patch surface as a flux
-                Some(depth) => (li, w, 1.0, norm(dual.area[li as usize]) * depth / dual.vol[li as usize]),
-                None => (li, w, w, w),
-            })
+            .map(|&(li, w)| (li, w, if l.depth.is_some() { 1.0 } else { w }, source(li, w)))
             .collect();
         load_local.push(mine);
+        let halo: Vec<(u32, f64)> = l
+            .nodes
+            .iter()
+            .zip(&l.weights)
+            .filter_map(|(gn, &w)| halo_of.get(gn).map(|&li| (li, source(li, w))))
+            .collect();
+        load_halo.push(halo);
     }
-    Ok((loads, load_local))
+    Ok((loads, load_local, load_halo))
 }
 
 /// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):
@@ -328,6 +347,8 @@ impl Simulation {
         global: Option<Mesh>,
     ) -> Result<Simulation> {
         let c = comm.as_ref();
+        // operator rows: the owned nodes and, over a deep halo, halo layers 1..depth-1
+        let n_rows = plan.rows();
         let numbering = plan.numbering;
         let layout = numbering.layout();
         let n_owned = numbering.n_owned;
@@ -335,21 +356,23 @@ impl Simulation {
         let n_global = c.sum_i128(n_owned as i128) as usize;
         let inc = Incidence::new(&setup.mesh);
         crate::diagnostics::log_memory("the local mesh and plan");
-        let mut dual = Dual::build(&setup.mesh, &inc, n_owned, Some(gid.as_slice()));
+        let mut dual = Dual::build(&setup.mesh, &inc, n_rows, Some(gid.as_slice()));
         crate::diagnostics::log_memory("the dual geometry");
-        let inactive_nodes = c.sum_i128(dual.vol.iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
-        // activity of halo nodes comes from their owners; only fixedness matters there
+        let inactive_nodes = c.sum_i128(dual.vol[..n_owned].iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
+        // activity of halo nodes without a row comes from their owners; only fixedness matters
+        // there (the halo rows are the owners' rows)
         let active: Vec<bool> = (0..layout.n_local)
-            .map(|i| !setup.fixed[i] && (i >= n_owned || dual.vol[i] > 0.0))
+            .map(|i| !setup.fixed[i] && (i >= n_rows || dual.vol[i] > 0.0))
             .collect();
         let fixed_nodes = c.sum_i128(setup.fixed[..n_owned].iter().filter(|&&b| b).count() as i128) as usize;
-        let op = build_operator(&setup, &inc, &mut dual, &active, n_owned);
+        let op = build_operator(&setup, &inc, &mut dual, &active, n_rows);
         drop(inc);
         dual.release_pairs();
         dual.col = Vec::new();
         dual.row_ptr = Vec::new();
         crate::diagnostics::log_memory("the operator");
         let mut prop = Propagation::new(op, halo, layout);
+        prop.set_sweep_order(plan.order);
         tracing::info!(
             "geometry and operator built ({} rows); searching the stable substep",
             n_owned
@@ -357,7 +380,7 @@ impl Simulation {
         let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
         let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
         let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, c)?;
-        let (loads, load_local) = resolve_loads(&setup, &dual, &numbering, c)?;
+        let (loads, load_local, load_halo) = resolve_loads(&setup, &dual, &numbering, n_rows, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
         let mut tools: Vec<ToolRun> = setup.tools.iter().cloned().map(ToolRun::new).collect();
@@ -390,6 +413,7 @@ impl Simulation {
             active,
             loads,
             load_local,
+            load_halo,
             vol_block,
             fixed_nodes,
             blocks,
@@ -452,11 +476,14 @@ impl Simulation {
             .collect()
     }
 
-    /// Nodal sources Q and forces f for the loads at time t.
-    fn sources(&mut self, t: f64) -> Vec<(u32, V3)> {
+    /// Nodal sources Q on the owned nodes and forces f for the loads at time t; the sources
+    /// of the halo rows (a deep halo) go to the propagation (`Propagation::set_halo_sources`),
+    /// each computed as its owner computes it.
+    pub fn sources(&mut self, t: f64) -> Vec<(u32, V3)> {
         let applied = self.applied(t);
         let mut q = Vec::new();
-        for (mine, a) in self.load_local.iter().zip(&applied) {
+        let mut hq = Vec::new();
+        for ((mine, halo), a) in self.load_local.iter().zip(&self.load_halo).zip(&applied) {
             let fn_ = norm(a.force);
             for &(i, _, fw, sw) in mine {
                 self.force[i as usize] = scale(a.force, fw);
@@ -464,7 +491,11 @@ impl Simulation {
                     q.push((i, scale(a.force, sw * a.q / fn_)));
                 }
             }
+            if fn_ > 0.0 {
+                hq.extend(halo.iter().map(|&(i, sw)| (i, scale(a.force, sw * a.q / fn_))));
+            }
         }
+        self.prop.set_halo_sources(hq);
         q
     }
 

@@ -176,10 +176,11 @@ fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
             assert_same(&plain, &f);
         }
     }
-    // processes that chose different depths (the tuner does so per process) still pair their
-    // halo messages and give the same bits
-    for depths in [&["1", "4"][..], &["8", "1", "3"]] {
-        let f = d.path().join(format!("mixed{}.h5", depths.len()));
+    // over a one-layer halo (`EPROP_HALO=1`), processes that chose different depths still
+    // pair their halo messages (one exchange per substep) and give the same bits; over a deep
+    // halo (2 layers and more, the default on several processes) they agree on the largest
+    for (halo, depths) in [("1", &["1", "4"][..]), ("1", &["8", "1", "3"]), ("3", &["1", "2", "3"])] {
+        let f = d.path().join(format!("mixed{halo}-{}.h5", depths.len()));
         let mut cmd = Command::new("mpirun");
         cmd.arg("--oversubscribe");
         for (k, fuse) in depths.iter().enumerate() {
@@ -187,6 +188,8 @@ fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
                 cmd.arg(":");
             }
             cmd.args([
+                "-x",
+                &format!("EPROP_HALO={halo}"),
                 "-x",
                 &format!("EPROP_FUSE={fuse}"),
                 "-n",
@@ -208,6 +211,82 @@ fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
         );
         assert_same(&plain, &f);
     }
+}
+
+/// Fused sweeps over a deep halo (`EPROP_HALO` layers exchanged once per sweep, the halo rows
+/// of the inner layers computed by every process that holds them) against one sweep per
+/// substep on one process: bitwise the same output on 2-4 ranks for halos of 2, 3, 4 and 8
+/// layers, full sweeps and shorter ones (7 substeps per step), a point load and a patch load
+/// (sources on halo rows), both deep sweeps, and the run logs that the deep sweep ran.
+fn check_deep(mesh: &Path, setting: &str, tag: &str, cases: &[(&str, &str)]) {
+    let d = tempfile::Builder::new().prefix(tag).tempdir().unwrap();
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"euler\"\n{setting}[time]\nsteps = 4\n[output]\nevery = 1\n",
+            mesh.display()
+        ),
+    )
+    .unwrap();
+    let sc = sc.to_str().unwrap();
+    let plain = d.path().join("plain.h5");
+    let out = mpirun_env(
+        1,
+        &["run", sc, "-q", "-o", plain.to_str().unwrap()],
+        &[("EPROP_FUSE", "1")],
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // both deep sweeps: the interior wavefront then the rest of each level, and one wavefront
+    // over owned and halo rows in the locality order (`EPROP_DEEPFRONT=1`)
+    let fronts = cases.iter().flat_map(|&(h, f)| [(h, f, "0"), (h, f, "1")]);
+    for (halo, fuse, front) in fronts {
+        for n in 2..=4 {
+            let f = d.path().join(format!("h{halo}f{fuse}d{front}n{n}.h5"));
+            let out = mpirun_env(
+                n,
+                &["-vv", "run", sc, "-q", "-o", f.to_str().unwrap()],
+                &[("EPROP_HALO", halo), ("EPROP_FUSE", fuse), ("EPROP_DEEPFRONT", front)],
+            );
+            let log = String::from_utf8_lossy(&out.stderr);
+            let case = format!("halo {halo}, fuse {fuse}, front {front}, {n} ranks");
+            assert!(out.status.success(), "{case}: {log}");
+            let want = format!("propagation: {halo} halo layers for fused sweeps, {fuse} substeps per sweep");
+            assert_eq!(log.matches(&want).count(), n, "{case}: {log}");
+            // the deep sweep ran (not another integrator, not unfused)
+            let ran = if front == "1" { "deep front: " } else { "wavefront: " };
+            assert!(log.contains(ran), "{case}: {log}");
+            assert_same(&plain, &f);
+        }
+    }
+}
+
+#[test]
+fn deep_halo_sweeps_are_bitwise_one_sweep_per_substep_on_2_to_4_ranks() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    let cases = [("2", "2"), ("3", "3"), ("4", "4"), ("4", "3"), ("8", "8")];
+    check_deep(&mesh, CYL, "deep", &cases);
+    // a patch on the top: many contact nodes, some among the halo rows
+    let patch =
+        "[[fixed]]\ngroup = \"bottom\"\n[[load]]\npatch = { center = [0.0, 0.0, 4.0], radius = 0.6 }\nnormal = 1.0\n";
+    check_deep(&mesh, patch, "deep-patch", &[("4", "4"), ("3", "2")]);
+}
+
+#[test]
+fn deep_halo_sweeps_are_bitwise_on_an_organ_mesh() {
+    // the liver of `bitwise_identical_on_1_to_4_ranks_organ_mesh`: at 2-4 ranks its halo rows
+    // outnumber the owned ones
+    let Some(mesh) = common::shared_mesh("sofa_liver2.msh") else {
+        return;
+    };
+    check_deep(
+        &mesh,
+        "[material]\nconductivity = [0.08, 0.05, 0.05]\n[[fixed]]\nhalfspace = { point = [-1.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\npatch = { center = [0.0, 0.7, 0.0], radius = 0.3 }\nnormal = 1.0\n",
+        "deep-liver",
+        &[("4", "4"), ("4", "3"), ("8", "8")],
+    );
 }
 
 /// Both schemes on a shared organ mesh (skipped without the shared data).
