@@ -434,46 +434,7 @@ impl Propagation {
                    next: &mut NodeField<V3>,
                    levels: &mut [NodeField<[f64; 4]>],
                    l: usize,
-                   r: Range<usize>| {
-            let so = if l == d { 3 } else { P };
-            let y: &mut [f64] = match (l, l == d) {
-                (1, false) => {
-                    c.step_strided::<3, P>(
-                        phi.flat(),
-                        &mut levels[0].flat_mut()[P * r.start..P * r.end],
-                        h,
-                        r.start,
-                    );
-                    &mut levels[0].flat_mut()[..]
-                }
-                (_, false) => {
-                    let (a, b) = levels.split_at_mut(l - 1);
-                    c.step_strided::<P, P>(
-                        a[l - 2].flat(),
-                        &mut b[0].flat_mut()[P * r.start..P * r.end],
-                        h,
-                        r.start,
-                    );
-                    b[0].flat_mut()
-                }
-                (_, true) => {
-                    let y = &mut next.flat_mut()[3 * r.start..3 * r.end];
-                    if l == 1 {
-                        c.step_strided::<3, 3>(phi.flat(), y, h, r.start);
-                    } else {
-                        c.step_strided::<P, 3>(levels[l - 2].flat(), y, h, r.start);
-                    }
-                    next.flat_mut()
-                }
-            };
-            let first = qs.partition_point(|s| (s.0 as usize) < r.start);
-            for &(i, qi) in qs[first..].iter().take_while(|s| (s.0 as usize) < r.end) {
-                let y = &mut y[so * i as usize..so * i as usize + 3];
-                y[0] += h * qi[0];
-                y[1] += h * qi[1];
-                y[2] += h * qi[2];
-            }
-        };
+                   r: Range<usize>| level_rows::<P>(c, h, &qs, phi, next, levels, l, d, r);
         // the wavefront over the interior, phi's halo in flight
         let mut ex = Some(halo.start_layers(phi.flat(), 3, 3, if DEEP { d } else { 1 }));
         let mut at = vec![0usize; d + 1];
