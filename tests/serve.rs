@@ -90,7 +90,18 @@ fn serve(ranks: usize, scenario: &Path, out: &Path, extra: &[&str]) -> Server {
 impl Server {
     /// Waits for the server to exit (killing it and failing past the deadline); returns its
     /// success, stdout and stderr.
-    fn finish(mut self, seconds: u64) -> (bool, String, String) {
+    fn finish(self, seconds: u64) -> (bool, String, String) {
+        let (status, out, err) = self.wait_all(seconds);
+        (status.success(), out, err)
+    }
+
+    /// The exit code and the stderr of the server.
+    fn finish_status(self, seconds: u64) -> (Option<i32>, String) {
+        let (status, _, err) = self.wait_all(seconds);
+        (status.code(), err)
+    }
+
+    fn wait_all(mut self, seconds: u64) -> (std::process::ExitStatus, String, String) {
         let deadline = Instant::now() + Duration::from_secs(seconds);
         let status = loop {
             if let Some(s) = self.child.try_wait().unwrap() {
@@ -108,7 +119,7 @@ impl Server {
         while let Ok(l) = self.lines.recv_timeout(Duration::from_millis(500)) {
             self.stderr.push(l);
         }
-        (status.success(), out, self.stderr.join("\n"))
+        (status, out, self.stderr.join("\n"))
     }
 }
 
@@ -497,4 +508,61 @@ fn a_scenario_without_live_inputs_or_a_busy_port_is_refused() {
         !o.status.success() && err.contains("cannot listen") && err.contains("fix:"),
         "{err}"
     );
+}
+
+/// SIGTERM (what SLURM sends at a time limit) while the client is quiet: on 1 process and
+/// under mpirun -n 2 every process stops with status 3, the client gets the error, and the
+/// series holds every step computed.
+#[test]
+fn sigterm_while_the_client_is_quiet_stops_every_process_and_keeps_the_series() {
+    let d = tempfile::tempdir().unwrap();
+    let d = d.path();
+    let (sc, _, _) = scenario(d, "");
+    let out = d.join("live.h5");
+    for ranks in [1, 2] {
+        let server = serve(ranks, &sc, &out, &["--timeout", "60"]);
+        let mut c = Client::connect(&server.addr);
+        c.hello();
+        c.answer(p::kind::FORCE, 0, 30.0, [0.0, -0.05, 0.0]);
+        c.answer(p::kind::POSE, 0, 10.0, [1.5, 0.0, 2.0]);
+        // wait until the physics has caught up with the samples, then say nothing
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let mut k = 0;
+        loop {
+            k += 1;
+            let a = c.answer(p::kind::POSE, 0, 10.0 + k as f64 * 1e-6, [1.5, 0.0, 2.0]);
+            if a.t_step >= 9.0 {
+                break;
+            }
+            assert!(Instant::now() < deadline, "the physics does not advance: {a:?}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // SLURM signals every process of the job
+        let pids: Vec<i32> = if ranks == 1 {
+            vec![server.child.id() as i32]
+        } else {
+            common::children(server.child.id())
+        };
+        assert_eq!(pids.len(), ranks, "{pids:?}");
+        for pid in &pids {
+            Command::new("kill").args(["-TERM", &pid.to_string()]).status().unwrap();
+        }
+        let (code, message) = c.error();
+        assert!(message.contains("stopped by SIGTERM"), "{code}: {message}");
+        let status = server.finish_status(60);
+        assert_eq!(status.0, Some(3), "{ranks} ranks: {}", status.1);
+        assert!(status.1.contains("stopped by SIGTERM while waiting"), "{}", status.1);
+        assert!(status.1.contains("complete output steps"), "{}", status.1);
+        let f = hdf5::File::open(&out).unwrap();
+        let k: i64 = f
+            .group("eprop")
+            .unwrap()
+            .attr("steps_complete")
+            .unwrap()
+            .read_scalar()
+            .unwrap();
+        let steps = f.dataset("eprop/tools/step").unwrap().read_raw::<i64>().unwrap();
+        assert_eq!(steps.len(), k as usize);
+        assert!(*steps.last().unwrap() >= 12, "{steps:?}");
+    }
 }

@@ -98,6 +98,7 @@ fn check_live(setup: &Setup) -> Result<()> {
 /// returns the report on rank 0.
 pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOptions) -> Result<Option<ServeReport>> {
     let t0 = Instant::now();
+    crate::signals::install();
     let listener = std::cell::RefCell::new(None);
     // the output claimed as `eprop run` claims it (not an input, one writer, no silent
     // replacement), held to the end of the session
@@ -173,19 +174,31 @@ fn forget_before(sim: &mut Simulation, t: f64) {
 
 /// Rank 0 waits for the samples that cover time t and sends them to every process; every
 /// process appends them. Err: the session ended (rank 0 has the message).
-fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64) -> Result<Result<(), String>> {
+/// How the session ended before a step: rank 0's message, and the stop signal that ended it
+/// (0: the client or a timeout).
+struct Ended {
+    msg: String,
+    signal: i32,
+}
+
+fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64) -> Result<Result<(), Ended>> {
     let got = match session {
         Some(s) => s.wait(t),
         None => Ok(Vec::new()),
     };
     let c = sim.comm.as_ref();
+    // head: [0 or 1 (the session ended), samples, the stop signal rank 0 has seen]
     let mut head = match &got {
-        Ok(samples) => [0.0, samples.len() as f64],
-        Err(_) => [1.0, 0.0],
+        Ok(samples) => [0.0, samples.len() as f64, 0.0],
+        Err(_) => [1.0, 0.0, f64::from(crate::signals::pending())],
     };
     c.broadcast(0, &mut head);
     if head[0] != 0.0 {
-        return Ok(Err(got.err().unwrap_or_default()));
+        let msg = got.err().unwrap_or_default();
+        return Ok(Err(Ended {
+            msg,
+            signal: head[2] as i32,
+        }));
     }
     let mut flat: Vec<f64> = match &got {
         Ok(samples) => samples
@@ -231,8 +244,13 @@ fn outcomes(sim: &Simulation, any_live_load: bool) -> Vec<Outcome> {
     out
 }
 
-/// The error every process returns when the session ended: rank 0 prints it once.
-fn ended(rank: usize, msg: String) -> anyhow::Error {
+/// The error every process returns when the session ended: rank 0 prints it once; a stop
+/// signal ends every process with the stop status.
+fn ended(rank: usize, e: Ended) -> anyhow::Error {
+    let msg = e.msg;
+    if e.signal != 0 {
+        return crate::safety::Agreed::error(crate::safety::EXIT_STOPPED, format!("eprop serve: {msg}"));
+    }
     if rank == 0 {
         Collective(format!("eprop serve: {msg}")).into()
     } else {
@@ -314,7 +332,9 @@ fn serve_simulation(
             }
             return Err(e);
         }
-        if sim.step.is_multiple_of(every) || sim.done() {
+        // a stop signal rides on the step's reduction: every process stops after this step
+        let stop = sim.stop_signal;
+        if sim.step.is_multiple_of(every) || sim.done() || stop != 0 {
             series.append(&sim)?;
             written = sim.step;
         }
@@ -323,15 +343,40 @@ fn serve_simulation(
             s.publish(&o);
         }
         progress.update(sim.step, sim.max_speed);
+        if stop != 0 {
+            progress.finish();
+            let msg = format!(
+                "eprop serve: stopped by {} after step {} of {}: {} keeps its {} complete output steps (to step {written})",
+                crate::signals::name(stop),
+                sim.step,
+                sim.max_steps(),
+                series.path().display(),
+                series.steps_written()
+            );
+            if let Some(s) = &session {
+                s.fail(&msg);
+            }
+            drop(session);
+            return Err(crate::safety::Agreed::error(crate::safety::EXIT_STOPPED, msg));
+        }
     }
     progress.finish();
     // the series ends with the last step computed, whatever the client did
     if written != sim.step {
         series.append(&sim)?;
     }
-    if let Some(msg) = failure {
+    if let Some(mut e) = failure {
         drop(session);
-        return Err(ended(rank, msg));
+        if e.signal != 0 {
+            e.msg = format!(
+                "{}; {} keeps its {} complete output steps (to step {})",
+                e.msg,
+                series.path().display(),
+                series.steps_written(),
+                sim.step
+            );
+        }
+        return Err(ended(rank, e));
     }
     let timing = Timing {
         setup_seconds,

@@ -190,7 +190,19 @@ impl Session {
                         cv.notify_all();
                         break Err(msg);
                     }
-                    g = cv.wait_timeout(g, left).unwrap_or_else(|e| e.into_inner()).0;
+                    let sig = crate::signals::pending();
+                    if sig != 0 {
+                        let msg = format!(
+                            "stopped by {} while waiting for the client's samples at t = {t}",
+                            crate::signals::name(sig)
+                        );
+                        fail(&mut g, Code::Server, &msg);
+                        cv.notify_all();
+                        break Err(msg);
+                    }
+                    // in slices, so that a stop signal is seen while the client is quiet
+                    let slice = left.min(Duration::from_millis(100));
+                    g = cv.wait_timeout(g, slice).unwrap_or_else(|e| e.into_inner()).0;
                 }
             }
         };
