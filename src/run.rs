@@ -179,7 +179,7 @@ fn holds(series: &Series, last: u64) -> String {
 
 /// A failed output write, as the message every process ends with: what failed, the state of
 /// the file, the fix and what to do `next`.
-fn write_failed(e: anyhow::Error, state: &str, next: &str) -> anyhow::Error {
+pub(crate) fn write_failed(e: anyhow::Error, state: &str, next: &str) -> anyhow::Error {
     match e.downcast_ref::<WriteFailed>() {
         Some(w) => Agreed::error(EXIT_WRITE, format!("{w}; {state}; fix: {}, then {next}", w.cause.fix())),
         None => e,

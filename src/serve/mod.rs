@@ -15,7 +15,7 @@ use crate::launch::build_mpi;
 use crate::operator::V3;
 use crate::parts::{Collective, GlobalSizes, ReportedElsewhere};
 use crate::progress::Progress;
-use crate::run::{prepare_claimed, RunOptions};
+use crate::run::{prepare_claimed, write_failed, RunOptions};
 use crate::scenario::{Setup, Trajectory};
 use crate::series::Series;
 use crate::solver::Simulation;
@@ -244,6 +244,15 @@ fn outcomes(sim: &Simulation, any_live_load: bool) -> Vec<Outcome> {
     out
 }
 
+/// What a series holds, for messages.
+fn keeps(series: &Series, last: u64) -> String {
+    format!(
+        "{} keeps its {} complete output steps (to step {last})",
+        series.path().display(),
+        series.steps_written()
+    )
+}
+
 /// The error every process returns when the session ended: rank 0 prints it once; a stop
 /// signal ends every process with the stop status.
 fn ended(rank: usize, e: Ended) -> anyhow::Error {
@@ -306,7 +315,13 @@ fn serve_simulation(
         return Err(ended(rank, msg));
     }
     sim.tools_at_rest();
-    let mut series = Series::start(&mut sim, &sizes, false, io_comm)?;
+    let mut series = Series::start(&mut sim, &sizes, false, io_comm).map_err(|e| {
+        write_failed(
+            e,
+            "nothing was written (the unfinished file was removed)",
+            "serve again",
+        )
+    })?;
     let mut written = sim.step;
     if let Some(s) = &session {
         s.publish(&outcomes(&sim, any_live_load));
@@ -335,7 +350,13 @@ fn serve_simulation(
         // a stop signal rides on the step's reduction: every process stops after this step
         let stop = sim.stop_signal;
         if sim.step.is_multiple_of(every) || sim.done() || stop != 0 {
-            series.append(&sim)?;
+            if let Err(e) = series.append(&sim) {
+                let e = write_failed(e, &keeps(&series, written), "serve again");
+                if let Some(s) = &session {
+                    s.fail(&format!("the series could not be written: {e:#}"));
+                }
+                return Err(e);
+            }
             written = sim.step;
         }
         let o = outcomes(&sim, any_live_load);
@@ -346,12 +367,11 @@ fn serve_simulation(
         if stop != 0 {
             progress.finish();
             let msg = format!(
-                "eprop serve: stopped by {} after step {} of {}: {} keeps its {} complete output steps (to step {written})",
+                "eprop serve: stopped by {} after step {} of {}: {}",
                 crate::signals::name(stop),
                 sim.step,
                 sim.max_steps(),
-                series.path().display(),
-                series.steps_written()
+                keeps(&series, written)
             );
             if let Some(s) = &session {
                 s.fail(&msg);
@@ -363,18 +383,14 @@ fn serve_simulation(
     progress.finish();
     // the series ends with the last step computed, whatever the client did
     if written != sim.step {
-        series.append(&sim)?;
+        series
+            .append(&sim)
+            .map_err(|e| write_failed(e, &keeps(&series, written), "serve again"))?;
     }
     if let Some(mut e) = failure {
         drop(session);
         if e.signal != 0 {
-            e.msg = format!(
-                "{}; {} keeps its {} complete output steps (to step {})",
-                e.msg,
-                series.path().display(),
-                series.steps_written(),
-                sim.step
-            );
+            e.msg = format!("{}; {}", e.msg, keeps(&series, sim.step));
         }
         return Err(ended(rank, e));
     }
