@@ -108,7 +108,7 @@ step k (time k dt) waits until the client has sent a sample of every live input 
 in a table: a session is reproducible bit for bit. After bye the inputs hold their last samples \
 and the run goes on to its stop condition. A malformed message, a second client, or no sample \
 within --timeout seconds gets an error message; the run then stops, ends the series with the last \
-step computed, and exits with status 1. Under mpirun rank 0 holds the socket."
+step computed, and exits with status 1. SIGTERM, SIGINT or SIGHUP stop it the same way with status 3 (also while it waits for the client); a failed write with status 4. Under mpirun rank 0 holds the socket."
     )]
     Serve {
         /// Scenario file (TOML) with at least one `live = true` tool or load
