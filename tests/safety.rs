@@ -111,15 +111,7 @@ fn contents(paths: &[&Path]) -> Vec<Vec<u8>> {
     paths.iter().map(|p| std::fs::read(p).unwrap()).collect()
 }
 
-fn steps_complete(h5: &Path) -> i64 {
-    let f = hdf5::File::open(h5).unwrap();
-    f.group("eprop")
-        .unwrap()
-        .attr("steps_complete")
-        .unwrap()
-        .read_scalar()
-        .unwrap()
-}
+use common::steps_complete;
 
 /// steps_complete of a file another process writes (None while it cannot be opened).
 fn live_steps(h5: &Path) -> Option<i64> {

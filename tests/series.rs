@@ -35,15 +35,7 @@ fn ok(out: &std::process::Output) {
     );
 }
 
-fn steps_complete(h5: &Path) -> i64 {
-    let f = hdf5::File::open(h5).unwrap();
-    f.group("eprop")
-        .unwrap()
-        .attr("steps_complete")
-        .unwrap()
-        .read_scalar()
-        .unwrap()
-}
+use common::steps_complete;
 
 #[test]
 fn restart_continues_bit_for_bit_on_1_and_2_ranks() {

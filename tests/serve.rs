@@ -300,6 +300,33 @@ fn a_live_session_writes_the_batch_series_with_rkl2_and_implicit() {
 
 /// A server on the scenario of `scenario` (with `extra` keys and options) and a client that
 /// has said hello; for the catalogue of bad sessions.
+/// Samples to t = 30 (force) and t = 10 (pose), then waits until the physics has caught up
+/// with them (a step at t >= 9).
+fn catch_up(c: &mut Client) {
+    c.answer(p::kind::FORCE, 0, 30.0, [0.0, -0.05, 0.0]);
+    c.answer(p::kind::POSE, 0, 10.0, [1.5, 0.0, 2.0]);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut k = 0;
+    loop {
+        k += 1;
+        let a = c.answer(p::kind::POSE, 0, 10.0 + k as f64 * 1e-6, [1.5, 0.0, 2.0]);
+        if a.t_step >= 9.0 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "the physics does not advance: {a:?}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// The series of a session that ended early: its complete steps read back, to step 12 or later.
+fn holds_steps_to_12(out: &Path) {
+    let k = common::steps_complete(out);
+    let f = hdf5::File::open(out).unwrap();
+    let steps = f.dataset("eprop/tools/step").unwrap().read_raw::<i64>().unwrap();
+    assert_eq!(steps.len(), k as usize);
+    assert!(*steps.last().unwrap() >= 12, "{steps:?}");
+}
+
 fn session(d: &Path, extra: &str, args: &[&str]) -> (Server, Client) {
     let (sc, _, _) = scenario(d, extra);
     let server = serve(1, &sc, &d.join("live.h5"), args);
@@ -425,35 +452,12 @@ fn a_bad_hello_a_vanished_client_and_no_client_end_the_run_cleanly() {
         let server = serve(1, &sc, &out, &["--timeout", "20"]);
         let mut c = Client::connect(&server.addr);
         c.hello();
-        c.answer(p::kind::FORCE, 0, 30.0, [0.0, -0.05, 0.0]);
-        c.answer(p::kind::POSE, 0, 10.0, [1.5, 0.0, 2.0]);
-        // wait until the physics has caught up with the samples
-        let deadline = Instant::now() + Duration::from_secs(30);
-        let mut k = 0;
-        loop {
-            k += 1;
-            let a = c.answer(p::kind::POSE, 0, 10.0 + k as f64 * 1e-6, [1.5, 0.0, 2.0]);
-            if a.t_step >= 9.0 {
-                break;
-            }
-            assert!(Instant::now() < deadline, "the physics does not advance: {a:?}");
-            std::thread::sleep(Duration::from_millis(1));
-        }
+        catch_up(&mut c);
         c.raw(&[0u8; 40][..cut]);
         drop(c);
         let (ok, _, err) = server.finish(60);
         assert!(!ok && err.contains(text), "{err}");
-        let f = hdf5::File::open(&out).unwrap();
-        let k: i64 = f
-            .group("eprop")
-            .unwrap()
-            .attr("steps_complete")
-            .unwrap()
-            .read_scalar()
-            .unwrap();
-        let steps = f.dataset("eprop/tools/step").unwrap().read_raw::<i64>().unwrap();
-        assert_eq!(steps.len(), k as usize);
-        assert!(*steps.last().unwrap() >= 12, "{steps:?}");
+        holds_steps_to_12(&out);
     }
 }
 
@@ -523,20 +527,7 @@ fn sigterm_while_the_client_is_quiet_stops_every_process_and_keeps_the_series() 
         let server = serve(ranks, &sc, &out, &["--timeout", "60"]);
         let mut c = Client::connect(&server.addr);
         c.hello();
-        c.answer(p::kind::FORCE, 0, 30.0, [0.0, -0.05, 0.0]);
-        c.answer(p::kind::POSE, 0, 10.0, [1.5, 0.0, 2.0]);
-        // wait until the physics has caught up with the samples, then say nothing
-        let deadline = Instant::now() + Duration::from_secs(30);
-        let mut k = 0;
-        loop {
-            k += 1;
-            let a = c.answer(p::kind::POSE, 0, 10.0 + k as f64 * 1e-6, [1.5, 0.0, 2.0]);
-            if a.t_step >= 9.0 {
-                break;
-            }
-            assert!(Instant::now() < deadline, "the physics does not advance: {a:?}");
-            std::thread::sleep(Duration::from_millis(1));
-        }
+        catch_up(&mut c);
         // SLURM signals every process of the job
         let pids: Vec<i32> = if ranks == 1 {
             vec![server.child.id() as i32]
@@ -553,16 +544,6 @@ fn sigterm_while_the_client_is_quiet_stops_every_process_and_keeps_the_series() 
         assert_eq!(status.0, Some(3), "{ranks} ranks: {}", status.1);
         assert!(status.1.contains("stopped by SIGTERM while waiting"), "{}", status.1);
         assert!(status.1.contains("complete output steps"), "{}", status.1);
-        let f = hdf5::File::open(&out).unwrap();
-        let k: i64 = f
-            .group("eprop")
-            .unwrap()
-            .attr("steps_complete")
-            .unwrap()
-            .read_scalar()
-            .unwrap();
-        let steps = f.dataset("eprop/tools/step").unwrap().read_raw::<i64>().unwrap();
-        assert_eq!(steps.len(), k as usize);
-        assert!(*steps.last().unwrap() >= 12, "{steps:?}");
+        holds_steps_to_12(&out);
     }
 }

@@ -205,3 +205,14 @@ pub fn children(parent: u32) -> Vec<i32> {
     }
     out
 }
+
+/// The `/eprop` `steps_complete` attribute of a series: how many output steps it holds.
+pub fn steps_complete(h5: &Path) -> i64 {
+    let f = hdf5::File::open(h5).unwrap_or_else(|e| panic!("{}: {e}", h5.display()));
+    f.group("eprop")
+        .unwrap()
+        .attr("steps_complete")
+        .unwrap()
+        .read_scalar()
+        .unwrap()
+}
