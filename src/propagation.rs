@@ -6,7 +6,7 @@
 use crate::field::NodeField;
 use crate::operator::{Operator, V3};
 use crate::scatter::{Exchange, Halo};
-use crate::wavefront::{DeepFront, Wavefront};
+use crate::wavefront::{drive, DeepFront, Wavefront};
 use eprop_partition::Layout;
 use std::ops::Range;
 
@@ -355,49 +355,31 @@ impl Propagation {
         let (Operator::Compact(c), Some(f)) = (&*op, front.as_ref()) else {
             unreachable!("fused sweeps run the compact scheme")
         };
-        let mut ex = Some(halo.start_layers(phi.flat(), 3, 3, d));
-        let mut at = vec![0usize; d + 1];
-        let mut done = vec![0u32; d + 1];
-        done[0] = u32::MAX;
-        let mut rows_since = 0;
-        loop {
-            let mut busy = false;
-            for l in 1..=d {
-                let segs = &f.levels[l - 1];
-                while let Some(s) = segs.get(at[l]) {
-                    if l > 1 && s.need >= done[l - 1] {
-                        break;
-                    }
-                    if s.halo {
-                        if let Some(e) = ex.take() {
-                            e.finish(phi.flat_mut());
-                        }
-                    }
-                    for r in &f.runs[s.runs.start as usize..s.runs.end as usize] {
-                        level_rows::<P>(c, h, &qs, phi, next, levels, l, d, r.start as usize..r.end as usize);
-                        rows_since += r.len();
-                    }
-                    done[l] = s.end;
-                    at[l] += 1;
-                    busy = true;
-                    if l == 1 {
-                        break; // one segment of level 1, then the others catch up
+        let ex = Some(halo.start_layers(phi.flat(), 3, 3, d));
+        let mut st = (phi, next, levels, ex);
+        drive(
+            &f.levels[..d],
+            &mut st,
+            |(phi, next, levels, ex), l, s| {
+                if s.halo {
+                    if let Some(e) = ex.take() {
+                        e.finish(phi.flat_mut());
                     }
                 }
-                if at[l] == segs.len() {
-                    done[l] = u32::MAX;
+                let mut rows = 0;
+                for r in &f.runs[s.runs.start as usize..s.runs.end as usize] {
+                    level_rows::<P>(c, h, &qs, phi, next, levels, l, d, r.start as usize..r.end as usize);
+                    rows += r.len();
                 }
-            }
-            if rows_since >= 16 * 1024 {
+                rows
+            },
+            |(_, _, _, ex)| {
                 if let Some(e) = ex.as_mut() {
                     e.progress();
                 }
-                rows_since = 0;
-            }
-            if !busy {
-                break;
-            }
-        }
+            },
+        );
+        let (phi, next, _, mut ex) = st;
         if let Some(e) = ex.take() {
             e.finish(phi.flat_mut());
         }
@@ -436,42 +418,27 @@ impl Propagation {
                    l: usize,
                    r: Range<usize>| level_rows::<P>(c, h, &qs, phi, next, levels, l, d, r);
         // the wavefront over the interior, phi's halo in flight
-        let mut ex = Some(halo.start_layers(phi.flat(), 3, 3, if DEEP { d } else { 1 }));
-        let mut at = vec![0usize; d + 1];
-        let mut front = vec![0usize; d + 1];
-        front[0] = usize::MAX;
-        let mut rows_since = 0;
-        loop {
-            let mut busy = false;
-            for l in 1..=d {
-                let segs = &w.deep[l - 1];
-                while let Some(s) = segs.get(at[l]) {
-                    if (s.need as usize) >= front[l - 1] {
-                        break;
-                    }
-                    run(phi, next, levels, l, s.start as usize..s.end as usize);
-                    front[l] = s.end as usize;
-                    at[l] += 1;
-                    busy = true;
-                    if l == 1 {
-                        rows_since += (s.end - s.start) as usize;
-                        break; // one segment of level 1, then the others catch up
-                    }
+        let ex = Some(halo.start_layers(phi.flat(), 3, 3, if DEEP { d } else { 1 }));
+        let mut st = (&mut *phi, &mut *next, &mut levels[..], ex);
+        drive(
+            &w.deep[..d],
+            &mut st,
+            |(phi, next, levels, _), l, s| {
+                run(phi, next, levels, l, s.start as usize..s.end as usize);
+                // the progress pokes count level 1's rows
+                if l == 1 {
+                    (s.end - s.start) as usize
+                } else {
+                    0
                 }
-                if at[l] == segs.len() {
-                    front[l] = usize::MAX;
-                }
-            }
-            if rows_since >= 16 * 1024 {
+            },
+            |(_, _, _, ex)| {
                 if let Some(e) = ex.as_mut() {
                     e.progress();
                 }
-                rows_since = 0;
-            }
-            if !busy {
-                break;
-            }
-        }
+            },
+        );
+        let mut ex = st.3;
         let border = layout.border();
         if DEEP {
             // the rest of each level in level order: the interior rows outside the wavefront,

@@ -32,6 +32,76 @@ pub struct Segment {
     pub need: u32,
 }
 
+/// A segment of one level of a wavefront: it runs once the level before has passed `need`, and
+/// brings its own level to `end`.
+pub trait Step {
+    fn need(&self) -> u32;
+    fn end(&self) -> u32;
+}
+
+impl Step for Segment {
+    fn need(&self) -> u32 {
+        self.need
+    }
+    fn end(&self) -> u32 {
+        self.end
+    }
+}
+
+impl Step for DeepSegment {
+    fn need(&self) -> u32 {
+        self.need
+    }
+    fn end(&self) -> u32 {
+        self.end
+    }
+}
+
+/// Runs the segments of the levels `levels[0..d]` in wavefront order: one segment of level 1,
+/// then every other level as far as the level before allows, and again, until no level can go
+/// on. `run(st, l, segment)` runs a segment of level l and returns the rows it counts towards
+/// `poke(st)`, called after every 16k rows (the MPI progress of an exchange in flight).
+pub fn drive<S: Step, T>(
+    levels: &[Vec<S>],
+    st: &mut T,
+    mut run: impl FnMut(&mut T, usize, &S) -> usize,
+    mut poke: impl FnMut(&mut T),
+) {
+    let d = levels.len();
+    let mut at = vec![0usize; d + 1];
+    let mut done = vec![0u32; d + 1];
+    done[0] = u32::MAX;
+    let mut rows_since = 0;
+    loop {
+        let mut busy = false;
+        for l in 1..=d {
+            let segs = &levels[l - 1];
+            while let Some(s) = segs.get(at[l]) {
+                if s.need() >= done[l - 1] {
+                    break;
+                }
+                rows_since += run(st, l, s);
+                done[l] = s.end();
+                at[l] += 1;
+                busy = true;
+                if l == 1 {
+                    break; // one segment of level 1, then the others catch up
+                }
+            }
+            if at[l] == segs.len() {
+                done[l] = u32::MAX;
+            }
+        }
+        if rows_since >= 16 * 1024 {
+            poke(st);
+            rows_since = 0;
+        }
+        if !busy {
+            break;
+        }
+    }
+}
+
 /// The schedule of a block of up to `depth` fused substeps on one process.
 #[derive(Clone, Debug)]
 pub struct Wavefront {
