@@ -129,6 +129,23 @@ fn bitwise_identical_on_1_to_4_ranks_mixed_elements() {
     }
 }
 
+/// Writes `dir/s.toml` (`head`, then 4 steps, every step written) and runs it on one process
+/// with one substep per sweep (`EPROP_FUSE=1`) to `dir/plain.h5`: the reference of the fused
+/// runs. Returns the scenario's path, the reference's and the run's stdout.
+fn unfused(dir: &Path, head: &str) -> (String, std::path::PathBuf, String) {
+    let sc = dir.join("s.toml");
+    std::fs::write(&sc, format!("{head}[time]\nsteps = 4\n[output]\nevery = 1\n")).unwrap();
+    let sc = sc.to_str().unwrap().to_string();
+    let plain = dir.join("plain.h5");
+    let out = mpirun_env(
+        1,
+        &["run", &sc, "-q", "-o", plain.to_str().unwrap()],
+        &[("EPROP_FUSE", "1")],
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    (sc, plain, String::from_utf8_lossy(&out.stdout).to_string())
+}
+
 /// Temporal blocking (`Propagation::substeps`, on by default) against one sweep per substep
 /// (`EPROP_FUSE=1`): bitwise the same output on one process and on 1-4 ranks, for fused sweeps
 /// of 2, 3 and 8 substeps (7 substeps per step: full and shorter sweeps both run), and with a
@@ -138,28 +155,9 @@ fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
     let d = tempfile::Builder::new().prefix("fused").tempdir().unwrap();
     let mesh = d.path().join("cyl.msh");
     eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
-    let sc = d.path().join("s.toml");
-    std::fs::write(
-        &sc,
-        format!(
-            "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 4\n[output]\nevery = 1\n",
-            mesh.display()
-        ),
-    )
-    .unwrap();
-    let sc = sc.to_str().unwrap();
-    let plain = d.path().join("plain.h5");
-    let out = mpirun_env(
-        1,
-        &["run", sc, "-q", "-o", plain.to_str().unwrap()],
-        &[("EPROP_FUSE", "1")],
-    );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(
-        String::from_utf8_lossy(&out.stdout).contains("7 substeps"),
-        "{}",
-        String::from_utf8_lossy(&out.stdout)
-    );
+    let (sc, plain, stdout) = unfused(d.path(), &format!("[mesh]\nfile = \"{}\"\n{CYL}", mesh.display()));
+    let sc = sc.as_str();
+    assert!(stdout.contains("7 substeps"), "{stdout}");
     for fuse in ["2", "3", "8"] {
         for n in 1..=4 {
             let f = d.path().join(format!("f{fuse}n{n}.h5"));
@@ -220,23 +218,14 @@ fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
 /// (sources on halo rows), both deep sweeps, and the run logs that the deep sweep ran.
 fn check_deep(mesh: &Path, setting: &str, tag: &str, cases: &[(&str, &str)]) {
     let d = tempfile::Builder::new().prefix(tag).tempdir().unwrap();
-    let sc = d.path().join("s.toml");
-    std::fs::write(
-        &sc,
-        format!(
-            "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"euler\"\n{setting}[time]\nsteps = 4\n[output]\nevery = 1\n",
+    let (sc, plain, _) = unfused(
+        d.path(),
+        &format!(
+            "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"euler\"\n{setting}",
             mesh.display()
         ),
-    )
-    .unwrap();
-    let sc = sc.to_str().unwrap();
-    let plain = d.path().join("plain.h5");
-    let out = mpirun_env(
-        1,
-        &["run", sc, "-q", "-o", plain.to_str().unwrap()],
-        &[("EPROP_FUSE", "1")],
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let sc = sc.as_str();
     // both deep sweeps: the interior wavefront then the rest of each level, and one wavefront
     // over owned and halo rows in the locality order (`EPROP_DEEPFRONT=1`)
     let fronts = cases.iter().flat_map(|&(h, f)| [(h, f, "0"), (h, f, "1")]);
