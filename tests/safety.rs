@@ -102,6 +102,13 @@ fn cylinder(dir: &Path, name: &str, extra: &str, steps: u64) -> PathBuf {
     sc
 }
 
+/// Replaces `from` by `to` in a scenario file.
+fn edit(sc: &Path, from: &str, to: &str) {
+    let text = std::fs::read_to_string(sc).unwrap();
+    assert!(text.contains(from), "`{from}` is not in {}", sc.display());
+    std::fs::write(sc, text.replace(from, to)).unwrap();
+}
+
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
@@ -274,13 +281,7 @@ fn a_second_writer_is_refused_while_a_job_writes() {
     let dir = d.path();
     // slow steps (many substeps) so that the first job runs while the others try
     let sc = cylinder(dir, "s.toml", "", 20_000);
-    std::fs::write(
-        &sc,
-        std::fs::read_to_string(&sc)
-            .unwrap()
-            .replace("steps = 20000", "steps = 20000\nh = 0.002\n"),
-    )
-    .unwrap();
+    edit(&sc, "steps = 20000", "steps = 20000\nh = 0.002\n");
     let h5 = dir.join("shared.h5");
     let mut first = spawn(2, &["run", s(&sc), "-q", "-o", s(&h5)]);
     wait_for_steps(&h5, 2, &mut first);
@@ -332,13 +333,7 @@ fn implausible_loads_and_displacements_are_warned_about() {
     let dir = d.path();
     // the cylinder pressed with 1000 (sigma/young about 80): a warning, the same numbers
     let sc = cylinder(dir, "s.toml", "", 20);
-    std::fs::write(
-        &sc,
-        std::fs::read_to_string(&sc)
-            .unwrap()
-            .replace("normal = 0.3", "normal = 1000.0"),
-    )
-    .unwrap();
+    edit(&sc, "normal = 0.3", "normal = 1000.0");
     let run = summary(&["run", s(&sc), "--json", "-o", s(&dir.join("a.h5"))]);
     let ws = warnings(&run);
     assert!(has(&ws, &["load 1", "times [tissue] young = 100", "fix:"]), "{ws:?}");
@@ -457,7 +452,7 @@ fn counts_and_step_sizes_past_their_limits_are_refused_by_check_and_run() {
     ];
     for (k, (extra, time, needles)) in cases.iter().enumerate() {
         let sc = cylinder(dir, &format!("c{k}.toml"), extra, 5);
-        std::fs::write(&sc, std::fs::read_to_string(&sc).unwrap().replace("steps = 5", time)).unwrap();
+        edit(&sc, "steps = 5", time);
         for args in [vec!["check", s(&sc)], vec!["run", s(&sc), "-q"]] {
             let o = eprop(1, &args);
             let mut all = needles.to_vec();
@@ -522,13 +517,7 @@ fn a_state_that_is_not_finite_stops_the_run_on_1_and_2_ranks() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     let sc = cylinder(dir, "s.toml", "", 10);
-    std::fs::write(
-        &sc,
-        std::fs::read_to_string(&sc)
-            .unwrap()
-            .replace("normal = 0.3", "force = [1e200, 0.0, 0.0]"),
-    )
-    .unwrap();
+    edit(&sc, "normal = 0.3", "force = [1e200, 0.0, 0.0]");
     for ranks in [1, 2] {
         let h5 = dir.join(format!("nan{ranks}.h5"));
         let o = eprop(ranks, &["run", s(&sc), "-q", "-o", s(&h5)]);
@@ -585,11 +574,7 @@ fn only_regular_files_are_read() {
         p
     };
     let mesh = fifo("pipe.msh");
-    std::fs::write(
-        &sc,
-        std::fs::read_to_string(&sc).unwrap().replace("cyl.msh", "pipe.msh"),
-    )
-    .unwrap();
+    edit(&sc, "cyl.msh", "pipe.msh");
     let scenario = fifo("pipe.toml");
     for args in [
         vec!["run", s(&sc), "-q"],
@@ -644,13 +629,7 @@ fn sigterm_on_2_ranks_stops_after_one_step_and_the_restart_is_bit_for_bit() {
     let dir = d.path();
     // every 3rd step is written; slow steps (many substeps) so the signal lands mid-run
     let sc = cylinder(dir, "s.toml", "[output]\nevery = 3\n", 2000);
-    std::fs::write(
-        &sc,
-        std::fs::read_to_string(&sc)
-            .unwrap()
-            .replace("steps = 2000", "steps = 2000\nh = 0.002\n"),
-    )
-    .unwrap();
+    edit(&sc, "steps = 2000", "steps = 2000\nh = 0.002\n");
     let cut = dir.join("cut.h5");
     let mut job = spawn(2, &["run", s(&sc), "-q", "-o", s(&cut)]);
     wait_for_steps(&cut, 3, &mut job);
@@ -819,13 +798,7 @@ fn a_full_disk_at_creation_and_mid_run_on_2_ranks_stops_every_rank_cleanly() {
     // refusal, so the disk itself says ENOSPC)
     let Some(disk) = Tmpfs::mount("64m") else { return };
     let sc = cylinder(dir, "s.toml", "", 20_000);
-    std::fs::write(
-        &sc,
-        std::fs::read_to_string(&sc)
-            .unwrap()
-            .replace("steps = 20000", "steps = 20000\nh = 0.002\n"),
-    )
-    .unwrap();
+    edit(&sc, "steps = 20000", "steps = 20000\nh = 0.002\n");
     for ranks in [2, 1] {
         let h5 = disk.path().join(format!("run{ranks}.h5"));
         let mut job = spawn(ranks, &["run", s(&sc), "-q", "-o", s(&h5), "--force"]);
