@@ -25,6 +25,10 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("operator", help="HDF5 file written by eprop export-operator")
     ap.add_argument("--seconds", type=float, default=6.0, help="time budget of the measurement (default 6)")
+    ap.add_argument("--order", choices=["file", "rcm"], default="file",
+                    help="row order: the operator file's (the mesh's node order), or PETSc's reverse "
+                         "Cuthill-McKee (MatGetOrdering, one process only), as a careful PETSc user "
+                         "reorders a mesh whose node order has poor locality (default file)")
     a = ap.parse_args()
     try:
         import petsc4py
@@ -53,6 +57,13 @@ def main():
     m = hi - lo
     A = PETSc.Mat().createAIJ(size=((m, n), (m, n)), csr=(rp, cols, vals), comm=comm)
     A.assemble()
+    if a.order == "rcm":
+        if size > 1:
+            sys.exit("bench_petsc.py: --order rcm runs on one process (MatGetOrdering is sequential); fix: drop it under mpirun")
+        rperm, cperm = A.getOrdering("rcm")
+        B = A.permute(rperm, cperm)
+        A.destroy()
+        A = B
     # dense form: X and Y are m x 3 local blocks (column-major) of n x 3 matrices
     X = PETSc.Mat().createDense(size=((m, n), (None, 3)), comm=comm)
     X.setUp()
@@ -102,7 +113,7 @@ def main():
     nz = int(A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])  # collective: every rank
     if rank == 0:
         med = {k: sorted(v)[len(v) // 2] for k, v in rates.items()}
-        print(json.dumps({"nodes": n, "processes": size, "rounds": rounds, "nonzeros": nz,
+        print(json.dumps({"nodes": n, "processes": size, "order": a.order, "rounds": rounds, "nonzeros": nz,
                           "node_substeps_per_second": med["dense"],
                           "dense_node_substeps_per_second": med["dense"],
                           "mult3_node_substeps_per_second": med["3mult"]}))
