@@ -7,8 +7,8 @@
 //! euler runs EULER_STEPS steps only (it is slow); the others STEPS. REFERENCE: a file of u
 //! after STEPS steps of euler (f64, little-endian, input node order); when EULER_STEPS equals
 //! STEPS the run writes it, otherwise it reads it and prints the relative L2 error of u.
-use eprop::integrate::{Kind, Preconditioner};
-use eprop::solver::Simulation;
+use eprop::propagate::integrate::{Kind, Preconditioner};
+use eprop::simulate::Simulation;
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {
@@ -29,14 +29,14 @@ fn main() -> anyhow::Result<()> {
     ];
     let mut sims: Vec<Simulation> = vec![];
     for (_, kind, pre) in &variants {
-        let make = || -> anyhow::Result<eprop::scenario::Setup> {
-            let mut s = eprop::scenario::Setup::new(eprop::scenario::Scenario::load(&path)?)?;
+        let make = || -> anyhow::Result<eprop::config::Setup> {
+            let mut s = eprop::config::Setup::new(eprop::config::Scenario::load(&path)?)?;
             s.integrator.kind = *kind;
             s.integrator.preconditioner = *pre;
             Ok(s)
         };
         let sim = match &universe {
-            Some(u) => eprop::launch::build_mpi(u.world(), make)?.sim,
+            Some(u) => eprop::simulate::distributed::build_mpi(u.world(), make)?.sim,
             None => Simulation::new(make()?)?,
         };
         sims.push(sim);
@@ -88,8 +88,8 @@ fn main() -> anyhow::Result<()> {
                     let mine = sim.in_output_order(&sim.u);
                     let w = &want[3 * sim.blocks.start..3 * (sim.blocks.start + sim.blocks.len)];
                     let c = sim.comm.as_ref();
-                    let d = eprop::comm::exact_sum(c, mine.iter().zip(w).map(|(a, b)| (a - b) * (a - b)));
-                    let n = eprop::comm::exact_sum(c, w.iter().map(|b| b * b));
+                    let d = eprop::distribute::comm::exact_sum(c, mine.iter().zip(w).map(|(a, b)| (a - b) * (a - b)));
+                    let n = eprop::distribute::comm::exact_sum(c, w.iter().map(|b| b * b));
                     Some((d / n).sqrt())
                 })
                 .collect()

@@ -8,9 +8,9 @@
 //! `eprop_partition::rcm_keys`), coefficient precision, substeps per fused sweep
 //! (`Propagation::substeps`; 1 = one sweep per substep), software prefetch ("pf") or not.
 //! VARIANTS: names as printed, comma-separated (default: all).
-use eprop::operator::{Compact, Kernel, Operator};
-use eprop::propagation::Propagation;
-use eprop::scatter::Halo;
+use eprop::discretize::operator::{Compact, Kernel, Operator};
+use eprop::distribute::halo::Halo;
+use eprop::propagate::Propagation;
 use eprop_partition::Layout;
 use std::time::Instant;
 
@@ -22,10 +22,10 @@ fn main() -> anyhow::Result<()> {
     // optional: the variants to time, by name, comma-separated (default: all)
     let only: Option<Vec<String>> = a.get(4).map(|s| s.split(',').map(|v| v.trim().to_string()).collect());
     let setup = match what.parse::<usize>() {
-        Ok(cells) => eprop::bench::box_setup(cells, &scheme)?,
-        Err(_) => eprop::scenario::Setup::new(eprop::scenario::Scenario::load(std::path::Path::new(&what))?)?,
+        Ok(cells) => eprop::cli::bench::box_setup(cells, &scheme)?,
+        Err(_) => eprop::config::Setup::new(eprop::config::Scenario::load(std::path::Path::new(&what))?)?,
     };
-    let sim = eprop::solver::Simulation::new(setup)?;
+    let sim = eprop::simulate::Simulation::new(setup)?;
     let n = sim.n_owned();
     let h = sim.step_plan().h;
     let Operator::Compact(base) = &sim.prop.op else {
@@ -68,7 +68,7 @@ fn main() -> anyhow::Result<()> {
         band(&rcm)
     );
     {
-        let w = eprop::wavefront::Wavefront::new(&rcm, Layout::serial(n), 2);
+        let w = eprop::propagate::wavefront::Wavefront::new(&rcm, Layout::serial(n), 2);
         let mut lags: Vec<u32> = w.deep[1].iter().map(|s| s.need - s.start).collect();
         lags.sort_unstable();
         let empty = (0..n).filter(|&i| rcm.row_ptr[i] == rcm.row_ptr[i + 1]).count();

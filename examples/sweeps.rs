@@ -2,20 +2,20 @@
 //! Euler substep, an RKL2 stage, an operator application, one conjugate-gradient iteration's
 //! exact dot products. Min and median ms per sweep.
 //!   cargo run --release --example sweeps -- SCENARIO [SECONDS]
-use eprop::integrate::Stepper;
+use eprop::propagate::integrate::Stepper;
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().collect();
     let path = std::path::PathBuf::from(&a[1]);
     let secs: f64 = a.get(2).map(|s| s.parse()).transpose()?.unwrap_or(20.0);
-    let setup = eprop::scenario::Setup::new(eprop::scenario::Scenario::load(&path)?)?;
-    let mut sim = eprop::solver::Simulation::new(setup)?;
+    let setup = eprop::config::Setup::new(eprop::config::Scenario::load(&path)?)?;
+    let mut sim = eprop::simulate::Simulation::new(setup)?;
     let n = sim.n_owned();
     let layout = sim.prop.layout();
     let q = vec![(0u32, [1.0, 0.0, 0.0])];
     let h = 1e-5;
-    let mut x = eprop::field::NodeField::filled(layout, [1.0, 2.0, 3.0]);
+    let mut x = eprop::distribute::field::NodeField::filled(layout, [1.0, 2.0, 3.0]);
     let mut y = vec![[0.0; 3]; layout.n_local];
     let z = vec![[0.5; 3]; layout.n_local];
     let m = vec![[0.25; 3]; layout.n_local];
@@ -28,13 +28,13 @@ fn main() -> anyhow::Result<()> {
         "implicit step/app",
     ];
     let mut times: Vec<Vec<f64>> = vec![vec![]; names.len()];
-    let mut rk = eprop::integrate::Rkl2::new(1e-5, 1e-3, 1, 100000, layout, "x", String::new())?;
+    let mut rk = eprop::propagate::integrate::Rkl2::new(1e-5, 1e-3, 1, 100000, layout, "x", String::new())?;
     let stages = rk.plan().per_step;
-    let settings = eprop::integrate::Settings::default();
+    let settings = eprop::propagate::integrate::Settings::default();
     let active: Vec<bool> = (0..layout.n_local)
         .map(|i| sim.dual.vol[i] > 0.0 && !sim.setup.fixed[i])
         .collect();
-    let mut imp = eprop::integrate::Implicit::new(
+    let mut imp = eprop::propagate::integrate::Implicit::new(
         &sim.prop,
         &sim.dual.vol,
         &active,
@@ -67,7 +67,7 @@ fn main() -> anyhow::Result<()> {
                     }
                     3 => {
                         let (yr, zr) = (&y[..], &z[..]);
-                        let s: [f64; 6] = eprop::comm::exact_sums_par(sim.comm.as_ref(), n, |i| {
+                        let s: [f64; 6] = eprop::distribute::comm::exact_sums_par(sim.comm.as_ref(), n, |i| {
                             let (a, b, c) = (yr[i], zr[i], x[i]);
                             [
                                 a[0] * b[0],

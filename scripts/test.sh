@@ -10,9 +10,9 @@ scripts/setup.sh
 source scripts/env.sh
 cargo fmt --all -- --check
 cargo clippy --release --all-targets --quiet -- -D warnings
-log=/tmp/eprop-test.log
-skips=target/tmp/eprop-skipped.log
 mkdir -p target/tmp
+log=target/tmp/eprop-test.log
+skips=target/tmp/eprop-skipped.log
 rm -f "$skips"
 set +e
 cargo test --release --workspace --no-fail-fast 2>&1 | tee "$log"

@@ -6,35 +6,16 @@
 //! propagated potential drives damped nodal dynamics. The model is fixed in MODEL.md;
 //! ARCHITECTURE.md maps the code.
 
-pub mod bench;
-pub mod comm;
-pub mod contact;
-mod diagnostics;
-pub mod field;
-pub mod geometry;
-pub mod inspect;
-pub mod integrate;
-pub mod launch;
-pub mod limits;
-pub mod material;
-pub mod operator;
-mod parts;
-pub mod plausible;
-mod progress;
-pub mod propagation;
-pub mod run;
-pub mod safety;
-pub mod scatter;
-pub mod scenario;
-mod series;
-pub mod serve;
-pub mod signals;
-pub mod solver;
-pub mod summary;
-pub mod tables;
+pub mod cli;
+pub mod config;
+pub(crate) mod diagnostics;
+pub mod discretize;
+pub mod distribute;
+pub mod guard;
+pub mod output;
+pub mod propagate;
+pub mod simulate;
 #[cfg(test)]
 mod testing;
-pub mod wavefront;
-mod wire;
 
 pub use eprop_io as io;

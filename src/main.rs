@@ -2,10 +2,10 @@
 
 use anyhow::{bail, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use eprop::launch::{is_root, launch};
-use eprop::run::{run_on, RunOptions};
-use eprop::serve::{serve_on, ServeOptions};
-use eprop::{bench, inspect};
+use eprop::cli::run::{run_on, RunOptions};
+use eprop::cli::serve::{serve_on, ServeOptions};
+use eprop::cli::{bench, inspect};
+use eprop::distribute::launch::{is_root, launch};
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -294,10 +294,10 @@ fn main() -> ExitCode {
     }
     match real_main(cli) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => match e.downcast_ref::<eprop::safety::Agreed>() {
+        Err(e) => match e.downcast_ref::<eprop::guard::safety::Agreed>() {
             Some(a) => {
                 // a stop says so itself ("stopped by SIGTERM ...")
-                let word = if a.status == eprop::safety::EXIT_STOPPED {
+                let word = if a.status == eprop::guard::safety::EXIT_STOPPED {
                     ""
                 } else {
                     "error: "
@@ -394,14 +394,14 @@ fn real_main(cli: Cli) -> Result<()> {
             print(&inspect::mesh_info(&m), json)?;
         }
         Cmd::Convert { input, output, strict } => {
-            let inputs: Vec<eprop::safety::Input> = eprop_io::mesh_files(&input)
+            let inputs: Vec<eprop::guard::safety::Input> = eprop_io::mesh_files(&input)
                 .into_iter()
-                .map(|p| eprop::safety::Input {
+                .map(|p| eprop::guard::safety::Input {
                     role: format!("the input mesh ({})", p.display()),
                     path: p,
                 })
                 .collect();
-            eprop::safety::refuse_inputs(&output, "the converted mesh (OUTPUT)", &inputs)?;
+            eprop::guard::safety::refuse_inputs(&output, "the converted mesh (OUTPUT)", &inputs)?;
             let m = eprop_io::read_mesh_with(&input, &eprop_io::ReadOptions { strict })?;
             for w in &m.warnings {
                 eprintln!("warning: {w}");

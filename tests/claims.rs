@@ -3,8 +3,8 @@
 //! (r_x = 0.08) spreads further along x, the heterogeneous halves deform differently, and the
 //! displacement after 20 iterations grows faster than linearly with the force and falls with g.
 
-use eprop::scenario::{Scenario, Setup};
-use eprop::solver::Simulation;
+use eprop::config::{Scenario, Setup};
+use eprop::simulate::Simulation;
 use std::path::Path;
 
 type V3 = [f64; 3];
@@ -16,7 +16,7 @@ fn run(name: &str, steps: u64, edit: &dyn Fn(String) -> String) -> (Vec<V3>, Vec
     let text = edit(std::fs::read_to_string(&path).unwrap());
     let sc = Scenario::parse(&path, text).unwrap();
     let mut setup = Setup::new(sc).unwrap();
-    setup.time.stop = eprop::scenario::Stop::Steps(steps);
+    setup.time.stop = eprop::config::Stop::Steps(steps);
     let mut sim = Simulation::new(setup).unwrap();
     while !sim.done() {
         sim.advance().unwrap();
@@ -136,7 +136,7 @@ fn a_contact_patch_is_far_less_mesh_dependent_than_a_node() {
         let mesh = eprop_io::generate::cylinder_mesh(1.0, 4.0, rings, layers).unwrap();
         let sc = Scenario::parse(&path, text.to_string()).unwrap();
         let mut setup = Setup::with_mesh(sc, mesh).unwrap();
-        setup.time.stop = eprop::scenario::Stop::Steps(60);
+        setup.time.stop = eprop::config::Stop::Steps(60);
         let mut sim = Simulation::new(setup).unwrap();
         while !sim.done() {
             sim.advance().unwrap();

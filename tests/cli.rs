@@ -33,16 +33,16 @@ fn output_reads_back_with_the_values_computed() {
     assert!(ok, "{err}");
     assert!(out.contains("max |u|"), "{out}");
     // the same run in memory
-    let mut s = eprop::solver::Simulation::new(
-        eprop::scenario::Setup::new(eprop::scenario::Scenario::load(&sc).unwrap()).unwrap(),
+    let mut s = eprop::simulate::Simulation::new(
+        eprop::config::Setup::new(eprop::config::Scenario::load(&sc).unwrap()).unwrap(),
     )
     .unwrap();
     let h5 = d.path().join("out.h5");
     let mut k = 0;
-    let check = |s: &eprop::solver::Simulation, k: usize| {
-        let u = eprop_io::vtkhdf::read_step(&h5, "displacement", k).unwrap();
-        let p = eprop_io::vtkhdf::read_step(&h5, "potential", k).unwrap();
-        let e = eprop_io::vtkhdf::read_step(&h5, "energy", k).unwrap();
+    let check = |s: &eprop::simulate::Simulation, k: usize| {
+        let u = eprop_series::vtkhdf::read_step(&h5, "displacement", k).unwrap();
+        let p = eprop_series::vtkhdf::read_step(&h5, "potential", k).unwrap();
+        let e = eprop_series::vtkhdf::read_step(&h5, "energy", k).unwrap();
         assert_eq!(u, s.in_output_order(&s.u), "displacement at output step {k}");
         assert_eq!(p, s.in_output_order(&s.prop.phi), "potential at output step {k}");
         assert_eq!(e.len(), s.u.len());
@@ -56,7 +56,7 @@ fn output_reads_back_with_the_values_computed() {
         }
     }
     assert!(
-        eprop_io::vtkhdf::read_step(&h5, "displacement", k + 1).is_err(),
+        eprop_series::vtkhdf::read_step(&h5, "displacement", k + 1).is_err(),
         "more steps than written"
     );
 }

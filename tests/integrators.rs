@@ -6,11 +6,11 @@
 mod common;
 
 use common::sim;
-use eprop::comm::Serial;
-use eprop::integrate::{Euler, Implicit, Rkl2, Settings, StepPlan, StepStats, Stepper};
-use eprop::operator::V3;
-use eprop::propagation::{Propagation, Sources};
-use eprop::solver::Simulation;
+use eprop::discretize::operator::V3;
+use eprop::distribute::comm::Serial;
+use eprop::propagate::integrate::{Euler, Implicit, Rkl2, Settings, StepPlan, StepStats, Stepper};
+use eprop::propagate::{Propagation, Sources};
+use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use std::f64::consts::PI;
 
@@ -175,7 +175,7 @@ impl Stepper for Halves {
         &mut self,
         prop: &mut Propagation,
         q: &Sources,
-        comm: &dyn eprop::comm::Comm,
+        comm: &dyn eprop::distribute::comm::Comm,
     ) -> anyhow::Result<StepStats> {
         let a = self.0.advance(prop, q, comm)?;
         let b = self.0.advance(prop, q, comm)?;
@@ -267,7 +267,7 @@ fn rkl2_and_implicit_agree_with_euler_on_an_organ_mesh() {
 /// A direct solve of L phi + Q = 0 on the free nodes (conjugate gradients on the symmetric
 /// form W phi = -V Q, to roundoff).
 fn direct(s: &Simulation, q: &[(u32, V3)]) -> Vec<V3> {
-    let eprop::operator::Operator::Compact(op) = &s.prop.op else {
+    let eprop::discretize::operator::Operator::Compact(op) = &s.prop.op else {
         panic!()
     };
     let n = s.n_owned();
@@ -470,8 +470,8 @@ fn scenario_keys_are_checked() {
     ] {
         let full = format!("[mesh]\nfile = \"x.msh\"\n{text}[[fixed]]\ngroup = \"bottom\"\n[time]\nsteps = 1\n");
         // a bad value fails the parse, at its line
-        let e = eprop::scenario::Scenario::parse(&p, full)
-            .and_then(|sc| eprop::scenario::Setup::with_mesh(sc, mesh.clone()))
+        let e = eprop::config::Scenario::parse(&p, full)
+            .and_then(|sc| eprop::config::Setup::with_mesh(sc, mesh.clone()))
             .err()
             .map(|e| format!("{e:#}"))
             .unwrap();

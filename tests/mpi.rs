@@ -340,7 +340,13 @@ fn bitwise_identical_on_1_to_4_ranks_every_integrator_organ_mesh() {
 }
 
 #[test]
-#[cfg(feature = "hypre")]
+#[cfg(not(eprop_hypre))]
+fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
+    common::skip("hypre was not found when eprop was built (libhypre-dev or HYPRE_DIR)");
+}
+
+#[test]
+#[cfg(eprop_hypre)]
 fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
     // hypre's V-cycle follows the partition: not bitwise, but the same solution to the
     // tolerance; and the same as the deterministic Jacobi path
@@ -482,10 +488,21 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
     let t = Instant::now();
     let ranks = loop {
         let r = common::children(child.id());
-        if r.len() == 2 && h5.exists() && t.elapsed() > Duration::from_secs(2) {
+        // the file is created, then its first step flushed (a slow or loaded machine may take
+        // seconds for either): kill only once a step is complete
+        let written = || {
+            let f = hdf5::File::open(&h5).ok()?;
+            f.group("eprop")
+                .ok()?
+                .attr("steps_complete")
+                .ok()?
+                .read_scalar::<i64>()
+                .ok()
+        };
+        if r.len() == 2 && written().is_some_and(|k| k >= 1) {
             break r;
         }
-        assert!(t.elapsed() < Duration::from_secs(60), "the job did not start");
+        assert!(t.elapsed() < Duration::from_secs(120), "the job did not start");
         std::thread::sleep(Duration::from_millis(100));
     };
     let killed = Instant::now();
@@ -512,7 +529,7 @@ fn a_killed_rank_ends_the_job_and_leaves_a_readable_file() {
     let n: i64 = f.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0];
     let u = f.dataset("VTKHDF/PointData/displacement").unwrap();
     assert!(u.shape()[0] as i64 >= done * n);
-    let last = eprop_io::vtkhdf::read_step(&h5, "displacement", done as usize - 1).unwrap();
+    let last = eprop_series::vtkhdf::read_step(&h5, "displacement", done as usize - 1).unwrap();
     assert!(last.iter().all(|x| x.is_finite()));
 }
 
@@ -542,7 +559,8 @@ fn bench_runs_on_one_and_two_ranks() {
     for n in [1, 2] {
         let j = d.path().join(format!("b{n}.json"));
         let out = Command::new("timeout")
-            .args(["120", "mpirun", "-n", &n.to_string(), "--oversubscribe"])
+            // a hang detector, generous for a loaded machine
+            .args(["600", "mpirun", "-n", &n.to_string(), "--oversubscribe"])
             .arg(env!("CARGO_BIN_EXE_eprop"))
             .args([
                 "bench",

@@ -147,7 +147,7 @@ fn last_step(h5: &Path) -> (u64, bool) {
     let step = f.dataset("eprop/probes/step").unwrap().read_raw::<i64>().unwrap()[k - 1] as u64;
     let mut finite = true;
     for name in ["displacement", "velocity", "potential"] {
-        let v = eprop_io::vtkhdf::read_step(h5, name, k - 1).unwrap();
+        let v = eprop_series::vtkhdf::read_step(h5, name, k - 1).unwrap();
         assert_eq!(v.len(), 3 * n);
         finite &= v.iter().all(|x| x.is_finite());
     }
@@ -737,7 +737,7 @@ impl Tmpfs {
         f.set_len(std::fs::metadata(&p).unwrap().len() - bytes).unwrap();
         f.sync_all().unwrap();
         drop(f);
-        let free = eprop_io::outcome::free_bytes(self.path()).unwrap();
+        let free = eprop_series::outcome::free_bytes(self.path()).unwrap();
         assert!(
             free <= bytes + 64 * 1024,
             "{}: {free} bytes free after leaving {bytes}",

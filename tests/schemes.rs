@@ -4,10 +4,10 @@
 mod common;
 
 use common::{max_abs, sim};
-use eprop::geometry::{compact_coefficients, Dual, Incidence};
-use eprop::integrate::stability::hash_unit;
-use eprop::material::Tensor;
-use eprop::operator::Operator;
+use eprop::discretize::geometry::{compact_coefficients, Dual, Incidence};
+use eprop::discretize::material::Tensor;
+use eprop::discretize::operator::Operator;
+use eprop::propagate::integrate::stability::hash_unit;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use eprop_io::Mesh;
 use nalgebra::Vector3;
@@ -191,15 +191,15 @@ fn substep_above_the_bound_is_refused() {
     ] {
         let toml = format!("{model}{BASE}h = {}\n", 1.5 * bound);
         let setup = common::setup(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &toml, &dir);
-        let err = eprop::solver::Simulation::new(setup)
+        let err = eprop::simulate::Simulation::new(setup)
             .err()
             .expect("h above the bound must be refused")
             .to_string();
         assert!(err.contains("above the stability bound"), "{err}");
         // and a value below the bound is taken
         let ok = format!("{model}{BASE}h = {}\n", 0.5 * bound);
-        let s =
-            eprop::solver::Simulation::new(common::setup(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &ok, &dir)).unwrap();
+        let s = eprop::simulate::Simulation::new(common::setup(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &ok, &dir))
+            .unwrap();
         assert!(s.step_plan().h <= 0.5 * bound);
     }
 }
@@ -303,8 +303,8 @@ fn steady_state_matches_a_direct_solve() {
 /// up to rounding, on every row, including the last node (read through the masked path).
 #[test]
 fn vector_and_portable_kernels_agree() {
-    use eprop::operator::{Kernel, Operator};
-    if !eprop::operator::simd_available() {
+    use eprop::discretize::operator::{Kernel, Operator};
+    if !eprop::discretize::operator::simd_available() {
         // the vector kernel falls back to the portable one: this compares it with itself
         common::unsupported("no AVX2+FMA on this CPU (or EPROP_SIMD=0): the portable kernel was compared with itself");
     }

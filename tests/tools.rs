@@ -5,7 +5,7 @@
 
 mod common;
 
-use eprop::solver::Simulation;
+use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use std::path::Path;
 

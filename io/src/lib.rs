@@ -1,4 +1,5 @@
-//! eprop-io: meshes in (readers), meshes and time series out (writers, VTKHDF).
+//! eprop-io: meshes in (readers) and out (writers); no HDF5, no MPI (the output series is
+//! `eprop-series`, in `io/series`).
 //!
 //! Readers: Gmsh `.msh` (1, 2.2, 4.1; ASCII and binary), VTK legacy `.vtk`, VTK XML `.vtu`,
 //! TetGen `.node`/`.ele`/`.face`, Medit `.mesh`. Each has a `parse` function on bytes; every
@@ -11,13 +12,11 @@
 pub mod gmsh;
 pub mod input;
 pub mod medit;
-pub mod outcome;
 pub mod scan;
 #[cfg(feature = "test-writers")]
 pub mod testwrite;
 pub mod tetgen;
 pub mod vtk;
-pub mod vtkhdf;
 pub mod vtu;
 
 pub use eprop_mesh::{generate, geom, mesh, validate, CellKind, Mesh, ReadOptions};

@@ -921,18 +921,57 @@ fn b64encode(b: &[u8]) -> String {
 }
 
 /// Encodes a mesh as `.vtu` bytes.
-pub fn to_bytes(mesh: &Mesh, o: &VtuOptions) -> Vec<u8> {
-    enum A {
-        F(Vec<f64>),
-        I(Vec<i64>),
-        I32(Vec<i32>),
-        U8(Vec<u8>),
+/// One data array of a written `.vtu`.
+enum Array {
+    F(Vec<f64>),
+    I(Vec<i64>),
+    I32(Vec<i32>),
+    U8(Vec<u8>),
+}
+
+impl Array {
+    /// The values as bytes in the file's byte order.
+    fn raw(&self, big: bool) -> Vec<u8> {
+        fn put<const N: usize>(v: &mut Vec<u8>, le: [u8; N], be: [u8; N], big: bool) {
+            v.extend(if big { be } else { le });
+        }
+        let mut v = Vec::new();
+        match self {
+            Array::F(x) => x
+                .iter()
+                .for_each(|y| put(&mut v, y.to_le_bytes(), y.to_be_bytes(), big)),
+            Array::I(x) => x
+                .iter()
+                .for_each(|y| put(&mut v, y.to_le_bytes(), y.to_be_bytes(), big)),
+            Array::I32(x) => x
+                .iter()
+                .for_each(|y| put(&mut v, y.to_le_bytes(), y.to_be_bytes(), big)),
+            Array::U8(x) => v.extend_from_slice(x),
+        }
+        v
     }
-    let n = mesh.n_nodes();
-    let mut conn = Vec::new();
-    let mut offs = Vec::new();
-    let mut types = Vec::new();
-    let mut tags = Vec::new();
+
+    /// The values as ASCII text, twelve to a line.
+    fn ascii(&self) -> String {
+        let t: Vec<String> = match self {
+            Array::F(x) => x.iter().map(|v| format!("{v:?}")).collect(),
+            Array::I(x) => x.iter().map(|v| v.to_string()).collect(),
+            Array::I32(x) => x.iter().map(|v| v.to_string()).collect(),
+            Array::U8(x) => x.iter().map(|v| v.to_string()).collect(),
+        };
+        let mut s = String::new();
+        for line in t.chunks(12) {
+            s.push_str(&line.join(" "));
+            s.push('\n');
+        }
+        s
+    }
+}
+
+/// The cells of the mesh then its facets, as VTK lists them: connectivity, offsets, types and
+/// tags.
+fn cell_arrays(mesh: &Mesh) -> (Vec<i64>, Vec<i64>, Vec<u8>, Vec<i32>) {
+    let (mut conn, mut offs, mut types, mut tags) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for c in 0..mesh.n_cells() {
         conn.extend(vtk_order(mesh.kinds[c], mesh.cell(c)).into_iter().map(|x| x as i64));
         offs.push(conn.len() as i64);
@@ -949,127 +988,81 @@ pub fn to_bytes(mesh: &Mesh, o: &VtuOptions) -> Vec<u8> {
         types.push(t);
         tags.push(mesh.facets.tags[f]);
     }
-    let ncells = types.len();
-    let ids: Vec<i64> = if mesh.node_ids.len() == n {
-        mesh.node_ids.iter().map(|&i| i as i64).collect()
-    } else {
-        (0..n as i64).collect()
-    };
-    let arrays: Vec<(&str, &str, &str, usize, A)> = vec![
-        (
-            "Points",
-            "Points",
-            "Float64",
-            3,
-            A::F(mesh.points.iter().flatten().copied().collect()),
-        ),
-        ("Cells", "connectivity", "Int64", 1, A::I(conn)),
-        ("Cells", "offsets", "Int64", 1, A::I(offs)),
-        ("Cells", "types", "UInt8", 1, A::U8(types)),
-        ("CellData", "tag", "Int32", 1, A::I32(tags)),
-        ("PointData", "node_ids", "Int64", 1, A::I(ids)),
-    ];
-    let big = o.big_endian;
-    let raw = |a: &A| -> Vec<u8> {
-        let mut v = Vec::new();
-        match a {
-            A::F(x) => x
-                .iter()
-                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
-            A::I(x) => x
-                .iter()
-                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
-            A::I32(x) => x
-                .iter()
-                .for_each(|y| v.extend(if big { y.to_be_bytes() } else { y.to_le_bytes() })),
-            A::U8(x) => v.extend_from_slice(x),
-        }
-        v
-    };
-    let hdr = |x: usize| -> Vec<u8> {
-        match (o.header64, big) {
+    (conn, offs, types, tags)
+}
+
+impl VtuOptions {
+    /// A header integer (a size) in the file's width and byte order.
+    fn header(&self, x: usize) -> Vec<u8> {
+        match (self.header64, self.big_endian) {
             (true, true) => (x as u64).to_be_bytes().to_vec(),
             (true, false) => (x as u64).to_le_bytes().to_vec(),
             (false, true) => (x as u32).to_be_bytes().to_vec(),
             (false, false) => (x as u32).to_le_bytes().to_vec(),
         }
-    };
-    // header + payload, each base64-encoded separately as VTK does
-    let block = |data: Vec<u8>| -> (Vec<u8>, Vec<u8>) {
-        if !o.zlib {
-            return (hdr(data.len()), data);
+    }
+
+    /// A binary array as VTK stores it: its header and its payload (compressed in blocks of
+    /// 32 KiB under zlib), each base64-encoded separately when inline.
+    fn block(&self, data: Vec<u8>) -> (Vec<u8>, Vec<u8>) {
+        if !self.zlib {
+            return (self.header(data.len()), data);
         }
         const BS: usize = 1 << 15;
-        let chunks: Vec<&[u8]> = if data.is_empty() {
-            vec![]
-        } else {
-            data.chunks(BS).collect()
-        };
+        let chunks: Vec<&[u8]> = data.chunks(BS).collect();
         let mut comp = Vec::new();
-        let mut h = hdr(chunks.len());
-        h.extend(hdr(BS));
-        h.extend(hdr(chunks.last().map(|c| c.len() % BS).unwrap_or(0)));
+        let mut h = self.header(chunks.len());
+        h.extend(self.header(BS));
+        h.extend(self.header(chunks.last().map(|c| c.len() % BS).unwrap_or(0)));
         for c in &chunks {
             let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
             let _ = e.write_all(c);
             let z = e.finish().unwrap_or_default();
-            h.extend(hdr(z.len()));
+            h.extend(self.header(z.len()));
             comp.extend(z);
         }
         (h, comp)
-    };
-    let mut s = String::new();
-    let mut app: Vec<u8> = Vec::new();
-    s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\"");
-    s.push_str(if big {
-        " byte_order=\"BigEndian\""
-    } else {
-        " byte_order=\"LittleEndian\""
-    });
-    s.push_str(if o.header64 {
-        " header_type=\"UInt64\""
-    } else {
-        " header_type=\"UInt32\""
-    });
-    if o.zlib && o.encoding != Encoding::Ascii {
-        s.push_str(" compressor=\"vtkZLibDataCompressor\"");
     }
-    s.push_str(">\n<!-- written by eprop -->\n<UnstructuredGrid>\n");
-    s.push_str(&format!("<Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{ncells}\">\n"));
-    let mut open = "";
-    for (parent, nm, ty, nc, a) in &arrays {
-        if *parent != open {
-            if !open.is_empty() {
-                s.push_str(&format!("</{open}>\n"));
-            }
-            s.push_str(&format!("<{parent}>\n"));
-            open = parent;
+
+    /// The `<VTKFile ...>` line.
+    fn file_tag(&self) -> String {
+        let mut s = String::from("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\"");
+        s.push_str(if self.big_endian {
+            " byte_order=\"BigEndian\""
+        } else {
+            " byte_order=\"LittleEndian\""
+        });
+        s.push_str(if self.header64 {
+            " header_type=\"UInt64\""
+        } else {
+            " header_type=\"UInt32\""
+        });
+        if self.zlib && self.encoding != Encoding::Ascii {
+            s.push_str(" compressor=\"vtkZLibDataCompressor\"");
         }
-        let fmt = match o.encoding {
+        s.push_str(">\n");
+        s
+    }
+
+    /// One `<DataArray>`: inline (ASCII or base64), or a reference to the appended block `app`
+    /// where its bytes go.
+    fn data_array(&self, s: &mut String, app: &mut Vec<u8>, name: &str, ty: &str, nc: usize, a: &Array) {
+        let fmt = match self.encoding {
             Encoding::Ascii => "ascii",
             Encoding::Base64 => "binary",
             _ => "appended",
         };
         s.push_str(&format!(
-            "<DataArray type=\"{ty}\" Name=\"{nm}\" NumberOfComponents=\"{nc}\" format=\"{fmt}\""
+            "<DataArray type=\"{ty}\" Name=\"{name}\" NumberOfComponents=\"{nc}\" format=\"{fmt}\""
         ));
-        match o.encoding {
+        match self.encoding {
             Encoding::Ascii => {
                 s.push_str(">\n");
-                let t: Vec<String> = match a {
-                    A::F(x) => x.iter().map(|v| format!("{v:?}")).collect(),
-                    A::I(x) => x.iter().map(|v| v.to_string()).collect(),
-                    A::I32(x) => x.iter().map(|v| v.to_string()).collect(),
-                    A::U8(x) => x.iter().map(|v| v.to_string()).collect(),
-                };
-                for line in t.chunks(12) {
-                    s.push_str(&line.join(" "));
-                    s.push('\n');
-                }
+                s.push_str(&a.ascii());
                 s.push_str("</DataArray>\n");
             }
             Encoding::Base64 => {
-                let (h, d) = block(raw(a));
+                let (h, d) = self.block(a.raw(self.big_endian));
                 s.push_str(">\n");
                 s.push_str(&b64encode(&h));
                 s.push_str(&b64encode(&d));
@@ -1077,8 +1070,8 @@ pub fn to_bytes(mesh: &Mesh, o: &VtuOptions) -> Vec<u8> {
             }
             Encoding::AppendedRaw | Encoding::AppendedBase64 => {
                 s.push_str(&format!(" offset=\"{}\"/>\n", app.len()));
-                let (h, d) = block(raw(a));
-                if o.encoding == Encoding::AppendedRaw {
+                let (h, d) = self.block(a.raw(self.big_endian));
+                if self.encoding == Encoding::AppendedRaw {
                     app.extend(h);
                     app.extend(d);
                 } else {
@@ -1087,6 +1080,48 @@ pub fn to_bytes(mesh: &Mesh, o: &VtuOptions) -> Vec<u8> {
                 }
             }
         }
+    }
+}
+
+/// A mesh as `.vtu` bytes with the given options: points, cells then facets (with their tags
+/// as CellData `tag`), node ids as PointData `node_ids`.
+pub fn to_bytes(mesh: &Mesh, o: &VtuOptions) -> Vec<u8> {
+    let n = mesh.n_nodes();
+    let (conn, offs, types, tags) = cell_arrays(mesh);
+    let ncells = types.len();
+    let ids: Vec<i64> = if mesh.node_ids.len() == n {
+        mesh.node_ids.iter().map(|&i| i as i64).collect()
+    } else {
+        (0..n as i64).collect()
+    };
+    let arrays: Vec<(&str, &str, &str, usize, Array)> = vec![
+        (
+            "Points",
+            "Points",
+            "Float64",
+            3,
+            Array::F(mesh.points.iter().flatten().copied().collect()),
+        ),
+        ("Cells", "connectivity", "Int64", 1, Array::I(conn)),
+        ("Cells", "offsets", "Int64", 1, Array::I(offs)),
+        ("Cells", "types", "UInt8", 1, Array::U8(types)),
+        ("CellData", "tag", "Int32", 1, Array::I32(tags)),
+        ("PointData", "node_ids", "Int64", 1, Array::I(ids)),
+    ];
+    let mut s = o.file_tag();
+    s.push_str("<!-- written by eprop -->\n<UnstructuredGrid>\n");
+    s.push_str(&format!("<Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{ncells}\">\n"));
+    let mut app: Vec<u8> = Vec::new();
+    let mut open = "";
+    for (parent, name, ty, nc, a) in &arrays {
+        if *parent != open {
+            if !open.is_empty() {
+                s.push_str(&format!("</{open}>\n"));
+            }
+            s.push_str(&format!("<{parent}>\n"));
+            open = parent;
+        }
+        o.data_array(&mut s, &mut app, name, ty, *nc, a);
     }
     s.push_str(&format!("</{open}>\n</Piece>\n</UnstructuredGrid>\n"));
     let mut out = s.into_bytes();

@@ -1,8 +1,8 @@
 #![allow(dead_code)]
 //! Helpers shared by the integration tests.
 
-use eprop::scenario::{Scenario, Setup};
-use eprop::solver::Simulation;
+use eprop::config::{Scenario, Setup};
+use eprop::simulate::Simulation;
 use eprop_io::Mesh;
 use std::path::{Path, PathBuf};
 use std::process::Command;

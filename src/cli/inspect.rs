@@ -1,0 +1,546 @@
+//! The commands that look without stepping: `eprop info` (a mesh's geometry checks),
+//! `eprop partition` (the quality of a split), `eprop check` (what a scenario derives) and
+//! `eprop export-operator` (the compact operator as a CSR matrix).
+
+use crate::cli::run::{prepare, RunOptions};
+use crate::config::{Scenario, Setup};
+use crate::diagnostics::peak_rss;
+use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
+use crate::discretize::material::Tensor;
+use crate::discretize::operator::{Compact, Operator};
+use crate::guard::limits::Budget;
+use crate::simulate::{scheme_name, Simulation, SAFETY};
+use anyhow::{bail, Result};
+use eprop_io::geom::{cell_quality, cell_volume};
+use eprop_io::Mesh;
+use serde::Serialize;
+use std::path::Path;
+use std::time::Instant;
+
+/// What `eprop info` reports about a mesh.
+#[derive(Serialize, Debug)]
+pub struct MeshInfo {
+    pub file: String,
+    pub nodes: usize,
+    pub cells: usize,
+    pub cell_kinds: Vec<(String, usize)>,
+    pub surface_facets: usize,
+    pub groups: Vec<(u8, i32, String)>,
+    pub bounds: [[f64; 3]; 2],
+    pub volume: f64,
+    pub control_volume_sum: f64,
+    pub max_closure_error: f64,
+    pub min_quality: f64,
+    pub max_quality: f64,
+    pub stable_h_r005: f64,
+    /// Which nodes and cells set the stable substep (conductivity 0.05).
+    pub stiffness: crate::propagate::integrate::stiffness::Stiffness,
+    pub unreferenced_nodes: usize,
+    pub warnings: Vec<String>,
+}
+
+pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
+    let n = mesh.n_nodes();
+    let inc = Incidence::new(mesh);
+    let dual = Dual::build(mesh, &inc, n, None);
+    let volume: f64 = (0..mesh.n_cells())
+        .map(|c| cell_volume(mesh.kinds[c], mesh.cell(c), &mesh.points))
+        .sum();
+    let (mut qmin, mut qmax) = (f64::INFINITY, 0.0f64);
+    for c in 0..mesh.n_cells() {
+        let q = cell_quality(mesh.kinds[c], mesh.cell(c), &mesh.points);
+        qmin = qmin.min(q);
+        qmax = qmax.max(q);
+    }
+    let r = vec![Tensor::identity() * 0.05; n];
+    let a = compact_coefficients(mesh, &inc, &dual, &r);
+    let active: Vec<bool> = dual.vol.iter().map(|&v| v > 0.0).collect();
+    let op = Compact::new(&dual, &a, &active);
+    let g = op.gershgorin();
+    let stiffness = crate::propagate::integrate::stiffness::analyse(mesh, &op, &dual.vol, &r, &|c| mesh.cell_id(c));
+    let (lo, hi) = mesh.bounds();
+    let unref = dual.vol.iter().filter(|&&v| v <= 0.0).count();
+    let mut warnings = mesh.warnings.clone();
+    if unref > 0 {
+        warnings.push(format!("{unref} node(s) belong to no cell"));
+    }
+    MeshInfo {
+        file: mesh.source.clone(),
+        nodes: n,
+        cells: mesh.n_cells(),
+        cell_kinds: mesh
+            .kind_counts()
+            .into_iter()
+            .map(|(k, c)| (k.name().to_string(), c))
+            .collect(),
+        surface_facets: mesh.facets.len(),
+        groups: mesh.group_names.iter().map(|((d, t), s)| (*d, *t, s.clone())).collect(),
+        bounds: [lo, hi],
+        volume,
+        control_volume_sum: dual.vol.iter().sum(),
+        max_closure_error: dual.max_closure_error(),
+        min_quality: qmin,
+        max_quality: qmax,
+        stable_h_r005: SAFETY * 2.0 / g,
+        stiffness,
+        unreferenced_nodes: unref,
+        warnings,
+    }
+}
+
+impl std::fmt::Display for MeshInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "{}", self.file)?;
+        let kinds: Vec<String> = self.cell_kinds.iter().map(|(k, c)| format!("{c} {k}")).collect();
+        writeln!(f, "  nodes            {}", self.nodes)?;
+        writeln!(f, "  cells            {} ({})", self.cells, kinds.join(", "))?;
+        writeln!(f, "  surface facets   {}", self.surface_facets)?;
+        for (d, t, s) in &self.groups {
+            writeln!(f, "  group            {s:?} (dim {d}, tag {t})")?;
+        }
+        writeln!(
+            f,
+            "  bounds           [{:.4}, {:.4}, {:.4}] .. [{:.4}, {:.4}, {:.4}]",
+            self.bounds[0][0],
+            self.bounds[0][1],
+            self.bounds[0][2],
+            self.bounds[1][0],
+            self.bounds[1][1],
+            self.bounds[1][2]
+        )?;
+        writeln!(f, "  volume           {:.12e}", self.volume)?;
+        writeln!(
+            f,
+            "  sum of V_i       {:.12e} (relative difference {:.1e})",
+            self.control_volume_sum,
+            ((self.control_volume_sum - self.volume) / self.volume).abs()
+        )?;
+        writeln!(
+            f,
+            "  closure error    {:.2e} (max |sum_j S_ij + A_i| / dual area)",
+            self.max_closure_error
+        )?;
+        writeln!(
+            f,
+            "  cell quality     {:.4} .. {:.4} (1 = regular)",
+            self.min_quality, self.max_quality
+        )?;
+        write!(
+            f,
+            "  stable h         {:.4e} (compact, conductivity 0.05, {SAFETY} of the bound)\n{}",
+            self.stable_h_r005,
+            self.stiffness.describe(17)
+        )?;
+        for w in &self.warnings {
+            write!(f, "\n  warning          {w}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Quality of one split of the node graph.
+#[derive(Serialize, Debug)]
+pub struct SplitQuality {
+    pub method: String,
+    pub edge_cut: usize,
+    pub imbalance: f64,
+    pub owned: Vec<usize>,
+    pub halo: Vec<usize>,
+    pub neighbours: Vec<usize>,
+}
+
+/// What `eprop partition` reports: METIS beside a block split.
+#[derive(Serialize, Debug)]
+pub struct PartitionReport {
+    pub file: String,
+    pub nodes: usize,
+    pub graph_edges: usize,
+    pub parts: usize,
+    pub splits: Vec<SplitQuality>,
+}
+
+pub fn partition_report(mesh: &Mesh, parts: usize) -> Result<PartitionReport> {
+    use eprop_partition::{node_graph, quality, Method};
+    let (xadj, adj) = node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
+    let mut splits = Vec::new();
+    let weights = eprop_partition::degree_weights(&xadj);
+    for (name, method) in [("metis", Method::Metis), ("block", Method::Block)] {
+        // METIS balances the work per node (its neighbours + 1), as `mpirun eprop run` does
+        let part = eprop_partition::partition_weighted(&xadj, &adj, parts, method, Some(&weights))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
+        let q = quality(&xadj, &adj, &part, parts);
+        splits.push(SplitQuality {
+            method: name.to_string(),
+            edge_cut: q.edge_cut,
+            imbalance: q.imbalance,
+            owned: q.owned,
+            halo: q.halo,
+            neighbours: q.neighbours,
+        });
+    }
+    Ok(PartitionReport {
+        file: mesh.source.clone(),
+        nodes: mesh.n_nodes(),
+        graph_edges: adj.len() / 2,
+        parts,
+        splits,
+    })
+}
+
+impl std::fmt::Display for PartitionReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{}: {} nodes, {} graph edges, {} parts",
+            self.file, self.nodes, self.graph_edges, self.parts
+        )?;
+        for s in &self.splits {
+            let halo: usize = s.halo.iter().sum();
+            writeln!(
+                f,
+                "  {:<6} edge cut {} ({:.2}% of edges), imbalance {:.3}, halo nodes {} ({:.2}% of nodes)",
+                s.method,
+                s.edge_cut,
+                100.0 * s.edge_cut as f64 / self.graph_edges.max(1) as f64,
+                s.imbalance,
+                halo,
+                100.0 * halo as f64 / self.nodes.max(1) as f64
+            )?;
+        }
+        writeln!(
+            f,
+            "  part   {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}",
+            "metis:own", "halo", "nbrs", "block:own", "halo", "nbrs"
+        )?;
+        let (m, b) = (&self.splits[0], &self.splits[1]);
+        for p in 0..self.parts {
+            writeln!(
+                f,
+                "  {:<4}   {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}",
+                p, m.owned[p], m.halo[p], m.neighbours[p], b.owned[p], b.halo[p], b.neighbours[p]
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// What `eprop check` derives from a scenario without running it.
+#[derive(Serialize, Debug)]
+pub struct CheckReport {
+    pub scenario: String,
+    pub mesh: String,
+    pub nodes: usize,
+    pub cells: usize,
+    pub fixed_nodes: usize,
+    /// Per load: contact nodes and contact area.
+    pub loads: Vec<(usize, f64)>,
+    /// Per tool: what it is, where it starts and how deep it is in the organ then.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub tools: Vec<String>,
+    pub scheme: String,
+    pub integrator: String,
+    pub integrator_why: String,
+    /// What `substeps` counts, with its unit ("4 substeps", "14 stages").
+    pub per_step: String,
+    /// Which nodes and cells set the Euler substep (compact scheme).
+    pub stiffness: Option<crate::propagate::integrate::stiffness::Stiffness>,
+    pub h: f64,
+    pub h_bound: f64,
+    pub dt: f64,
+    pub dt_bound: f64,
+    pub substeps: usize,
+    pub steps: u64,
+    pub output: String,
+    pub output_steps: u64,
+    pub output_mib: f64,
+    pub memory_mib: f64,
+    pub estimated_seconds: f64,
+    pub warnings: Vec<String>,
+}
+
+/// Validates a scenario, builds its simulation on one process and times a few substeps. The
+/// limits a run applies (steps, substeps, step sizes) are errors here too; what a run would
+/// refuse about its output file or disk, and implausible loads, are warnings.
+pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
+    let setup = prepare(path, opts)?;
+    let sizes = crate::distribute::parts::GlobalSizes::of(&setup.mesh);
+    let mut sim = Simulation::new(setup)?;
+    let budget = Budget::of(&sim, &sizes, opts.steps.is_some(), true).map_err(|e| anyhow::anyhow!(e))?;
+    let n = sim.n_global;
+    let q: Vec<(u32, [f64; 3])> = vec![];
+    let t = Instant::now();
+    let reps = 5;
+    for _ in 0..reps {
+        sim.prop.substep(sim.step_plan().h, &q);
+    }
+    let per_substep = t.elapsed().as_secs_f64() / reps as f64;
+    let steps = budget.steps;
+    let mesh = sim.global.as_ref().unwrap_or(&sim.setup.mesh);
+    let mut warnings = crate::output::summary::warnings(&sim, mesh);
+    warnings.extend(crate::guard::plausible::load_warnings(&sim, mesh));
+    if sim.loads.iter().any(|l| l.nodes.len() == 1) {
+        warnings.push(
+            "a load on a single node is mesh-dependent (the source is singular); a `patch = { center, radius }` is not"
+                .into(),
+        );
+    }
+    let file = &sim.setup.output.file;
+    let inputs = sim.setup.scenario.inputs();
+    if let Err(e) = crate::guard::safety::refuse_inputs(file, "the output file", &inputs) {
+        warnings.push(format!("`eprop run` will refuse: {e:#}"));
+    } else if file.exists() {
+        let overwrite = sim.setup.output.overwrite;
+        let again = crate::guard::safety::restart_command(path, file, 1);
+        if let Err(e) = crate::guard::safety::check_existing(file, "the output file", overwrite, &again) {
+            warnings.push(format!("`eprop run` will refuse: {e:#}"));
+        }
+    }
+    let reclaimed = std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
+    let what = format!("{} output steps", budget.output_steps);
+    if let Err(e) = crate::guard::safety::check_space(file, budget.output_bytes, reclaimed, &what, false) {
+        warnings.push(format!("`eprop run` will refuse without --force: {e:#}"));
+    }
+    Ok(CheckReport {
+        scenario: path.display().to_string(),
+        mesh: mesh.source.clone(),
+        nodes: n,
+        cells: mesh.n_cells(),
+        fixed_nodes: sim.fixed_nodes,
+        loads: sim.loads.iter().map(|l| (l.nodes.len(), l.area)).collect(),
+        tools: sim
+            .tools
+            .iter()
+            .map(|t| {
+                let (s, p) = (&t.tool.shape, t.state.position);
+                format!(
+                    "{} of radius {} at ({:.4}, {:.4}, {:.4}) at t = 0, indentation {:.4e}{}",
+                    s.name(),
+                    s.radius(),
+                    p[0],
+                    p[1],
+                    p[2],
+                    t.state.indentation,
+                    if t.tool.live { "; live (eprop serve)" } else { "" }
+                )
+            })
+            .collect(),
+        scheme: scheme_name(sim.setup.model.scheme()).to_string(),
+        integrator: sim.step_plan().integrator.to_string(),
+        integrator_why: sim.step_plan().why.clone(),
+        per_step: sim.step_plan().per_step_phrase(),
+        stiffness: sim.stiffness(),
+        h: sim.step_plan().h,
+        h_bound: sim.step_plan().h_bound,
+        dt: sim.dt,
+        dt_bound: sim.dt_bound,
+        substeps: sim.step_plan().per_step,
+        steps,
+        output: file.display().to_string(),
+        output_steps: budget.output_steps,
+        output_mib: budget.output_bytes / 1048576.0,
+        memory_mib: peak_rss() as f64 / 1048576.0,
+        estimated_seconds: per_substep * 1.3 * sim.step_plan().cost * steps as f64,
+        warnings,
+    })
+}
+
+impl std::fmt::Display for CheckReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "{}: ok", self.scenario)?;
+        writeln!(
+            f,
+            "  mesh        {} ({} nodes, {} cells)",
+            self.mesh, self.nodes, self.cells
+        )?;
+        writeln!(f, "  fixed       {} nodes", self.fixed_nodes)?;
+        for (k, (n, a)) in self.loads.iter().enumerate() {
+            writeln!(f, "  load {}      {n} contact node(s), contact area {a:.4e}", k + 1)?;
+        }
+        for (k, t) in self.tools.iter().enumerate() {
+            writeln!(f, "  tool {}      {t}", k + 1)?;
+        }
+        writeln!(
+            f,
+            "  scheme      {}, Euler substep h = {:.4e} (bound {:.4e}), dt = {:.4e} (bound {:.4e}), {} per step",
+            self.scheme, self.h, self.h_bound, self.dt, self.dt_bound, self.per_step
+        )?;
+        writeln!(f, "  integrator  {}: {}", self.integrator, self.integrator_why)?;
+        if let Some(s) = &self.stiffness {
+            writeln!(f, "{}", s.describe(12))?;
+        }
+        writeln!(
+            f,
+            "  run         {} steps, about {:.3} s on one process; {:.1} MiB of memory",
+            self.steps, self.estimated_seconds, self.memory_mib
+        )?;
+        write!(
+            f,
+            "  output      {} ({} steps, about {:.1} MiB)",
+            self.output, self.output_steps, self.output_mib
+        )?;
+        for w in &self.warnings {
+            write!(f, "\n  warning     {w}")?;
+        }
+        Ok(())
+    }
+}
+
+/// What `eprop export-operator` wrote.
+#[derive(Serialize, Debug)]
+pub struct ExportReport {
+    pub file: String,
+    pub rows: usize,
+    pub entries: usize,
+    pub h: f64,
+}
+
+impl std::fmt::Display for ExportReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}: {} rows, {} entries, h = {:.6e}",
+            self.file, self.rows, self.entries, self.h
+        )
+    }
+}
+
+/// The compact operator L of a scenario as a CSR matrix over the nodes in input order, with
+/// its diagonal (rows of fixed nodes are empty), columns increasing in each row.
+pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<f64>) {
+    let n = sim.n_owned();
+    let mut rows: Vec<Vec<(i64, f64)>> = vec![vec![]; n];
+    for i in 0..n {
+        let g = sim.gid[i] as usize;
+        let r = op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize;
+        if r.is_empty() {
+            continue;
+        }
+        let mut diag = 0.0;
+        let mut row: Vec<(i64, f64)> = r
+            .map(|p| {
+                diag -= op.c(p);
+                (sim.gid[op.col[p] as usize] as i64, op.c(p))
+            })
+            .collect();
+        row.push((g as i64, diag));
+        row.sort_by_key(|e| e.0);
+        rows[g] = row;
+    }
+    let mut row_ptr = vec![0i64];
+    let (mut col, mut val) = (vec![], vec![]);
+    for r in &rows {
+        for &(j, v) in r {
+            col.push(j);
+            val.push(v);
+        }
+        row_ptr.push(col.len() as i64);
+    }
+    (row_ptr, col, val)
+}
+
+/// Writes a scenario's compact operator L to `output` (HDF5: row_ptr, col, val; attributes
+/// h, the substep eprop would use, and nodes), built on one process.
+pub fn export_operator(scenario: &Path, output: &Path) -> Result<ExportReport> {
+    let sc = Scenario::load(scenario)?;
+    crate::guard::safety::refuse_inputs(output, "the operator file (export-operator -o)", &sc.inputs())?;
+    let setup = Setup::new(sc)?;
+    let sim = Simulation::new(setup)?;
+    let Operator::Compact(op) = &sim.prop.op else {
+        bail!(
+            "{}: export-operator needs [model] scheme = \"compact\"",
+            scenario.display()
+        );
+    };
+    let (row_ptr, col, val) = operator_csr(&sim, op);
+    let h = sim.step_plan().h;
+    let n = sim.n_owned();
+    eprop_series::vtkhdf::write_csr(output, &row_ptr, &col, &val, &[("h", h), ("nodes", n as f64)])?;
+    Ok(ExportReport {
+        file: output.display().to_string(),
+        rows: n,
+        entries: col.len(),
+        h,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use eprop_io::generate::{box_mesh, BoxCells};
+
+    fn sim(toml: &str) -> Simulation {
+        let text = format!("[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n{toml}");
+        let sc = Scenario::parse(Path::new("s.toml"), text).unwrap();
+        let mesh = box_mesh([1.0; 3], [3; 3], BoxCells::Tet).unwrap();
+        Simulation::new(Setup::with_mesh(sc, mesh).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn the_exported_operator_is_l_with_its_diagonal_in_input_order() {
+        let s = sim("");
+        let Operator::Compact(op) = &s.prop.op else {
+            unreachable!()
+        };
+        let (row_ptr, col, val) = operator_csr(&s, op);
+        let n = s.n_global;
+        assert_eq!(row_ptr.len(), n + 1);
+        let fixed = |g: usize| s.setup.fixed[s.local(g as u32).unwrap()];
+        for g in 0..n {
+            let (a, b) = (row_ptr[g] as usize, row_ptr[g + 1] as usize);
+            // fixed rows are empty; every other row sums to zero with a negative diagonal
+            assert_eq!(a == b, fixed(g), "row {g}");
+            if a == b {
+                continue;
+            }
+            assert!(col[a..b].windows(2).all(|w| w[0] < w[1]));
+            let d = col[a..b].iter().position(|&c| c == g as i64).unwrap();
+            assert!(val[a + d] < 0.0);
+            let sum: f64 = val[a..b].iter().sum();
+            assert!(sum.abs() <= 1e-12 * val[a + d].abs(), "row {g}: {sum}");
+        }
+        // V_i L_ij = V_j L_ji between free nodes (a_ij is symmetric)
+        let vol = |g: usize| s.dual.vol[s.local(g as u32).unwrap()];
+        let at = |i: usize, j: i64| {
+            (row_ptr[i]..row_ptr[i + 1])
+                .find(|&p| col[p as usize] == j)
+                .map(|p| val[p as usize])
+        };
+        for i in (0..n).filter(|&i| !fixed(i)) {
+            for p in row_ptr[i]..row_ptr[i + 1] {
+                let j = col[p as usize] as usize;
+                if !fixed(j) {
+                    let (ij, ji) = (vol(i) * val[p as usize], vol(j) * at(j, i as i64).unwrap());
+                    assert!((ij - ji).abs() <= 1e-12 * ij.abs(), "({i}, {j}): {ij} {ji}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn export_needs_the_compact_scheme() {
+        let d = tempfile::tempdir().unwrap();
+        eprop_io::write_mesh(
+            &box_mesh([1.0; 3], [2; 3], BoxCells::Tet).unwrap(),
+            &d.path().join("m.msh"),
+        )
+        .unwrap();
+        let sc = d.path().join("s.toml");
+        std::fs::write(
+            &sc,
+            "[mesh]\nfile = \"m.msh\"\n[model]\nscheme = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+        )
+        .unwrap();
+        let e = export_operator(&sc, &d.path().join("op.h5")).unwrap_err().to_string();
+        assert!(e.contains("needs [model] scheme = \"compact\""), "{e}");
+        std::fs::write(
+            &sc,
+            "[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+        )
+        .unwrap();
+        let r = export_operator(&sc, &d.path().join("op.h5")).unwrap();
+        assert_eq!(r.rows, 27);
+        assert!(r
+            .to_string()
+            .starts_with(&format!("{}: 27 rows", d.path().join("op.h5").display())));
+    }
+}

@@ -1,0 +1,7 @@
+//! The commands: `run` (a scenario to a series), `serve` (a run fed by a client),
+//! `info`/`check`/`partition`/`export-operator` (`inspect`), `bench`.
+
+pub mod bench;
+pub mod inspect;
+pub mod run;
+pub mod serve;

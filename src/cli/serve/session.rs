@@ -1,0 +1,598 @@
+//! The client side of `eprop serve` on rank 0: a network thread that owns the socket, takes
+//! one client, answers every message at once from the latest physics results (extrapolated
+//! linearly in time) and queues the samples for the physics; and the state it shares with
+//! the main thread, which waits for the samples each step needs and publishes each step's
+//! results. The network thread never calls MPI.
+
+use super::protocol::{self as p, Code, Hello, Message, CLIENT_SIZE};
+use crate::discretize::operator::V3;
+use serde::Serialize;
+use std::io::{ErrorKind, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// How often the network thread looks at the listener and the run while the client is quiet.
+const TICK: Duration = Duration::from_millis(5);
+
+/// The tools and loads of the run, tools first: entity k < tools is tool k, entity
+/// tools + l is load l.
+#[derive(Clone, Debug)]
+pub struct Entities {
+    pub tools: usize,
+    pub live: Vec<bool>,
+}
+
+impl Entities {
+    pub fn name(&self, e: usize) -> String {
+        if e < self.tools {
+            format!("tool {e}")
+        } else {
+            format!("load {}", e - self.tools)
+        }
+    }
+}
+
+/// A physics result of one tool or load.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Outcome {
+    pub step: u64,
+    pub t: f64,
+    pub force: V3,
+    pub displacement: V3,
+}
+
+/// Where the session is.
+#[derive(Clone, Debug, PartialEq)]
+enum Phase {
+    /// No client yet.
+    Waiting,
+    Connected,
+    /// The client said bye: the inputs hold their last samples.
+    Bye,
+    /// The session ended in an error (the client's or the run's), with the code the client
+    /// gets.
+    Failed(Code, String),
+    /// The run reached its end.
+    Finished,
+}
+
+struct State {
+    phase: Phase,
+    /// Samples not yet taken by the physics: (entity, [t, x, y, z]).
+    pending: Vec<(u32, [f64; 4])>,
+    /// Time of each entity's last sample.
+    latest: Vec<f64>,
+    /// Each entity's last two results (older, newer).
+    results: Vec<(Option<Outcome>, Outcome)>,
+    client: Option<String>,
+    messages: u64,
+    answers: u64,
+    /// Why the session ended, once it has.
+    ended: Option<String>,
+}
+
+type Shared = Arc<(Mutex<State>, Condvar)>;
+
+fn lock(s: &Shared) -> MutexGuard<'_, State> {
+    s.0.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// What the session did, for the summary.
+#[derive(Serialize, Debug, Clone, Default)]
+pub struct SessionSummary {
+    pub listen: String,
+    pub client: Option<String>,
+    pub messages: u64,
+    pub answers: u64,
+    /// "bye", "run over", or the error that ended it.
+    pub ended: String,
+    /// Seconds the physics waited for the client's samples.
+    pub waited_seconds: f64,
+}
+
+/// The network thread and the state it shares with the physics.
+pub struct Session {
+    shared: Shared,
+    thread: Option<JoinHandle<()>>,
+    ents: Entities,
+    timeout: Duration,
+    listen: String,
+    waited: Duration,
+}
+
+impl Session {
+    /// Starts the network thread on a bound listener.
+    pub fn start(listener: TcpListener, ents: Entities, hello: Hello, timeout: Duration) -> std::io::Result<Session> {
+        listener.set_nonblocking(true)?;
+        let listen = listener.local_addr()?.to_string();
+        let n = ents.live.len();
+        let shared: Shared = Arc::new((
+            Mutex::new(State {
+                phase: Phase::Waiting,
+                pending: Vec::new(),
+                latest: vec![f64::NEG_INFINITY; n],
+                results: vec![
+                    (
+                        None,
+                        Outcome {
+                            t: hello.t0,
+                            ..Outcome::default()
+                        }
+                    );
+                    n
+                ],
+                client: None,
+                messages: 0,
+                answers: 0,
+                ended: None,
+            }),
+            Condvar::new(),
+        ));
+        let (s, e) = (shared.clone(), ents.clone());
+        let thread = std::thread::Builder::new()
+            .name("eprop-serve".into())
+            .spawn(move || network(listener, s, e, hello, timeout))?;
+        Ok(Session {
+            shared,
+            thread: Some(thread),
+            ents,
+            timeout,
+            listen,
+            waited: Duration::ZERO,
+        })
+    }
+
+    /// Waits until every live entity has a sample at or beyond time t (or the client said
+    /// bye) and takes the samples that arrived; an error when the session failed or the
+    /// client did not deliver within the timeout.
+    pub fn wait(&mut self, t: f64) -> Result<Vec<(u32, [f64; 4])>, String> {
+        let start = Instant::now();
+        let cv = &self.shared.1;
+        let mut g = lock(&self.shared);
+        let out = loop {
+            match &g.phase {
+                Phase::Failed(_, msg) => break Err(msg.clone()),
+                Phase::Finished => break Err("internal: the session is over".into()),
+                _ => {}
+            }
+            let missing = (0..self.ents.live.len()).find(|&e| self.ents.live[e] && !(g.latest[e] >= t));
+            match missing {
+                None => break Ok(std::mem::take(&mut g.pending)),
+                Some(e) if g.phase == Phase::Bye => {
+                    if g.latest[e] == f64::NEG_INFINITY {
+                        let msg = format!(
+                            "the client said bye before sending any sample of {}; the run has no input for it",
+                            self.ents.name(e)
+                        );
+                        fail(&mut g, Code::Server, &msg);
+                        break Err(msg);
+                    }
+                    break Ok(std::mem::take(&mut g.pending));
+                }
+                Some(e) => {
+                    let left = self.timeout.saturating_sub(start.elapsed());
+                    if left.is_zero() {
+                        let msg = if g.phase == Phase::Waiting {
+                            format!(
+                                "no client connected within {} s; fix: start the client or raise --timeout",
+                                self.timeout.as_secs_f64()
+                            )
+                        } else {
+                            format!(
+                                "the client sent no sample of {} at or beyond t = {t} within {} s (stalled); fix: keep sending, say bye, or raise --timeout",
+                                self.ents.name(e),
+                                self.timeout.as_secs_f64()
+                            )
+                        };
+                        fail(&mut g, Code::Timeout, &msg);
+                        cv.notify_all();
+                        break Err(msg);
+                    }
+                    let sig = crate::guard::signals::pending();
+                    if sig != 0 {
+                        let msg = format!(
+                            "stopped by {} while waiting for the client's samples at t = {t}",
+                            crate::guard::signals::name(sig)
+                        );
+                        fail(&mut g, Code::Server, &msg);
+                        cv.notify_all();
+                        break Err(msg);
+                    }
+                    // in slices, so that a stop signal is seen while the client is quiet
+                    let slice = left.min(Duration::from_millis(100));
+                    g = cv.wait_timeout(g, slice).unwrap_or_else(|e| e.into_inner()).0;
+                }
+            }
+        };
+        drop(g);
+        self.waited += start.elapsed();
+        out
+    }
+
+    /// The results of a physics step, one per entity (those of non-live entities are kept
+    /// but not asked for).
+    pub fn publish(&self, outcomes: &[Outcome]) {
+        let mut g = lock(&self.shared);
+        for (r, o) in g.results.iter_mut().zip(outcomes) {
+            *r = (Some(r.1), *o);
+        }
+    }
+
+    /// Ends the session because the run failed (the client gets the error).
+    pub fn fail(&self, msg: &str) {
+        let mut g = lock(&self.shared);
+        fail(&mut g, Code::Server, msg);
+        self.shared.1.notify_all();
+    }
+
+    /// Ends the session at the end of the run and stops the network thread.
+    pub fn finish(mut self) -> SessionSummary {
+        {
+            let mut g = lock(&self.shared);
+            if !matches!(g.phase, Phase::Failed(..)) {
+                g.phase = Phase::Finished;
+            }
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        let g = lock(&self.shared);
+        SessionSummary {
+            listen: self.listen.clone(),
+            client: g.client.clone(),
+            messages: g.messages,
+            answers: g.answers,
+            ended: g.ended.clone().unwrap_or_else(|| "no client".into()),
+            waited_seconds: self.waited.as_secs_f64(),
+        }
+    }
+}
+
+impl Drop for Session {
+    fn drop(&mut self) {
+        if let Some(t) = self.thread.take() {
+            {
+                let mut g = lock(&self.shared);
+                if !matches!(g.phase, Phase::Failed(..)) {
+                    g.phase = Phase::Finished;
+                }
+            }
+            let _ = t.join();
+        }
+    }
+}
+
+fn fail(g: &mut State, code: Code, msg: &str) {
+    if !matches!(g.phase, Phase::Failed(..) | Phase::Finished) {
+        g.phase = Phase::Failed(code, msg.to_string());
+        g.ended.get_or_insert_with(|| format!("error: {msg}"));
+    }
+}
+
+/// The answer to a message about entity `e` at client time `tc`: its latest result,
+/// extrapolated linearly from its last two results to tc, at most one physics interval ahead.
+fn extrapolate(results: &(Option<Outcome>, Outcome), tc: f64) -> (f64, V3, V3) {
+    let (prev, last) = results;
+    match prev {
+        Some(p) if last.t > p.t => {
+            let span = last.t - p.t;
+            let t = tc.clamp(last.t, last.t + span);
+            let a = (t - last.t) / span;
+            let ext = |x: V3, y: V3| {
+                [
+                    y[0] + a * (y[0] - x[0]),
+                    y[1] + a * (y[1] - x[1]),
+                    y[2] + a * (y[2] - x[2]),
+                ]
+            };
+            (t, ext(p.force, last.force), ext(p.displacement, last.displacement))
+        }
+        _ => (last.t, last.force, last.displacement),
+    }
+}
+
+/// Writes one server message; false when the client is gone.
+fn send(stream: &mut TcpStream, b: &[u8; p::SERVER_SIZE]) -> bool {
+    stream.write_all(b).is_ok()
+}
+
+/// What ended a connection.
+enum End {
+    Bye,
+    /// The run ended: send END.
+    RunOver,
+    /// An error: the code to send (None: the client is gone), the text.
+    Error(Option<Code>, String),
+}
+
+/// The network thread: waits for a client, serves it, refuses any other.
+fn network(listener: TcpListener, shared: Shared, ents: Entities, hello: Hello, timeout: Duration) {
+    let stream = loop {
+        match listener.accept() {
+            Ok((s, _)) => break s,
+            Err(e) if e.kind() == ErrorKind::WouldBlock || e.kind() == ErrorKind::Interrupted => {
+                let g = lock(&shared);
+                if matches!(g.phase, Phase::Failed(..) | Phase::Finished) {
+                    return;
+                }
+                drop(g);
+                std::thread::sleep(TICK);
+            }
+            Err(e) => {
+                let mut g = lock(&shared);
+                fail(&mut g, Code::Server, &format!("the listening socket failed: {e}"));
+                shared.1.notify_all();
+                return;
+            }
+        }
+    };
+    let peer = stream.peer_addr().map(|a| a.to_string()).unwrap_or_else(|_| "?".into());
+    {
+        let mut g = lock(&shared);
+        if g.phase == Phase::Waiting {
+            g.phase = Phase::Connected;
+        }
+        g.client = Some(peer);
+    }
+    let mut stream = stream;
+    let end = serve_client(&mut stream, &listener, &shared, &ents, &hello, timeout);
+    let mut g = lock(&shared);
+    match end {
+        End::Bye => {
+            if g.phase == Phase::Connected {
+                g.phase = Phase::Bye;
+            }
+            g.ended.get_or_insert_with(|| "bye".into());
+        }
+        End::RunOver => {
+            g.ended.get_or_insert_with(|| "run over".into());
+            let (_, last) = first_live(&g, &ents);
+            let a = p::Answer {
+                kind: p::answer::END,
+                index: 0,
+                step: last.step,
+                t_step: last.t,
+                t: last.t,
+                force: last.force,
+                displacement: last.displacement,
+            };
+            drop(g);
+            send(&mut stream, &p::answer(&a));
+            g = lock(&shared);
+        }
+        End::Error(code, msg) => {
+            fail(&mut g, code.unwrap_or(Code::Server), &msg);
+            if let Some(code) = code {
+                drop(g);
+                send(&mut stream, &p::error(code, &msg));
+                g = lock(&shared);
+            }
+        }
+    }
+    shared.1.notify_all();
+    drop(g);
+    let _ = stream.shutdown(std::net::Shutdown::Both);
+}
+
+fn first_live(g: &State, ents: &Entities) -> (usize, Outcome) {
+    let e = ents.live.iter().position(|&b| b).unwrap_or(0);
+    (e, g.results.get(e).map(|r| r.1).unwrap_or_default())
+}
+
+/// Refuses a second client, if one is knocking.
+fn refuse_others(listener: &TcpListener) {
+    while let Ok((mut s, _)) = listener.accept() {
+        let _ = s.set_nonblocking(false);
+        let _ = s.set_write_timeout(Some(Duration::from_secs(1)));
+        let _ = s.write_all(&p::error(
+            Code::Busy,
+            "another client holds the session; connect again after it ends",
+        ));
+        let _ = s.shutdown(std::net::Shutdown::Both);
+    }
+}
+
+/// Reads exactly one client message, looking at the run and the listener while waiting.
+/// Ok(None): the run ended or failed meanwhile.
+fn read_one(
+    stream: &mut TcpStream,
+    listener: &TcpListener,
+    shared: &Shared,
+    last_look: &mut Instant,
+) -> Result<Option<[u8; CLIENT_SIZE]>, End> {
+    let mut buf = [0u8; CLIENT_SIZE];
+    Ok(read_into(stream, listener, shared, last_look, &mut buf, 0)?.map(|_| buf))
+}
+
+/// Fills `buf[have..]`, as `read_one`.
+fn read_into(
+    stream: &mut TcpStream,
+    listener: &TcpListener,
+    shared: &Shared,
+    last_look: &mut Instant,
+    buf: &mut [u8],
+    mut have: usize,
+) -> Result<Option<()>, End> {
+    loop {
+        if last_look.elapsed() >= TICK {
+            *last_look = Instant::now();
+            refuse_others(listener);
+            let g = lock(shared);
+            match &g.phase {
+                Phase::Finished => return Ok(None),
+                Phase::Failed(code, msg) => return Err(End::Error(Some(*code), msg.clone())),
+                _ => {}
+            }
+        }
+        match stream.read(&mut buf[have..]) {
+            Ok(0) if have == 0 => return Err(End::Error(None, "the client closed the connection without bye".into())),
+            Ok(0) => {
+                return Err(End::Error(
+                    None,
+                    format!(
+                        "the client closed the connection in the middle of a message ({have} of {CLIENT_SIZE} bytes)"
+                    ),
+                ))
+            }
+            Ok(n) => {
+                have += n;
+                if have == buf.len() {
+                    return Ok(Some(()));
+                }
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                ) => {}
+            Err(e) => return Err(End::Error(None, format!("the connection failed: {e}"))),
+        }
+    }
+}
+
+fn serve_client(
+    stream: &mut TcpStream,
+    listener: &TcpListener,
+    shared: &Shared,
+    ents: &Entities,
+    hello: &Hello,
+    timeout: Duration,
+) -> End {
+    let _ = stream.set_nodelay(true);
+    let _ = stream.set_read_timeout(Some(TICK));
+    let _ = stream.set_write_timeout(Some(timeout));
+    let mut last_look = Instant::now();
+    // the magic first, so that another protocol is refused at once
+    let mut first = [0u8; CLIENT_SIZE];
+    for (from, to) in [(0, 8), (8, CLIENT_SIZE)] {
+        match read_into(stream, listener, shared, &mut last_look, &mut first[..to], from) {
+            Ok(Some(())) => {}
+            Ok(None) => return End::RunOver,
+            Err(e) => return e,
+        }
+        if let Err((code, msg)) = p::read_hello(&first) {
+            if to == CLIENT_SIZE || code == Code::NotEprop {
+                return End::Error(Some(code), msg);
+            }
+        }
+    }
+    if !send(stream, &p::server_hello(hello)) {
+        return End::Error(None, "the client left after its hello".into());
+    }
+    let cv = &shared.1;
+    loop {
+        let b = match read_one(stream, listener, shared, &mut last_look) {
+            Ok(Some(b)) => b,
+            Ok(None) => return End::RunOver,
+            Err(e) => return e,
+        };
+        let msg = match p::read_message(&b) {
+            Ok(m) => m,
+            Err((code, text)) => return End::Error(Some(code), text),
+        };
+        let (e, kind, index, t, v) = match msg {
+            Message::Bye => {
+                let mut g = lock(shared);
+                g.messages += 1;
+                if g.phase == Phase::Connected {
+                    g.phase = Phase::Bye;
+                }
+                g.ended = Some("bye".into());
+                let (_, last) = first_live(&g, ents);
+                g.answers += 1;
+                cv.notify_all();
+                drop(g);
+                let a = p::Answer {
+                    kind: p::answer::BYE,
+                    index: 0,
+                    step: last.step,
+                    t_step: last.t,
+                    t: last.t,
+                    force: last.force,
+                    displacement: last.displacement,
+                };
+                send(stream, &p::answer(&a));
+                return End::Bye;
+            }
+            Message::Pose { index, t, position } => {
+                let e = index as usize;
+                if e >= ents.tools || !ents.live[e] {
+                    return End::Error(
+                        Some(Code::Index),
+                        format!("no live tool {index} (the hello's live_tools mask lists them)"),
+                    );
+                }
+                (e, p::answer::TOOL, index, t, position)
+            }
+            Message::Force { index, t, force } => {
+                let e = ents.tools + index as usize;
+                if e >= ents.live.len() || !ents.live[e] {
+                    return End::Error(
+                        Some(Code::Index),
+                        format!("no live load {index} (the hello's live_loads mask lists them)"),
+                    );
+                }
+                (e, p::answer::LOAD, index, t, force)
+            }
+        };
+        let mut g = lock(shared);
+        g.messages += 1;
+        if !(t > g.latest[e]) {
+            let last = g.latest[e];
+            drop(g);
+            return End::Error(
+                Some(Code::Sample),
+                format!("time {t} of {} is not after its last sample's {last}", ents.name(e)),
+            );
+        }
+        g.latest[e] = t;
+        g.pending.push((e as u32, [t, v[0], v[1], v[2]]));
+        let (te, force, displacement) = extrapolate(&g.results[e], t);
+        let last = g.results[e].1;
+        g.answers += 1;
+        drop(g);
+        cv.notify_all();
+        let a = p::Answer {
+            kind,
+            index,
+            step: last.step,
+            t_step: last.t,
+            t: te,
+            force,
+            displacement,
+        };
+        if !send(stream, &p::answer(&a)) {
+            return End::Error(None, "the client stopped reading answers".into());
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn answers_extrapolate_linearly_at_most_one_step_ahead() {
+        let o = |step: u64, t: f64, f: f64| Outcome {
+            step,
+            t,
+            force: [0.0, 0.0, f],
+            displacement: [f / 10.0, 0.0, 0.0],
+        };
+        // one result: as it is
+        assert_eq!(
+            extrapolate(&(None, o(0, 0.0, 1.0)), 0.5),
+            (0.0, [0.0, 0.0, 1.0], [0.1, 0.0, 0.0])
+        );
+        let r = (Some(o(3, 0.3, 1.0)), o(4, 0.4, 2.0));
+        let (t, f, d) = extrapolate(&r, 0.45);
+        assert_eq!(t, 0.45);
+        assert!((f[2] - 2.5).abs() < 1e-12 && (d[0] - 0.25).abs() < 1e-12, "{f:?} {d:?}");
+        // never further than one interval, never back in time
+        assert_eq!(extrapolate(&r, 9.0).0, 0.5);
+        assert!((extrapolate(&r, 9.0).1[2] - 3.0).abs() < 1e-12);
+        assert_eq!(extrapolate(&r, 0.1), (0.4, [0.0, 0.0, 2.0], [0.2, 0.0, 0.0]));
+    }
+}

@@ -1,0 +1,208 @@
+//! `[model]` (the discretisation and the coupling constants) and `[tissue]` (the tissue law).
+//! Both are checked completely while parsing, so the parsed sections are the resolved ones.
+//!
+//! A new choice goes here and nowhere else in the scenario: a `#[derive(Deserialize,
+//! Serialize)]` enum with `#[serde(rename_all = "lowercase")]` (a wrong spelling then fails
+//! the parse at its line, naming the accepted ones) as a field of `Model` with a
+//! `#[serde(default)]`, and its options as further fields (checked by their types, see
+//! `values`). `Setup::model` carries it to every process and to the simulation.
+
+use super::values::{finite, non_negative, one, positive, yes, Precision};
+use crate::discretize::material::TissueLaw;
+use crate::propagate::integrate::{self, Kind, Preconditioner, Settings};
+use serde::{de::Error, Deserialize, Deserializer, Serialize};
+
+/// The scheme of the propagation operator, as the scenario spells it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SchemeName {
+    #[default]
+    Compact,
+    Paper,
+}
+
+/// The propagation operator's scheme, with its option.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scheme {
+    Compact,
+    Paper { correction: bool },
+}
+
+/// `[model]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Model {
+    #[serde(default)]
+    pub scheme: SchemeName,
+    /// The paper scheme's correction term (MODEL.md, eq. 11).
+    #[serde(default = "yes")]
+    pub paper_correction: bool,
+    /// Storage of the compact operator's coefficients.
+    #[serde(default)]
+    pub operator_precision: Precision,
+    /// k_e
+    #[serde(default = "one", deserialize_with = "non_negative")]
+    pub stiffness: f64,
+    /// kappa
+    #[serde(default = "one", deserialize_with = "finite")]
+    pub coupling: f64,
+    /// p
+    #[serde(default = "one", deserialize_with = "positive")]
+    pub exponent: f64,
+    /// The integrator of the propagation (docs/integrators.md).
+    #[serde(default)]
+    pub integrator: Kind,
+}
+
+/// `[integrator]`: the settings of `rkl2` and `implicit`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IntegratorSec {
+    /// implicit: relative residual of every solve
+    #[serde(default = "default_tolerance", deserialize_with = "tolerance")]
+    pub tolerance: f64,
+    /// implicit: conjugate-gradient iterations per solve before it is an error
+    #[serde(default = "default_max_iterations", deserialize_with = "max_iterations")]
+    pub max_iterations: u64,
+    /// rkl2: stages per mechanics step before it is an error
+    #[serde(default = "default_max_stages", deserialize_with = "max_stages")]
+    pub max_stages: u64,
+    /// implicit: "jacobi" (deterministic) or "amg" (hypre BoomerAMG)
+    #[serde(default)]
+    pub preconditioner: Preconditioner,
+}
+
+fn default_tolerance() -> f64 {
+    integrate::DEFAULT_TOLERANCE
+}
+fn default_max_iterations() -> u64 {
+    integrate::DEFAULT_MAX_ITERATIONS as u64
+}
+fn default_max_stages() -> u64 {
+    integrate::DEFAULT_MAX_STAGES as u64
+}
+
+fn tolerance<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    let t = f64::deserialize(d)?;
+    if t > 0.0 && t < 1.0 {
+        Ok(t)
+    } else {
+        Err(D::Error::custom(format!(
+            "{t} is not a relative residual; fix: a number between 0 and 1, such as 1e-8 (the default)"
+        )))
+    }
+}
+
+fn max_iterations<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    let m = u64::deserialize(d)?;
+    if m >= 1 {
+        Ok(m.min(u32::MAX as u64))
+    } else {
+        Err(D::Error::custom(format!(
+            "must be at least 1; fix: leave it out (default {})",
+            integrate::DEFAULT_MAX_ITERATIONS
+        )))
+    }
+}
+
+fn max_stages<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    let m = u64::deserialize(d)?;
+    if m >= 2 {
+        Ok(m.min(u32::MAX as u64))
+    } else {
+        Err(D::Error::custom(format!(
+            "rkl2 needs at least 2 stages; fix: leave it out (default {})",
+            integrate::DEFAULT_MAX_STAGES
+        )))
+    }
+}
+
+impl IntegratorSec {
+    /// The integrator `kind` with these settings.
+    pub fn settings(&self, kind: Kind) -> Settings {
+        Settings {
+            kind,
+            tolerance: self.tolerance,
+            max_iterations: self.max_iterations as usize,
+            max_stages: self.max_stages as usize,
+            preconditioner: self.preconditioner,
+        }
+    }
+}
+
+impl Model {
+    pub fn scheme(&self) -> Scheme {
+        match self.scheme {
+            SchemeName::Compact => Scheme::Compact,
+            SchemeName::Paper => Scheme::Paper {
+                correction: self.paper_correction,
+            },
+        }
+    }
+}
+
+/// `[tissue]`: the tissue law that turns a contact stress into an energy density.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TissueSec {
+    #[serde(default = "default_young", deserialize_with = "positive")]
+    pub young: f64,
+    /// 0: linear; > 0: exponential stiffening.
+    #[serde(default, deserialize_with = "non_negative")]
+    pub beta: f64,
+}
+
+fn default_young() -> f64 {
+    100.0
+}
+
+impl TissueSec {
+    pub fn law(&self) -> TissueLaw {
+        TissueLaw {
+            young: self.young,
+            beta: self.beta,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::values::defaults;
+    use super::*;
+
+    fn model(text: &str) -> Result<Model, String> {
+        toml::from_str(text).map_err(|e| e.message().to_string())
+    }
+
+    #[test]
+    fn defaults_and_spellings() {
+        let m: Model = defaults();
+        assert_eq!(m.scheme(), Scheme::Compact);
+        assert_eq!(m.operator_precision, Precision::Float64);
+        assert_eq!((m.stiffness, m.coupling, m.exponent), (1.0, 1.0, 1.0));
+        let p = model("scheme = \"paper\"\npaper_correction = false\noperator_precision = \"float32\"").unwrap();
+        assert_eq!(p.scheme(), Scheme::Paper { correction: false });
+        assert_eq!(p.operator_precision, Precision::Float32);
+        assert_eq!(
+            model("scheme = \"paper\"").unwrap().scheme(),
+            Scheme::Paper { correction: true }
+        );
+        let t: TissueSec = defaults();
+        assert_eq!((t.young, t.beta), (100.0, 0.0));
+    }
+
+    #[test]
+    fn each_key_is_checked_while_parsing() {
+        let e = model("scheme = \"magic\"").unwrap_err();
+        assert!(e.contains("`magic`") && e.contains("`compact` or `paper`"), "{e}");
+        assert!(model("stiffness = -1.0").unwrap_err().contains("zero or positive"));
+        assert!(model("coupling = nan").unwrap_err().contains("finite"));
+        assert!(model("exponent = 0.0").unwrap_err().contains("positive"));
+        assert!(model("integrater = \"euler\"")
+            .unwrap_err()
+            .contains("unknown field `integrater`"));
+        let t = toml::from_str::<TissueSec>("young = 0.0").unwrap_err();
+        assert!(t.message().contains("positive"));
+        assert!(toml::from_str::<TissueSec>("beta = -1").is_err());
+    }
+}

@@ -1,0 +1,464 @@
+//! Median-dual geometry on the rest mesh (MODEL.md section 2) and the cell operators built on it.
+//!
+//! Everything is assembled row by row: row i visits its incident cells in increasing cell
+//! order and adds that cell's contribution to its own entries only. A cell's numbers are
+//! computed from its local node order alone, so S_ji = -S_ij and the tetrahedral compact
+//! coefficients a_ij = a_ji hold bitwise, and a row's value never depends on which other rows
+//! are built beside it (the property that makes partitioned runs bitwise identical).
+
+use crate::discretize::material::Tensor;
+use eprop_io::geom::{add, cell_volume, centroid, det3, dot, loop_area, scale, sub};
+use eprop_io::mesh::{boundary_faces, CellKind, Mesh};
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+/// Node-to-cell incidence in CSR form (cells in increasing order).
+pub struct Incidence {
+    pub ptr: Vec<usize>,
+    pub cells: Vec<u32>,
+}
+
+impl Incidence {
+    pub fn new(mesh: &Mesh) -> Self {
+        let (ptr, cells) = eprop_partition::incidence(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
+        Incidence { ptr, cells }
+    }
+    pub fn of(&self, i: usize) -> &[u32] {
+        &self.cells[self.ptr[i]..self.ptr[i + 1]]
+    }
+}
+
+/// The median-dual geometry of rows `0..n_rows` of a (local) mesh.
+pub struct Dual {
+    pub n_rows: usize,
+    /// Pairs (i, j) that share a cell, j != i, each row sorted by the global node id of j.
+    pub row_ptr: Vec<usize>,
+    pub col: Vec<u32>,
+    /// Dual-face area vector S_ij per pair (zero for pairs that share a cell but no edge).
+    pub s: Vec<[f64; 3]>,
+    /// Control volume V_i.
+    pub vol: Vec<f64>,
+    /// Outward boundary dual area A_i.
+    pub area: Vec<[f64; 3]>,
+    /// Total dual-face area |S| around each node (the scale of closure errors).
+    pub dual_area: Vec<f64>,
+}
+
+/// For an edge (a, b) of a cell kind: the two faces that contain it.
+fn edge_faces(kind: CellKind, a: usize, b: usize) -> [usize; 2] {
+    let mut out = [usize::MAX; 2];
+    let mut k = 0;
+    for (f, face) in kind.faces().iter().enumerate() {
+        if face.contains(&a) && face.contains(&b) && k < 2 {
+            out[k] = f;
+            k += 1;
+        }
+    }
+    out
+}
+
+/// Per-cell median-dual pieces, in the cell's local numbering.
+pub struct CellDual {
+    /// S^cell of each local edge (kind.edges() order), oriented from edge[0] to edge[1].
+    pub s: Vec<[f64; 3]>,
+    /// Dual volume piece of each local node.
+    pub vol: Vec<f64>,
+    /// Cell volume.
+    pub volume: f64,
+}
+
+pub fn cell_dual(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]]) -> CellDual {
+    let x = |l: usize| pts[nodes[l] as usize];
+    let c = centroid(nodes, pts);
+    let fc: Vec<[f64; 3]> = kind
+        .faces()
+        .iter()
+        .map(|f| {
+            let fnodes: Vec<u32> = f.iter().map(|&l| nodes[l]).collect();
+            centroid(&fnodes, pts)
+        })
+        .collect();
+    let nn = kind.n_nodes();
+    let mut vol = vec![0.0; nn];
+    let mut s = Vec::with_capacity(kind.edges().len());
+    for e in kind.edges() {
+        let (a, b) = (e[0], e[1]);
+        let m = scale(add(x(a), x(b)), 0.5);
+        let [f1, f2] = edge_faces(kind, a, b);
+        let (mut fa, mut fb) = (fc[f1], fc[f2]);
+        let mut sv = loop_area(&[m, fa, c, fb]);
+        if dot(sv, sub(x(b), x(a))) < 0.0 {
+            std::mem::swap(&mut fa, &mut fb);
+            sv = loop_area(&[m, fa, c, fb]);
+        }
+        if kind != CellKind::Tet {
+            for (node, sign) in [(a, 1.0), (b, -1.0)] {
+                let o = x(node);
+                let (mo, fao, co, fbo) = (sub(m, o), sub(fa, o), sub(c, o), sub(fb, o));
+                vol[node] += sign * (det3(mo, fao, co) + det3(mo, co, fbo)) / 6.0;
+            }
+        }
+        s.push(sv);
+    }
+    let volume = cell_volume(kind, nodes, pts);
+    if kind == CellKind::Tet {
+        vol.iter_mut().for_each(|v| *v = volume / 4.0);
+    }
+    CellDual { s, vol, volume }
+}
+
+/// Gradients of the linear shape functions of a tetrahedron, and its volume.
+pub fn tet_gradients(nodes: &[u32], pts: &[[f64; 3]]) -> ([[f64; 3]; 4], f64) {
+    let x0 = pts[nodes[0] as usize];
+    let col = |k: usize| {
+        let d = sub(pts[nodes[k] as usize], x0);
+        Vector3::new(d[0], d[1], d[2])
+    };
+    let j = Matrix3::from_columns(&[col(1), col(2), col(3)]);
+    let inv = j.try_inverse().unwrap_or_else(Matrix3::zeros);
+    let mut g = [[0.0; 3]; 4];
+    for k in 0..3 {
+        g[k + 1] = [inv[(k, 0)], inv[(k, 1)], inv[(k, 2)]];
+    }
+    g[0] = [
+        -(g[1][0] + g[2][0] + g[3][0]),
+        -(g[1][1] + g[2][1] + g[3][1]),
+        -(g[1][2] + g[2][2] + g[3][2]),
+    ];
+    (g, j.determinant() / 6.0)
+}
+
+/// Exact Green-Gauss gradient weights of a cell: grad u = sum_k u_k G_k for linear u.
+/// Faces are fans of triangles from their centroids, as in `cell_volume`.
+pub fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64) -> Vec<[f64; 3]> {
+    let nn = kind.n_nodes();
+    let mut g = vec![[0.0; 3]; nn];
+    for face in kind.faces() {
+        let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
+        let k = face.len();
+        if k == 3 {
+            let a = loop_area(&[
+                pts[fnodes[0] as usize],
+                pts[fnodes[1] as usize],
+                pts[fnodes[2] as usize],
+            ]);
+            for &l in face.iter() {
+                g[l] = add(g[l], scale(a, 1.0 / 3.0));
+            }
+        } else {
+            let fc = centroid(&fnodes, pts);
+            for t in 0..k {
+                let (la, lb) = (face[t], face[(t + 1) % k]);
+                let a = loop_area(&[fc, pts[nodes[la] as usize], pts[nodes[lb] as usize]]);
+                let third = scale(a, 1.0 / 3.0);
+                g[la] = add(g[la], third);
+                g[lb] = add(g[lb], third);
+                for &l in face.iter() {
+                    g[l] = add(g[l], scale(third, 1.0 / k as f64));
+                }
+            }
+        }
+    }
+    g.iter().map(|v| scale(*v, 1.0 / volume)).collect()
+}
+
+/// Builds the sorted neighbour lists of rows `0..n_rows`: every node that shares a cell.
+/// `gid` orders neighbours (global ids); None means local index order.
+pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
+    let key = |j: u32| gid.map_or(j as u64, |g| g[j as usize]);
+    thread_local! {
+        static SCRATCH: std::cell::RefCell<Vec<u32>> = const { std::cell::RefCell::new(Vec::new()) };
+    }
+    // the sorted, distinct neighbours of row i in a reused buffer
+    let with_row = |i: usize, f: &mut dyn FnMut(&[u32])| {
+        SCRATCH.with(|v| {
+            let mut v = v.borrow_mut();
+            v.clear();
+            for &c in inc.of(i) {
+                v.extend(mesh.cell(c as usize).iter().filter(|&&j| j as usize != i));
+            }
+            v.sort_unstable_by_key(|&j| key(j));
+            v.dedup();
+            f(&v)
+        })
+    };
+    // two passes (count, then fill in place): no per-row allocation at the peak of the setup
+    let counts: Vec<usize> = (0..n_rows)
+        .into_par_iter()
+        .map(|i| {
+            let mut n = 0;
+            with_row(i, &mut |v| n = v.len());
+            n
+        })
+        .collect();
+    let mut ptr = Vec::with_capacity(n_rows + 1);
+    ptr.push(0);
+    for c in counts {
+        ptr.push(ptr[ptr.len() - 1] + c);
+    }
+    let mut col = vec![0u32; ptr[n_rows]];
+    par_rows(&mut col, &ptr, |i, row| with_row(i, &mut |v| row.copy_from_slice(v)));
+    (ptr, col)
+}
+
+/// Per-cell bitmask of boundary faces.
+pub fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
+    let mut mask = vec![0u8; mesh.n_cells()];
+    for (c, f) in boundary_faces(mesh) {
+        mask[c as usize] |= 1 << f;
+    }
+    mask
+}
+
+/// Runs `f(row, values of the row)` over the rows of a CSR array in parallel, filling `data`
+/// in place (no per-row allocation, so the peak memory is the array itself).
+pub fn par_rows<T: Send, R: Send>(
+    data: &mut [T],
+    row_ptr: &[usize],
+    f: impl Fn(usize, &mut [T]) -> R + Sync + Send,
+) -> Vec<R> {
+    par_rows_with(data, row_ptr, None, |_| (), |_, i, row| f(i, row))
+}
+
+/// The rows `0..n` of a local mesh in Morton order of their points: the order in which the
+/// setup visits rows, so that the rows of a block and their cells are near each other whatever
+/// the numbering (the band order of the numbering puts consecutive rows on a thin level).
+pub fn visit_order(mesh: &Mesh, n: usize) -> Vec<u32> {
+    let keys = eprop_partition::morton_keys(&mesh.points[..n]);
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    order.sort_unstable_by_key(|&i| (keys[i as usize], i));
+    order
+}
+
+/// A pointer that threads may share, each writing its own disjoint entries.
+struct Shared<T>(*mut T);
+unsafe impl<T: Send> Send for Shared<T> {}
+unsafe impl<T: Send> Sync for Shared<T> {}
+impl<T> Shared<T> {
+    fn get(&self) -> *mut T {
+        self.0
+    }
+}
+
+/// `par_rows` with a context built once per block of rows (`init(rows of the block)`), shared
+/// by the rows of that block, the rows taken in blocks of `order` (a permutation of the rows;
+/// None: increasing). Results come back in row order; a row's work does not depend on the order.
+pub fn par_rows_with<T: Send, R: Send, C>(
+    data: &mut [T],
+    row_ptr: &[usize],
+    order: Option<&[u32]>,
+    init: impl Fn(&[u32]) -> C + Sync + Send,
+    f: impl Fn(&C, usize, &mut [T]) -> R + Sync + Send,
+) -> Vec<R> {
+    const BLOCK: usize = 1024;
+    let n = row_ptr.len() - 1;
+    assert!(data.len() >= row_ptr[n]);
+    let ident: Vec<u32>;
+    let order = match order {
+        Some(o) => {
+            let mut seen = vec![false; n];
+            for &i in o {
+                assert!(
+                    !std::mem::replace(&mut seen[i as usize], true),
+                    "row {i} twice in the order"
+                );
+            }
+            assert_eq!(o.len(), n, "the order must name every row once");
+            o
+        }
+        None => {
+            ident = (0..n as u32).collect();
+            &ident
+        }
+    };
+    let mut out: Vec<R> = Vec::with_capacity(n);
+    let (rows_at, out_at) = (Shared(data.as_mut_ptr()), Shared(out.as_mut_ptr()));
+    order.par_chunks(BLOCK).for_each(|rows| {
+        let ctx = init(rows);
+        for &i in rows {
+            let i = i as usize;
+            // SAFETY: `order` is a permutation of the rows (checked), so each row's slice of
+            // `data` and each slot of `out` is touched by exactly one iteration; the slices lie
+            // inside `data` (row_ptr is non-decreasing up to row_ptr[n] <= data.len()) and the
+            // slots inside `out`'s capacity.
+            unsafe {
+                let row = std::slice::from_raw_parts_mut(rows_at.get().add(row_ptr[i]), row_ptr[i + 1] - row_ptr[i]);
+                out_at.get().add(i).write(f(&ctx, i, row));
+            }
+        }
+    });
+    // SAFETY: every slot 0..n was written above (a panic there propagates before this line)
+    unsafe { out.set_len(n) };
+    out
+}
+
+impl Dual {
+    /// Median-dual geometry of rows `0..n_rows`. Every cell incident to a row must be present.
+    pub fn build(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> Dual {
+        let (row_ptr, col) = pair_graph(mesh, inc, n_rows, gid);
+        let mask = boundary_mask(mesh);
+        let pts = &mesh.points;
+        let mut s = vec![[0.0; 3]; col.len()];
+        // the dual of each cell of a block of rows, computed once for the block (the rows of a
+        // block are near each other in the visit order, so few cells are computed in two blocks)
+        let cell_duals = |rows: &[u32]| {
+            let mut cells: Vec<u32> = rows.iter().flat_map(|&i| inc.of(i as usize).iter().copied()).collect();
+            cells.sort_unstable();
+            cells.dedup();
+            let duals: Vec<CellDual> = cells
+                .iter()
+                .map(|&c| cell_dual(mesh.kinds[c as usize], mesh.cell(c as usize), pts))
+                .collect();
+            (cells, duals)
+        };
+        let order = visit_order(mesh, n_rows);
+        let rows: Vec<(f64, [f64; 3], f64)> =
+            par_rows_with(&mut s, &row_ptr[..=n_rows], Some(&order), cell_duals, |ctx, i, s| {
+                let (cells, duals) = ctx;
+                let cols = &col[row_ptr[i]..row_ptr[i + 1]];
+                let mut v = 0.0;
+                let mut a = [0.0; 3];
+                for &c in inc.of(i) {
+                    let cd = &duals[cells.binary_search(&c).unwrap()];
+                    let c = c as usize;
+                    let kind = mesh.kinds[c];
+                    let nodes = mesh.cell(c);
+                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                    v += cd.vol[li];
+                    for (e, edge) in kind.edges().iter().enumerate() {
+                        let (other, sign) = if edge[0] == li {
+                            (edge[1], 1.0)
+                        } else if edge[1] == li {
+                            (edge[0], -1.0)
+                        } else {
+                            continue;
+                        };
+                        let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
+                        s[p] = add(s[p], scale(cd.s[e], sign));
+                    }
+                    if mask[c] != 0 {
+                        for (f, face) in kind.faces().iter().enumerate() {
+                            if mask[c] & (1 << f) == 0 {
+                                continue;
+                            }
+                            if let Some(k) = face.iter().position(|&l| l == li) {
+                                let nf = face.len();
+                                let next = nodes[face[(k + 1) % nf]] as usize;
+                                let prev = nodes[face[(k + nf - 1) % nf]] as usize;
+                                let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
+                                let fcn = centroid(&fnodes, pts);
+                                let xi = pts[i];
+                                let quad = [xi, scale(add(xi, pts[next]), 0.5), fcn, scale(add(xi, pts[prev]), 0.5)];
+                                a = add(a, loop_area(&quad));
+                            }
+                        }
+                    }
+                }
+                let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
+                (v, a, da)
+            });
+        let vol = rows.iter().map(|r| r.0).collect();
+        let area = rows.iter().map(|r| r.1).collect();
+        let dual_area = rows.iter().map(|r| r.2).collect();
+        Dual {
+            n_rows,
+            row_ptr,
+            col,
+            s,
+            vol,
+            area,
+            dual_area,
+        }
+    }
+
+    /// Frees the dual-face vectors S_ij (and the closure scale) once the operator is built;
+    /// the control volumes and boundary areas stay.
+    pub fn release_pairs(&mut self) {
+        self.s = Vec::new();
+        self.dual_area = Vec::new();
+    }
+
+    /// Largest |sum_j S_ij + A_i| / (dual area of i) over the rows.
+    pub fn max_closure_error(&self) -> f64 {
+        (0..self.n_rows)
+            .map(|i| {
+                let mut t = self.area[i];
+                for p in self.row_ptr[i]..self.row_ptr[i + 1] {
+                    t = add(t, self.s[p]);
+                }
+                let scale = self.dual_area[i] + dot(self.area[i], self.area[i]).sqrt();
+                if scale > 0.0 {
+                    dot(t, t).sqrt() / scale
+                } else {
+                    0.0
+                }
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Compact-scheme coefficients a_ij of rows `0..n_rows` on the pair graph of `dual`:
+/// sum_j a_ij (u_j - u_i) is the exact flux of R grad u (cell gradients) into the control
+/// volume of i. `r` gives the tensor of every local node; a cell uses the mean of its nodes'.
+pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &[Tensor]) -> Vec<f64> {
+    let pts = &mesh.points;
+    let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
+    let order = visit_order(mesh, dual.n_rows);
+    par_rows_with(
+        &mut out,
+        &dual.row_ptr[..=dual.n_rows],
+        Some(&order),
+        |_| (),
+        |_, i, w| {
+            let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
+            for &c in inc.of(i) {
+                let c = c as usize;
+                let kind = mesh.kinds[c];
+                let nodes = mesh.cell(c);
+                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                let mut rc = Matrix3::zeros();
+                for &n in nodes {
+                    rc += r[n as usize];
+                }
+                rc /= nodes.len() as f64;
+                if kind == CellKind::Tet {
+                    // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
+                    // that a_ab == a_ba bitwise
+                    let (g, v) = tet_gradients(nodes, pts);
+                    for lk in 0..4 {
+                        if lk == li {
+                            continue;
+                        }
+                        let (lo, hi) = (li.min(lk), li.max(lk));
+                        let rg = rc * Vector3::from(g[hi]);
+                        let val = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
+                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
+                        w[p] += val;
+                    }
+                } else {
+                    let cd = cell_dual(kind, nodes, pts);
+                    let gg = green_gauss(kind, nodes, pts, cd.volume);
+                    // total outward dual-face vector of node li in this cell
+                    let mut sum_s = [0.0; 3];
+                    for (e, edge) in kind.edges().iter().enumerate() {
+                        if edge[0] == li {
+                            sum_s = add(sum_s, cd.s[e]);
+                        } else if edge[1] == li {
+                            sum_s = sub(sum_s, cd.s[e]);
+                        }
+                    }
+                    let rs = rc * Vector3::from(sum_s);
+                    for (lk, gk) in gg.iter().enumerate() {
+                        if lk == li {
+                            continue;
+                        }
+                        let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
+                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
+                        w[p] += val;
+                    }
+                }
+            }
+        },
+    );
+    out
+}

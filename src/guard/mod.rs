@@ -1,0 +1,8 @@
+//! What keeps a run safe: output claims, the writer lock and agreed exit statuses (`safety`),
+//! checked counts and the output budget (`limits`), plausibility warnings and the non-finite
+//! watch (`plausible`), and signals as a flag the step's reduction carries (`signals`).
+
+pub mod limits;
+pub mod plausible;
+pub mod safety;
+pub mod signals;

@@ -1,0 +1,153 @@
+//! Warnings about results that are computed correctly but mean little: a source far outside
+//! the tissue law's range (often a units mistake), a contact area too small for its mesh, a
+//! `nearest` point far from the node it picks, and displacements past small-deformation
+//! validity. None of them changes a number. And the check that stops a run whose state is no
+//! longer finite.
+
+use crate::simulate::Simulation;
+use eprop_io::geom::{norm, sub};
+use eprop_io::Mesh;
+
+/// max |u| above this fraction of the mesh's bounding-box diagonal is warned about once (the
+/// model is a small-deformation one).
+pub const U_FRACTION: f64 = 0.1;
+/// A `nearest` node farther than this fraction of the diagonal from its point is warned about.
+pub const NEAREST_FRACTION: f64 = 0.05;
+/// A contact area below this fraction of the squared diagonal is warned about.
+pub const AREA_FRACTION: f64 = 1e-6;
+/// The tissue law is meant for contact stresses sigma up to this multiple of `young`.
+pub const STRESS_RATIO: f64 = 1.0;
+
+fn diagonal(mesh: &Mesh) -> f64 {
+    let (lo, hi) = mesh.bounds();
+    norm(sub(hi, lo))
+}
+
+/// The largest ramp scale of a load (1 without a ramp).
+fn peak_scale(ramp: &Option<Vec<[f64; 2]>>) -> f64 {
+    ramp.as_ref()
+        .map(|r| r.iter().fold(0.0f64, |m, p| m.max(p[1].abs())))
+        .unwrap_or(1.0)
+}
+
+/// Warnings about the loads of a simulation on its whole mesh (the process that holds it).
+pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
+    let mut out = Vec::new();
+    let diag = diagonal(mesh);
+    let young = sim.setup.law.young;
+    let scale = sim.setup.scenario.file.mesh.scale;
+    let metres = if diag < 2.0 && scale == 1.0 {
+        format!("; the mesh spans {diag:.3} units: if it is in metres, `[mesh] scale = 1000` reads it in millimetres")
+    } else {
+        String::new()
+    };
+    let entries = &sim.setup.scenario.file.load;
+    for (k, l) in sim.loads.iter().enumerate() {
+        let f = norm(l.force) * peak_scale(&l.ramp);
+        let sigma = f / l.area;
+        if sigma / young > STRESS_RATIO {
+            out.push(format!(
+                "load {}: its contact stress sigma = |F| / A = {f:.4e} / {:.4e} = {sigma:.4e} is {:.3e} times [tissue] young = {young}, far outside the tissue law's range (sigma/young up to {STRESS_RATIO}): the source and the displacements will be far too large; fix: check the force, young and the units{metres}",
+                k + 1,
+                l.area,
+                sigma / young
+            ));
+        }
+        if l.area < AREA_FRACTION * diag * diag {
+            out.push(format!(
+                "load {}: its contact area {:.4e} is below {AREA_FRACTION:e} of the squared extent of the mesh ({:.4e}): the stress on it is concentrated on a speck; fix: a `patch = {{ center, radius }}` spreads the load{metres}",
+                k + 1,
+                l.area,
+                diag * diag
+            ));
+        }
+        if let Some(crate::config::Selector::Nearest(p)) = entries.get(k).map(|e| e.selector.get_ref()) {
+            let node = l.nodes[0] as usize;
+            let d = norm(sub(mesh.points[node], p.0));
+            if d > NEAREST_FRACTION * diag {
+                let x = mesh.points[node];
+                out.push(format!(
+                    "load {}: `nearest = [{}, {}, {}]` picks node {} at ({:.4}, {:.4}, {:.4}), {d:.4e} away from the point ({:.1} % of the mesh's diagonal {diag:.4e}); fix: give a point on the surface of the mesh",
+                    k + 1,
+                    p.0[0],
+                    p.0[1],
+                    p.0[2],
+                    l.node_ids[0],
+                    x[0],
+                    x[1],
+                    x[2],
+                    100.0 * d / diag
+                ));
+            }
+        }
+    }
+    out
+}
+
+/// The likely cause of a state that is no longer finite, for the message that stops the run.
+pub fn nonfinite_cause(sim: &Simulation) -> String {
+    for (k, (l, a)) in sim.loads.iter().zip(sim.applied(sim.time)).enumerate() {
+        let peak = sim
+            .setup
+            .law
+            .energy_density(norm(l.force) * peak_scale(&l.ramp) / l.area);
+        if !a.q.is_finite() || !peak.is_finite() || a.sigma / sim.setup.law.young > STRESS_RATIO {
+            return format!(
+                "load {}'s contact stress sigma = {:.4e} gives the energy density q = {:.4e} (sigma/young = {:.3e}): the source is far outside the tissue law's range; fix: check the force, [tissue] young and the mesh's units ([mesh] scale)",
+                k + 1,
+                a.sigma,
+                a.q,
+                a.sigma / sim.setup.law.young
+            );
+        }
+    }
+    "the potential or the motion grew without bound; fix: check the warnings of `eprop check`, and lower [model] coupling or exponent, or [time] dt".into()
+}
+
+/// What the watch saw at an output step.
+pub enum Look {
+    /// Every value finite; a warning the first time max |u| passes its limit.
+    Finite(Option<String>),
+    /// Some process holds a NaN or an infinity in u, v or phi.
+    NonFinite,
+}
+
+/// Watches the state of a run at its output steps, on every process alike (one reduction).
+pub struct Watch {
+    diag: f64,
+    warned: bool,
+}
+
+impl Watch {
+    /// Every process calls (the bounding box is reduced).
+    pub fn new(sim: &Simulation) -> Watch {
+        let (lo, hi) = sim.mesh().bounds();
+        let m = sim.comm.max_each(&[hi[0], hi[1], hi[2], -lo[0], -lo[1], -lo[2]]);
+        let diag = norm([m[0] + m[3], m[1] + m[4], m[2] + m[5]]);
+        Watch { diag, warned: false }
+    }
+
+    /// Looks at u, v and phi of the owned nodes (every process calls).
+    pub fn look(&mut self, sim: &Simulation) -> Look {
+        let n = sim.n_owned();
+        let finite = |x: &[[f64; 3]]| x.iter().all(|p| p.iter().all(|c| c.is_finite()));
+        let bad = !(finite(&sim.u[..n]) && finite(&sim.v[..n]) && finite(&sim.prop.phi[..n]));
+        let umax = sim.u[..n].iter().map(|p| norm(*p)).fold(0.0f64, f64::max);
+        let all = sim.comm.max_each(&[f64::from(u8::from(bad)), umax]);
+        if all[0] > 0.0 {
+            return Look::NonFinite;
+        }
+        let umax = all[1];
+        if self.warned || !(umax > U_FRACTION * self.diag) {
+            return Look::Finite(None);
+        }
+        self.warned = true;
+        Look::Finite(Some(format!(
+            "max |u| = {umax:.4e} at step {} (t = {:.6e}) passed {} % of the mesh's diagonal {:.4e}: the small-deformation model is no longer valid there; fix: a smaller force, or check [tissue] young and the units",
+            sim.step,
+            sim.time,
+            100.0 * U_FRACTION,
+            self.diag
+        )))
+    }
+}

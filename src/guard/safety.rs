@@ -1,0 +1,311 @@
+//! What a run may write, and how it ends when it cannot go on.
+//!
+//! - An output never replaces an input: an output path that resolves to a file the run reads
+//!   (same canonical path, or the same device and inode: links count) is refused before
+//!   anything is opened for writing (`refuse_inputs`).
+//! - An existing file is replaced only when the user says so, and only when it is an eprop
+//!   series (`check_existing`).
+//! - One writer per output: an advisory lock (`flock`) on `<output>.lock`, taken before the
+//!   output is opened and held to the end of the run (`OutputLock`). Readers never take it.
+//! - The output must fit on its disk (`check_space`).
+//! - A run that stops early ends every process with the same status and one message
+//!   (`Agreed`); the statuses are `EXIT_*`.
+
+use anyhow::{anyhow, bail, Result};
+use eprop_series::outcome::{dir_of, free_bytes, human_bytes};
+use eprop_series::vtkhdf::Kind;
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
+
+pub use crate::distribute::launch::{Agreed, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
+
+/// A file a run reads, and what it is to the run (for messages).
+#[derive(Clone, Debug)]
+pub struct Input {
+    pub role: String,
+    pub path: PathBuf,
+}
+
+/// The canonical form of a path whose file may not exist yet: its directory made canonical.
+fn canonical(path: &Path) -> Option<PathBuf> {
+    if let Ok(p) = std::fs::canonicalize(path) {
+        return Some(p);
+    }
+    let name = path.file_name()?;
+    std::fs::canonicalize(dir_of(path)).ok().map(|d| d.join(name))
+}
+
+/// (device, inode) of an existing file, links followed.
+fn identity(path: &Path) -> Option<(u64, u64)> {
+    std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
+}
+
+/// Refuses an output path (`role`: how it was named, "the output file (--output)") that is or
+/// will be one of the run's inputs.
+pub fn refuse_inputs(out: &Path, role: &str, inputs: &[Input]) -> Result<()> {
+    if let Ok(m) = std::fs::symlink_metadata(out) {
+        if m.file_type().is_symlink() && std::fs::metadata(out).is_err() {
+            bail!(
+                "{}: {role} is a symbolic link to {}, which does not exist; fix: give the path of the file itself",
+                out.display(),
+                std::fs::read_link(out)
+                    .map(|t| t.display().to_string())
+                    .unwrap_or_default()
+            );
+        }
+    }
+    let (out_path, out_id) = (canonical(out), identity(out));
+    for i in inputs {
+        let same_path = out_path.is_some() && out_path == canonical(&i.path);
+        let same_file = out_id.is_some() && out_id == identity(&i.path);
+        if same_path || same_file {
+            let how = if same_path {
+                String::new()
+            } else {
+                format!(" (a link to the same file, {})", i.path.display())
+            };
+            bail!(
+                "{}: {role} is {}{how}; writing it would destroy that input; fix: write to another file",
+                out.display(),
+                i.role
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Refuses to replace an existing file, unless it is an eprop series and `overwrite` is set.
+/// `role` names how the path was given; `restart` is the command that would continue it.
+pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -> Result<()> {
+    let Ok(meta) = std::fs::metadata(path) else {
+        return Ok(());
+    };
+    if !meta.is_file() {
+        bail!(
+            "{}: {role} exists and is not a regular file; fix: give the path of a new .h5 file",
+            path.display()
+        );
+    }
+    match eprop_series::vtkhdf::kind_of(path)? {
+        Kind::Series { steps, .. } if overwrite => {
+            tracing::info!("{}: replacing a series of {steps} steps (--overwrite)", path.display());
+            Ok(())
+        }
+        Kind::Series { steps, .. } => bail!(
+            "{}: {role} exists and holds an eprop series of {steps} complete step(s); eprop does not replace it silently; fix: continue it with `{restart}`, replace it with --overwrite (or [output] overwrite = true), or write another file with -o FILE.h5",
+            path.display()
+        ),
+        other => {
+            let what = if other == Kind::NotHdf5 {
+                "is not an HDF5 file"
+            } else {
+                "is an HDF5 file but not an eprop series"
+            };
+            bail!(
+                "{}: {role} exists and {what} ({}); eprop never replaces such a file, not even with --overwrite; fix: write another file with -o FILE.h5, or move this one away",
+                path.display(),
+                human_bytes(meta.len() as f64)
+            )
+        }
+    }
+}
+
+/// An advisory lock for the one writer of an output file: `flock` on `<output>.lock`, which
+/// holds the writer's process id. Released (and the side file removed) when dropped; the
+/// system releases it when the process dies.
+pub struct OutputLock {
+    path: PathBuf,
+    _file: std::fs::File,
+}
+
+/// The side file of an output's lock.
+pub fn lock_path(output: &Path) -> PathBuf {
+    let mut s = output.as_os_str().to_owned();
+    s.push(".lock");
+    PathBuf::from(s)
+}
+
+impl OutputLock {
+    /// Takes the lock of `output`, or says which process holds it.
+    pub fn take(output: &Path) -> Result<OutputLock> {
+        use std::io::{Read, Seek, Write};
+        let path = lock_path(output);
+        for _ in 0..8 {
+            let mut f = std::fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(&path)
+                .map_err(|e| {
+                    anyhow!(
+                        "{}: cannot create the lock file of the output: {e}; fix: make the directory writable or choose another output file",
+                        path.display()
+                    )
+                })?;
+            if f.try_lock().is_err() {
+                let mut who = String::new();
+                let _ = f.read_to_string(&mut who);
+                let who = who.trim();
+                let who = if who.is_empty() {
+                    "another process".to_string()
+                } else {
+                    format!("another eprop run ({who})")
+                };
+                bail!(
+                    "{}: {who} is writing this file now (it holds {}); two writers would mix their steps; fix: wait for that run to end, or write another file with -o FILE.h5",
+                    output.display(),
+                    path.display()
+                );
+            }
+            // the file locked must still be the one at `path` (a run that ended may have
+            // removed it between our open and our lock)
+            let same = match (f.metadata(), std::fs::metadata(&path)) {
+                (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+                _ => false,
+            };
+            if !same {
+                continue;
+            }
+            let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+            let _ = f.set_len(0).and_then(|_| f.rewind());
+            let _ = write!(f, "pid {} on {}", std::process::id(), host.trim());
+            let _ = f.flush();
+            return Ok(OutputLock { path, _file: f });
+        }
+        bail!(
+            "{}: the lock file keeps changing (runs starting and ending on this output); fix: try again",
+            path.display()
+        )
+    }
+}
+
+impl Drop for OutputLock {
+    fn drop(&mut self) {
+        // removed while still locked: a run that opened it meanwhile sees another inode and
+        // takes a new one
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Refuses a run whose output (`need` bytes, estimated from `what`) exceeds the free space of
+/// its directory (plus `reclaimed`, the bytes of a file the run replaces), unless `force`.
+pub fn check_space(output: &Path, need: f64, reclaimed: u64, what: &str, force: bool) -> Result<()> {
+    let dir = dir_of(output);
+    let Some(free) = free_bytes(&dir) else {
+        return Ok(());
+    };
+    let free = free.saturating_add(reclaimed);
+    if force || need <= free as f64 {
+        return Ok(());
+    }
+    bail!(
+        "{}: the run would write about {} ({what}) but {} has {} free; fix: free space, write less (`[output] every`, `fields`, precision = \"float32\", or fewer steps), write elsewhere with -o, or start anyway with --force (the run then stops cleanly when the disk is full)",
+        output.display(),
+        human_bytes(need),
+        dir.display(),
+        human_bytes(free as f64)
+    )
+}
+
+/// The command that continues a run's series: `[mpirun -n N] eprop run SCENARIO --restart FILE`.
+pub fn restart_command(scenario: &Path, file: &Path, processes: usize) -> String {
+    let mpi = if processes > 1 {
+        format!("mpirun -n {processes} ")
+    } else {
+        String::new()
+    };
+    format!("{mpi}eprop run {} --restart {}", scenario.display(), file.display())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn input(role: &str, p: &Path) -> Input {
+        Input {
+            role: role.into(),
+            path: p.to_path_buf(),
+        }
+    }
+
+    #[test]
+    fn an_output_that_is_an_input_is_refused_by_path_link_or_inode() {
+        let t = tempfile::tempdir().unwrap();
+        let d = t.path();
+        let mesh = d.join("cyl.msh");
+        std::fs::write(&mesh, "mesh").unwrap();
+        std::fs::create_dir(d.join("sub")).unwrap();
+        let inputs = [input("the mesh (cyl.msh, [mesh] file of s.toml)", &mesh)];
+        let refused = |out: &Path| {
+            refuse_inputs(out, "the output file (--output)", &inputs)
+                .unwrap_err()
+                .to_string()
+        };
+        let e = refused(&mesh);
+        assert!(
+            e.contains("cyl.msh: the output file (--output) is the mesh") && e.contains("fix:"),
+            "{e}"
+        );
+        refused(&d.join("sub/../cyl.msh"));
+        std::os::unix::fs::symlink(&mesh, d.join("soft.h5")).unwrap();
+        refused(&d.join("soft.h5"));
+        std::fs::hard_link(&mesh, d.join("hard.h5")).unwrap();
+        assert!(refused(&d.join("hard.h5")).contains("a link to the same file"));
+        std::os::unix::fs::symlink(d.join("gone.h5"), d.join("dangling.h5")).unwrap();
+        assert!(refused(&d.join("dangling.h5")).contains("which does not exist"));
+        assert!(refuse_inputs(&d.join("new.h5"), "x", &inputs).is_ok());
+        assert_eq!(std::fs::read(&mesh).unwrap(), b"mesh");
+    }
+
+    #[test]
+    fn a_second_lock_is_refused_and_released_with_the_first() {
+        let t = tempfile::tempdir().unwrap();
+        let out = t.path().join("o.h5");
+        let first = OutputLock::take(&out).unwrap();
+        let e = OutputLock::take(&out).err().unwrap().to_string();
+        assert!(
+            e.contains(&format!("another eprop run (pid {}", std::process::id())) && e.contains("fix:"),
+            "{e}"
+        );
+        drop(first);
+        assert!(!lock_path(&out).exists());
+        let again = OutputLock::take(&out).unwrap();
+        drop(again);
+    }
+
+    #[test]
+    fn only_a_series_is_replaced_and_only_when_asked() {
+        let t = tempfile::tempdir().unwrap();
+        let txt = t.path().join("notes.txt");
+        std::fs::write(&txt, "keep me").unwrap();
+        for overwrite in [false, true] {
+            let e = check_existing(&txt, "the output file", overwrite, "r")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("is not an HDF5 file") && e.contains("not even with --overwrite"),
+                "{e}"
+            );
+        }
+        assert!(check_existing(&t.path().join("new.h5"), "x", false, "r").is_ok());
+        let e = check_existing(t.path(), "the output file", true, "r")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+    }
+
+    #[test]
+    fn space_is_checked_unless_forced() {
+        let t = tempfile::tempdir().unwrap();
+        let out = t.path().join("o.h5");
+        assert!(check_space(&out, 1.0, 0, "1 step", false).is_ok());
+        let e = check_space(&out, 1e30, 0, "many steps", false).unwrap_err().to_string();
+        assert!(e.contains("would write about") && e.contains("--force"), "{e}");
+        assert!(check_space(&out, 1e30, 0, "many steps", true).is_ok());
+        assert_eq!(
+            restart_command(Path::new("s.toml"), Path::new("o.h5"), 2),
+            "mpirun -n 2 eprop run s.toml --restart o.h5"
+        );
+    }
+}

@@ -1,0 +1,6 @@
+//! What a run writes and prints: the output series (`series`), the run's `Summary`
+//! (`summary`) and the progress bar (`progress`).
+
+pub(crate) mod progress;
+pub(crate) mod series;
+pub mod summary;

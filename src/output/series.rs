@@ -1,0 +1,256 @@
+//! The output series of a run: the file created (or reopened to continue it), each output
+//! step's fields collected from the owned nodes into this process's block of the global
+//! node order (`BlockScatter`), and appended.
+
+use crate::config::{Field, Precision};
+use crate::diagnostics::{log_memory, median};
+use crate::distribute::parts::{Fnv, GlobalSizes};
+use crate::guard::safety::{Agreed, EXIT_ERROR};
+use crate::simulate::Simulation;
+use anyhow::{anyhow, Result};
+use eprop_io::geom::norm;
+use eprop_series::outcome::WriteFailed;
+use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow, CREATING};
+use std::path::Path;
+use std::time::Instant;
+
+/// Program name and version, stored in every series.
+pub const VERSION: &str = concat!("eprop ", env!("CARGO_PKG_VERSION"));
+
+/// The whole mesh's sizes as the series lays them out.
+pub fn layout(sizes: &GlobalSizes) -> Layout {
+    Layout {
+        nodes: sizes.nodes,
+        cells: sizes.cells,
+        conn: sizes.conn,
+    }
+}
+
+/// This process's block of each field (global node order, flattened), collected from the
+/// owned nodes of every process (one all-to-all per field; every process calls).
+pub fn field_blocks(sim: &Simulation, fields: &[Field]) -> Vec<Vec<f64>> {
+    let no = sim.n_owned();
+    let c = sim.comm.as_ref();
+    fields
+        .iter()
+        .map(|f| match f {
+            Field::Displacement => sim.blocks.collect(sim.u[..no].as_flattened(), 3, c),
+            Field::Velocity => sim.blocks.collect(sim.v[..no].as_flattened(), 3, c),
+            Field::Potential => sim.blocks.collect(sim.prop.phi[..no].as_flattened(), 3, c),
+            Field::Energy => {
+                let energy: Vec<f64> = sim.prop.phi[..no].iter().map(|p| norm(*p)).collect();
+                sim.blocks.collect(&energy, 1, c)
+            }
+        })
+        .collect()
+}
+
+/// Each tool's row of the output (`/eprop/tools`).
+pub fn tool_rows(sim: &Simulation) -> Vec<ToolRow> {
+    sim.tool_states()
+        .iter()
+        .map(|t| ToolRow {
+            position: t.position,
+            force: t.force,
+            contact_nodes: t.contact_nodes,
+            contact_area: t.contact_area,
+            indentation: t.indentation,
+            displacement: t.displacement,
+        })
+        .collect()
+}
+
+/// Checks that a path's directory exists before a long run starts.
+pub fn check_output_dir(path: &Path) -> Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        return Err(anyhow!(
+            "{}: the output directory does not exist; fix: create it or choose another [output] file / --output",
+            path.display()
+        ));
+    }
+    Ok(())
+}
+
+/// A run's output series, open for appending.
+pub struct Series {
+    writer: SeriesWriter,
+    fields: Vec<Field>,
+    /// Seconds of every append of this run.
+    appends: Vec<f64>,
+}
+
+impl Series {
+    /// Creates the series of a simulation's `[output]` and writes its static part and the
+    /// initial step; with `restart`, reopens the series instead and restores the simulation
+    /// to its last complete step. Every process calls (`io`: the collective output's
+    /// communicator under MPI).
+    pub fn start(
+        sim: &mut Simulation,
+        sizes: &GlobalSizes,
+        restart: bool,
+        io: Option<&mpi::topology::SimpleCommunicator>,
+    ) -> Result<Series> {
+        let output = &sim.setup.output;
+        let fields = output.fields();
+        let mut text_hash = Fnv::default();
+        text_hash.bytes(sim.setup.scenario.text.as_bytes());
+        let plan = sim.step_plan();
+        let spec = SeriesSpec {
+            fields: fields.iter().map(|f| (f.name(), f.components())).collect(),
+            ids: vec![("scenario_hash", text_hash.finish()), ("mesh_hash", sizes.mesh_hash)],
+            float32: output.precision == Precision::Float32,
+            compression: output.compression,
+            n_loads: sim.loads.len(),
+            load_nodes: sim.loads.iter().map(|l| l.nodes[0] as u64).collect(),
+            scenario: &sim.setup.scenario.text,
+            version: VERSION,
+            block_start: sim.blocks.start,
+            block_len: sim.blocks.len,
+            control_volumes: &sim.vol_block,
+            attrs: vec![
+                ("dt", sim.dt),
+                ("h", plan.h),
+                ("substeps", plan.per_step as f64),
+                ("processes", sim.comm.size() as f64),
+            ],
+        };
+        let file = output.file.clone();
+        if restart {
+            let (mut writer, resume) = SeriesWriter::reopen(&file, layout(sizes), &spec, io)?;
+            let finite = [&resume.u, &resume.v, &resume.phi]
+                .iter()
+                .all(|x| x.iter().all(|c| c.is_finite()));
+            if !writer.all(finite) {
+                return Err(Agreed::error(
+                    EXIT_ERROR,
+                    format!(
+                        "{}: cannot restart: its last complete step (step {}) holds NaN or inf values, which a restart would continue; fix: find the cause (see the warnings of `eprop check`) and start a new run (--overwrite)",
+                        file.display(),
+                        resume.step
+                    ),
+                ));
+            }
+            sim.restore(resume.step, &resume.u, &resume.v, &resume.phi);
+            // a step off the output grid (a run stopped by a signal, or a shorter run's last
+            // step) is a restart point only: continuing drops it, so the series is the one an
+            // uninterrupted run writes
+            let every = sim.setup.output.every;
+            if !resume.step.is_multiple_of(every) && resume.step < sim.max_steps() && writer.steps_written() > 1 {
+                writer.forget_last()?;
+            }
+            return Ok(Series {
+                writer,
+                fields,
+                appends: Vec::new(),
+            });
+        }
+        let created =
+            SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io).and_then(|mut writer| {
+                if !sim.tools.is_empty() {
+                    writer.add_tools(sim.tools.len())?;
+                }
+                log_memory("the static output");
+                let mut series = Series {
+                    writer,
+                    fields,
+                    appends: Vec::new(),
+                };
+                series.append(sim)?;
+                log_memory("the first output step");
+                Ok(series)
+            });
+        match created {
+            // a file this run began holds no complete step: it goes (once every process has
+            // closed it), so that running again needs no --overwrite
+            Err(e) if e.downcast_ref::<WriteFailed>().is_some_and(|w| w.what != CREATING) => {
+                if sim.comm.rank() == 0 {
+                    let _ = std::fs::remove_file(&file);
+                }
+                Err(e)
+            }
+            other => other,
+        }
+    }
+
+    /// Appends the simulation's current step (every process calls).
+    pub fn append(&mut self, sim: &Simulation) -> Result<()> {
+        let t = Instant::now();
+        let data = field_blocks(sim, &self.fields);
+        let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
+        if !sim.tools.is_empty() {
+            self.writer.append_tools(sim.time, sim.step, &tool_rows(sim))?;
+        }
+        self.writer.append(sim.time, sim.step, &refs, &sim.probes())?;
+        self.appends.push(t.elapsed().as_secs_f64());
+        Ok(())
+    }
+
+    /// Seconds spent appending.
+    pub fn seconds(&self) -> f64 {
+        self.appends.iter().sum()
+    }
+
+    /// Median seconds of one append over the first and over the last 100 appends.
+    pub fn append_medians(&self) -> (f64, f64) {
+        let k = self.appends.len().min(100);
+        (
+            median(&self.appends[..k]),
+            median(&self.appends[self.appends.len() - k..]),
+        )
+    }
+
+    pub fn path(&self) -> &Path {
+        self.writer.path()
+    }
+
+    /// Complete steps in the file.
+    pub fn steps_written(&self) -> usize {
+        self.writer.steps_written()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::distribute::comm::Comm;
+    use crate::testing::threads;
+
+    #[test]
+    fn a_missing_output_directory_is_named() {
+        assert!(check_output_dir(Path::new("out.h5")).is_ok());
+        assert!(check_output_dir(&std::env::temp_dir().join("x.h5")).is_ok());
+        let e = check_output_dir(Path::new("/no/such/dir/out.h5"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("/no/such/dir/out.h5") && e.contains("fix:"), "{e}");
+    }
+
+    #[test]
+    fn fields_are_collected_into_blocks_of_the_global_order() {
+        use crate::distribute::halo::BlockScatter;
+        // 7 nodes over 3 processes, owned in a scrambled order; process r's block is
+        // rows r*7/3 .. (r+1)*7/3 of the global order
+        let owned: [&[u64]; 3] = [&[6, 0, 3], &[1, 5], &[4, 2]];
+        let blocks = threads(3, |comm| {
+            let gids = owned[comm.rank()];
+            let b = BlockScatter::new(gids, 7, comm);
+            let values: Vec<f64> = gids.iter().flat_map(|&g| [g as f64, -(g as f64)]).collect();
+            let block = b.collect(&values, 2, comm);
+            // and back to the owned order
+            assert_eq!(b.distribute(&block, 2, comm), values);
+            (b.start, b.len, block)
+        });
+        assert_eq!(
+            blocks,
+            [
+                (0, 2, vec![0.0, -0.0, 1.0, -1.0]),
+                (2, 2, vec![2.0, -2.0, 3.0, -3.0]),
+                (4, 3, vec![4.0, -4.0, 5.0, -5.0, 6.0, -6.0]),
+            ]
+        );
+    }
+}

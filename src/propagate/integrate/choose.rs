@@ -1,0 +1,234 @@
+//! The stepper of a scenario: the integrator it names, or for `auto` the cheapest one that
+//! is accurate enough, from an estimate of the work per mechanics step (in forward Euler
+//! substeps, the unit of `euler`):
+//! - euler: ceil(dt / (0.9 h_bound)) substeps;
+//! - rkl2: its stages times STAGE_COST, with super-steps short enough that the median node's
+//!   modes stay resolved (tau / h_median <= Z_RKL2);
+//! - implicit: 2 (k + 2) + 1 operator applications times CG_COST, k the iterations of a
+//!   trial solve made here (deterministic: the same on any number of processes).
+//!
+//! Only deterministic integrators are candidates, and only the compact scheme has any
+//! besides euler; euler stays unless another is MARGIN times cheaper.
+
+use super::euler::SAFETY;
+use super::rkl2::{stages_for, STAGE_COST};
+use super::{Euler, Implicit, Kind, Rkl2, Settings, Stepper};
+use crate::distribute::comm::Comm;
+use crate::propagate::Propagation;
+use anyhow::{bail, Result};
+
+/// Cost of one conjugate-gradient iteration of `implicit` (Jacobi) in forward Euler
+/// substeps: the operator sweep with its dot products and a pass over eleven vectors.
+/// Measured as `rkl2::STAGE_COST`.
+pub const CG_COST: f64 = 2.4;
+/// `rkl2` takes super-steps short enough that the median node's modes see tau / h <= Z_RKL2
+/// (past that, its stages damp them little and they lose accuracy).
+pub const Z_RKL2: f64 = 20.0;
+/// `auto` keeps euler unless another integrator is estimated this many times cheaper.
+pub const MARGIN: f64 = 1.5;
+
+/// What the choice needs to know about the scenario and its operator.
+pub struct Context<'a> {
+    pub settings: &'a Settings,
+    /// The scheme's name and whether it is `compact` (symmetric, real spectrum).
+    pub scheme: &'static str,
+    pub compact: bool,
+    /// The forward Euler stability bound of the operator (2 / spectral radius bound).
+    pub h_bound: f64,
+    /// The mechanics step and the scenario's `[time] h`.
+    pub dt: f64,
+    pub user_h: Option<f64>,
+    /// The scenario file, for messages.
+    pub path: &'a str,
+    /// The propagation (a trial solve runs its sweeps; its potential is left alone).
+    pub prop: &'a mut Propagation,
+    /// Control volumes, the nodes that move and global ids (local numbering, owned first).
+    pub vol: &'a [f64],
+    pub active: &'a [bool],
+    pub gid: &'a [u64],
+    pub comm: &'a dyn Comm,
+}
+
+/// A count for a message: whole below 1e9, else in exponent form (a saturated count is
+/// `usize::MAX`, which says nothing in full).
+fn count(x: f64) -> String {
+    if x < 1e9 {
+        format!("{x:.0}")
+    } else {
+        format!("{x:.3e}")
+    }
+}
+
+/// Super-steps per mechanics step for RKL2: enough that tau / h_median <= Z_RKL2.
+fn rkl2_supersteps(dt: f64, h_median: f64) -> usize {
+    if h_median.is_finite() && h_median > 0.0 {
+        (dt / h_median / Z_RKL2).ceil().max(1.0) as usize
+    } else {
+        1
+    }
+}
+
+/// The median node's own Euler bound (2 / its Gershgorin bound), over every process.
+fn median_h(prop: &Propagation, comm: &dyn Comm) -> f64 {
+    match &prop.op {
+        crate::discretize::operator::Operator::Compact(c) => {
+            let g = super::stiffness::median_bound(c, prop.layout().n_owned, comm);
+            if g > 0.0 {
+                2.0 / g
+            } else {
+                f64::INFINITY
+            }
+        }
+        _ => f64::INFINITY,
+    }
+}
+
+fn euler(cx: &Context, why: String) -> Result<Box<dyn Stepper>> {
+    let mut e = Euler::new(cx.h_bound, cx.dt, cx.user_h, cx.path, cx.scheme)?;
+    if !why.is_empty() {
+        e.set_why(why);
+    }
+    Ok(Box::new(e))
+}
+
+fn implicit(cx: &Context, per_step: usize, why: String) -> Result<Implicit> {
+    Implicit::new(
+        cx.prop,
+        cx.vol,
+        cx.active,
+        cx.dt,
+        cx.h_bound,
+        cx.settings,
+        cx.path,
+        per_step,
+        why,
+        cx.comm,
+    )
+}
+
+/// The stepper of the scenario.
+pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
+    let s = cx.settings;
+    if s.kind != Kind::Euler && s.kind != Kind::Auto && !cx.compact {
+        bail!(
+            "{}: [model] integrator = \"{}\" needs the symmetric compact scheme (the {} scheme's spectrum is complex, where neither rkl2's stability interval nor conjugate gradients hold); fix: use integrator = \"euler\" or \"auto\" with this scheme, or scheme = \"compact\"",
+            cx.path,
+            s.kind.name(),
+            cx.scheme
+        );
+    }
+    if s.kind != Kind::Euler && s.kind != Kind::Auto && cx.user_h.is_some() {
+        bail!(
+            "{}: [time] h sets forward Euler's substep, and [model] integrator = \"{}\" takes no substep; fix: leave h out, or use integrator = \"euler\"",
+            cx.path,
+            s.kind.name()
+        );
+    }
+    let layout = cx.prop.layout();
+    match s.kind {
+        Kind::Euler => euler(cx, String::new()),
+        Kind::Rkl2 => {
+            let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
+            let st = stages_for(cx.dt / n as f64, cx.h_bound);
+            Ok(Box::new(Rkl2::new(
+                cx.h_bound,
+                cx.dt,
+                n,
+                s.max_stages,
+                layout,
+                cx.path,
+                format!("the scenario's choice: {st} stages per super-step, {n} super-step(s) per step"),
+            )?))
+        }
+        Kind::Implicit => {
+            let mut imp = implicit(cx, 0, String::new())?;
+            // a trial solve estimates the work per step (for `eprop check` and the summary)
+            let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
+            imp.set_plan(
+                2 * (it + 2) + 1,
+                format!(
+                    "the scenario's choice: TR-BDF2, {} preconditioner ({it} iterations per solve in a trial)",
+                    s.preconditioner.name()
+                ),
+            );
+            Ok(Box::new(imp))
+        }
+        Kind::Auto => {
+            if !cx.compact {
+                return euler(
+                    cx,
+                    format!(
+                        "auto: on the {} scheme (complex spectrum) only euler is stable",
+                        cx.scheme
+                    ),
+                );
+            }
+            if cx.user_h.is_some() {
+                return euler(cx, "auto: the scenario sets the Euler substep h".into());
+            }
+            let substeps = if cx.h_bound.is_finite() {
+                (cx.dt / (SAFETY * cx.h_bound)).ceil().max(1.0)
+            } else {
+                1.0
+            };
+            let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
+            let st = stages_for(cx.dt / n as f64, cx.h_bound);
+            let rkl2_cost = STAGE_COST * st.saturating_mul(n) as f64;
+            let (mut best, mut best_cost) = (Kind::Euler, substeps);
+            if st.saturating_mul(n) <= s.max_stages && rkl2_cost * MARGIN < best_cost {
+                (best, best_cost) = (Kind::Rkl2, rkl2_cost);
+            }
+            // implicit costs at least one iteration per stage: try it only where it can win
+            let floor = CG_COST * (2.0 * 3.0 + 1.0);
+            let mut trial = None;
+            if floor * MARGIN < best_cost {
+                let mut imp = implicit(cx, 0, String::new())?;
+                if let Ok(it) = imp.trial(cx.prop, cx.gid, cx.comm) {
+                    let apps = 2 * (it + 2) + 1;
+                    let cost = CG_COST * apps as f64;
+                    let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
+                    if cost * margin < best_cost {
+                        (best, best_cost) = (Kind::Implicit, cost);
+                    }
+                    trial = Some((imp, it, apps, cost));
+                }
+            }
+            let _ = best_cost;
+            let others = format!(
+                "per step euler {} substeps, rkl2 {} stages (~{} substeps){}",
+                count(substeps),
+                count(st.saturating_mul(n) as f64),
+                count(rkl2_cost),
+                match &trial {
+                    Some((_, it, apps, cost)) => format!(
+                        ", implicit ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps)"
+                    ),
+                    None => String::new(),
+                }
+            );
+            match best {
+                Kind::Rkl2 => Ok(Box::new(Rkl2::new(
+                    cx.h_bound,
+                    cx.dt,
+                    n,
+                    s.max_stages,
+                    layout,
+                    cx.path,
+                    format!("auto: rkl2 is the cheapest: {others}"),
+                )?)),
+                Kind::Implicit => {
+                    let (mut imp, _, apps, _) = trial.expect("implicit was tried");
+                    imp.set_plan(
+                        apps,
+                        format!(
+                            "auto: implicit (TR-BDF2, {} preconditioner) is the cheapest: {others}",
+                            s.preconditioner.name()
+                        ),
+                    );
+                    Ok(Box::new(imp))
+                }
+                _ => euler(cx, format!("auto: euler, no other is {MARGIN}x cheaper: {others}")),
+            }
+        }
+    }
+}

@@ -1,0 +1,703 @@
+//! One simulation on one process's part of the mesh: loads, propagation, mechanics
+//! (MODEL.md 3-6). `Simulation::advance` is one mechanics step: the loads at t_n give the
+//! sources Q and the forces f; the stepper advances the potential over dt; the nodes move.
+
+pub mod contact;
+pub mod distributed;
+#[cfg(test)]
+mod tests;
+
+use crate::config::{Load, Precision, Scheme, Setup, Stop};
+use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
+use crate::discretize::operator::{Compact, Operator, Paper, V3};
+use crate::distribute::comm::{exact_sum, Comm, Serial};
+use crate::distribute::field::NodeField;
+use crate::distribute::halo::{BlockScatter, Halo};
+use crate::propagate::integrate::{stability, StepPlan, StepStats, Stepper};
+use crate::propagate::Propagation;
+use anyhow::{bail, Result};
+use contact::{ToolRun, ToolState};
+use eprop_io::geom::{dot, norm, scale};
+use eprop_io::Mesh;
+use eprop_partition::{LocalNumbering, Plan};
+use rayon::prelude::*;
+
+pub use crate::propagate::integrate::euler::SAFETY;
+
+/// Largest stable mechanics step of one node (semi-implicit Euler), infinite when undamped
+/// and unsprung.
+fn dt_bound_node(m: f64, g: f64, k: f64) -> f64 {
+    if k > 0.0 {
+        let direct = (-g + (g * g + 4.0 * m * k).sqrt()) / k;
+        if direct.is_finite() && direct > 0.0 && 4.0 * m * k > 1e-8 * g * g {
+            return direct;
+        }
+        // the same bound where the direct form overflows (m k huge) or cancels (m k tiny
+        // against g^2): 2 sqrt(m/k) / (sqrt(1 + a^2) + a), a = g / (2 sqrt(m k))
+        let a = g / (2.0 * m.sqrt() * k.sqrt());
+        2.0 * (m.sqrt() / k.sqrt()) / (a.hypot(1.0) + a)
+    } else if g > 0.0 {
+        2.0 * m / g
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// A load as applied at one instant.
+#[derive(Clone, Copy, Debug)]
+pub struct Applied {
+    pub force: V3,
+    /// energy density q(sigma)
+    pub q: f64,
+    pub sigma: f64,
+}
+
+/// One simulation on this process's part of the mesh (all of it on one process).
+/// Local numbering (`LocalNumbering`): owned nodes first, then halo nodes; per-node fields
+/// cover both, and only owned entries are computed here (halo entries are copies from their
+/// owners).
+pub struct Simulation {
+    /// This process's view of the scenario: its local mesh and per-node arrays in local
+    /// numbering (loads keep global node indices).
+    pub setup: Setup,
+    pub comm: Box<dyn Comm>,
+    /// The whole mesh, on the process that writes the static part of the output (rank 0).
+    pub global: Option<Mesh>,
+    pub n_global: usize,
+    numbering: LocalNumbering,
+    /// Global node index of each local node.
+    pub gid: Vec<u64>,
+    /// Output blocks of the global node order.
+    pub blocks: BlockScatter,
+    pub dual: Dual,
+    pub prop: Propagation,
+    /// The integrator of the propagation.
+    pub stepper: Box<dyn Stepper>,
+    /// nodes that move: not fixed and with a control volume
+    pub active: Vec<bool>,
+    pub u: NodeField<V3>,
+    pub v: NodeField<V3>,
+    force: NodeField<V3>,
+    pub loads: Vec<Load>,
+    /// owned contact nodes of each load (local index, probe weight, force weight, source weight)
+    pub load_local: Vec<Vec<(u32, f64, f64, f64)>>,
+    /// contact nodes of each load among the halo rows (local index, source weight)
+    load_halo: Vec<Vec<(u32, f64)>>,
+    /// control volumes of this process's output block
+    pub(crate) vol_block: Vec<f64>,
+    /// fixed nodes of the whole mesh
+    pub(crate) fixed_nodes: usize,
+    pub dt: f64,
+    pub(crate) dt_bound: f64,
+    pub step: u64,
+    pub time: f64,
+    pub max_speed: f64,
+    /// nodes of the whole mesh that belong to no cell
+    pub(crate) inactive_nodes: usize,
+    /// Operator applications of every step this process advanced.
+    pub(crate) applications: Vec<u32>,
+    /// The stop signal some process received before the last step (0: none), agreed by every
+    /// process in the step's reduction (`crate::guard::signals`).
+    pub stop_signal: i32,
+    /// The scenario's tools (docs/tools.md).
+    pub tools: Vec<ToolRun>,
+    /// Owned surface nodes that move (the tools' contact candidates; empty without tools)
+    /// and a flag per owned node for them.
+    surface: Vec<u32>,
+    on_surface: Vec<bool>,
+}
+
+/// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
+/// faces before its coefficients are computed and takes the pair columns over).
+fn build_operator(setup: &Setup, inc: &Incidence, dual: &mut Dual, active: &[bool], n_rows: usize) -> Operator {
+    let (mesh, r) = (&setup.mesh, &setup.r);
+    match setup.model.scheme() {
+        Scheme::Compact => {
+            dual.release_pairs(); // S_ij are not needed by compact: free them first
+            let a = compact_coefficients(mesh, inc, dual, r);
+            crate::diagnostics::log_memory("the coefficients");
+            let col = std::mem::take(&mut dual.col);
+            let c = Compact::from_pairs(&dual.row_ptr[..=n_rows], col, a, &dual.vol, active);
+            if setup.model.operator_precision == Precision::Float32 {
+                Operator::Compact(c.into_f32())
+            } else {
+                Operator::Compact(c)
+            }
+        }
+        Scheme::Paper { correction } => Operator::Paper(Paper::new(dual, &mesh.points, r, active, correction)),
+    }
+}
+
+/// The mechanics step: the scenario's dt, or 0.9 of the stability bound over all nodes.
+fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm) -> Result<(f64, f64)> {
+    let dt_bound = comm.min(
+        (0..n_owned)
+            .filter(|&i| active[i])
+            .map(|i| dt_bound_node(setup.mass[i], setup.damping[i], setup.model.stiffness))
+            .fold(f64::INFINITY, f64::min),
+    );
+    let path = setup.scenario.path.display();
+    let dt = match setup.time.dt {
+        Some(dt) if dt > dt_bound => bail!(
+            "{path}: [time] dt = {dt} is above the mechanics stability bound {dt_bound:.6e}; fix: use dt <= {:.6e} or leave dt out (automatic)",
+            SAFETY * dt_bound
+        ),
+        Some(dt) => dt,
+        None if dt_bound.is_finite() => SAFETY * dt_bound,
+        None => bail!("{path}: with stiffness = 0 and damping = 0 no step size is stable by itself; fix: set [time] dt"),
+    };
+    Ok((dt, dt_bound))
+}
+
+/// The stepper of the scenario for the mechanics step dt, on an operator whose forward Euler
+/// stability bound is `h_bound` (`integrate::choose`).
+fn build_stepper(
+    setup: &Setup,
+    prop: &mut Propagation,
+    vol: &[f64],
+    active: &[bool],
+    gid: &[u64],
+    h_bound: f64,
+    dt: f64,
+    comm: &dyn Comm,
+) -> Result<Box<dyn Stepper>> {
+    let path = setup.scenario.path.display().to_string();
+    crate::propagate::integrate::choose::build(&mut crate::propagate::integrate::choose::Context {
+        settings: &setup.integrator,
+        scheme: scheme_name(setup.model.scheme()),
+        compact: setup.model.scheme() == Scheme::Compact,
+        h_bound,
+        dt,
+        user_h: setup.time.h,
+        path: &path,
+        prop,
+        vol,
+        active,
+        gid,
+        comm,
+    })
+}
+
+/// Per load: its contact area and force direction (summed over the owners of its contact
+/// nodes), the owned contact nodes with their probe, force and source weights, and the contact
+/// nodes among the halo rows (`rows`: the owned nodes and the halo layers whose operator rows
+/// this process builds) with their source weights, computed as their owners compute them.
+#[allow(clippy::type_complexity)]
+fn resolve_loads(
+    setup: &Setup,
+    dual: &Dual,
+    numbering: &LocalNumbering,
+    rows: usize,
+    comm: &dyn Comm,
+) -> Result<(Vec<Load>, Vec<Vec<(u32, f64, f64, f64)>>, Vec<Vec<(u32, f64)>>)> {
+    let mut local_of = std::collections::HashMap::new();
+    for i in 0..numbering.n_owned {
+        local_of.insert(numbering.global[i], i as u32);
+    }
+    let mut halo_of = std::collections::HashMap::new();
+    for i in numbering.n_owned..rows {
+        halo_of.insert(numbering.global[i], i as u32);
+    }
+    let mut loads = setup.loads.clone();
+    let mut load_local = Vec::new();
+    let mut load_halo = Vec::new();
+    for (k, l) in loads.iter_mut().enumerate() {
+        let mine: Vec<(u32, f64)> = l
+            .nodes
+            .iter()
+            .zip(&l.weights)
+            .filter_map(|(gn, &w)| local_of.get(gn).map(|&li| (li, w)))
+            .collect();
+        let mut a = [0.0; 3];
+        for d in 0..3 {
+            a[d] = exact_sum(comm, mine.iter().map(|&(li, _)| dual.area[li as usize][d]));
+        }
+        let an = norm(a);
+        if !(an > 0.0) {
+            bail!(
+                "{}: load {} on node {}: the node is inside the volume (no boundary area), so no contact stress is defined; fix: load a surface node (`nearest` picks one)",
+                setup.scenario.path.display(),
+                k + 1,
+                l.node_ids[0]
+            );
+        }
+        l.area = an;
+        if let Some(mag) = l.normal {
+            l.force = scale(a, -mag / an);
+        }
+        // a patch: every contact node is pressed by F (the mechanics are nodal) and the source
+        // enters through the patch surface as a flux
+        let source = |li: u32, w: f64| match l.depth {
+            Some(depth) => norm(dual.area[li as usize]) * depth / dual.vol[li as usize],
+            None => w,
+        };
+        let mine = mine
+            .iter()
+            .map(|&(li, w)| (li, w, if l.depth.is_some() { 1.0 } else { w }, source(li, w)))
+            .collect();
+        load_local.push(mine);
+        let halo: Vec<(u32, f64)> = l
+            .nodes
+            .iter()
+            .zip(&l.weights)
+            .filter_map(|(gn, &w)| halo_of.get(gn).map(|&li| (li, source(li, w))))
+            .collect();
+        load_halo.push(halo);
+    }
+    Ok((loads, load_local, load_halo))
+}
+
+/// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):
+/// v += dt/m (f - k_e u + kappa |phi|^(p-1) phi - g v); u += dt v. Returns the largest |v|^2
+/// of the nodes not flagged in `speed_elsewhere` (empty: of every node).
+fn mechanics_step(
+    setup: &Setup,
+    dt: f64,
+    phi: &[V3],
+    force: &[V3],
+    active: &[bool],
+    speed_elsewhere: &[bool],
+    u: &mut [V3],
+    v: &mut [V3],
+) -> f64 {
+    let (k, kappa, p) = (setup.model.stiffness, setup.model.coupling, setup.model.exponent);
+    let (mass, damp) = (&setup.mass, &setup.damping);
+    const CH: usize = 4096;
+    u.par_chunks_mut(CH)
+        .zip(v.par_chunks_mut(CH))
+        .enumerate()
+        .map(|(b, (us, vs))| {
+            let mut m2 = 0.0f64;
+            for (o, (u, v)) in us.iter_mut().zip(vs.iter_mut()).enumerate() {
+                let i = b * CH + o;
+                if !active[i] {
+                    continue;
+                }
+                let ph = phi[i];
+                // kappa |phi|^(p-1) phi; for p = 1 simply kappa phi
+                let push = if p == 1.0 {
+                    kappa
+                } else {
+                    let mag = norm(ph);
+                    if mag > 0.0 {
+                        kappa * mag.powf(p - 1.0)
+                    } else {
+                        0.0
+                    }
+                };
+                let (inv_m, g, f) = (1.0 / mass[i], damp[i], force[i]);
+                for d in 0..3 {
+                    let a = (f[d] - k * u[d] + push * ph[d] - g * v[d]) * inv_m;
+                    v[d] += dt * a;
+                    u[d] += dt * v[d];
+                }
+                if speed_elsewhere.is_empty() || !speed_elsewhere[i] {
+                    m2 = m2.max(dot(*v, *v));
+                }
+            }
+            m2
+        })
+        .reduce(|| 0.0, f64::max)
+}
+
+/// The order of a process's nodes (`Plan::new`): reverse Cuthill-McKee on the node graph, so
+/// that a row's neighbours lie within a narrow band of rows (the fused substeps of
+/// `Propagation::substeps` need it; the single substep gathers better too).
+pub fn locality_keys(m: &Mesh) -> Vec<u64> {
+    let (xadj, adj) = eprop_partition::node_graph(m.n_nodes(), &m.offsets, &m.conn);
+    eprop_partition::rcm_keys(&xadj, &adj)
+}
+
+impl Simulation {
+    /// The stiffness of the compact operator on one process (`eprop check`); None for the
+    /// paper scheme or a distributed simulation.
+    pub fn stiffness(&self) -> Option<crate::propagate::integrate::stiffness::Stiffness> {
+        let Operator::Compact(op) = &self.prop.op else {
+            return None;
+        };
+        if self.comm.size() > 1 {
+            return None;
+        }
+        // one process: the local cells are the mesh's cells in their order
+        let ids = self.global.as_ref();
+        Some(crate::propagate::integrate::stiffness::analyse(
+            self.mesh(),
+            op,
+            &self.dual.vol,
+            &self.setup.r,
+            &|c| ids.map(|m| m.cell_id(c)).unwrap_or(c as u64 + 1),
+        ))
+    }
+
+    /// A simulation on one process (nodes reordered for locality, `locality_keys`; output in
+    /// input order).
+    pub fn new(setup: Setup) -> Result<Simulation> {
+        let m = &setup.mesh;
+        let part = vec![0u32; m.n_nodes()];
+        let keys = locality_keys(m);
+        let plan = Plan::new(m.n_nodes(), &m.offsets, &m.conn, &part, 0, Some(&keys));
+        let local = setup.restrict(&plan);
+        let Setup { mesh, .. } = setup; // the global per-node arrays go before the build
+        Self::new_with(local, Box::new(Serial), Halo::serial(), plan, Some(mesh))
+    }
+
+    /// A simulation of this process's part: `setup` is its local view (`Setup::restrict`),
+    /// `halo` its exchange along the plan's pattern, `global` the whole mesh on the process
+    /// that writes the static output.
+    pub fn new_with(
+        setup: Setup,
+        comm: Box<dyn Comm>,
+        halo: Halo,
+        plan: Plan,
+        global: Option<Mesh>,
+    ) -> Result<Simulation> {
+        let c = comm.as_ref();
+        // operator rows: the owned nodes and, over a deep halo, halo layers 1..depth-1
+        let n_rows = plan.rows();
+        let numbering = plan.numbering;
+        let layout = numbering.layout();
+        let n_owned = numbering.n_owned;
+        let gid: Vec<u64> = numbering.global.iter().map(|&g| g as u64).collect();
+        let n_global = c.sum_i128(n_owned as i128) as usize;
+        let inc = Incidence::new(&setup.mesh);
+        crate::diagnostics::log_memory("the local mesh and plan");
+        let mut dual = Dual::build(&setup.mesh, &inc, n_rows, Some(gid.as_slice()));
+        crate::diagnostics::log_memory("the dual geometry");
+        let inactive_nodes = c.sum_i128(dual.vol[..n_owned].iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
+        // activity of halo nodes without a row comes from their owners; only fixedness matters
+        // there (the halo rows are the owners' rows)
+        let active: Vec<bool> = (0..layout.n_local)
+            .map(|i| !setup.fixed[i] && (i >= n_rows || dual.vol[i] > 0.0))
+            .collect();
+        let fixed_nodes = c.sum_i128(setup.fixed[..n_owned].iter().filter(|&&b| b).count() as i128) as usize;
+        let op = build_operator(&setup, &inc, &mut dual, &active, n_rows);
+        drop(inc);
+        dual.release_pairs();
+        dual.col = Vec::new();
+        dual.row_ptr = Vec::new();
+        crate::diagnostics::log_memory("the operator");
+        let mut prop = Propagation::new(op, halo, layout);
+        prop.set_sweep_order(plan.order);
+        tracing::info!(
+            "geometry and operator built ({} rows); searching the stable substep",
+            n_owned
+        );
+        let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
+        let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
+        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, c)?;
+        let (loads, load_local, load_halo) = resolve_loads(&setup, &dual, &numbering, n_rows, c)?;
+        let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
+        let vol_block = blocks.collect(&dual.vol, 1, c);
+        let mut tools: Vec<ToolRun> = setup.tools.iter().cloned().map(ToolRun::new).collect();
+        let (mut surface, mut on_surface) = (Vec::new(), Vec::new());
+        if !tools.is_empty() {
+            surface = contact::surface_nodes(n_owned, &active, &dual.area);
+            on_surface = vec![false; n_owned];
+            for &i in &surface {
+                on_surface[i as usize] = true;
+            }
+            let nodes = contact::Nodes {
+                surface: &surface,
+                points: &setup.mesh.points,
+                area: &dual.area,
+                vol: &dual.vol,
+                mass: &setup.mass,
+            };
+            contact::at_rest(&mut tools, 0.0, &nodes, c);
+        }
+        Ok(Simulation {
+            tools,
+            surface,
+            on_surface,
+            u: NodeField::filled(layout, [0.0; 3]),
+            v: NodeField::filled(layout, [0.0; 3]),
+            force: NodeField::filled(layout, [0.0; 3]),
+            dual,
+            prop,
+            stepper,
+            active,
+            loads,
+            load_local,
+            load_halo,
+            vol_block,
+            fixed_nodes,
+            blocks,
+            n_global,
+            dt,
+            dt_bound,
+            step: 0,
+            time: 0.0,
+            max_speed: 0.0,
+            inactive_nodes,
+            applications: Vec::new(),
+            stop_signal: 0,
+            setup,
+            comm,
+            global,
+            gid,
+            numbering,
+        })
+    }
+
+    /// Owned nodes of this process.
+    pub fn n_owned(&self) -> usize {
+        self.numbering.n_owned
+    }
+
+    /// What the stepper chose: integrator, substep or stage size, count per step.
+    pub fn step_plan(&self) -> &StepPlan {
+        self.stepper.plan()
+    }
+
+    /// Replaces the mechanics step (and re-plans the propagation for it).
+    pub fn set_dt(&mut self, dt: f64) -> Result<()> {
+        self.stepper = build_stepper(
+            &self.setup,
+            &mut self.prop,
+            &self.dual.vol,
+            &self.active,
+            &self.gid,
+            self.stepper.plan().h_bound,
+            dt,
+            self.comm.as_ref(),
+        )?;
+        self.dt = dt;
+        Ok(())
+    }
+
+    /// The loads at time t.
+    pub fn applied(&self, t: f64) -> Vec<Applied> {
+        self.loads
+            .iter()
+            .map(|l| {
+                let f = l.force_at(t);
+                let sigma = norm(f) / l.area;
+                Applied {
+                    force: f,
+                    q: self.setup.law.energy_density(sigma),
+                    sigma,
+                }
+            })
+            .collect()
+    }
+
+    /// Nodal sources Q on the owned nodes and forces f for the loads at time t; the sources
+    /// of the halo rows (a deep halo) go to the propagation (`Propagation::set_halo_sources`),
+    /// each computed as its owner computes it.
+    pub fn sources(&mut self, t: f64) -> Vec<(u32, V3)> {
+        let applied = self.applied(t);
+        let mut q = Vec::new();
+        let mut hq = Vec::new();
+        for ((mine, halo), a) in self.load_local.iter().zip(&self.load_halo).zip(&applied) {
+            let fn_ = norm(a.force);
+            for &(i, _, fw, sw) in mine {
+                self.force[i as usize] = scale(a.force, fw);
+                if fn_ > 0.0 {
+                    q.push((i, scale(a.force, sw * a.q / fn_)));
+                }
+            }
+            if fn_ > 0.0 {
+                hq.extend(halo.iter().map(|&(i, sw)| (i, scale(a.force, sw * a.q / fn_))));
+            }
+        }
+        self.prop.set_halo_sources(hq);
+        q
+    }
+
+    /// One mechanics step: the loads at t_n (and the tools' forces of the last step) give the
+    /// sources and forces; the stepper advances the potential over dt; the owned nodes move
+    /// and the tools at t_{n+1} hold the nodes they reach; max |v| is reduced over every
+    /// process.
+    pub fn advance(&mut self) -> Result<StepStats> {
+        let mut q = self.sources(self.time);
+        for t in &self.tools {
+            t.sources(&self.setup.law, &mut q);
+        }
+        let stats = self.stepper.advance(&mut self.prop, &q, self.comm.as_ref())?;
+        let n = self.numbering.n_owned;
+        let m2 = mechanics_step(
+            &self.setup,
+            self.dt,
+            &self.prop.phi,
+            &self.force,
+            &self.active,
+            &self.on_surface,
+            &mut self.u[..n],
+            &mut self.v[..n],
+        );
+        // a stop signal rides on the step's reduction, so every process stops after this step
+        let signal = crate::guard::signals::pending() as f64;
+        if self.tools.is_empty() {
+            let all = self.comm.max_each(&[m2.sqrt(), signal]);
+            self.max_speed = all[0];
+            self.stop_signal = all[1] as i32;
+        } else {
+            let t_next = (self.step + 1) as f64 * self.dt;
+            let nodes = contact::Nodes {
+                surface: &self.surface,
+                points: &self.setup.mesh.points,
+                area: &self.dual.area,
+                vol: &self.dual.vol,
+                mass: &self.setup.mass,
+            };
+            let c = self.comm.as_ref();
+            let (m2s, overlaps) = contact::constrain(
+                &mut self.tools,
+                t_next,
+                self.dt,
+                &nodes,
+                &mut self.u[..n],
+                &mut self.v[..n],
+                c,
+            );
+            let mut local = vec![m2.max(m2s).sqrt(), signal];
+            local.extend(overlaps);
+            let all = c.max_each(&local);
+            self.max_speed = all[0];
+            self.stop_signal = all[1] as i32;
+            for (t, d) in self.tools.iter_mut().zip(&all[2..]) {
+                t.state.indentation = *d;
+            }
+        }
+        self.applications.push(stats.applications.min(u32::MAX as usize) as u32);
+        self.step += 1;
+        self.time = self.step as f64 * self.dt;
+        Ok(stats)
+    }
+
+    /// Number of steps the stop condition allows (equilibrium: its cap).
+    pub fn max_steps(&self) -> u64 {
+        match self.setup.time.stop {
+            Stop::Steps(n) => n,
+            Stop::End(t) => (t / self.dt - 1e-9).ceil().max(0.0) as u64,
+            Stop::Equilibrium { max_steps, .. } => max_steps,
+        }
+    }
+
+    /// True when the run should stop after the current step.
+    pub fn done(&self) -> bool {
+        if self.step >= self.max_steps() {
+            return true;
+        }
+        match self.setup.time.stop {
+            Stop::Equilibrium { tol, .. } => self.step > 0 && self.max_speed < tol,
+            _ => false,
+        }
+    }
+
+    /// Per load: (applied force, weighted displacement of its contact nodes), the same on
+    /// every process (exact sums).
+    pub fn probes(&self) -> Vec<(V3, V3)> {
+        let applied = self.applied(self.time);
+        self.load_local
+            .iter()
+            .zip(&applied)
+            .map(|(mine, a)| {
+                let mut d = [0.0; 3];
+                for c in 0..3 {
+                    d[c] = exact_sum(
+                        self.comm.as_ref(),
+                        mine.iter().map(|&(i, w, _, _)| w * self.u[i as usize][c]),
+                    );
+                }
+                (a.force, d)
+            })
+            .collect()
+    }
+
+    /// Each tool's state at the end of the last step (at rest before the first).
+    pub fn tool_states(&self) -> Vec<ToolState> {
+        self.tools.iter().map(|t| t.state).collect()
+    }
+
+    /// Recomputes the tools' state before the first step at the current time (after their
+    /// paths changed, as `serve` does for live tools); every process calls.
+    pub fn tools_at_rest(&mut self) {
+        let nodes = contact::Nodes {
+            surface: &self.surface,
+            points: &self.setup.mesh.points,
+            area: &self.dual.area,
+            vol: &self.dual.vol,
+            mass: &self.setup.mass,
+        };
+        contact::at_rest(&mut self.tools, self.time, &nodes, self.comm.as_ref());
+    }
+
+    /// Sum of V_i |phi_i| over the mesh (exact sum).
+    pub fn total_energy(&self) -> f64 {
+        let n = self.numbering.n_owned;
+        exact_sum(
+            self.comm.as_ref(),
+            self.dual.vol[..n]
+                .iter()
+                .zip(&self.prop.phi[..n])
+                .map(|(v, p)| v * norm(*p)),
+        )
+    }
+
+    /// Largest |u| and the global index of its node (ties: the lowest index).
+    pub fn max_displacement(&self) -> (f64, u64) {
+        let n = self.numbering.n_owned;
+        let (mut best, mut at) = (-1.0, u64::MAX);
+        for i in 0..n {
+            let m = norm(self.u[i]);
+            if m > best || (m == best && self.gid[i] < at) {
+                (best, at) = (m, self.gid[i]);
+            }
+        }
+        let all = self.comm.all_gather(&[best, at as f64]);
+        let (mut best, mut at) = (-1.0, u64::MAX);
+        for c in all.chunks(2) {
+            let (m, g) = (c[0], c[1] as u64);
+            if m > best || (m == best && g < at) {
+                (best, at) = (m, g);
+            }
+        }
+        (best.max(0.0), at)
+    }
+
+    /// Continues from a stored state: this process's blocks of u, v and phi at `step`.
+    pub fn restore(&mut self, step: u64, u: &[f64], v: &[f64], phi: &[f64]) {
+        let c = self.comm.as_ref();
+        let n = self.numbering.n_owned;
+        for (dst, src) in [(&mut self.u, u), (&mut self.v, v), (&mut self.prop.phi, phi)] {
+            let owned = self.blocks.distribute(src, 3, c);
+            for i in 0..n {
+                dst[i] = [owned[3 * i], owned[3 * i + 1], owned[3 * i + 2]];
+            }
+        }
+        self.step = step;
+        self.time = step as f64 * self.dt;
+        let local = (0..n)
+            .filter(|&i| self.active[i])
+            .map(|i| norm(self.v[i]))
+            .fold(0.0, f64::max);
+        self.max_speed = c.max(local);
+    }
+
+    /// Local index of a global node owned here.
+    pub fn local(&self, global: u32) -> Option<usize> {
+        self.gid[..self.numbering.n_owned]
+            .iter()
+            .position(|&g| g == global as u64)
+    }
+
+    /// This process's output block of a per-node array (global node order), flattened.
+    pub fn in_output_order(&self, x: &[V3]) -> Vec<f64> {
+        self.blocks
+            .collect(x[..self.numbering.n_owned].as_flattened(), 3, self.comm.as_ref())
+    }
+
+    /// The local mesh this process computes on.
+    pub fn mesh(&self) -> &Mesh {
+        &self.setup.mesh
+    }
+}
+
+pub(crate) fn scheme_name(s: Scheme) -> &'static str {
+    match s {
+        Scheme::Compact => "compact",
+        Scheme::Paper { correction: true } => "paper (corrected)",
+        Scheme::Paper { correction: false } => "paper (uncorrected)",
+    }
+}
