@@ -13,6 +13,7 @@ examples:
 Prints the path of the OFF file."""
 import argparse
 import math
+import os
 import sys
 
 
@@ -64,6 +65,8 @@ def main():
     v, f = icosphere(a.refine)
     pts = [bean(p, a.depth) for p in v]
     pts = [(x * lx / 2, y * ly / 2, z * lz / 2) for x, y, z in pts]
+    if os.path.dirname(a.output):
+        os.makedirs(os.path.dirname(a.output), exist_ok=True)
     with open(a.output, "w") as out:
         out.write(f"OFF\n{len(pts)} {len(f)} 0\n")
         for p in pts:
