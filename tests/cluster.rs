@@ -106,6 +106,24 @@ fn the_slurm_script_runs_its_command_and_passes_sigterm_on() {
     );
     let out = job(&[], true).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
+    // EPROP_MODULES: `module load` them before the run (a stand-in `module` that notes its
+    // arguments; it ends the job so that nothing else runs)
+    let noted = d.path().join("module.args");
+    stand_in(
+        &bin,
+        "module",
+        &format!("printf '%s ' \"$@\" > {}; exit 7", noted.display()),
+    );
+    let out = job(&["s.toml"], true)
+        .env("EPROP_MODULES", "gcc/13 openmpi hdf5/mpi")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(7), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(
+        std::fs::read_to_string(&noted).unwrap(),
+        "load gcc/13 openmpi hdf5/mpi "
+    );
+    std::fs::remove_file(bin.join("module")).unwrap();
     // a run to the end, with progress lines in the log
     let sc = scenario(d.path(), 12, 4);
     let h5 = d.path().join("short.h5");
