@@ -4,13 +4,15 @@ import argparse
 import os
 import sys
 
-import h5py
-import numpy as np
-import matplotlib
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import h5py  # noqa: E402
+import numpy as np  # noqa: E402
+import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+from eprop_series import Fail, boundary_triangles  # noqa: E402
 
 EXAMPLES = """examples:
   plot_series.py scenarios/cylinder.h5
@@ -21,40 +23,6 @@ K is the index of an output step (a row of /VTKHDF/Steps/Values), counted from 0
 negative K counts from the last complete step. Only steps below the file's
 'steps_complete' are read, so a file from an interrupted run can still be plotted.
 Prints the paths of <stem>_deformed.png and <stem>_history.png, one per line."""
-
-# Faces of each VTK cell type, in the cell's local node numbering.
-CELL_FACES = {
-    10: [(0, 1, 2), (0, 1, 3), (1, 2, 3), (0, 2, 3)],                      # tetra
-    12: [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5),
-         (2, 3, 7, 6), (3, 0, 4, 7)],                                       # hexahedron
-    13: [(0, 1, 2), (3, 4, 5), (0, 1, 4, 3), (1, 2, 5, 4), (2, 0, 3, 5)],  # wedge
-    14: [(0, 1, 2, 3), (0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4)],        # pyramid
-}
-
-
-class Fail(Exception):
-    """An error reported to the user as a one-line message."""
-
-
-def boundary_triangles(conn, offsets, types):
-    """Triangles of the faces that belong to exactly one cell (quads split in two)."""
-    faces = {3: [], 4: []}
-    for t in np.unique(types):
-        if t not in CELL_FACES:
-            raise Fail(f"unsupported VTK cell type {t}")
-        sel = np.flatnonzero(types == t)
-        nodes = conn[offsets[sel][:, None] + np.arange(offsets[sel[0] + 1] - offsets[sel[0]])]
-        for f in CELL_FACES[t]:
-            faces[len(f)].append(nodes[:, f])
-    tris = []
-    for k, parts in faces.items():
-        if not parts:
-            continue
-        fs = np.concatenate(parts)
-        _, inv, cnt = np.unique(np.sort(fs, axis=1), axis=0, return_inverse=True, return_counts=True)
-        fs = fs[cnt[inv.ravel()] == 1]
-        tris.append(fs if k == 3 else np.concatenate([fs[:, [0, 1, 2]], fs[:, [0, 2, 3]]]))
-    return np.concatenate(tris)
 
 
 def field_rows(f, name, steps, n):

@@ -3,10 +3,39 @@
 
 Uses VTK off-screen (vtkUnstructuredGrid -> surface -> PNG, with a scalar bar and the time).
 
+The camera: --view iso (the default: from +x, a little from -y and above, z up), auto (facing
+the dent: from the side of the point that moved most), +x, -x, +y, -y, +z or -z (looking at
+the mesh from that side); or --azimuth A --elevation E in degrees (A from +x towards +y in the
+x-y plane, E above it), which override --view.
+
 examples:
   render.py run.h5 -o frame.png                    # last complete step, coloured by energy
   render.py run.h5 -o frame.png --step 10 --scale 3 --field energy
+  render.py tongue.h5 -o dent.png --view auto      # look at the dent
+  render.py run.h5 -o top.png --azimuth 0 --elevation 80
 Prints the path of the PNG."""
+
+VIEWS = {"iso": (1.6, -1.0, 0.6), "+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),
+         "+z": (0, 0, 1), "-z": (0, 0, -1)}
+
+
+def camera_direction(a, s, k):
+    """Unit vector from the mesh's centre towards the camera."""
+    if a.azimuth is not None or a.elevation is not None:
+        az, el = np.radians(a.azimuth or 0.0), np.radians(a.elevation or 0.0)
+        return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    if a.view == "auto":
+        p = s.focus(k)
+        if p is not None:
+            lo, hi = s.points.min(axis=0), s.points.max(axis=0)
+            r = p - (lo + hi) / 2
+            if np.linalg.norm(r) > 1e-12 * float(np.linalg.norm(hi - lo)):
+                # a little from above, so that the surface around the dent shows
+                d = r / np.linalg.norm(r)
+                return d + np.array([0.0, 0.0, 0.3]) if abs(d[2]) < 0.9 else d + np.array([0.3, -0.2, 0.0])
+        print("render.py: nothing moved; --view auto falls back to iso", file=sys.stderr)
+        return np.array(VIEWS["iso"], dtype=float)
+    return np.array(VIEWS[a.view], dtype=float)
 import argparse
 import os
 import sys
@@ -24,6 +53,10 @@ def main():
     ap.add_argument("--scale", type=float, default=1.0, help="displacement magnification (default 1)")
     ap.add_argument("--field", default="energy", help="point field to colour by (default energy)")
     ap.add_argument("--size", default="900x700", help="image size WxH (default 900x700)")
+    ap.add_argument("--view", default="iso", choices=["auto", *VIEWS],
+                    help="camera: iso (default), auto (facing the dent) or a side")
+    ap.add_argument("--azimuth", type=float, help="camera azimuth in degrees (from +x towards +y)")
+    ap.add_argument("--elevation", type=float, help="camera elevation in degrees (above the x-y plane)")
     a = ap.parse_args()
     try:
         import vtk
@@ -80,16 +113,21 @@ def main():
     ren.AddActor(actor)
     ren.AddViewProp(bar)
     ren.AddViewProp(text)
-    # look at the mesh from +x, a little from below and the side, z up
     lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
     c = (lo3 + hi3) / 2
     d = float(np.linalg.norm(hi3 - lo3))
+    look = camera_direction(a, s, k)
+    look = look / np.linalg.norm(look)
     cam = ren.GetActiveCamera()
     cam.SetFocalPoint(*c)
-    cam.SetPosition(*(c + d * np.array([1.6, -1.0, 0.6])))
-    cam.SetViewUp(0, 0, 1)
+    cam.SetPosition(*(c + 2.0 * d * look))
+    # z up, unless the camera looks along z
+    cam.SetViewUp(*((0, 1, 0) if abs(look[2]) > 0.95 else (0, 0, 1)))
     ren.ResetCamera()
-    w, h = (int(x) for x in a.size.split("x"))
+    try:
+        w, h = (int(x) for x in a.size.split("x"))
+    except ValueError:
+        raise Fail(f"--size {a.size}: give the image size as WxH, e.g. 900x700")
     win = vtk.vtkRenderWindow()
     win.SetOffScreenRendering(1)
     win.SetSize(w, h)

@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use eprop::cli::run::{run_on, RunOptions};
+use eprop::cli::run::{run_on, Every, RunOptions};
 use eprop::cli::serve::{serve_on, ServeOptions};
 use eprop::cli::{bench, inspect};
 use eprop::distribute::launch::{is_root, launch};
@@ -84,6 +84,10 @@ line, 3 stopped by a signal (continue with --restart), 4 the output could not be
         /// No progress lines
         #[arg(long, short)]
         quiet: bool,
+        /// Without a terminal (a batch job's log): a progress line every N steps, every T
+        /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar
+        #[arg(long, value_name = "N|Ts|Tm", default_value = "10s")]
+        progress_every: Every,
         /// Continue the series in FILE (the output of an interrupted run of the same scenario and
         /// mesh) from its last complete step; the result is bit for bit the uninterrupted run's
         #[arg(long, value_name = "FILE")]
@@ -131,6 +135,10 @@ step computed, and exits with status 1. SIGTERM, SIGINT or SIGHUP stop it the sa
         /// No progress lines
         #[arg(long, short)]
         quiet: bool,
+        /// Without a terminal (a batch job's log): a progress line every N steps, every T
+        /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar
+        #[arg(long, value_name = "N|Ts|Tm", default_value = "10s")]
+        progress_every: Every,
         /// Replace the series in the output file if there is one (never a file of another kind)
         #[arg(long)]
         overwrite: bool,
@@ -331,6 +339,7 @@ fn real_main(cli: Cli) -> Result<()> {
             steps,
             json,
             quiet,
+            progress_every,
             restart,
             overwrite,
             force,
@@ -348,6 +357,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 restart,
                 overwrite,
                 force,
+                progress_every,
             };
             if let Some(s) = launch(|world| run_on(world, &scenario, &opts))? {
                 print(&s, json)?;
@@ -361,6 +371,7 @@ fn real_main(cli: Cli) -> Result<()> {
             steps,
             json,
             quiet,
+            progress_every,
             overwrite,
         } => {
             if !(timeout > 0.0 && timeout <= 1e9) {
@@ -376,6 +387,7 @@ fn real_main(cli: Cli) -> Result<()> {
                     restart: None,
                     overwrite,
                     force: false,
+                    progress_every,
                 },
             };
             if let Some(r) = launch(|world| serve_on(world, &scenario, &opts))? {

@@ -255,3 +255,46 @@ fn verbose_logs_the_setup_phases_and_quiet_prints_nothing_else() {
     let (ok, _, err) = eprop(&["run", sc.to_str().unwrap(), "-q", "--overwrite"]);
     assert!(ok && err.is_empty(), "quiet run wrote to stderr: {err}");
 }
+
+/// Without a terminal (stderr captured, as in a batch job's log) a run prints a progress line
+/// every `--progress-every` steps on rank 0 only; `--quiet` and `--progress-every 0` print none,
+/// and the default (every 10 s) none in a run this short.
+#[test]
+fn progress_lines_appear_without_a_terminal() {
+    let d = workdir("progress");
+    let sc = d.path().join("s.toml");
+    std::fs::write(&sc, SCENARIO).unwrap();
+    let sc = sc.to_str().unwrap();
+    let h5 = d.path().join("p.h5");
+    let h = h5.to_str().unwrap();
+    let lines = |err: &str| -> Vec<String> {
+        err.lines()
+            .filter(|l| l.starts_with("progress: step "))
+            .map(String::from)
+            .collect()
+    };
+    let (ok, _, err) = eprop(&["run", sc, "-o", h, "--progress-every", "2"]);
+    assert!(ok, "{err}");
+    let got = lines(&err);
+    assert_eq!(got.len(), 3, "{err}");
+    for (l, k) in got.iter().zip([2, 4, 6]) {
+        assert!(l.starts_with(&format!("progress: step {k}/6 (")), "{l}");
+        assert!(l.contains("steps/s, ETA ") && l.contains("max|v| "), "{l}");
+    }
+    // two ranks: the same lines, once
+    let out = common::mpirun(2, &["run", sc, "-o", h, "--overwrite", "--progress-every", "3"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let got = lines(&err);
+    assert_eq!(got.len(), 2, "{err}");
+    assert!(got[0].starts_with("progress: step 3/6 (50.0 %)") && got[1].starts_with("progress: step 6/6 (100.0 %)"));
+    for extra in [&["--progress-every", "2", "-q"][..], &["--progress-every", "0"], &[]] {
+        let mut args = vec!["run", sc, "-o", h, "--overwrite"];
+        args.extend_from_slice(extra);
+        let (ok, _, err) = eprop(&args);
+        assert!(ok, "{err}");
+        assert!(lines(&err).is_empty(), "{extra:?}: {err}");
+    }
+    let (ok, _, err) = eprop(&["run", sc, "-o", h, "--overwrite", "--progress-every", "soon"]);
+    assert!(!ok && err.contains("`soon`") && err.contains("fix:"), "{err}");
+}

@@ -108,6 +108,8 @@ fn scripts_teach_and_fail_cleanly() {
         "bench_petsc.py",
         "force_indentation.py",
         "haptic_client.py",
+        "eprop_series.py",
+        "test_postprocess.py",
     ] {
         let out = py(&[script(s).to_str().unwrap(), "--help"]);
         assert!(out.status.success(), "{s} --help");
@@ -276,6 +278,41 @@ fn the_tool_scripts_draw_an_indentation_and_drive_a_live_session() {
         !out.status.success() && err.contains("cannot connect") && !err.contains("Traceback"),
         "{err}"
     );
+}
+
+/// scripts/eprop_series.py and the scripts built on it, on a run with a load, one with a tool
+/// only and one with neither (scripts/test_postprocess.py: the module's arrays and surface,
+/// force_displacement.py's tool curve and refusal, history.py's lines, render.py's camera).
+#[test]
+fn the_python_module_reads_load_tool_and_bare_runs() {
+    let d = tempfile::tempdir().unwrap();
+    let load = run(d.path(), 1);
+    let (_, tool) = indentation(d.path(), 1);
+    let sc = d.path().join("bare.toml");
+    std::fs::write(
+        &sc,
+        "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n[time]\nsteps = 4\n",
+    )
+    .unwrap();
+    let bare = d.path().join("bare.h5");
+    let out = common::serial(&["run", sc.to_str().unwrap(), "-q", "-o", bare.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = py(&[
+        script("test_postprocess.py").to_str().unwrap(),
+        "--load",
+        load.to_str().unwrap(),
+        "--tool",
+        tool.to_str().unwrap(),
+        "--bare",
+        bare.to_str().unwrap(),
+        "--tmp",
+        d.path().join("pictures").to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    for t in ["test_module", "test_force_displacement", "test_history", "test_render"] {
+        assert!(text.contains(&format!("{t}: ok")), "{text}");
+    }
 }
 
 #[test]

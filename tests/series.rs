@@ -304,3 +304,60 @@ fn output_options_select_fields_precision_and_compression() {
     assert_eq!(a.len(), b.len());
     assert!(a.iter().zip(&b).all(|(x, y)| *x == *y as f32));
 }
+
+/// `/eprop/probes/{force,displacement}` are (steps, loads, 3) and `node` (loads,): a run
+/// without loads has (steps, 0, 3), on one and two ranks and after a restart.
+#[test]
+fn probes_have_one_row_per_load_and_none_without_loads() {
+    let d = tempfile::tempdir().unwrap();
+    scenario(d.path(), "", 1); // the mesh
+    let second = "[[load]]\nnearest = [-1.0, 0.0, 2.0]\nnormal = 0.5\n";
+    let shapes = |h5: &Path| {
+        let f = hdf5::File::open(h5).unwrap();
+        let s = |n: &str| f.dataset(&format!("eprop/probes/{n}")).unwrap().shape();
+        (s("node"), s("force"), s("displacement"), s("step"))
+    };
+    for (loads, body) in [(0, String::new()), (2, format!("{CYL}{second}"))] {
+        let sc = d.path().join(format!("l{loads}.toml"));
+        std::fs::write(
+            &sc,
+            format!("[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n{body}[time]\nsteps = 6\n"),
+        )
+        .unwrap();
+        let sc = sc.to_str().unwrap();
+        for ranks in [1, 2] {
+            let h5 = d.path().join(format!("l{loads}r{ranks}.h5"));
+            let h = h5.to_str().unwrap();
+            let run = |args: &[&str]| {
+                if ranks == 1 {
+                    serial(args, 1)
+                } else {
+                    mpirun(ranks, args)
+                }
+            };
+            ok(&run(&["run", sc, "-q", "-o", h, "--steps", "3"]));
+            assert_eq!(
+                shapes(&h5),
+                (vec![loads], vec![4, loads, 3], vec![4, loads, 3], vec![4])
+            );
+            ok(&run(&["run", sc, "-q", "--restart", h]));
+            assert_eq!(
+                shapes(&h5),
+                (vec![loads], vec![7, loads, 3], vec![7, loads, 3], vec![7])
+            );
+            if loads == 2 {
+                let f = hdf5::File::open(&h5).unwrap();
+                let u = f
+                    .dataset("eprop/probes/displacement")
+                    .unwrap()
+                    .read_raw::<f64>()
+                    .unwrap();
+                let last = &u[u.len() - 6..];
+                assert!(
+                    last[0] < 0.0 && last[3] > 0.0,
+                    "both loads' contact moved inwards: {last:?}"
+                );
+            }
+        }
+    }
+}

@@ -6,6 +6,7 @@ use crate::distribute::parts::GlobalSizes;
 use crate::guard::limits::Budget;
 use crate::guard::plausible::{self, Look, Watch};
 use crate::guard::safety::{self, Agreed, OutputLock, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
+pub use crate::output::progress::Every;
 use crate::output::progress::Progress;
 use crate::output::series::{check_output_dir, Series};
 use crate::output::summary::{summarize, Summary, Timing};
@@ -29,6 +30,8 @@ pub struct RunOptions {
     pub overwrite: bool,
     /// Start even when the output would not fit on its disk (and write until it refuses).
     pub force: bool,
+    /// How often a run without a terminal prints a progress line.
+    pub progress_every: Every,
 }
 
 /// The output file of a scenario with the command-line overrides, and how it was named.
@@ -268,7 +271,7 @@ fn run_simulation(
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let every = sim.setup.output.every;
-    let mut progress = Progress::new(show, restarted_at, sim.max_steps());
+    let mut progress = Progress::new(show, restarted_at, sim.max_steps(), opts.progress_every);
     let mut watch = Watch::new(&sim);
     let next = format!("continue with `{again}`");
     while !sim.done() {

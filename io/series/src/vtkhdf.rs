@@ -128,8 +128,10 @@ fn growing(group: &hdf5::Group, name: &str, tail: &[usize], chunk_rows: usize) -
     let mut ext = vec![Extent::resizable(0)];
     let mut chunk = vec![chunk_rows.max(1)];
     for &t in tail {
-        ext.push(Extent::fixed(t));
-        chunk.push(t);
+        // an empty dimension (no loads: (steps, 0, 3)) has a chunk of 1, which HDF5 allows only
+        // on a dimension that may grow
+        ext.push(if t == 0 { Extent::resizable(0) } else { Extent::fixed(t) });
+        chunk.push(t.max(1));
     }
     let b = group.new_dataset::<f64>().chunk(chunk).shape(ext);
     // allocated early in every file, so that a serial file can be continued under MPI-IO
@@ -417,7 +419,7 @@ impl SeriesWriter {
         let pr = t.settle(mk("probes"), ep.create_group("probes"))?;
         let ln: Vec<i64> = spec.load_nodes.iter().map(|&x| x as i64).collect();
         fixed(t, &pr, "node", &[ln.len()], Some(&ln[..]).filter(|_| root))?;
-        let nl = spec.n_loads.max(1);
+        let nl = spec.n_loads;
         let probe_time = t.settle(mk("probes/time"), growing(&pr, "time", &[], 1024))?;
         let probe_step = t.settle(mk("probes/step"), growing_i64(&pr, "step"))?;
         let probe_force = t.settle(mk("probes/force"), growing(&pr, "force", &[nl, 3], 256))?;
@@ -576,7 +578,10 @@ impl SeriesWriter {
             self.values.write_slice(&[time], s![k..k + 1])?;
             self.probe_time.write_slice(&[time], s![k..k + 1])?;
             self.probe_step.write_slice(&[step as i64], s![k..k + 1])?;
-            for (dset, v) in [(&self.probe_force, &fr), (&self.probe_disp, &ds)] {
+            for (dset, v) in [(&self.probe_force, &fr), (&self.probe_disp, &ds)]
+                .into_iter()
+                .filter(|_| nl > 0)
+            {
                 let view = ArrayView3::from_shape((1, nl, 3), v).map_err(hdf5::Error::from)?;
                 dset.write_slice(view, s![k..k + 1, .., ..])?;
             }
@@ -703,6 +708,8 @@ impl SeriesWriter {
         let probe_time = t.settle(read("probes/time"), pr.dataset("time"))?;
         let probe_force = t.settle(read("probes/force"), pr.dataset("force"))?;
         let probe_disp = t.settle(read("probes/displacement"), pr.dataset("displacement"))?;
+        // the file's own count: a series written before (steps, 0, 3) keeps its one row of zeros
+        let n_loads = probe_force.shape().get(1).copied().unwrap_or(0);
         let w = SeriesWriter {
             path: path.to_path_buf(),
             n_points: nd,
@@ -716,7 +723,7 @@ impl SeriesWriter {
             probe_step,
             probe_force,
             probe_disp,
-            n_loads: spec.n_loads.max(1),
+            n_loads,
             n_steps: k,
             steps,
             file,

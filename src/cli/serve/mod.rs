@@ -331,7 +331,12 @@ fn serve_simulation(
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let every = sim.setup.output.every;
-    let mut progress = Progress::new(rank == 0 && !opts.run.quiet, sim.step, sim.max_steps());
+    let mut progress = Progress::new(
+        rank == 0 && !opts.run.quiet,
+        sim.step,
+        sim.max_steps(),
+        opts.run.progress_every,
+    );
     let mut failure = None;
     while !sim.done() {
         let t_next = (sim.step + 1) as f64 * sim.dt;
