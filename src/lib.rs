@@ -10,6 +10,7 @@ pub mod bench;
 pub mod comm;
 pub mod contact;
 mod diagnostics;
+mod drive;
 pub mod field;
 pub mod geometry;
 pub mod inspect;
