@@ -1,5 +1,6 @@
-//! `eprop run`: a scenario stepped to its stop condition on one process or under MPI, with
-//! its output series, progress bar and summary.
+//! `eprop run`: a scenario's output claimed and its simulation built, on one process or under
+//! MPI, then stepped to its stop condition by the shared time loop (`drive`) with the
+//! scenario's own inputs.
 
 use crate::drive::{self, Batch, Settings};
 use crate::launch::build_mpi;

@@ -3,10 +3,11 @@
 //!
 //! Rank 0 holds the socket in a network thread (`session`), which answers each client message
 //! at once from the latest physics results. The main thread of every process runs the
-//! physics: before step k (time t_k) rank 0 waits until the client has sent a sample of
-//! every live input at or beyond t_k (or bye) and broadcasts the new samples; every process
-//! appends them to the same histories, so step k uses the inputs interpolated at t_k exactly
-//! as a batch run with the same samples in a table does, and writes the same series.
+//! physics in the time loop of `eprop run` (`drive`), fed by the client (`Live`): before step
+//! k (time t_k) rank 0 waits until the client has sent a sample of every live input at or
+//! beyond t_k (or bye) and broadcasts the new samples; every process appends them to the same
+//! histories, so step k uses the inputs interpolated at t_k exactly as a batch run with the
+//! same samples in a table does, and writes the same series.
 
 pub mod protocol;
 pub mod session;
