@@ -143,6 +143,9 @@ impl Implicit {
         let d = diagonal(&prop.op, &vol, theta_tau);
         let a_bound = comm.max(row_bound(&prop.op, &vol, theta_tau));
         let pre: Box<dyn Precond> = match settings.preconditioner {
+            Preconditioner::Multigrid => Box::new(
+                super::multigrid::Multigrid::new(prop, &vol, theta_tau).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
+            ),
             Preconditioner::Jacobi => Box::new(Jacobi {
                 inv: d.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect(),
             }),

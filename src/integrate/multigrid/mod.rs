@@ -1,0 +1,528 @@
+//! Smoothed-aggregation algebraic multigrid (Vanek, Mandel and Brezina 1996): the default
+//! preconditioner of the implicit solves, one V-cycle per conjugate-gradient iteration for
+//! the three components together.
+//!
+//! The TR-BDF2 matrix is A = V + c K with V the control volumes, K = -W the (positive)
+//! diffusion matrix and c = theta tau. One scalar hierarchy serves the three components:
+//! - level 0: K and V on this process's free owned rows (couplings to other processes' nodes
+//!   are left out: the preconditioner is block-diagonal over the processes, see below);
+//! - aggregation on K's strong connections (`aggregate`), nodes in local order;
+//! - prolongator P = (I - omega D_K^-1 K) P_tent, P_tent the aggregates' constants,
+//!   omega = 4 / (3 lambda_max(D_K^-1 K)) by power iteration;
+//! - Galerkin coarse matrices kept apart, V_c = P^T V P and K_c = P^T K P, so that a new c
+//!   only recombines A_c = V_c + c K_c (`set_coefficient`), the prolongators stay;
+//! - smoothing: Chebyshev of degree 2 on D_A^-1 A over [0.1, 1.1] lambda_max (power
+//!   iteration), the same polynomial before and after the coarse correction, so the V-cycle is
+//!   a fixed symmetric positive-definite operator and conjugate gradients stay valid;
+//! - coarsest level (at most COARSE_MAX rows, or where aggregation stalls): dense Cholesky.
+//!
+//! Every level's matrix is read once per kernel for the three columns. Every sum is in a
+//! fixed order, so the cycle is the same bits on any thread count; over several processes
+//! each one's hierarchy is its own (aggregates do not cross process boundaries), so the
+//! preconditioner, and the iterates, depend on the partition: results agree across process
+//! counts to the solver tolerance, not bitwise (docs/integrators.md).
+
+pub mod aggregate;
+pub mod csr;
+
+use super::Precond;
+use crate::operator::{Operator, V3};
+use crate::propagation::Propagation;
+use anyhow::{bail, Result};
+use csr::Csr;
+use rayon::prelude::*;
+
+/// Coarsening stops at this many rows (the coarsest level is solved directly).
+pub const COARSE_MAX: usize = 400;
+/// The largest coarsest level factored densely; a stalled coarsening above it is smoothed.
+const DENSE_MAX: usize = 1500;
+/// Strength of connection on the finest level (halved on each coarser one).
+const EPS: f64 = 0.08;
+/// Power iterations for the eigenvalue bounds.
+const POWER_ITERATIONS: usize = 12;
+/// The default Chebyshev degree (`EPROP_MG_DEGREE` overrides it, 1-6).
+pub const DEGREE: usize = 2;
+
+/// One level: A = V + c K on one pattern, its Chebyshev smoother and its work vectors.
+struct Level {
+    ptr: Vec<usize>,
+    col: Vec<u32>,
+    v: Vec<f64>,
+    k: Vec<f64>,
+    a: Vec<f64>,
+    dinv: Vec<f64>,
+    /// Chebyshev interval of D^-1 A
+    lo: f64,
+    hi: f64,
+    /// prolongator to this level from the next coarser one and its transpose (empty on the
+    /// coarsest level)
+    p: Csr,
+    r: Csr,
+    x: Vec<V3>,
+    b: Vec<V3>,
+    t: Vec<V3>,
+}
+
+impl Level {
+    fn n(&self) -> usize {
+        self.ptr.len() - 1
+    }
+
+    /// The level of K and V (rows' columns ascending): one pattern holding both, with the
+    /// diagonal.
+    fn new(k: &Csr, v: &Csr) -> Level {
+        let n = k.n_rows();
+        let mut ptr = Vec::with_capacity(n + 1);
+        ptr.push(0);
+        let (mut col, mut kv, mut vv) = (vec![], vec![], vec![]);
+        for i in 0..n {
+            let (mut p, pe) = (k.ptr[i], k.ptr[i + 1]);
+            let (mut q, qe) = (v.ptr[i], v.ptr[i + 1]);
+            let mut diag = false;
+            while p < pe || q < qe {
+                let jk = if p < pe { k.col[p] } else { u32::MAX };
+                let jv = if q < qe { v.col[q] } else { u32::MAX };
+                let j = jk.min(jv);
+                if !diag && i as u32 <= j {
+                    if i as u32 != j {
+                        col.push(i as u32);
+                        kv.push(0.0);
+                        vv.push(0.0);
+                    }
+                    diag = true;
+                }
+                col.push(j);
+                kv.push(if jk == j { k.val[p] } else { 0.0 });
+                vv.push(if jv == j { v.val[q] } else { 0.0 });
+                if jk == j {
+                    p += 1;
+                }
+                if jv == j {
+                    q += 1;
+                }
+            }
+            if !diag {
+                col.push(i as u32);
+                kv.push(0.0);
+                vv.push(0.0);
+            }
+            ptr.push(col.len());
+        }
+        let z = vec![[0.0; 3]; n];
+        Level {
+            a: vec![0.0; col.len()],
+            dinv: vec![0.0; n],
+            ptr,
+            col,
+            v: vv,
+            k: kv,
+            lo: 0.0,
+            hi: 0.0,
+            p: Csr::default(),
+            r: Csr::default(),
+            x: z.clone(),
+            b: z.clone(),
+            t: z,
+        }
+    }
+
+    /// A = V + c K, its inverse diagonal and Chebyshev interval.
+    fn combine(&mut self, c: f64) {
+        self.a = self.v.iter().zip(&self.k).map(|(v, k)| v + c * k).collect();
+        let n = self.n();
+        self.dinv = (0..n)
+            .map(|i| {
+                let d = (self.ptr[i]..self.ptr[i + 1])
+                    .find(|&p| self.col[p] as usize == i)
+                    .map_or(0.0, |p| self.a[p]);
+                if d > 0.0 {
+                    1.0 / d
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let lam = lambda_max(&self.ptr, &self.col, &self.a, &self.dinv);
+        self.hi = 1.1 * lam;
+        self.lo = 0.1 * lam;
+    }
+
+    /// Chebyshev smoothing of A x = b: `degree` steps from x = 0 (`zero`) or from x.
+    fn smooth(&mut self, degree: usize, zero: bool) {
+        let theta = 0.5 * (self.hi + self.lo);
+        let delta = 0.5 * (self.hi - self.lo);
+        if !(theta > 0.0) {
+            return; // no unknowns that move
+        }
+        let sigma = theta / delta;
+        let mut rho = 1.0 / sigma;
+        // t holds the search direction d
+        if zero {
+            let (b, dinv) = (&self.b, &self.dinv);
+            self.t
+                .iter_mut()
+                .zip(b)
+                .zip(dinv)
+                .for_each(|((d, b), w)| *d = [b[0] * w / theta, b[1] * w / theta, b[2] * w / theta]);
+            self.x.copy_from_slice(&self.t);
+        } else {
+            csr::cheb_update(
+                &self.ptr,
+                &self.col,
+                &self.a,
+                &self.dinv,
+                &self.x,
+                &self.b,
+                &mut self.t,
+                0.0,
+                1.0 / theta,
+            );
+            csr::add(&mut self.x, &self.t);
+        }
+        for _ in 1..degree {
+            let rho_new = 1.0 / (2.0 * sigma - rho);
+            csr::cheb_update(
+                &self.ptr,
+                &self.col,
+                &self.a,
+                &self.dinv,
+                &self.x,
+                &self.b,
+                &mut self.t,
+                rho_new * rho,
+                2.0 * rho_new / delta,
+            );
+            csr::add(&mut self.x, &self.t);
+            rho = rho_new;
+        }
+    }
+}
+
+/// The largest eigenvalue of D^-1 M (M symmetric, D > 0 its diagonal) by power iteration
+/// from a fixed start, summed in order.
+fn lambda_max(ptr: &[usize], col: &[u32], val: &[f64], dinv: &[f64]) -> f64 {
+    let n = dinv.len();
+    if n == 0 {
+        return 0.0;
+    }
+    let mut x: Vec<f64> = (0..n).map(|i| 1.0 + ((i * 7919) % 101) as f64 / 101.0).collect();
+    let norm = |x: &[f64]| x.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let mut lam = 0.0;
+    for _ in 0..POWER_ITERATIONS {
+        let nx = norm(&x);
+        if !(nx > 0.0) {
+            break;
+        }
+        let y: Vec<f64> = (0..n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|i| dinv[i] * (ptr[i]..ptr[i + 1]).map(|p| val[p] * x[col[p] as usize]).sum::<f64>())
+            .collect();
+        let ny = norm(&y);
+        lam = ny / nx;
+        if !(ny > 0.0) {
+            break;
+        }
+        x = y.iter().map(|v| v / ny).collect();
+    }
+    lam
+}
+
+/// The direct solve of the coarsest level.
+enum Coarse {
+    /// Lower Cholesky factor, dense by rows.
+    Dense(Vec<f64>),
+    /// Too large to factor: Chebyshev of high degree (symmetric too).
+    Smooth,
+}
+
+/// The smoothed-aggregation hierarchy of one process (a `Precond`).
+pub struct Multigrid {
+    /// owned local index of each row of level 0
+    rows: Vec<u32>,
+    levels: Vec<Level>,
+    coarse: Coarse,
+    degree: usize,
+    coefficient: f64,
+}
+
+impl Multigrid {
+    /// The hierarchy of A = V - theta tau W on this process's free owned rows (`vol` > 0) of
+    /// `prop`'s compact operator.
+    pub fn new(prop: &Propagation, vol: &[f64], theta_tau: f64) -> Result<Multigrid> {
+        let t0 = std::time::Instant::now();
+        let Operator::Compact(op) = &prop.op else {
+            bail!("the multigrid preconditioner needs the compact scheme; fix: use [integrator] preconditioner = \"jacobi\"");
+        };
+        let n = vol.len();
+        let rows: Vec<u32> = (0..n as u32).filter(|&i| vol[i as usize] > 0.0).collect();
+        let mut index = vec![u32::MAX; n];
+        for (k, &i) in rows.iter().enumerate() {
+            index[i as usize] = k as u32;
+        }
+        // K = -W on the free owned rows: K_ij = -(V_i c_ij + V_j c_ji) / 2 (exactly symmetric),
+        // K_ii = V_i sum_j c_ij over every neighbour (as A's diagonal)
+        let mut ptr = Vec::with_capacity(rows.len() + 1);
+        ptr.push(0);
+        let (mut col, mut val) = (vec![], vec![]);
+        let mut row: Vec<(u32, f64)> = vec![];
+        for &i in &rows {
+            let i = i as usize;
+            row.clear();
+            let mut diag = 0.0;
+            for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
+                let a = vol[i] * op.c(p);
+                diag += a;
+                let j = op.col[p] as usize;
+                if j < n && index[j] != u32::MAX {
+                    let back = (op.row_ptr[j] as usize..op.row_ptr[j + 1] as usize)
+                        .find(|&q| op.col[q] as usize == i)
+                        .map_or(a, |q| vol[j] * op.c(q));
+                    row.push((index[j], -0.5 * (a + back)));
+                }
+            }
+            row.push((index[i], diag));
+            row.sort_by_key(|e| e.0);
+            for &(j, v) in &row {
+                col.push(j);
+                val.push(v);
+            }
+            ptr.push(col.len());
+        }
+        let m = rows.len();
+        let k = Csr {
+            n_cols: m,
+            ptr,
+            col,
+            val,
+        };
+        let v: Vec<f64> = rows.iter().map(|&i| vol[i as usize]).collect();
+        let mut mg = Multigrid::from_matrices(k, &v, theta_tau)?;
+        mg.rows = rows;
+        tracing::debug!(
+            "multigrid: levels {:?}, operator complexity {:.2}, cycle {:.1} level-0 applications, degree {}, setup {:.3} s",
+            mg.sizes(),
+            mg.complexity(),
+            mg.cycle_work(),
+            mg.degree,
+            t0.elapsed().as_secs_f64()
+        );
+        Ok(mg)
+    }
+
+    /// The hierarchy of A = diag(v) + c K (K symmetric, rows' columns ascending with the
+    /// diagonal stored); level 0's rows are the owned rows 0..n.
+    pub fn from_matrices(k: Csr, v: &[f64], c: f64) -> Result<Multigrid> {
+        let n = k.n_rows();
+        let degree = std::env::var("EPROP_MG_DEGREE")
+            .ok()
+            .and_then(|d| d.parse().ok())
+            .unwrap_or(DEGREE)
+            .clamp(1, 6);
+        let mut vm = Csr {
+            n_cols: n,
+            ptr: (0..=n).collect(),
+            col: (0..n as u32).collect(),
+            val: v.to_vec(),
+        };
+        let mut k = k;
+        let mut levels = vec![];
+        let mut eps = EPS;
+        loop {
+            let n = k.n_rows();
+            let mut level = Level::new(&k, &vm);
+            if n <= COARSE_MAX || levels.len() >= 24 {
+                levels.push(level);
+                break;
+            }
+            let (agg, n_agg) = aggregate::aggregate(&k, eps);
+            if n_agg == 0 || n_agg as f64 > 0.8 * n as f64 {
+                levels.push(level);
+                break;
+            }
+            // P = (I - omega D^-1 K) P_tent
+            let dk = k.diagonal();
+            let dinv: Vec<f64> = dk.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect();
+            let lam = lambda_max(&k.ptr, &k.col, &k.val, &dinv);
+            let omega = if lam > 0.0 { 4.0 / (3.0 * lam) } else { 0.0 };
+            let mut s = k.clone();
+            for i in 0..n {
+                for p in s.ptr[i]..s.ptr[i + 1] {
+                    let delta = if s.col[p] as usize == i { 1.0 } else { 0.0 };
+                    s.val[p] = delta - omega * dinv[i] * k.val[p];
+                }
+            }
+            let p = s.matmul(&aggregate::tentative(&agg, n_agg));
+            let r = p.transpose();
+            let kc = r.matmul(&k.matmul(&p));
+            let vc = r.matmul(&vm.matmul(&p));
+            level.p = p;
+            level.r = r;
+            levels.push(level);
+            k = kc;
+            vm = vc;
+            eps *= 0.5;
+        }
+        let mut mg = Multigrid {
+            rows: (0..n as u32).collect(),
+            levels,
+            coarse: Coarse::Smooth,
+            degree,
+            coefficient: f64::NAN,
+        };
+        mg.set_coefficient(c)?;
+        Ok(mg)
+    }
+
+    /// A = V + c K on every level (the prolongators stay): new smoothers and coarse factor.
+    pub fn set_coefficient(&mut self, c: f64) -> Result<()> {
+        for l in &mut self.levels {
+            l.combine(c);
+        }
+        self.coefficient = c;
+        let last = self.levels.last().expect("at least one level");
+        let n = last.n();
+        self.coarse = if n <= DENSE_MAX {
+            let mut f = vec![0.0; n * n];
+            for i in 0..n {
+                for p in last.ptr[i]..last.ptr[i + 1] {
+                    f[i * n + last.col[p] as usize] = last.a[p];
+                }
+            }
+            for j in 0..n {
+                let mut d = f[j * n + j];
+                for k in 0..j {
+                    d -= f[j * n + k] * f[j * n + k];
+                }
+                if !(d > 0.0) {
+                    bail!("multigrid: the coarsest matrix is not positive definite (pivot {d:.3e} at row {j}); fix: use [integrator] preconditioner = \"jacobi\"");
+                }
+                let d = d.sqrt();
+                f[j * n + j] = d;
+                for i in j + 1..n {
+                    let mut s = f[i * n + j];
+                    for k in 0..j {
+                        s -= f[i * n + k] * f[j * n + k];
+                    }
+                    f[i * n + j] = s / d;
+                }
+            }
+            for i in 0..n {
+                for j in i + 1..n {
+                    f[i * n + j] = 0.0;
+                }
+            }
+            Coarse::Dense(f)
+        } else {
+            Coarse::Smooth
+        };
+        Ok(())
+    }
+
+    /// The coefficient c of A = V + c K.
+    pub fn coefficient(&self) -> f64 {
+        self.coefficient
+    }
+
+    /// Rows of each level.
+    pub fn sizes(&self) -> Vec<usize> {
+        self.levels.iter().map(|l| l.n()).collect()
+    }
+
+    /// Stored entries of all levels' matrices over level 0's (operator complexity).
+    pub fn complexity(&self) -> f64 {
+        let nnz: Vec<usize> = self.levels.iter().map(|l| l.col.len()).collect();
+        nnz.iter().sum::<usize>() as f64 / nnz[0].max(1) as f64
+    }
+
+    /// The work of one V-cycle in level-0 matrix applications (three columns): each level's
+    /// smoothing (2 degree sweeps, one from zero being cheaper) and residual, and the
+    /// transfers.
+    pub fn cycle_work(&self) -> f64 {
+        let n0 = self.levels[0].col.len().max(1) as f64;
+        let mut w = 0.0;
+        let last = self.levels.len() - 1;
+        for (i, l) in self.levels.iter().enumerate() {
+            if i < last {
+                w += (2 * self.degree) as f64 * l.col.len() as f64 + 2.0 * l.p.nnz() as f64;
+            } else {
+                w += match self.coarse {
+                    Coarse::Dense(_) => (l.n() * l.n()) as f64,
+                    Coarse::Smooth => (4 * self.degree) as f64 * l.col.len() as f64,
+                };
+            }
+        }
+        w / n0
+    }
+
+    /// One V-cycle on levels[0].b into levels[0].x.
+    fn cycle(&mut self) {
+        let deg = self.degree;
+        let last = self.levels.len() - 1;
+        for l in 0..last {
+            let (fine, coarse) = self.levels.split_at_mut(l + 1);
+            let lv = &mut fine[l];
+            lv.smooth(deg, true);
+            csr::residual(&lv.ptr, &lv.col, &lv.a, &lv.x, &lv.b, &mut lv.t);
+            csr::spmv(&lv.r.ptr, &lv.r.col, &lv.r.val, &lv.t, &mut coarse[0].b);
+        }
+        let lv = &mut self.levels[last];
+        match &self.coarse {
+            Coarse::Dense(f) => {
+                let n = lv.n();
+                // L y = b, L^T x = y
+                for i in 0..n {
+                    let mut s = lv.b[i];
+                    for k in 0..i {
+                        let (l, y) = (f[i * n + k], lv.x[k]);
+                        for d in 0..3 {
+                            s[d] -= l * y[d];
+                        }
+                    }
+                    let di = f[i * n + i];
+                    lv.x[i] = [s[0] / di, s[1] / di, s[2] / di];
+                }
+                for i in (0..n).rev() {
+                    let mut s = lv.x[i];
+                    for k in i + 1..n {
+                        let (l, y) = (f[k * n + i], lv.x[k]);
+                        for d in 0..3 {
+                            s[d] -= l * y[d];
+                        }
+                    }
+                    let di = f[i * n + i];
+                    lv.x[i] = [s[0] / di, s[1] / di, s[2] / di];
+                }
+            }
+            Coarse::Smooth => {
+                lv.smooth(4 * deg, true);
+            }
+        }
+        for l in (0..last).rev() {
+            let (fine, coarse) = self.levels.split_at_mut(l + 1);
+            let lv = &mut fine[l];
+            csr::spmv_add(&lv.p.ptr, &lv.p.col, &lv.p.val, &coarse[0].x, &mut lv.x);
+            lv.smooth(deg, false);
+        }
+    }
+}
+
+impl Precond for Multigrid {
+    fn apply(&mut self, r: &[V3], z: &mut [V3]) {
+        z.par_iter_mut().with_min_len(4096).for_each(|z| *z = [0.0; 3]);
+        if self.rows.is_empty() {
+            return;
+        }
+        {
+            let (rows, b) = (&self.rows, &mut self.levels[0].b);
+            b.par_iter_mut()
+                .with_min_len(4096)
+                .zip(rows.par_iter())
+                .for_each(|(b, &i)| *b = r[i as usize]);
+        }
+        self.cycle();
+        for (k, &i) in self.rows.iter().enumerate() {
+            z[i as usize] = self.levels[0].x[k];
+        }
+    }
+}
