@@ -191,10 +191,20 @@ impl Implicit {
         })
     }
 
-    /// Replaces the planned applications per step and the reason (the automatic choice).
-    pub fn set_plan(&mut self, per_step: usize, why: String) {
+    /// Operator applications and the cost in forward Euler substeps of a step whose solves
+    /// take `it` iterations each: 2 (it + 2) + 1 applications at `choose::CG_COST`, and
+    /// 2 (it + 1) preconditioner applications at their own cost (`Precond::cost`).
+    pub fn estimate(&self, it: usize) -> (usize, f64) {
+        let apps = 2 * (it + 2) + 1;
+        let cost = super::choose::CG_COST * apps as f64 + self.pre.cost() * (2 * (it + 1)) as f64;
+        (apps, cost)
+    }
+
+    /// Replaces the planned applications per step, their cost and the reason (the automatic
+    /// choice).
+    pub fn set_plan(&mut self, per_step: usize, cost: f64, why: String) {
         self.plan.per_step = per_step;
-        self.plan.cost = super::choose::CG_COST * per_step as f64;
+        self.plan.cost = cost;
         self.plan.why = why;
     }
 

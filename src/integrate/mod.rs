@@ -178,4 +178,9 @@ pub trait Precond: Send {
     fn inverse_diagonal(&self) -> Option<&[f64]> {
         None
     }
+    /// The cost of one application in forward Euler substeps beyond the conjugate-gradient
+    /// iteration's own (`choose::CG_COST`; a diagonal one is fused into it: 0).
+    fn cost(&self) -> f64 {
+        0.0
+    }
 }

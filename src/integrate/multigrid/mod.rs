@@ -40,6 +40,10 @@ const DENSE_MAX: usize = 1500;
 const EPS: f64 = 0.08;
 /// Power iterations for the eigenvalue bounds.
 const POWER_ITERATIONS: usize = 12;
+/// Forward Euler substeps per level-0 matrix application of the cycle (three columns): a
+/// V-cycle of 7.5 such applications took 10.5 times an operator application on the 50^3 box
+/// (`examples/multigrid.rs`), the operator application about one substep.
+pub const SWEEP_COST: f64 = 1.4;
 /// The default Chebyshev degree (`EPROP_MG_DEGREE` overrides it, 1-6).
 pub const DEGREE: usize = 2;
 
@@ -240,6 +244,8 @@ enum Coarse {
 pub struct Multigrid {
     /// owned local index of each row of level 0
     rows: Vec<u32>,
+    /// owned rows (level 0 holds the free ones)
+    owned: usize,
     levels: Vec<Level>,
     coarse: Coarse,
     degree: usize,
@@ -299,6 +305,7 @@ impl Multigrid {
         let v: Vec<f64> = rows.iter().map(|&i| vol[i as usize]).collect();
         let mut mg = Multigrid::from_matrices(k, &v, theta_tau)?;
         mg.rows = rows;
+        mg.owned = n;
         tracing::debug!(
             "multigrid: levels {:?}, operator complexity {:.2}, cycle {:.1} level-0 applications, degree {}, setup {:.3} s",
             mg.sizes(),
@@ -365,6 +372,7 @@ impl Multigrid {
         }
         let mut mg = Multigrid {
             rows: (0..n as u32).collect(),
+            owned: n,
             levels,
             coarse: Coarse::Smooth,
             degree,
@@ -524,5 +532,8 @@ impl Precond for Multigrid {
         for (k, &i) in self.rows.iter().enumerate() {
             z[i as usize] = self.levels[0].x[k];
         }
+    }
+    fn cost(&self) -> f64 {
+        SWEEP_COST * self.cycle_work() * self.levels[0].n() as f64 / self.owned.max(1) as f64
     }
 }
