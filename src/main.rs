@@ -214,8 +214,10 @@ B/node* = peak resident memory per node, all processes."
     #[command(
         long_about = "Write the compact operator L of a scenario (mesh, conductivity, fixed set) as a \
 CSR matrix in HDF5: datasets row_ptr, col, val over the nodes in input order, the diagonal \
-included (rows of fixed nodes are empty), and attributes h (the substep eprop would use) and \
-nodes. One explicit substep is x <- x + h L x; scripts/bench_petsc.py times it with PETSc."
+included (rows of fixed nodes are empty), vol (the free nodes' control volumes V, 0 on fixed \
+rows), and attributes h (the substep eprop would use), nodes, dt (the mechanics step) and theta. \
+One explicit substep is x <- x + h L x; the implicit integrator solves (V - theta dt V L) x = b. \
+scripts/bench_petsc.py and scripts/bench_ksp.py time them with PETSc."
     )]
     ExportOperator {
         /// Scenario file (TOML); its mesh, material and fixed set define L
