@@ -34,7 +34,7 @@ fn main() -> anyhow::Result<()> {
     let t0 = Instant::now();
     while t0.elapsed().as_secs_f64() < secs {
         let t = Instant::now();
-        mg.apply(&r, &mut z);
+        mg.apply(&mut sim.prop, &r, &mut z);
         tc.push(t.elapsed().as_secs_f64());
         let t = Instant::now();
         sim.prop.apply_to(&mut x, &mut y);

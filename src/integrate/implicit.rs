@@ -43,7 +43,7 @@ pub struct Jacobi {
 }
 
 impl Precond for Jacobi {
-    fn apply(&mut self, r: &[V3], z: &mut [V3]) {
+    fn apply(&mut self, _: &mut Propagation, r: &[V3], z: &mut [V3]) {
         z.par_iter_mut()
             .zip(r.par_iter())
             .zip(self.inv.par_iter())
@@ -248,9 +248,9 @@ impl Implicit {
                 ri[d] = b_[i][d] - v * (xi[d] - tt * l[d]);
             }
         });
-        pre.apply(r, &mut u[..n]);
+        pre.apply(prop, r, &mut u[..n]);
         // (b, M b) scales the tolerance: M b into p (free until the first iteration)
-        pre.apply(b_, p);
+        pre.apply(prop, b_, p);
         let bb: [f64; 3] = {
             let p_ = &p[..];
             exact_sums_par(comm, n, |i| {
@@ -333,7 +333,7 @@ impl Implicit {
                 })
                 .reduce(|| [0.0; 2], |a, b| [a[0].max(b[0]), a[1].max(b[1])]);
             let [mr, mu] = if inv.is_none() {
-                pre.apply(r, &mut u[..n]);
+                pre.apply(prop, r, &mut u[..n]);
                 max_abs2(r, &u[..n])
             } else {
                 m2

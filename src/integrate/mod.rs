@@ -172,8 +172,9 @@ pub fn euler_substep(dt: f64, h_bound: f64) -> f64 {
 
 /// A preconditioner M ~ A^-1 of the implicit solves, applied to the owned rows.
 pub trait Precond: Send {
-    /// z = M r on the owned rows (three components).
-    fn apply(&mut self, r: &[V3], z: &mut [V3]);
+    /// z = M r on the owned rows (three components). Every process calls it at the same
+    /// point (a preconditioner may sweep `prop`'s operator, exchanging its halo).
+    fn apply(&mut self, prop: &mut Propagation, r: &[V3], z: &mut [V3]);
     /// The inverse diagonal when M is diagonal (the solver fuses it into its vector update).
     fn inverse_diagonal(&self) -> Option<&[f64]> {
         None

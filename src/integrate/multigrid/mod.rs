@@ -4,8 +4,11 @@
 //!
 //! The TR-BDF2 matrix is A = V + c K with V the control volumes, K = -W the (positive)
 //! diffusion matrix and c = theta tau. One scalar hierarchy serves the three components:
-//! - level 0: K and V on this process's free owned rows (couplings to other processes' nodes
-//!   are left out: the preconditioner is block-diagonal over the processes, see below);
+//! - level 0 is the solver's own A on every process (the operator sweep with its halo
+//!   exchange, `Propagation::update_to`): its smoothing couples the processes;
+//! - the coarse levels are this process's own: aggregated from K on its free owned rows
+//!   (couplings to other processes' nodes left out), so the coarse correction is
+//!   block-diagonal over the processes;
 //! - aggregation on K's strong connections (`aggregate`), nodes in local order;
 //! - prolongator P = (I - omega D_K^-1 K) P_tent, P_tent the aggregates' constants,
 //!   omega = 4 / (3 lambda_max(D_K^-1 K)) by power iteration;
@@ -18,7 +21,7 @@
 //!
 //! Every level's matrix is read once per kernel for the three columns. Every sum is in a
 //! fixed order, so the cycle is the same bits on any thread count; over several processes
-//! each one's hierarchy is its own (aggregates do not cross process boundaries), so the
+//! each one's coarse levels are its own (aggregates do not cross process boundaries), so the
 //! preconditioner, and the iterates, depend on the partition: results agree across process
 //! counts to the solver tolerance, not bitwise (docs/integrators.md).
 
@@ -26,6 +29,7 @@ pub mod aggregate;
 pub mod csr;
 
 use super::Precond;
+use crate::field::NodeField;
 use crate::operator::{Operator, V3};
 use crate::propagation::Propagation;
 use anyhow::{bail, Result};
@@ -48,6 +52,7 @@ pub const SWEEP_COST: f64 = 1.4;
 pub const DEGREE: usize = 2;
 
 /// One level: A = V + c K on one pattern, its Chebyshev smoother and its work vectors.
+#[derive(Clone)]
 struct Level {
     ptr: Vec<usize>,
     col: Vec<u32>,
@@ -242,11 +247,27 @@ enum Coarse {
 
 /// The smoothed-aggregation hierarchy of one process (a `Precond`).
 pub struct Multigrid {
-    /// owned local index of each row of level 0
+    /// owned local index of each free row (the rows of `fine`)
     rows: Vec<u32>,
-    /// owned rows (level 0 holds the free ones)
+    /// owned rows
     owned: usize,
+    /// level 0 on the free owned rows alone: its eigenvalue bound serves the level-0
+    /// smoother, its size the work estimate
+    fine: Level,
+    /// V_i of the owned rows (0 on rows that do not move) and the inverse diagonal of A
+    vol: Vec<f64>,
+    dinv0: Vec<f64>,
+    /// prolongator from levels[0] to the owned rows, and its transpose
+    p0: Csr,
+    r0: Csr,
+    /// level-0 iterate (with the halo), search direction and residual
+    x0: NodeField<V3>,
+    d0: Vec<V3>,
+    t0: Vec<V3>,
+    /// the coarse levels (levels[0] is the fine level itself where it did not coarsen)
     levels: Vec<Level>,
+    /// whether level 0 was aggregated (else levels[0] is level 0 itself, solved directly)
+    coarsened: bool,
     coarse: Coarse,
     degree: usize,
     coefficient: f64,
@@ -303,9 +324,65 @@ impl Multigrid {
             val,
         };
         let v: Vec<f64> = rows.iter().map(|&i| vol[i as usize]).collect();
-        let mut mg = Multigrid::from_matrices(k, &v, theta_tau)?;
-        mg.rows = rows;
-        mg.owned = n;
+        let mut levels = Self::hierarchy(k, &v);
+        let coarsened = levels.len() >= 2;
+        // level 0 runs on the solver's operator: its transfers in the owned numbering
+        let (fine, p) = if coarsened {
+            let mut fine = levels.remove(0);
+            let p = std::mem::take(&mut fine.p);
+            fine.r = Csr::default();
+            (fine, p)
+        } else {
+            // no coarsening: the local fine level itself is the coarse problem
+            let p = Csr {
+                n_cols: m,
+                ptr: (0..=m).collect(),
+                col: (0..m as u32).collect(),
+                val: vec![1.0; m],
+            };
+            (levels[0].clone(), p)
+        };
+        let mut p0 = Csr {
+            n_cols: p.n_cols,
+            ptr: Vec::with_capacity(n + 1),
+            col: p.col,
+            val: p.val,
+        };
+        p0.ptr.push(0);
+        for i in 0..n {
+            let k = index[i];
+            let len = if k == u32::MAX {
+                0
+            } else {
+                p.ptr[k as usize + 1] - p.ptr[k as usize]
+            };
+            p0.ptr.push(p0.ptr[i] + len);
+        }
+        let r0 = p0.transpose();
+        let degree = std::env::var("EPROP_MG_DEGREE")
+            .ok()
+            .and_then(|d| d.parse().ok())
+            .unwrap_or(DEGREE)
+            .clamp(1, 6);
+        let layout = prop.layout();
+        let mut mg = Multigrid {
+            rows,
+            owned: n,
+            fine,
+            vol: vol.to_vec(),
+            dinv0: vec![0.0; n],
+            p0,
+            r0,
+            x0: NodeField::filled(layout, [0.0; 3]),
+            d0: vec![[0.0; 3]; n],
+            t0: vec![[0.0; 3]; n],
+            levels,
+            coarsened,
+            coarse: Coarse::Smooth,
+            degree,
+            coefficient: f64::NAN,
+        };
+        mg.set_coefficient(theta_tau)?;
         tracing::debug!(
             "multigrid: levels {:?}, operator complexity {:.2}, cycle {:.1} level-0 applications, degree {}, setup {:.3} s",
             mg.sizes(),
@@ -317,15 +394,10 @@ impl Multigrid {
         Ok(mg)
     }
 
-    /// The hierarchy of A = diag(v) + c K (K symmetric, rows' columns ascending with the
-    /// diagonal stored); level 0's rows are the owned rows 0..n.
-    pub fn from_matrices(k: Csr, v: &[f64], c: f64) -> Result<Multigrid> {
+    /// The levels of A = diag(v) + c K (K symmetric, rows' columns ascending with the
+    /// diagonal stored), from level 0 to the coarsest; their coefficients are not yet set.
+    fn hierarchy(k: Csr, v: &[f64]) -> Vec<Level> {
         let n = k.n_rows();
-        let degree = std::env::var("EPROP_MG_DEGREE")
-            .ok()
-            .and_then(|d| d.parse().ok())
-            .unwrap_or(DEGREE)
-            .clamp(1, 6);
         let mut vm = Csr {
             n_cols: n,
             ptr: (0..=n).collect(),
@@ -370,20 +442,16 @@ impl Multigrid {
             vm = vc;
             eps *= 0.5;
         }
-        let mut mg = Multigrid {
-            rows: (0..n as u32).collect(),
-            owned: n,
-            levels,
-            coarse: Coarse::Smooth,
-            degree,
-            coefficient: f64::NAN,
-        };
-        mg.set_coefficient(c)?;
-        Ok(mg)
+        levels
     }
 
     /// A = V + c K on every level (the prolongators stay): new smoothers and coarse factor.
     pub fn set_coefficient(&mut self, c: f64) -> Result<()> {
+        self.fine.combine(c);
+        self.dinv0 = vec![0.0; self.owned];
+        for (k, &i) in self.rows.iter().enumerate() {
+            self.dinv0[i as usize] = self.fine.dinv[k];
+        }
         for l in &mut self.levels {
             l.combine(c);
         }
@@ -432,23 +500,32 @@ impl Multigrid {
         self.coefficient
     }
 
-    /// Rows of each level.
+    /// Rows of each level (level 0: the free owned rows).
     pub fn sizes(&self) -> Vec<usize> {
-        self.levels.iter().map(|l| l.n()).collect()
+        let mut s = vec![self.fine.n()];
+        if self.coarsened {
+            s.extend(self.levels.iter().map(|l| l.n()));
+        }
+        s
     }
 
     /// Stored entries of all levels' matrices over level 0's (operator complexity).
     pub fn complexity(&self) -> f64 {
-        let nnz: Vec<usize> = self.levels.iter().map(|l| l.col.len()).collect();
-        nnz.iter().sum::<usize>() as f64 / nnz[0].max(1) as f64
+        let n0 = self.fine.col.len().max(1);
+        let coarse: usize = if self.coarsened {
+            self.levels.iter().map(|l| l.col.len()).sum()
+        } else {
+            0
+        };
+        (n0 + coarse) as f64 / n0 as f64
     }
 
-    /// The work of one V-cycle in level-0 matrix applications (three columns): each level's
-    /// smoothing (2 degree sweeps, one from zero being cheaper) and residual, and the
-    /// transfers.
+    /// The work of one V-cycle in level-0 matrix applications (three columns): level 0's
+    /// 2 degree sweeps (one from zero being cheaper, the residual makes up for it), each
+    /// coarse level's too and the transfers, and the coarsest solve.
     pub fn cycle_work(&self) -> f64 {
-        let n0 = self.levels[0].col.len().max(1) as f64;
-        let mut w = 0.0;
+        let n0 = self.fine.col.len().max(1) as f64;
+        let mut w = (2 * self.degree) as f64 * n0 + 2.0 * self.p0.nnz() as f64;
         let last = self.levels.len() - 1;
         for (i, l) in self.levels.iter().enumerate() {
             if i < last {
@@ -461,6 +538,48 @@ impl Multigrid {
             }
         }
         w / n0
+    }
+
+    /// Chebyshev smoothing of A x0 = b on level 0 with the solver's operator (every process
+    /// takes part: each sweep exchanges the halo of x0).
+    fn smooth0(&mut self, prop: &mut Propagation, b: &[V3], zero: bool) {
+        let (lo, hi) = (self.fine.lo, self.fine.hi);
+        let theta = 0.5 * (hi + lo);
+        let delta = 0.5 * (hi - lo);
+        let n = self.owned;
+        let c = self.coefficient;
+        let (vol, dinv) = (&self.vol[..], &self.dinv0[..]);
+        // a process without rows that move still sweeps (the exchanges pair up)
+        let (theta, delta) = if theta > 0.0 { (theta, delta) } else { (1.0, 0.5) };
+        let sigma = theta / delta;
+        let mut rho = 1.0 / sigma;
+        if zero {
+            for i in 0..n {
+                let w = dinv[i] / theta;
+                self.d0[i] = [b[i][0] * w, b[i][1] * w, b[i][2] * w];
+                self.x0[i] = self.d0[i];
+            }
+        } else {
+            prop.update_to(&mut self.x0, &mut self.d0, |i, xi, l, di| {
+                let (v, w) = (vol[i], dinv[i] / theta);
+                for k in 0..3 {
+                    di[k] = w * (b[i][k] - v * (xi[k] - c * l[k]));
+                }
+            });
+            csr::add(&mut self.x0[..n], &self.d0);
+        }
+        for _ in 1..self.degree {
+            let rho_new = 1.0 / (2.0 * sigma - rho);
+            let (alpha, beta) = (rho_new * rho, 2.0 * rho_new / delta);
+            prop.update_to(&mut self.x0, &mut self.d0, |i, xi, l, di| {
+                let (v, w) = (vol[i], beta * dinv[i]);
+                for k in 0..3 {
+                    di[k] = alpha * di[k] + w * (b[i][k] - v * (xi[k] - c * l[k]));
+                }
+            });
+            csr::add(&mut self.x0[..n], &self.d0);
+            rho = rho_new;
+        }
     }
 
     /// One V-cycle on levels[0].b into levels[0].x.
@@ -516,24 +635,38 @@ impl Multigrid {
 }
 
 impl Precond for Multigrid {
-    fn apply(&mut self, r: &[V3], z: &mut [V3]) {
-        z.par_iter_mut().with_min_len(4096).for_each(|z| *z = [0.0; 3]);
-        if self.rows.is_empty() {
-            return;
-        }
+    fn apply(&mut self, prop: &mut Propagation, r: &[V3], z: &mut [V3]) {
+        let n = self.owned;
+        // level 0: smoothing, residual, restriction
+        self.smooth0(prop, r, true);
         {
-            let (rows, b) = (&self.rows, &mut self.levels[0].b);
-            b.par_iter_mut()
-                .with_min_len(4096)
-                .zip(rows.par_iter())
-                .for_each(|(b, &i)| *b = r[i as usize]);
+            let (vol, c) = (&self.vol[..], self.coefficient);
+            prop.update_to(&mut self.x0, &mut self.t0, |i, xi, l, ti| {
+                let v = vol[i];
+                for k in 0..3 {
+                    ti[k] = r[i][k] - v * (xi[k] - c * l[k]);
+                }
+            });
         }
+        csr::spmv(
+            &self.r0.ptr,
+            &self.r0.col,
+            &self.r0.val,
+            &self.t0,
+            &mut self.levels[0].b,
+        );
         self.cycle();
-        for (k, &i) in self.rows.iter().enumerate() {
-            z[i as usize] = self.levels[0].x[k];
-        }
+        csr::spmv_add(
+            &self.p0.ptr,
+            &self.p0.col,
+            &self.p0.val,
+            &self.levels[0].x,
+            &mut self.x0[..n],
+        );
+        self.smooth0(prop, r, false);
+        z.copy_from_slice(&self.x0[..n]);
     }
     fn cost(&self) -> f64 {
-        SWEEP_COST * self.cycle_work() * self.levels[0].n() as f64 / self.owned.max(1) as f64
+        SWEEP_COST * self.cycle_work() * self.fine.n() as f64 / self.owned.max(1) as f64
     }
 }
