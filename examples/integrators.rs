@@ -1,5 +1,5 @@
 //! Time per mechanics step and accuracy of every integrator on one scenario, steps taken in
-//! turn (euler, rkl2, implicit with Jacobi, implicit with AMG, one step each, then again), so
+//! turn (euler, rkl2, implicit with Jacobi, with multigrid and with AMG, one step each, then again), so
 //! the noise of a shared machine falls on all alike. Under mpirun every rank takes part.
 //!
 //!   cargo run --release --example integrators -- SCENARIO STEPS EULER_STEPS [REFERENCE]
@@ -25,6 +25,7 @@ fn main() -> anyhow::Result<()> {
         ("euler", Kind::Euler, Preconditioner::Jacobi),
         ("rkl2", Kind::Rkl2, Preconditioner::Jacobi),
         ("implicit jacobi", Kind::Implicit, Preconditioner::Jacobi),
+        ("implicit multigrid", Kind::Implicit, Preconditioner::Multigrid),
         ("implicit amg", Kind::Implicit, Preconditioner::Amg),
     ];
     let mut sims: Vec<Simulation> = vec![];
@@ -110,7 +111,7 @@ fn main() -> anyhow::Result<()> {
             sims[0].step_plan().per_step
         );
         println!(
-            "{:<16} {:>10} {:>12} {:>12} {:>10} {:>12}",
+            "{:<18} {:>10} {:>12} {:>12} {:>10} {:>12}",
             "integrator", "apps/step", "s/step med", "s/step min", "vs euler", "rel err u"
         );
         for (k, (name, _, _)) in variants.iter().enumerate() {
@@ -119,7 +120,7 @@ fn main() -> anyhow::Result<()> {
             let t = med(&times[k]);
             let tmin = times[k].iter().copied().fold(f64::INFINITY, f64::min);
             println!(
-                "{:<16} {:>10} {:>12.4} {:>12.4} {:>9.1}x {:>12}",
+                "{:<18} {:>10} {:>12.4} {:>12.4} {:>9.1}x {:>12}",
                 name,
                 a.get(a.len() / 2).copied().unwrap_or(0),
                 t,

@@ -43,7 +43,7 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [model]     scheme = \"compact\" | \"paper\", paper_correction = true, operator_precision = \"float64\" | \"float32\",\n\
               stiffness = 1.0 (k_e), coupling = 1.0 (kappa), exponent = 1.0 (p),\n\
               integrator = \"auto\" | \"euler\" | \"rkl2\" | \"implicit\" (docs/integrators.md)\n\
-  [integrator] tolerance = 1e-8, preconditioner = \"jacobi\" | \"amg\", max_iterations = 2000 (implicit);\n\
+  [integrator] tolerance = 1e-8, preconditioner = \"multigrid\" | \"jacobi\" | \"amg\", max_iterations = 2000 (implicit);\n\
               max_stages = 4096 (rkl2)\n\
   [tissue]    young = 100.0, beta = 0.0 (exponential law when > 0)\n\
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\
@@ -228,8 +228,10 @@ B/node* = peak resident memory per node, all processes."
     #[command(
         long_about = "Write the compact operator L of a scenario (mesh, conductivity, fixed set) as a \
 CSR matrix in HDF5: datasets row_ptr, col, val over the nodes in input order, the diagonal \
-included (rows of fixed nodes are empty), and attributes h (the substep eprop would use) and \
-nodes. One explicit substep is x <- x + h L x; scripts/bench_petsc.py times it with PETSc."
+included (rows of fixed nodes are empty), vol (the free nodes' control volumes V, 0 on fixed \
+rows), and attributes h (the substep eprop would use), nodes, dt (the mechanics step) and theta. \
+One explicit substep is x <- x + h L x; the implicit integrator solves (V - theta dt V L) x = b. \
+scripts/bench_petsc.py and scripts/bench_ksp.py time them with PETSc."
     )]
     ExportOperator {
         /// Scenario file (TOML); its mesh, material and fixed set define L

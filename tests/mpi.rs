@@ -322,10 +322,16 @@ fn bitwise_identical_on_1_to_4_ranks_every_deterministic_integrator() {
     check_ranks(&mesh, &format!("[model]\nintegrator = \"rkl2\"\n{stiff}"), "rkl2");
     check_ranks(
         &mesh,
-        &format!("[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\n{stiff}"),
+        &format!(
+            "[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\npreconditioner = \"jacobi\"\n{stiff}"
+        ),
         "implicit",
     );
-    check_ranks(&mesh, &stiff, "auto");
+    check_ranks(
+        &mesh,
+        &format!("[integrator]\npreconditioner = \"jacobi\"\n{stiff}"),
+        "auto",
+    );
 }
 
 #[test]
@@ -335,21 +341,18 @@ fn bitwise_identical_on_1_to_4_ranks_every_integrator_organ_mesh() {
     };
     let case = "[material]\nconductivity = 0.3\n[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n";
     for kind in ["rkl2", "implicit"] {
-        check_ranks(&mesh, &format!("[model]\nintegrator = \"{kind}\"\n{case}"), kind);
+        check_ranks(
+            &mesh,
+            &format!("[model]\nintegrator = \"{kind}\"\n[integrator]\npreconditioner = \"jacobi\"\n{case}"),
+            kind,
+        );
     }
 }
 
-#[test]
-#[cfg(not(eprop_hypre))]
-fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
-    common::skip("hypre was not found when eprop was built (libhypre-dev or HYPRE_DIR)");
-}
-
-#[test]
-#[cfg(eprop_hypre)]
-fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
-    // hypre's V-cycle follows the partition: not bitwise, but the same solution to the
-    // tolerance; and the same as the deterministic Jacobi path
+/// Implicit runs with the preconditioner `pre` on 1 to `max_ranks` ranks agree with the
+/// deterministic Jacobi path to the solver tolerance (the preconditioner follows the
+/// partition: not bitwise).
+fn preconditioned_runs_agree(pre: &str, max_ranks: usize) {
     let d = tempfile::tempdir().unwrap();
     let mesh = d.path().join("cyl.msh");
     eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
@@ -372,7 +375,7 @@ fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
             .read_raw::<f64>()
             .unwrap()
     };
-    let (amg, jacobi) = (scenario("amg"), scenario("jacobi"));
+    let (other, jacobi) = (scenario(pre), scenario("jacobi"));
     let reference = d.path().join("jacobi.h5");
     let out = serial(
         &["run", jacobi.to_str().unwrap(), "-q", "-o", reference.to_str().unwrap()],
@@ -381,11 +384,11 @@ fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let want = read(&reference);
     let norm = want.iter().map(|x| x * x).sum::<f64>().sqrt();
-    for n in [1, 2, 3] {
-        let f = d.path().join(format!("amg{n}.h5"));
-        let out = mpirun(n, &["run", amg.to_str().unwrap(), "-q", "-o", f.to_str().unwrap()]);
+    for n in 1..=max_ranks {
+        let f = d.path().join(format!("{pre}{n}.h5"));
+        let out = mpirun(n, &["run", other.to_str().unwrap(), "-q", "-o", f.to_str().unwrap()]);
         assert!(out.status.success(), "{n}: {}", String::from_utf8_lossy(&out.stderr));
-        assert!(String::from_utf8_lossy(&out.stdout).contains("amg preconditioner"));
+        assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("{pre} preconditioner")));
         let got = read(&f);
         let diff = got
             .iter()
@@ -393,8 +396,31 @@ fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
             .map(|(a, b)| (a - b) * (a - b))
             .sum::<f64>()
             .sqrt();
-        assert!(diff < 1e-8 * norm, "{n} ranks: relative difference {}", diff / norm);
+        assert!(
+            diff < 1e-8 * norm,
+            "{pre}, {n} ranks: relative difference {}",
+            diff / norm
+        );
     }
+}
+
+#[test]
+#[cfg(not(eprop_hypre))]
+fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
+    common::skip("hypre was not found when eprop was built (libhypre-dev or HYPRE_DIR)");
+}
+
+#[test]
+#[cfg(eprop_hypre)]
+fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
+    // hypre's V-cycle follows the partition
+    preconditioned_runs_agree("amg", 3);
+}
+
+#[test]
+fn multigrid_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
+    // each rank's hierarchy is its own (a block preconditioner over the ranks)
+    preconditioned_runs_agree("multigrid", 3);
 }
 
 /// A generated cylinder in `dir` and a scenario on it with `steps` steps.

@@ -216,7 +216,7 @@ fn tools_are_bitwise_identical_on_1_to_4_ranks() {
     std::fs::write(
         &sc,
         format!(
-            "[mesh]\nfile = \"{}\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\npatch = {{ center = [0.0, 1.0, 2.0], radius = 0.4 }}\ntable = \"f.csv\"\n\
+            "[mesh]\nfile = \"{}\"\n[integrator]\npreconditioner = \"jacobi\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\npatch = {{ center = [0.0, 1.0, 2.0], radius = 0.4 }}\ntable = \"f.csv\"\n\
              [[tool]]\nshape = \"sphere\"\nradius = 0.5\nstart = [1.5, 0.0, 2.0]\nvelocity = [-0.03, 0.0, 0.0]\n\
              [[tool]]\nshape = \"punch\"\nradius = 0.6\nnormal = [0, 0, -1]\ntable = \"p.csv\"\n[time]\nsteps = 10\n[output]\nevery = 2\n",
             mesh.display()
@@ -261,7 +261,7 @@ fn tools_are_bitwise_identical_on_1_and_2_ranks_with_rkl2_and_implicit() {
         std::fs::write(
             &sc,
             format!(
-                "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"{kind}\"\n[[fixed]]\ngroup = \"bottom\"\n\
+                "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"{kind}\"\n[integrator]\npreconditioner = \"jacobi\"\n[[fixed]]\ngroup = \"bottom\"\n\
                  [[load]]\npatch = {{ center = [0.0, 1.0, 2.0], radius = 0.4 }}\nnormal = 0.2\n\
                  [[tool]]\nshape = \"sphere\"\nradius = 0.5\ntable = \"p.csv\"\n[time]\ndt = 0.5\nsteps = 12\n[output]\nevery = 3\n",
                 mesh.display()

@@ -438,8 +438,9 @@ pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<
     (row_ptr, col, val)
 }
 
-/// Writes a scenario's compact operator L to `output` (HDF5: row_ptr, col, val; attributes
-/// h, the substep eprop would use, and nodes), built on one process.
+/// Writes a scenario's compact operator L to `output` (HDF5: row_ptr, col, val, and vol, the
+/// free nodes' control volumes; attributes h, the substep eprop would use, nodes, dt, the
+/// mechanics step, and theta, TR-BDF2's implicit weight), built on one process.
 pub fn export_operator(scenario: &Path, output: &Path) -> Result<ExportReport> {
     let sc = Scenario::load(scenario)?;
     crate::guard::safety::refuse_inputs(output, "the operator file (export-operator -o)", &sc.inputs())?;
@@ -454,7 +455,27 @@ pub fn export_operator(scenario: &Path, output: &Path) -> Result<ExportReport> {
     let (row_ptr, col, val) = operator_csr(&sim, op);
     let h = sim.step_plan().h;
     let n = sim.n_owned();
-    eprop_series::vtkhdf::write_csr(output, &row_ptr, &col, &val, &[("h", h), ("nodes", n as f64)])?;
+    eprop_series::vtkhdf::write_csr(
+        output,
+        &row_ptr,
+        &col,
+        &val,
+        &[
+            ("h", h),
+            ("nodes", n as f64),
+            ("dt", sim.dt),
+            ("theta", crate::propagate::integrate::implicit::THETA),
+        ],
+    )?;
+    // the control volumes of the free nodes (0 on fixed rows), in input order: with L they
+    // make the implicit integrator's matrix A = V - theta dt V L
+    let mut vol = vec![0.0; n];
+    for i in 0..n {
+        if sim.active[i] {
+            vol[sim.gid[i] as usize] = sim.dual.vol[i];
+        }
+    }
+    eprop_series::vtkhdf::add_dataset(output, "vol", &vol)?;
     Ok(ExportReport {
         file: output.display().to_string(),
         rows: n,

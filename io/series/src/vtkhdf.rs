@@ -902,3 +902,10 @@ pub fn write_csr(path: &Path, row_ptr: &[i64], col: &[i64], val: &[f64], attrs: 
     }
     Ok(())
 }
+
+/// Adds the float64 dataset `name` to the existing HDF5 file `path` (next to `write_csr`'s).
+pub fn add_dataset(path: &Path, name: &str, data: &[f64]) -> Result<()> {
+    let f = File::open_rw(path).map_err(|e| anyhow!("{}: cannot open: {e}; fix: check the file", path.display()))?;
+    h5(f.new_dataset_builder().with_data(data).create(name), path, name)?;
+    Ok(())
+}

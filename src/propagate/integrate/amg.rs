@@ -237,7 +237,7 @@ impl Amg {
 }
 
 impl Precond for Amg {
-    fn apply(&mut self, r: &[V3], z: &mut [V3]) {
+    fn apply(&mut self, _: &mut Propagation, r: &[V3], z: &mut [V3]) {
         let m = self.rows.len() as HypreInt;
         for d in 0..3 {
             for (k, &i) in self.rows.iter().enumerate() {

@@ -4,11 +4,14 @@
 //! - euler: ceil(dt / (0.9 h_bound)) substeps;
 //! - rkl2: its stages times STAGE_COST, with super-steps short enough that the median node's
 //!   modes stay resolved (tau / h_median <= Z_RKL2);
-//! - implicit: 2 (k + 2) + 1 operator applications times CG_COST, k the iterations of a
-//!   trial solve made here (deterministic: the same on any number of processes).
+//! - implicit: 2 (k + 2) + 1 operator applications times CG_COST and 2 (k + 1) preconditioner
+//!   applications at their own cost (a multigrid V-cycle: `multigrid::SWEEP_COST` per level-0
+//!   matrix application of the cycle), k the iterations of a trial solve made here (with
+//!   jacobi the same on any number of processes; with multigrid the hierarchy, and so k,
+//!   follows the partition).
 //!
-//! Only deterministic integrators are candidates, and only the compact scheme has any
-//! besides euler; euler stays unless another is MARGIN times cheaper.
+//! Only the compact scheme has candidates besides euler; euler stays unless another is MARGIN
+//! times cheaper.
 
 use super::euler::SAFETY;
 use super::rkl2::{stages_for, STAGE_COST};
@@ -144,8 +147,10 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             let mut imp = implicit(cx, 0, String::new())?;
             // a trial solve estimates the work per step (for `eprop check` and the summary)
             let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
+            let (apps, cost) = imp.estimate(it);
             imp.set_plan(
-                2 * (it + 2) + 1,
+                apps,
+                cost,
                 format!(
                     "the scenario's choice: TR-BDF2, {} preconditioner ({it} iterations per solve in a trial)",
                     s.preconditioner.name()
@@ -184,8 +189,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             if floor * MARGIN < best_cost {
                 let mut imp = implicit(cx, 0, String::new())?;
                 if let Ok(it) = imp.trial(cx.prop, cx.gid, cx.comm) {
-                    let apps = 2 * (it + 2) + 1;
-                    let cost = CG_COST * apps as f64;
+                    let (apps, cost) = imp.estimate(it);
                     let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
                     if cost * margin < best_cost {
                         (best, best_cost) = (Kind::Implicit, cost);
@@ -201,7 +205,8 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 count(rkl2_cost),
                 match &trial {
                     Some((_, it, apps, cost)) => format!(
-                        ", implicit ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps)"
+                        ", implicit ({}) ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps)",
+                        s.preconditioner.name()
                     ),
                     None => String::new(),
                 }
@@ -217,9 +222,10 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                     format!("auto: rkl2 is the cheapest: {others}"),
                 )?)),
                 Kind::Implicit => {
-                    let (mut imp, _, apps, _) = trial.expect("implicit was tried");
+                    let (mut imp, _, apps, cost) = trial.expect("implicit was tried");
                     imp.set_plan(
                         apps,
+                        cost,
                         format!(
                             "auto: implicit (TR-BDF2, {} preconditioner) is the cheapest: {others}",
                             s.preconditioner.name()

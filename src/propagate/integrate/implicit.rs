@@ -43,7 +43,7 @@ pub struct Jacobi {
 }
 
 impl Precond for Jacobi {
-    fn apply(&mut self, r: &[V3], z: &mut [V3]) {
+    fn apply(&mut self, _: &mut Propagation, r: &[V3], z: &mut [V3]) {
         z.par_iter_mut()
             .zip(r.par_iter())
             .zip(self.inv.par_iter())
@@ -143,6 +143,9 @@ impl Implicit {
         let d = diagonal(&prop.op, &vol, theta_tau);
         let a_bound = comm.max(row_bound(&prop.op, &vol, theta_tau));
         let pre: Box<dyn Precond> = match settings.preconditioner {
+            Preconditioner::Multigrid => Box::new(
+                super::multigrid::Multigrid::new(prop, &vol, theta_tau).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
+            ),
             Preconditioner::Jacobi => Box::new(Jacobi {
                 inv: d.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect(),
             }),
@@ -188,10 +191,20 @@ impl Implicit {
         })
     }
 
-    /// Replaces the planned applications per step and the reason (the automatic choice).
-    pub fn set_plan(&mut self, per_step: usize, why: String) {
+    /// Operator applications and the cost in forward Euler substeps of a step whose solves
+    /// take `it` iterations each: 2 (it + 2) + 1 applications at `choose::CG_COST`, and
+    /// 2 (it + 1) preconditioner applications at their own cost (`Precond::cost`).
+    pub fn estimate(&self, it: usize) -> (usize, f64) {
+        let apps = 2 * (it + 2) + 1;
+        let cost = super::choose::CG_COST * apps as f64 + self.pre.cost() * (2 * (it + 1)) as f64;
+        (apps, cost)
+    }
+
+    /// Replaces the planned applications per step, their cost and the reason (the automatic
+    /// choice).
+    pub fn set_plan(&mut self, per_step: usize, cost: f64, why: String) {
         self.plan.per_step = per_step;
-        self.plan.cost = super::choose::CG_COST * per_step as f64;
+        self.plan.cost = cost;
         self.plan.why = why;
     }
 
@@ -235,9 +248,9 @@ impl Implicit {
                 ri[d] = b_[i][d] - v * (xi[d] - tt * l[d]);
             }
         });
-        pre.apply(r, &mut u[..n]);
+        pre.apply(prop, r, &mut u[..n]);
         // (b, M b) scales the tolerance: M b into p (free until the first iteration)
-        pre.apply(b_, p);
+        pre.apply(prop, b_, p);
         let bb: [f64; 3] = {
             let p_ = &p[..];
             exact_sums_par(comm, n, |i| {
@@ -320,7 +333,7 @@ impl Implicit {
                 })
                 .reduce(|| [0.0; 2], |a, b| [a[0].max(b[0]), a[1].max(b[1])]);
             let [mr, mu] = if inv.is_none() {
-                pre.apply(r, &mut u[..n]);
+                pre.apply(prop, r, &mut u[..n]);
                 max_abs2(r, &u[..n])
             } else {
                 m2

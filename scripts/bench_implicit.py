@@ -1,0 +1,116 @@
+#!/usr/bin/env python3
+"""The implicit integrator's solves on unit boxes, eprop beside PETSc KSP CG.
+
+For each box of N^3 cells (`eprop mesh box --kind tet`; fixed on x = 0, a patch load on
+x = 1, conductivity 0.05, dt automatic: the boxes of issue 24), on 1 and 2 processes:
+  - eprop `run` with [model] integrator = "implicit" and each preconditioner: iterations per
+    solve and seconds per step from the log (`-vv`: one line per step; steps 2 to S, the
+    mechanics included, no output written, setup excluded);
+  - `eprop export-operator`, then scripts/bench_ksp.py: PETSc CG with jacobi, gamg, hypre on
+    the same matrix A = V - theta dt W, three components one by one, setup excluded.
+Prints a Markdown table. Needs mpirun, and python3-petsc4py / python3-h5py for PETSc
+(skipped with --no-petsc).
+
+examples:
+  scripts/bench_implicit.py --cells 30,50,70
+  scripts/bench_implicit.py --cells 30 --pre multigrid,jacobi --no-petsc"""
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import json
+
+HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def run(cmd, env=None, both=False):
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if p.returncode != 0:
+        sys.exit(f"bench_implicit.py: {' '.join(cmd)} failed:\n{p.stderr}")
+    return (p.stdout, p.stderr) if both else p.stdout
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cells", default="30,50,70", help="box sizes N (N^3 cells), comma-separated")
+    ap.add_argument("--procs", default="1,2", help="process counts (default 1,2)")
+    ap.add_argument("--pre", default="multigrid,jacobi", help="eprop preconditioners (default multigrid,jacobi)")
+    ap.add_argument("--steps", type=int, default=6, help="eprop steps per run (default 6)")
+    ap.add_argument("--no-petsc", action="store_true", help="eprop only")
+    a = ap.parse_args()
+    eprop = os.path.join(HERE, "target", "release", "eprop")
+    if not os.access(eprop, os.X_OK):
+        sys.exit(f"bench_implicit.py: {eprop} not found; fix: cargo build --release")
+    env = dict(os.environ, RAYON_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    if "PETSC_DIR" not in env:
+        # Debian's petsc4py finds PETSc through PETSC_DIR when the -dev alternative is missing
+        import glob
+        for d in ["/usr/lib/petsc"] + sorted(glob.glob("/usr/lib/petscdir/petsc*/x86_64-linux-gnu-real")):
+            if os.path.isdir(os.path.join(d, "lib", "python3", "dist-packages", "petsc4py")):
+                env["PETSC_DIR"] = d
+                break
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        for n in [int(c) for c in a.cells.split(",")]:
+            mesh = os.path.join(work, f"box{n}.msh")
+            run([eprop, "mesh", "box", "--size", "1,1,1", "--cells", f"{n},{n},{n}", "--kind", "tet", "-o", mesh])
+            for pre in a.pre.split(","):
+                sc = os.path.join(work, f"box{n}_{pre}.toml")
+                with open(sc, "w") as f:
+                    f.write(f"""[mesh]
+file = "box{n}.msh"
+[material]
+conductivity = 0.05
+[model]
+integrator = "implicit"
+[integrator]
+preconditioner = "{pre}"
+[[fixed]]
+group = "xmin"
+[[load]]
+patch = {{ center = [1.0, 0.5, 0.5], radius = 0.2 }}
+normal = 1.0
+[time]
+steps = {a.steps}
+[output]
+every = 1000
+""")
+                for p in [int(x) for x in a.procs.split(",")]:
+                    out = os.path.join(work, "o.h5")
+                    cmd = [eprop, "-vv", "run", sc, "-o", out, "--overwrite"]
+                    if p > 1:
+                        cmd = ["mpirun", "--oversubscribe", "-n", str(p)] + cmd
+                    text, log = run(cmd, env, both=True)
+                    nodes = re.search(r"\((\d+) nodes", text)
+                    # rank 0's (the first) line of each step: uptime and the two solves' iterations
+                    steps = {}
+                    for m in re.finditer(r"([\d.]+)s\s+DEBUG implicit step (\d+): (\d+) \+ (\d+) iterations", log):
+                        steps.setdefault(int(m.group(2)), (float(m.group(1)), int(m.group(3)), int(m.group(4))))
+                    k = sorted(steps)
+                    # steps 2..S: the first step's time holds one-off work
+                    step = (steps[k[-1]][0] - steps[k[0]][0]) / (len(k) - 1)
+                    its = [steps[j][1] for j in k] + [steps[j][2] for j in k]
+                    rows.append((n, int(nodes.group(1)), f"eprop implicit, {pre}", p, sum(its) / len(its), step))
+                    print(rows[-1], file=sys.stderr, flush=True)
+            if a.no_petsc:
+                continue
+            op = os.path.join(work, f"A{n}.h5")
+            run([eprop, "export-operator", os.path.join(work, f"box{n}_{a.pre.split(',')[0]}.toml"), "-o", op], env)
+            for p in [int(x) for x in a.procs.split(",")]:
+                cmd = ["/usr/bin/python3", os.path.join(HERE, "scripts", "bench_ksp.py"), op]
+                if p > 1:
+                    cmd = ["mpirun", "--oversubscribe", "-n", str(p)] + cmd
+                for line in run(cmd, env).splitlines():
+                    r = json.loads(line)
+                    rows.append((n, int(r["rows"]), f"PETSc CG + {r['pc']}", p, r["iterations_per_solve"], r["s_per_step"]))
+                    print(rows[-1], file=sys.stderr, flush=True)
+    print("| box | solver | processes | iterations per solve | s per step |")
+    print("|---|---|---|---|---|")
+    for n, nodes, what, p, it, s in rows:
+        print(f"| {n}^3 ({nodes} nodes) | {what} | {p} | {it:.1f} | {s:.3f} |")
+
+
+if __name__ == "__main__":
+    main()

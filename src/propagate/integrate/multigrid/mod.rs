@@ -1,0 +1,672 @@
+//! Smoothed-aggregation algebraic multigrid (Vanek, Mandel and Brezina 1996): the default
+//! preconditioner of the implicit solves, one V-cycle per conjugate-gradient iteration for
+//! the three components together.
+//!
+//! The TR-BDF2 matrix is A = V + c K with V the control volumes, K = -W the (positive)
+//! diffusion matrix and c = theta tau. One scalar hierarchy serves the three components:
+//! - level 0 is the solver's own A on every process (the operator sweep with its halo
+//!   exchange, `Propagation::update_to`): its smoothing couples the processes;
+//! - the coarse levels are this process's own: aggregated from K on its free owned rows
+//!   (couplings to other processes' nodes left out), so the coarse correction is
+//!   block-diagonal over the processes;
+//! - aggregation on K's strong connections (`aggregate`), nodes in local order;
+//! - prolongator P = (I - omega D_K^-1 K) P_tent, P_tent the aggregates' constants,
+//!   omega = 4 / (3 lambda_max(D_K^-1 K)) by power iteration;
+//! - Galerkin coarse matrices kept apart, V_c = P^T V P and K_c = P^T K P, so that a new c
+//!   only recombines A_c = V_c + c K_c (`set_coefficient`), the prolongators stay;
+//! - smoothing: Chebyshev of degree 2 on D_A^-1 A over [0.1, 1.1] lambda_max (power
+//!   iteration), the same polynomial before and after the coarse correction, so the V-cycle is
+//!   a fixed symmetric positive-definite operator and conjugate gradients stay valid;
+//! - coarsest level (at most COARSE_MAX rows, or where aggregation stalls): dense Cholesky.
+//!
+//! Every level's matrix is read once per kernel for the three columns. Every sum is in a
+//! fixed order, so the cycle is the same bits on any thread count; over several processes
+//! each one's coarse levels are its own (aggregates do not cross process boundaries), so the
+//! preconditioner, and the iterates, depend on the partition: results agree across process
+//! counts to the solver tolerance, not bitwise (docs/integrators.md).
+
+pub mod aggregate;
+pub mod csr;
+
+use super::Precond;
+use crate::discretize::operator::{Operator, V3};
+use crate::distribute::field::NodeField;
+use crate::propagate::Propagation;
+use anyhow::{bail, Result};
+use csr::Csr;
+use rayon::prelude::*;
+
+/// Coarsening stops at this many rows (the coarsest level is solved directly).
+pub const COARSE_MAX: usize = 400;
+/// The largest coarsest level factored densely; a stalled coarsening above it is smoothed.
+const DENSE_MAX: usize = 1500;
+/// Strength of connection on the finest level (halved on each coarser one).
+const EPS: f64 = 0.08;
+/// Power iterations for the eigenvalue bounds.
+const POWER_ITERATIONS: usize = 12;
+/// Forward Euler substeps per level-0 matrix application of the cycle (three columns): a
+/// V-cycle of 7.5 such applications took 10.5 times an operator application on the 50^3 box
+/// (`examples/multigrid.rs`), the operator application about one substep.
+pub const SWEEP_COST: f64 = 1.4;
+/// The default Chebyshev degree (`EPROP_MG_DEGREE` overrides it, 1-6).
+pub const DEGREE: usize = 2;
+
+/// One level: A = V + c K on one pattern, its Chebyshev smoother and its work vectors.
+#[derive(Clone)]
+struct Level {
+    ptr: Vec<usize>,
+    col: Vec<u32>,
+    v: Vec<f64>,
+    k: Vec<f64>,
+    a: Vec<f64>,
+    dinv: Vec<f64>,
+    /// Chebyshev interval of D^-1 A
+    lo: f64,
+    hi: f64,
+    /// prolongator to this level from the next coarser one and its transpose (empty on the
+    /// coarsest level)
+    p: Csr,
+    r: Csr,
+    x: Vec<V3>,
+    b: Vec<V3>,
+    t: Vec<V3>,
+}
+
+impl Level {
+    fn n(&self) -> usize {
+        self.ptr.len() - 1
+    }
+
+    /// The level of K and V (rows' columns ascending): one pattern holding both, with the
+    /// diagonal.
+    fn new(k: &Csr, v: &Csr) -> Level {
+        let n = k.n_rows();
+        let mut ptr = Vec::with_capacity(n + 1);
+        ptr.push(0);
+        let (mut col, mut kv, mut vv) = (vec![], vec![], vec![]);
+        for i in 0..n {
+            let (mut p, pe) = (k.ptr[i], k.ptr[i + 1]);
+            let (mut q, qe) = (v.ptr[i], v.ptr[i + 1]);
+            let mut diag = false;
+            while p < pe || q < qe {
+                let jk = if p < pe { k.col[p] } else { u32::MAX };
+                let jv = if q < qe { v.col[q] } else { u32::MAX };
+                let j = jk.min(jv);
+                if !diag && i as u32 <= j {
+                    if i as u32 != j {
+                        col.push(i as u32);
+                        kv.push(0.0);
+                        vv.push(0.0);
+                    }
+                    diag = true;
+                }
+                col.push(j);
+                kv.push(if jk == j { k.val[p] } else { 0.0 });
+                vv.push(if jv == j { v.val[q] } else { 0.0 });
+                if jk == j {
+                    p += 1;
+                }
+                if jv == j {
+                    q += 1;
+                }
+            }
+            if !diag {
+                col.push(i as u32);
+                kv.push(0.0);
+                vv.push(0.0);
+            }
+            ptr.push(col.len());
+        }
+        let z = vec![[0.0; 3]; n];
+        Level {
+            a: vec![0.0; col.len()],
+            dinv: vec![0.0; n],
+            ptr,
+            col,
+            v: vv,
+            k: kv,
+            lo: 0.0,
+            hi: 0.0,
+            p: Csr::default(),
+            r: Csr::default(),
+            x: z.clone(),
+            b: z.clone(),
+            t: z,
+        }
+    }
+
+    /// A = V + c K, its inverse diagonal and Chebyshev interval.
+    fn combine(&mut self, c: f64) {
+        self.a = self.v.iter().zip(&self.k).map(|(v, k)| v + c * k).collect();
+        let n = self.n();
+        self.dinv = (0..n)
+            .map(|i| {
+                let d = (self.ptr[i]..self.ptr[i + 1])
+                    .find(|&p| self.col[p] as usize == i)
+                    .map_or(0.0, |p| self.a[p]);
+                if d > 0.0 {
+                    1.0 / d
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let lam = lambda_max(&self.ptr, &self.col, &self.a, &self.dinv);
+        self.hi = 1.1 * lam;
+        self.lo = 0.1 * lam;
+    }
+
+    /// Chebyshev smoothing of A x = b: `degree` steps from x = 0 (`zero`) or from x.
+    fn smooth(&mut self, degree: usize, zero: bool) {
+        let theta = 0.5 * (self.hi + self.lo);
+        let delta = 0.5 * (self.hi - self.lo);
+        if !(theta > 0.0) {
+            return; // no unknowns that move
+        }
+        let sigma = theta / delta;
+        let mut rho = 1.0 / sigma;
+        // t holds the search direction d
+        if zero {
+            let (b, dinv) = (&self.b, &self.dinv);
+            self.t
+                .iter_mut()
+                .zip(b)
+                .zip(dinv)
+                .for_each(|((d, b), w)| *d = [b[0] * w / theta, b[1] * w / theta, b[2] * w / theta]);
+            self.x.copy_from_slice(&self.t);
+        } else {
+            csr::cheb_update(
+                &self.ptr,
+                &self.col,
+                &self.a,
+                &self.dinv,
+                &self.x,
+                &self.b,
+                &mut self.t,
+                0.0,
+                1.0 / theta,
+            );
+            csr::add(&mut self.x, &self.t);
+        }
+        for _ in 1..degree {
+            let rho_new = 1.0 / (2.0 * sigma - rho);
+            csr::cheb_update(
+                &self.ptr,
+                &self.col,
+                &self.a,
+                &self.dinv,
+                &self.x,
+                &self.b,
+                &mut self.t,
+                rho_new * rho,
+                2.0 * rho_new / delta,
+            );
+            csr::add(&mut self.x, &self.t);
+            rho = rho_new;
+        }
+    }
+}
+
+/// The largest eigenvalue of D^-1 M (M symmetric, D > 0 its diagonal) by power iteration
+/// from a fixed start, summed in order.
+fn lambda_max(ptr: &[usize], col: &[u32], val: &[f64], dinv: &[f64]) -> f64 {
+    let n = dinv.len();
+    if n == 0 {
+        return 0.0;
+    }
+    let mut x: Vec<f64> = (0..n).map(|i| 1.0 + ((i * 7919) % 101) as f64 / 101.0).collect();
+    let norm = |x: &[f64]| x.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let mut lam = 0.0;
+    for _ in 0..POWER_ITERATIONS {
+        let nx = norm(&x);
+        if !(nx > 0.0) {
+            break;
+        }
+        let y: Vec<f64> = (0..n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|i| dinv[i] * (ptr[i]..ptr[i + 1]).map(|p| val[p] * x[col[p] as usize]).sum::<f64>())
+            .collect();
+        let ny = norm(&y);
+        lam = ny / nx;
+        if !(ny > 0.0) {
+            break;
+        }
+        x = y.iter().map(|v| v / ny).collect();
+    }
+    lam
+}
+
+/// The direct solve of the coarsest level.
+enum Coarse {
+    /// Lower Cholesky factor, dense by rows.
+    Dense(Vec<f64>),
+    /// Too large to factor: Chebyshev of high degree (symmetric too).
+    Smooth,
+}
+
+/// The smoothed-aggregation hierarchy of one process (a `Precond`).
+pub struct Multigrid {
+    /// owned local index of each free row (the rows of `fine`)
+    rows: Vec<u32>,
+    /// owned rows
+    owned: usize,
+    /// level 0 on the free owned rows alone: its eigenvalue bound serves the level-0
+    /// smoother, its size the work estimate
+    fine: Level,
+    /// V_i of the owned rows (0 on rows that do not move) and the inverse diagonal of A
+    vol: Vec<f64>,
+    dinv0: Vec<f64>,
+    /// prolongator from levels[0] to the owned rows, and its transpose
+    p0: Csr,
+    r0: Csr,
+    /// level-0 iterate (with the halo), search direction and residual
+    x0: NodeField<V3>,
+    d0: Vec<V3>,
+    t0: Vec<V3>,
+    /// the coarse levels (levels[0] is the fine level itself where it did not coarsen)
+    levels: Vec<Level>,
+    /// whether level 0 was aggregated (else levels[0] is level 0 itself, solved directly)
+    coarsened: bool,
+    coarse: Coarse,
+    degree: usize,
+    coefficient: f64,
+}
+
+impl Multigrid {
+    /// The hierarchy of A = V - theta tau W on this process's free owned rows (`vol` > 0) of
+    /// `prop`'s compact operator.
+    pub fn new(prop: &Propagation, vol: &[f64], theta_tau: f64) -> Result<Multigrid> {
+        let t0 = std::time::Instant::now();
+        let Operator::Compact(op) = &prop.op else {
+            bail!("the multigrid preconditioner needs the compact scheme; fix: use [integrator] preconditioner = \"jacobi\"");
+        };
+        let n = vol.len();
+        let rows: Vec<u32> = (0..n as u32).filter(|&i| vol[i as usize] > 0.0).collect();
+        let mut index = vec![u32::MAX; n];
+        for (k, &i) in rows.iter().enumerate() {
+            index[i as usize] = k as u32;
+        }
+        // K = -W on the free owned rows: K_ij = -(V_i c_ij + V_j c_ji) / 2 (exactly symmetric),
+        // K_ii = V_i sum_j c_ij over every neighbour (as A's diagonal)
+        let mut ptr = Vec::with_capacity(rows.len() + 1);
+        ptr.push(0);
+        let (mut col, mut val) = (vec![], vec![]);
+        let mut row: Vec<(u32, f64)> = vec![];
+        for &i in &rows {
+            let i = i as usize;
+            row.clear();
+            let mut diag = 0.0;
+            for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
+                let a = vol[i] * op.c(p);
+                diag += a;
+                let j = op.col[p] as usize;
+                if j < n && index[j] != u32::MAX {
+                    let back = (op.row_ptr[j] as usize..op.row_ptr[j + 1] as usize)
+                        .find(|&q| op.col[q] as usize == i)
+                        .map_or(a, |q| vol[j] * op.c(q));
+                    row.push((index[j], -0.5 * (a + back)));
+                }
+            }
+            row.push((index[i], diag));
+            row.sort_by_key(|e| e.0);
+            for &(j, v) in &row {
+                col.push(j);
+                val.push(v);
+            }
+            ptr.push(col.len());
+        }
+        let m = rows.len();
+        let k = Csr {
+            n_cols: m,
+            ptr,
+            col,
+            val,
+        };
+        let v: Vec<f64> = rows.iter().map(|&i| vol[i as usize]).collect();
+        let mut levels = Self::hierarchy(k, &v);
+        let coarsened = levels.len() >= 2;
+        // level 0 runs on the solver's operator: its transfers in the owned numbering
+        let (fine, p) = if coarsened {
+            let mut fine = levels.remove(0);
+            let p = std::mem::take(&mut fine.p);
+            fine.r = Csr::default();
+            (fine, p)
+        } else {
+            // no coarsening: the local fine level itself is the coarse problem
+            let p = Csr {
+                n_cols: m,
+                ptr: (0..=m).collect(),
+                col: (0..m as u32).collect(),
+                val: vec![1.0; m],
+            };
+            (levels[0].clone(), p)
+        };
+        let mut p0 = Csr {
+            n_cols: p.n_cols,
+            ptr: Vec::with_capacity(n + 1),
+            col: p.col,
+            val: p.val,
+        };
+        p0.ptr.push(0);
+        for i in 0..n {
+            let k = index[i];
+            let len = if k == u32::MAX {
+                0
+            } else {
+                p.ptr[k as usize + 1] - p.ptr[k as usize]
+            };
+            p0.ptr.push(p0.ptr[i] + len);
+        }
+        let r0 = p0.transpose();
+        let degree = std::env::var("EPROP_MG_DEGREE")
+            .ok()
+            .and_then(|d| d.parse().ok())
+            .unwrap_or(DEGREE)
+            .clamp(1, 6);
+        let layout = prop.layout();
+        let mut mg = Multigrid {
+            rows,
+            owned: n,
+            fine,
+            vol: vol.to_vec(),
+            dinv0: vec![0.0; n],
+            p0,
+            r0,
+            x0: NodeField::filled(layout, [0.0; 3]),
+            d0: vec![[0.0; 3]; n],
+            t0: vec![[0.0; 3]; n],
+            levels,
+            coarsened,
+            coarse: Coarse::Smooth,
+            degree,
+            coefficient: f64::NAN,
+        };
+        mg.set_coefficient(theta_tau)?;
+        tracing::debug!(
+            "multigrid: levels {:?}, operator complexity {:.2}, cycle {:.1} level-0 applications, degree {}, setup {:.3} s",
+            mg.sizes(),
+            mg.complexity(),
+            mg.cycle_work(),
+            mg.degree,
+            t0.elapsed().as_secs_f64()
+        );
+        Ok(mg)
+    }
+
+    /// The levels of A = diag(v) + c K (K symmetric, rows' columns ascending with the
+    /// diagonal stored), from level 0 to the coarsest; their coefficients are not yet set.
+    fn hierarchy(k: Csr, v: &[f64]) -> Vec<Level> {
+        let n = k.n_rows();
+        let mut vm = Csr {
+            n_cols: n,
+            ptr: (0..=n).collect(),
+            col: (0..n as u32).collect(),
+            val: v.to_vec(),
+        };
+        let mut k = k;
+        let mut levels = vec![];
+        let mut eps = EPS;
+        loop {
+            let n = k.n_rows();
+            let mut level = Level::new(&k, &vm);
+            if n <= COARSE_MAX || levels.len() >= 24 {
+                levels.push(level);
+                break;
+            }
+            let (agg, n_agg) = aggregate::aggregate(&k, eps);
+            if n_agg == 0 || n_agg as f64 > 0.8 * n as f64 {
+                levels.push(level);
+                break;
+            }
+            // P = (I - omega D^-1 K) P_tent
+            let dk = k.diagonal();
+            let dinv: Vec<f64> = dk.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect();
+            let lam = lambda_max(&k.ptr, &k.col, &k.val, &dinv);
+            let omega = if lam > 0.0 { 4.0 / (3.0 * lam) } else { 0.0 };
+            let mut s = k.clone();
+            for i in 0..n {
+                for p in s.ptr[i]..s.ptr[i + 1] {
+                    let delta = if s.col[p] as usize == i { 1.0 } else { 0.0 };
+                    s.val[p] = delta - omega * dinv[i] * k.val[p];
+                }
+            }
+            let p = s.matmul(&aggregate::tentative(&agg, n_agg));
+            let r = p.transpose();
+            let kc = r.matmul(&k.matmul(&p));
+            let vc = r.matmul(&vm.matmul(&p));
+            level.p = p;
+            level.r = r;
+            levels.push(level);
+            k = kc;
+            vm = vc;
+            eps *= 0.5;
+        }
+        levels
+    }
+
+    /// A = V + c K on every level (the prolongators stay): new smoothers and coarse factor.
+    pub fn set_coefficient(&mut self, c: f64) -> Result<()> {
+        self.fine.combine(c);
+        self.dinv0 = vec![0.0; self.owned];
+        for (k, &i) in self.rows.iter().enumerate() {
+            self.dinv0[i as usize] = self.fine.dinv[k];
+        }
+        for l in &mut self.levels {
+            l.combine(c);
+        }
+        self.coefficient = c;
+        let last = self.levels.last().expect("at least one level");
+        let n = last.n();
+        self.coarse = if n <= DENSE_MAX {
+            let mut f = vec![0.0; n * n];
+            for i in 0..n {
+                for p in last.ptr[i]..last.ptr[i + 1] {
+                    f[i * n + last.col[p] as usize] = last.a[p];
+                }
+            }
+            for j in 0..n {
+                let mut d = f[j * n + j];
+                for k in 0..j {
+                    d -= f[j * n + k] * f[j * n + k];
+                }
+                if !(d > 0.0) {
+                    bail!("multigrid: the coarsest matrix is not positive definite (pivot {d:.3e} at row {j}); fix: use [integrator] preconditioner = \"jacobi\"");
+                }
+                let d = d.sqrt();
+                f[j * n + j] = d;
+                for i in j + 1..n {
+                    let mut s = f[i * n + j];
+                    for k in 0..j {
+                        s -= f[i * n + k] * f[j * n + k];
+                    }
+                    f[i * n + j] = s / d;
+                }
+            }
+            for i in 0..n {
+                for j in i + 1..n {
+                    f[i * n + j] = 0.0;
+                }
+            }
+            Coarse::Dense(f)
+        } else {
+            Coarse::Smooth
+        };
+        Ok(())
+    }
+
+    /// The coefficient c of A = V + c K.
+    pub fn coefficient(&self) -> f64 {
+        self.coefficient
+    }
+
+    /// Rows of each level (level 0: the free owned rows).
+    pub fn sizes(&self) -> Vec<usize> {
+        let mut s = vec![self.fine.n()];
+        if self.coarsened {
+            s.extend(self.levels.iter().map(|l| l.n()));
+        }
+        s
+    }
+
+    /// Stored entries of all levels' matrices over level 0's (operator complexity).
+    pub fn complexity(&self) -> f64 {
+        let n0 = self.fine.col.len().max(1);
+        let coarse: usize = if self.coarsened {
+            self.levels.iter().map(|l| l.col.len()).sum()
+        } else {
+            0
+        };
+        (n0 + coarse) as f64 / n0 as f64
+    }
+
+    /// The work of one V-cycle in level-0 matrix applications (three columns): level 0's
+    /// 2 degree sweeps (one from zero being cheaper, the residual makes up for it), each
+    /// coarse level's too and the transfers, and the coarsest solve.
+    pub fn cycle_work(&self) -> f64 {
+        let n0 = self.fine.col.len().max(1) as f64;
+        let mut w = (2 * self.degree) as f64 * n0 + 2.0 * self.p0.nnz() as f64;
+        let last = self.levels.len() - 1;
+        for (i, l) in self.levels.iter().enumerate() {
+            if i < last {
+                w += (2 * self.degree) as f64 * l.col.len() as f64 + 2.0 * l.p.nnz() as f64;
+            } else {
+                w += match self.coarse {
+                    Coarse::Dense(_) => (l.n() * l.n()) as f64,
+                    Coarse::Smooth => (4 * self.degree) as f64 * l.col.len() as f64,
+                };
+            }
+        }
+        w / n0
+    }
+
+    /// Chebyshev smoothing of A x0 = b on level 0 with the solver's operator (every process
+    /// takes part: each sweep exchanges the halo of x0).
+    fn smooth0(&mut self, prop: &mut Propagation, b: &[V3], zero: bool) {
+        let (lo, hi) = (self.fine.lo, self.fine.hi);
+        let theta = 0.5 * (hi + lo);
+        let delta = 0.5 * (hi - lo);
+        let n = self.owned;
+        let c = self.coefficient;
+        let (vol, dinv) = (&self.vol[..], &self.dinv0[..]);
+        // a process without rows that move still sweeps (the exchanges pair up)
+        let (theta, delta) = if theta > 0.0 { (theta, delta) } else { (1.0, 0.5) };
+        let sigma = theta / delta;
+        let mut rho = 1.0 / sigma;
+        if zero {
+            for i in 0..n {
+                let w = dinv[i] / theta;
+                self.d0[i] = [b[i][0] * w, b[i][1] * w, b[i][2] * w];
+                self.x0[i] = self.d0[i];
+            }
+        } else {
+            prop.update_to(&mut self.x0, &mut self.d0, |i, xi, l, di| {
+                let (v, w) = (vol[i], dinv[i] / theta);
+                for k in 0..3 {
+                    di[k] = w * (b[i][k] - v * (xi[k] - c * l[k]));
+                }
+            });
+            csr::add(&mut self.x0[..n], &self.d0);
+        }
+        for _ in 1..self.degree {
+            let rho_new = 1.0 / (2.0 * sigma - rho);
+            let (alpha, beta) = (rho_new * rho, 2.0 * rho_new / delta);
+            prop.update_to(&mut self.x0, &mut self.d0, |i, xi, l, di| {
+                let (v, w) = (vol[i], beta * dinv[i]);
+                for k in 0..3 {
+                    di[k] = alpha * di[k] + w * (b[i][k] - v * (xi[k] - c * l[k]));
+                }
+            });
+            csr::add(&mut self.x0[..n], &self.d0);
+            rho = rho_new;
+        }
+    }
+
+    /// One V-cycle on levels[0].b into levels[0].x.
+    fn cycle(&mut self) {
+        let deg = self.degree;
+        let last = self.levels.len() - 1;
+        for l in 0..last {
+            let (fine, coarse) = self.levels.split_at_mut(l + 1);
+            let lv = &mut fine[l];
+            lv.smooth(deg, true);
+            csr::residual(&lv.ptr, &lv.col, &lv.a, &lv.x, &lv.b, &mut lv.t);
+            csr::spmv(&lv.r.ptr, &lv.r.col, &lv.r.val, &lv.t, &mut coarse[0].b);
+        }
+        let lv = &mut self.levels[last];
+        match &self.coarse {
+            Coarse::Dense(f) => {
+                let n = lv.n();
+                // L y = b, L^T x = y
+                for i in 0..n {
+                    let mut s = lv.b[i];
+                    for k in 0..i {
+                        let (l, y) = (f[i * n + k], lv.x[k]);
+                        for d in 0..3 {
+                            s[d] -= l * y[d];
+                        }
+                    }
+                    let di = f[i * n + i];
+                    lv.x[i] = [s[0] / di, s[1] / di, s[2] / di];
+                }
+                for i in (0..n).rev() {
+                    let mut s = lv.x[i];
+                    for k in i + 1..n {
+                        let (l, y) = (f[k * n + i], lv.x[k]);
+                        for d in 0..3 {
+                            s[d] -= l * y[d];
+                        }
+                    }
+                    let di = f[i * n + i];
+                    lv.x[i] = [s[0] / di, s[1] / di, s[2] / di];
+                }
+            }
+            Coarse::Smooth => {
+                lv.smooth(4 * deg, true);
+            }
+        }
+        for l in (0..last).rev() {
+            let (fine, coarse) = self.levels.split_at_mut(l + 1);
+            let lv = &mut fine[l];
+            csr::spmv_add(&lv.p.ptr, &lv.p.col, &lv.p.val, &coarse[0].x, &mut lv.x);
+            lv.smooth(deg, false);
+        }
+    }
+}
+
+impl Precond for Multigrid {
+    fn apply(&mut self, prop: &mut Propagation, r: &[V3], z: &mut [V3]) {
+        let n = self.owned;
+        // level 0: smoothing, residual, restriction
+        self.smooth0(prop, r, true);
+        {
+            let (vol, c) = (&self.vol[..], self.coefficient);
+            prop.update_to(&mut self.x0, &mut self.t0, |i, xi, l, ti| {
+                let v = vol[i];
+                for k in 0..3 {
+                    ti[k] = r[i][k] - v * (xi[k] - c * l[k]);
+                }
+            });
+        }
+        csr::spmv(
+            &self.r0.ptr,
+            &self.r0.col,
+            &self.r0.val,
+            &self.t0,
+            &mut self.levels[0].b,
+        );
+        self.cycle();
+        csr::spmv_add(
+            &self.p0.ptr,
+            &self.p0.col,
+            &self.p0.val,
+            &self.levels[0].x,
+            &mut self.x0[..n],
+        );
+        self.smooth0(prop, r, false);
+        z.copy_from_slice(&self.x0[..n]);
+    }
+    fn cost(&self) -> f64 {
+        SWEEP_COST * self.cycle_work() * self.fine.n() as f64 / self.owned.max(1) as f64
+    }
+}
