@@ -7,7 +7,7 @@ use crate::parts::GlobalSizes;
 use crate::plausible::{self, Look, Watch};
 use crate::progress::Progress;
 use crate::safety::{self, Agreed, OutputLock, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
-use crate::scenario::{Scenario, Setup, Stop};
+use crate::scenario::{Fuse, Scenario, Setup, Stop};
 use crate::series::{check_output_dir, Series};
 use crate::solver::Simulation;
 use crate::summary::{summarize, Summary, Timing};
@@ -29,6 +29,8 @@ pub struct RunOptions {
     pub overwrite: bool,
     /// Start even when the output would not fit on its disk (and write until it refuses).
     pub force: bool,
+    /// Substeps per fused sweep (overrides `[performance] fuse`).
+    pub fuse: Option<Fuse>,
 }
 
 /// The output file of a scenario with the command-line overrides, and how it was named.
@@ -62,6 +64,9 @@ fn resolve(scenario: Scenario, opts: &RunOptions) -> Result<Setup> {
     setup.output.file = file;
     if let Some(s) = opts.steps {
         setup.time.stop = Stop::Steps(s);
+    }
+    if let Some(f) = opts.fuse {
+        setup.performance.fuse = f;
     }
     if let Some(r) = &opts.restart {
         if !setup.tools.is_empty() {
