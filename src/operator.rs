@@ -574,7 +574,7 @@ impl Operator {
     pub fn stream_bytes(&self) -> usize {
         self.stream_bytes_rows(self.n_rows())
     }
-    /// `stream_bytes` of rows `0..n` (the owned rows, without the halo rows of a deep halo).
+    /// `stream_bytes` of rows `0..n`.
     pub fn stream_bytes_rows(&self, n: usize) -> usize {
         match self {
             Operator::Compact(c) => {

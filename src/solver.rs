@@ -341,8 +341,7 @@ impl Simulation {
         let mut dual = Dual::build(&setup.mesh, &inc, n_rows, Some(gid.as_slice()));
         crate::diagnostics::log_memory("the dual geometry");
         let inactive_nodes = c.sum_i128(dual.vol[..n_owned].iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
-        // activity of halo nodes without a row comes from their owners; only fixedness matters
-        // there (the halo rows are the owners' rows)
+        // halo nodes have no row here; only their fixedness matters
         let active: Vec<bool> = (0..layout.n_local)
             .map(|i| !setup.fixed[i] && (i >= n_rows || dual.vol[i] > 0.0))
             .collect();
