@@ -1,13 +1,15 @@
 //! Interleaved A/B timing of the `compact` substep variants on one mesh, so that the noise of
 //! a shared machine falls on every variant alike: bursts of substeps, variants taken in turn,
 //! min and median ns per node-substep per variant, and each variant's median relative to the
-//! first ("morton, 1/sweep": the substep as it was before temporal blocking).
+//! first ("morton 1/sweep": the substep as it was before temporal blocking).
 //!   cargo run --release --example kernel_ab -- CELLS|SCENARIO.toml SECONDS [compact|compact32] [VARIANTS]
 //! CELLS: the bench box of CELLS^3 cells; SCENARIO.toml: any scenario (an organ mesh).
 //! Variants: node order (Morton: the space-filling curve; RCM: reverse Cuthill-McKee, see
 //! `eprop_partition::rcm_keys`), coefficient precision, substeps per fused sweep
-//! (`Propagation::substeps`; 1 = one sweep per substep), software prefetch ("pf") or not.
+//! (`Propagation::substeps`; 1 = one sweep per substep), the vector kernel or the portable one
+//! ("portable").
 //! VARIANTS: names as printed, comma-separated (default: all).
+use eprop::config::Fuse;
 use eprop::discretize::operator::{Compact, Kernel, Operator};
 use eprop::distribute::halo::Halo;
 use eprop::propagate::Propagation;
@@ -80,27 +82,24 @@ fn main() -> anyhow::Result<()> {
             lags[lags.len() - 1]
         );
     }
-    let prop = |c: Compact| Propagation::new(Operator::Compact(c), Halo::serial(), Layout::serial(n));
+    let prop = |c: Compact| Propagation::new(Operator::Compact(c), Halo::serial(), Layout::serial(n), Fuse::Auto);
     let id: Vec<u32> = (0..n as u32).collect();
     let f64_coef = morton.coef32.is_empty();
     // (name, order: 0 Morton 1 RCM, float32 coefficients, substeps per sweep (0: chosen by
-    // the tuner, as in a run), prefetch distance (3: none, and level buffers of three values)
-    let mut spec: Vec<(&str, u8, bool, usize, usize)> = vec![
-        ("morton 1/sweep pf", 0, false, 1, 192),
-        ("rcm 1/sweep pf", 1, false, 1, 192),
-        ("rcm 1/sweep", 1, false, 1, 0),
-        ("morton 4/sweep pf", 0, false, 4, 192),
-        ("rcm 2/sweep", 1, false, 2, 0),
-        ("rcm 3/sweep", 1, false, 3, 0),
-        ("rcm 4/sweep", 1, false, 4, 0),
-        ("rcm 8/sweep", 1, false, 8, 0),
-        ("rcm auto", 1, false, 0, 0),
-        ("rcm 4/sweep pf", 1, false, 4, 192),
-        ("rcm 2/sweep p3", 1, false, 2, 3),
-        ("rcm 4/sweep p3", 1, false, 4, 3),
+    // the tuner, as in a run), the vector kernel (where the CPU has it)
+    let mut spec: Vec<(&str, u8, bool, usize, bool)> = vec![
+        ("morton 1/sweep", 0, false, 1, true),
+        ("rcm 1/sweep", 1, false, 1, true),
+        ("morton 4/sweep", 0, false, 4, true),
+        ("rcm 2/sweep", 1, false, 2, true),
+        ("rcm 3/sweep", 1, false, 3, true),
+        ("rcm 4/sweep", 1, false, 4, true),
+        ("rcm 8/sweep", 1, false, 8, true),
+        ("rcm auto", 1, false, 0, true),
+        ("rcm 4/sweep portable", 1, false, 4, false),
     ];
     if f64_coef {
-        spec.push(("rcm f32 4/sweep", 1, true, 4, 0));
+        spec.push(("rcm f32 4/sweep", 1, true, 4, true));
     }
     if let Some(only) = &only {
         spec.retain(|v| only.iter().any(|o| o == v.0));
@@ -108,7 +107,7 @@ fn main() -> anyhow::Result<()> {
     }
     let mut props: Vec<(String, Propagation, u8)> = spec
         .iter()
-        .map(|&(name, order, single, fuse, pf)| {
+        .map(|&(name, order, single, fuse, vector)| {
             let mut c = if order == 0 {
                 morton.permuted(&id)
             } else {
@@ -118,11 +117,9 @@ fn main() -> anyhow::Result<()> {
                 c = c.into_f32();
             }
             c.kernel = Kernel {
-                vector: c.kernel.vector,
-                prefetch: if pf == 3 { 0 } else { pf },
+                vector: c.kernel.vector && vector,
             };
             let mut p = prop(c);
-            p.pad = !name.ends_with(" p3");
             if fuse > 0 {
                 p.set_fuse(fuse); // 0: chosen by the tuner, as in a run
             }

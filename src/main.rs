@@ -57,7 +57,9 @@ Scenario keys (all but [mesh] file and [time] have defaults):\n\
   [time]      steps = N | end = T | equilibrium = tol;  dt, h optional (automatic)\n\
   [output]    file = \"out.h5\" (default: <scenario stem>.h5 beside the scenario), every = 1,\n\
               fields = [\"displacement\", ...], precision = \"float64\" | \"float32\",\n\
-              compression = 0..9 (gzip), overwrite = false (replace an existing series)\n\n\
+              compression = 0..9 (gzip), overwrite = false (replace an existing series)\n\
+  [performance] fuse = \"auto\" | 1..16 (explicit Euler substeps per fused sweep; auto: timed on one\n\
+              process, 1 on several), simd = true (false: the portable kernel, other rounding)\n\n\
 The summary gives the substep h, the steps, the speed, the largest displacement, the contact\n\
 displacement of each load and the state of each tool, and warnings about implausible inputs and\n\
 results. Run under mpirun for several processes; --restart FILE continues an interrupted series\n\
@@ -99,6 +101,10 @@ line, 3 stopped by a signal (continue with --restart), 4 the output could not be
         /// then writes until the disk refuses, and stops cleanly)
         #[arg(long)]
         force: bool,
+        /// Substeps per fused sweep: auto or 1 to 16 (overrides [performance] fuse; the same
+        /// bits whatever the value)
+        #[arg(long)]
+        fuse: Option<eprop::config::Fuse>,
     },
     /// Run a scenario whose live tools and loads a client drives over TCP (docs/protocol.md).
     #[command(
@@ -223,6 +229,12 @@ B/node* = peak resident memory per node, all processes."
         /// Also write the cases as JSON to this file
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Substeps per fused sweep: auto (timed on one process, 1 on several) or 1 to 16
+        #[arg(long, default_value = "auto")]
+        fuse: eprop::config::Fuse,
+        /// The AVX2+FMA kernel where the CPU has it (off: the portable kernel)
+        #[arg(long, default_value = "on", value_parser = ["on", "off"])]
+        simd: String,
     },
     /// Write a scenario's compact operator L (with its diagonal) as CSR in HDF5, for comparisons.
     #[command(
@@ -351,6 +363,7 @@ fn real_main(cli: Cli) -> Result<()> {
             restart,
             overwrite,
             force,
+            fuse,
         } => {
             if restart.is_some() && output.is_some() {
                 bail!("--restart continues the series in its FILE; fix: leave out --output");
@@ -366,6 +379,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 overwrite,
                 force,
                 progress_every,
+                fuse,
             };
             if let Some(s) = launch(|world| run_on(world, &scenario, &opts))? {
                 print(&s, json)?;
@@ -397,6 +411,7 @@ fn real_main(cli: Cli) -> Result<()> {
                     overwrite,
                     force,
                     progress_every,
+                    fuse: None,
                 },
             };
             if let Some(r) = launch(|world| serve_on(world, &scenario, &opts))? {
@@ -434,7 +449,17 @@ fn real_main(cli: Cli) -> Result<()> {
             let m = eprop_io::read_mesh(&mesh)?;
             print(&inspect::partition_report(&m, parts)?, json)?;
         }
-        Cmd::Bench { cells, schemes, json } => {
+        Cmd::Bench {
+            cells,
+            schemes,
+            json,
+            fuse,
+            simd,
+        } => {
+            let perf = eprop::config::Performance {
+                fuse,
+                simd: simd == "on",
+            };
             let (root, cases) = launch(|world| {
                 let root = is_root(world.as_ref());
                 if root {
@@ -447,7 +472,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 };
                 Ok((
                     root,
-                    bench::bench(world, &cells, &schemes, &std::env::temp_dir(), report)?,
+                    bench::bench(world, &cells, &schemes, perf, &std::env::temp_dir(), report)?,
                 ))
             })?;
             if let (true, Some(j)) = (root, json) {

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{assert_same, mpirun, mpirun_env, serial};
+use common::{assert_same, mpirun, serial};
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -130,26 +130,23 @@ fn bitwise_identical_on_1_to_4_ranks_mixed_elements() {
 }
 
 /// Writes `dir/s.toml` (`head`, then 4 steps, every step written) and runs it on one process
-/// with one substep per sweep (`EPROP_FUSE=1`) to `dir/plain.h5`: the reference of the fused
-/// runs. Returns the scenario's path, the reference's and the run's stdout.
+/// with one substep per sweep (`--fuse 1`) to `dir/plain.h5`: the reference of the fused runs.
+/// Returns the scenario's path, the reference's and the run's stdout.
 fn unfused(dir: &Path, head: &str) -> (String, std::path::PathBuf, String) {
     let sc = dir.join("s.toml");
     std::fs::write(&sc, format!("{head}[time]\nsteps = 4\n[output]\nevery = 1\n")).unwrap();
     let sc = sc.to_str().unwrap().to_string();
     let plain = dir.join("plain.h5");
-    let out = mpirun_env(
-        1,
-        &["run", &sc, "-q", "-o", plain.to_str().unwrap()],
-        &[("EPROP_FUSE", "1")],
-    );
+    let out = mpirun(1, &["run", &sc, "-q", "--fuse", "1", "-o", plain.to_str().unwrap()]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     (sc, plain, String::from_utf8_lossy(&out.stdout).to_string())
 }
 
-/// Temporal blocking (`Propagation::substeps`, on by default) against one sweep per substep
-/// (`EPROP_FUSE=1`): bitwise the same output on one process and on 1-4 ranks, for fused sweeps
-/// of 2, 3 and 8 substeps (7 substeps per step: full and shorter sweeps both run), and with a
-/// different depth on each process.
+/// Temporal blocking (`Propagation::substeps`, on by default on one process) against one sweep
+/// per substep (`--fuse 1`): bitwise the same output on one process and on 1-4 ranks, for fused
+/// sweeps of 2, 3 and 8 substeps (7 substeps per step: full and shorter sweeps both run), set
+/// on the command line and in `[performance]`, and with processes that group their substeps
+/// differently (a process with two threads does not fuse).
 #[test]
 fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
     let d = tempfile::Builder::new().prefix("fused").tempdir().unwrap();
@@ -161,121 +158,65 @@ fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
     for fuse in ["2", "3", "8"] {
         for n in 1..=4 {
             let f = d.path().join(format!("f{fuse}n{n}.h5"));
-            let out = mpirun_env(
-                n,
-                &["run", sc, "-q", "-o", f.to_str().unwrap()],
-                &[("EPROP_FUSE", fuse)],
-            );
-            assert!(
-                out.status.success(),
-                "fuse {fuse}, {n} ranks: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
+            let out = mpirun(n, &["-vv", "run", sc, "-q", "--fuse", fuse, "-o", f.to_str().unwrap()]);
+            let log = String::from_utf8_lossy(&out.stderr);
+            assert!(out.status.success(), "fuse {fuse}, {n} ranks: {log}");
+            // every process fuses as told (not tuned, not left at one substep per sweep)
+            let want = format!("propagation: {fuse} substeps per sweep");
+            assert_eq!(log.matches(&want).count(), n, "fuse {fuse}, {n} ranks: {log}");
+            assert!(log.contains("wavefront: "), "fuse {fuse}, {n} ranks: {log}");
             assert_same(&plain, &f);
         }
     }
-    // over a one-layer halo (`EPROP_HALO=1`), processes that chose different depths still
-    // pair their halo messages (one exchange per substep) and give the same bits; over a deep
-    // halo (2 layers and more, the default on several processes) they agree on the largest
-    for (halo, depths) in [("1", &["1", "4"][..]), ("1", &["8", "1", "3"]), ("3", &["1", "2", "3"])] {
-        let f = d.path().join(format!("mixed{halo}-{}.h5", depths.len()));
+    // the same from the scenario's [performance] table (the scenario text differs, so the
+    // reference is the unfused run of this scenario)
+    let text = std::fs::read_to_string(sc).unwrap();
+    let table = d.path().join("t.toml");
+    std::fs::write(&table, format!("{text}[performance]\nfuse = 4\n")).unwrap();
+    let table = table.to_str().unwrap();
+    let (t1, t4) = (d.path().join("t1.h5"), d.path().join("t4.h5"));
+    let out = mpirun(1, &["run", table, "-q", "--fuse", "1", "-o", t1.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = mpirun(3, &["-vv", "run", table, "-q", "-o", t4.to_str().unwrap()]);
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{log}");
+    assert_eq!(log.matches("propagation: 4 substeps per sweep").count(), 3, "{log}");
+    assert_same(&t1, &t4);
+    // processes that fuse and processes that do not (two threads: the wavefront is
+    // sequential) pair their halo messages (one exchange per substep) and give the same bits
+    for (fuse, threads) in [
+        ("4", &["1", "2"][..]),
+        ("8", &["2", "1", "1"]),
+        ("3", &["1", "2", "1", "2"]),
+    ] {
+        let f = d.path().join(format!("mixed{fuse}-{}.h5", threads.len()));
         let mut cmd = Command::new("mpirun");
         cmd.arg("--oversubscribe");
-        for (k, fuse) in depths.iter().enumerate() {
+        for (k, t) in threads.iter().enumerate() {
             if k > 0 {
                 cmd.arg(":");
             }
             cmd.args([
                 "-x",
-                &format!("EPROP_HALO={halo}"),
-                "-x",
-                &format!("EPROP_FUSE={fuse}"),
+                &format!("RAYON_NUM_THREADS={t}"),
                 "-n",
                 "1",
                 env!("CARGO_BIN_EXE_eprop"),
             ]);
-            cmd.args(["run", sc, "-q", "-o", f.to_str().unwrap()]);
+            cmd.args(["run", sc, "-q", "--fuse", fuse, "-o", f.to_str().unwrap()]);
         }
         let out = cmd
             .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
             .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-            .env("RAYON_NUM_THREADS", "1")
             .output()
             .unwrap();
         assert!(
             out.status.success(),
-            "depths {depths:?}: {}",
+            "fuse {fuse}, threads {threads:?}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
         assert_same(&plain, &f);
     }
-}
-
-/// Fused sweeps over a deep halo (`EPROP_HALO` layers exchanged once per sweep, the halo rows
-/// of the inner layers computed by every process that holds them) against one sweep per
-/// substep on one process: bitwise the same output on 2-4 ranks for halos of 2, 3, 4 and 8
-/// layers, full sweeps and shorter ones (7 substeps per step), a point load and a patch load
-/// (sources on halo rows), both deep sweeps, and the run logs that the deep sweep ran.
-fn check_deep(mesh: &Path, setting: &str, tag: &str, cases: &[(&str, &str)]) {
-    let d = tempfile::Builder::new().prefix(tag).tempdir().unwrap();
-    let (sc, plain, _) = unfused(
-        d.path(),
-        &format!(
-            "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"euler\"\n{setting}",
-            mesh.display()
-        ),
-    );
-    let sc = sc.as_str();
-    // both deep sweeps: the interior wavefront then the rest of each level, and one wavefront
-    // over owned and halo rows in the locality order (`EPROP_DEEPFRONT=1`)
-    let fronts = cases.iter().flat_map(|&(h, f)| [(h, f, "0"), (h, f, "1")]);
-    for (halo, fuse, front) in fronts {
-        for n in 2..=4 {
-            let f = d.path().join(format!("h{halo}f{fuse}d{front}n{n}.h5"));
-            let out = mpirun_env(
-                n,
-                &["-vv", "run", sc, "-q", "-o", f.to_str().unwrap()],
-                &[("EPROP_HALO", halo), ("EPROP_FUSE", fuse), ("EPROP_DEEPFRONT", front)],
-            );
-            let log = String::from_utf8_lossy(&out.stderr);
-            let case = format!("halo {halo}, fuse {fuse}, front {front}, {n} ranks");
-            assert!(out.status.success(), "{case}: {log}");
-            let want = format!("propagation: {halo} halo layers for fused sweeps, {fuse} substeps per sweep");
-            assert_eq!(log.matches(&want).count(), n, "{case}: {log}");
-            // the deep sweep ran (not another integrator, not unfused)
-            let ran = if front == "1" { "deep front: " } else { "wavefront: " };
-            assert!(log.contains(ran), "{case}: {log}");
-            assert_same(&plain, &f);
-        }
-    }
-}
-
-#[test]
-fn deep_halo_sweeps_are_bitwise_one_sweep_per_substep_on_2_to_4_ranks() {
-    let d = tempfile::tempdir().unwrap();
-    let mesh = d.path().join("cyl.msh");
-    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
-    let cases = [("2", "2"), ("3", "3"), ("4", "4"), ("4", "3"), ("8", "8")];
-    check_deep(&mesh, CYL, "deep", &cases);
-    // a patch on the top: many contact nodes, some among the halo rows
-    let patch =
-        "[[fixed]]\ngroup = \"bottom\"\n[[load]]\npatch = { center = [0.0, 0.0, 4.0], radius = 0.6 }\nnormal = 1.0\n";
-    check_deep(&mesh, patch, "deep-patch", &[("4", "4"), ("3", "2")]);
-}
-
-#[test]
-fn deep_halo_sweeps_are_bitwise_on_an_organ_mesh() {
-    // the liver of `bitwise_identical_on_1_to_4_ranks_organ_mesh`: at 2-4 ranks its halo rows
-    // outnumber the owned ones
-    let Some(mesh) = common::shared_mesh("sofa_liver2.msh") else {
-        return;
-    };
-    check_deep(
-        &mesh,
-        "[material]\nconductivity = [0.08, 0.05, 0.05]\n[[fixed]]\nhalfspace = { point = [-1.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\npatch = { center = [0.0, 0.7, 0.0], radius = 0.3 }\nnormal = 1.0\n",
-        "deep-liver",
-        &[("4", "4"), ("4", "3"), ("8", "8")],
-    );
 }
 
 /// Both schemes on a shared organ mesh (skipped without the shared data).

@@ -28,8 +28,7 @@ fn command(ranks: usize, args: &[&str]) -> Command {
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
-        .env("RAYON_NUM_THREADS", "1")
-        .env_remove("EPROP_SIMD");
+        .env("RAYON_NUM_THREADS", "1");
     c
 }
 

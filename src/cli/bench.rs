@@ -7,7 +7,7 @@
 //! a STREAM-like triad measured here; full steps per second with one substep per step (the
 //! haptic configuration: dt = h); peak memory per node; halo waiting share; output cost.
 
-use crate::config::{Field, Scenario, Setup};
+use crate::config::{Field, Performance, Scenario, Setup};
 use crate::diagnostics::{median, peak_rss};
 use crate::distribute::parts::GlobalSizes;
 use crate::output::series::{field_blocks, layout, VERSION};
@@ -109,7 +109,7 @@ pub fn measure(
     tmp: &Path,
 ) -> Result<Case> {
     let n = sizes.nodes;
-    // the scenario's sources (over a deep halo, the halo rows' too)
+    // the scenario's sources
     let q = sim.sources(0.0);
     let h = sim.step_plan().h;
     // the substep as the Euler stepper runs it (fused sweeps of `fuse` substeps where they
@@ -228,11 +228,13 @@ pub fn measure(
     })
 }
 
-/// Runs every case on this process (or, under MPI, on every process of `world`).
+/// Runs every case on this process (or, under MPI, on every process of `world`), computed as
+/// `perf` says.
 pub fn bench(
     world: Option<mpi::topology::SimpleCommunicator>,
     cells: &[usize],
     schemes: &[String],
+    perf: Performance,
     tmp: &Path,
     mut report: impl FnMut(&Case),
 ) -> Result<Vec<Case>> {
@@ -255,7 +257,8 @@ pub fn bench(
             let t0 = Instant::now();
             let case = match &world {
                 None => {
-                    let setup = box_setup(nc, scheme)?;
+                    let mut setup = box_setup(nc, scheme)?;
+                    setup.performance = perf;
                     let sizes = GlobalSizes::of(&setup.mesh);
                     let sim = Simulation::new(setup)?;
                     let s = t0.elapsed().as_secs_f64();
@@ -265,7 +268,12 @@ pub fn bench(
                     use mpi::topology::Communicator;
                     let Built {
                         sim, sizes, io_comm, ..
-                    } = build_mpi(w.duplicate(), || box_setup(nc, scheme))?;
+                    } = build_mpi(w.duplicate(), || {
+                        box_setup(nc, scheme).map(|mut s| {
+                            s.performance = perf;
+                            s
+                        })
+                    })?;
                     let s = t0.elapsed().as_secs_f64();
                     measure(sim, sizes, Some(&io_comm), triad_gbs, s, tmp)?
                 }

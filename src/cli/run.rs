@@ -3,7 +3,7 @@
 //! scenario's own inputs.
 
 use crate::cli::drive::{self, Batch, Settings};
-use crate::config::{Scenario, Setup, Stop};
+use crate::config::{Fuse, Scenario, Setup, Stop};
 use crate::distribute::parts::GlobalSizes;
 use crate::guard::safety::{self, OutputLock};
 pub use crate::output::progress::Every;
@@ -28,6 +28,8 @@ pub struct RunOptions {
     pub overwrite: bool,
     /// Start even when the output would not fit on its disk (and write until it refuses).
     pub force: bool,
+    /// Substeps per fused sweep (overrides `[performance] fuse`).
+    pub fuse: Option<Fuse>,
     /// How often a run without a terminal prints a progress line.
     pub progress_every: Every,
 }
@@ -63,6 +65,9 @@ fn resolve(scenario: Scenario, opts: &RunOptions) -> Result<Setup> {
     setup.output.file = file;
     if let Some(s) = opts.steps {
         setup.time.stop = Stop::Steps(s);
+    }
+    if let Some(f) = opts.fuse {
+        setup.performance.fuse = f;
     }
     if let Some(r) = &opts.restart {
         if !setup.tools.is_empty() {

@@ -15,6 +15,7 @@
 //! | `[[tool]]` | `tools` | `Tool`s: a rigid indenter's shape and path |
 //! | `[time]` | `time` | `Time`: the stop condition, dt, h |
 //! | `[output]` | `output` | `Output`: file, fields, precision |
+//! | `[performance]` | `performance` | `Performance`: substeps per fused sweep, vector kernel |
 //!
 //! Selectors (`box`, `sphere`, ..., `patch`) are one type for the three tables that select
 //! nodes (`select`); checked values and choices shared by sections are in `values`.
@@ -25,6 +26,7 @@ mod material;
 mod mesh;
 mod model;
 mod output;
+mod performance;
 mod select;
 pub mod tables;
 mod time;
@@ -37,6 +39,7 @@ pub use material::{Conductivity, MaterialSec, Region};
 pub use mesh::MeshSec;
 pub use model::{IntegratorSec, Model, Scheme, SchemeName, TissueSec};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
+pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
 pub use select::{Entry, Keys, Selector};
 pub use time::{Stop, Time, TimeSec};
 pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
@@ -73,6 +76,8 @@ pub struct ScenarioFile {
     pub output: OutputSec,
     #[serde(default = "defaults")]
     pub integrator: IntegratorSec,
+    #[serde(default)]
+    pub performance: PerformanceSec,
 }
 
 /// A scenario file, parsed. It travels to other processes as its path and text.
@@ -289,6 +294,8 @@ pub struct Setup {
     pub law: TissueLaw,
     pub time: Time,
     pub output: Output,
+    /// How the propagation is computed (`[performance]`; `eprop bench` sets it from its flags).
+    pub performance: Performance,
 }
 
 impl Setup {
@@ -314,6 +321,7 @@ impl Setup {
             law: f.tissue.law(),
             time,
             output,
+            performance: f.performance.resolve(),
             r,
             mass,
             damping,

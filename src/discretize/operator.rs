@@ -34,24 +34,15 @@ pub struct Compact {
 /// The kernel of the `compact` step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Kernel {
-    /// 256-bit vectors with fused multiply-add (x86-64 with AVX2 and FMA only).
+    /// 256-bit vectors with fused multiply-add (x86-64 with AVX2 and FMA only; `[performance]
+    /// simd = false` turns it off).
     pub vector: bool,
-    /// Software prefetch of the neighbours this many pairs ahead (0: none; vector kernel only).
-    /// None by default: in the band-limited node order (`solver::locality_keys`) the hardware
-    /// prefetchers follow the gathers, and the prefetch instructions cost more than they save
-    /// (192 pairs ahead paid 15-25 % in the Morton order). `EPROP_PREFETCH` sets it.
-    pub prefetch: usize,
 }
 
 impl Default for Kernel {
     fn default() -> Self {
-        let prefetch = std::env::var("EPROP_PREFETCH")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0);
         Kernel {
             vector: simd_available(),
-            prefetch,
         }
     }
 }
@@ -172,14 +163,13 @@ impl Compact {
     fn vector_step<const SI: usize, const SO: usize>(&self, x: &[f64], y: &mut [f64], h: f64, start: usize) -> bool {
         #[cfg(target_arch = "x86_64")]
         if self.kernel.vector && simd_available() {
-            let pf = self.kernel.prefetch;
             // SAFETY: the CPU has AVX2 and FMA (`simd_available`), every column index is below
             // `n_cols` and `x` holds at least that many nodes (checked by the caller).
             unsafe {
                 if self.coef32.is_empty() {
-                    avx::step_rows::<_, SI, SO>(&self.row_ptr, &self.col, &self.coef, x, y, h, start, pf)
+                    avx::step_rows::<_, SI, SO>(&self.row_ptr, &self.col, &self.coef, x, y, h, start)
                 } else {
-                    avx::step_rows::<_, SI, SO>(&self.row_ptr, &self.col, &self.coef32, x, y, h, start, pf)
+                    avx::step_rows::<_, SI, SO>(&self.row_ptr, &self.col, &self.coef32, x, y, h, start)
                 }
             }
             return true;
@@ -267,13 +257,12 @@ impl Compact {
     {
         #[cfg(target_arch = "x86_64")]
         if self.kernel.vector && simd_available() {
-            let pf = self.kernel.prefetch;
             // SAFETY: as in `vector_step`
             unsafe {
                 if self.coef32.is_empty() {
-                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef, x, y, start, pf, acc, f)
+                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef, x, y, start, acc, f)
                 } else {
-                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef32, x, y, start, pf, acc, f)
+                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef32, x, y, start, acc, f)
                 }
             }
             return true;
@@ -296,13 +285,11 @@ impl Compact {
 }
 
 /// Whether the vector kernel of the `compact` step runs on this CPU (x86-64 with AVX2 and
-/// FMA). `EPROP_SIMD=0` turns it off (the portable kernel; different rounding, no FMA).
+/// FMA). `[performance] simd = false` (or `eprop bench --simd off`) runs the portable kernel
+/// instead (different rounding, no FMA).
 pub fn simd_available() -> bool {
     static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *ON.get_or_init(|| {
-        if std::env::var("EPROP_SIMD").is_ok_and(|v| v == "0") {
-            return false;
-        }
         #[cfg(target_arch = "x86_64")]
         {
             is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
@@ -348,7 +335,6 @@ mod avx {
         y: &mut [f64],
         h: f64,
         start: usize,
-        pf: usize,
     ) {
         let xp = x.as_ptr();
         let hv = _mm256_set1_pd(h);
@@ -359,13 +345,6 @@ mod avx {
             let (s, e) = (rows[k] as usize, rows[k + 1] as usize);
             let (cols, cs) = (&col[s..e], &coef[s..e]);
             let xi = load::<SI>(xp.add(SI * i));
-            if pf > 0 {
-                // the neighbours a few rows ahead: their gathers miss the caches less
-                let end = (e + pf).min(col.len());
-                for p in (s + pf).min(end)..end {
-                    _mm_prefetch::<_MM_HINT_T0>(xp.add(SI * *col.get_unchecked(p) as usize) as *const i8);
-                }
-            }
             let mut acc = [_mm256_setzero_pd(); 4];
             let quads = cols.len() / 4;
             for q in 0..quads {
@@ -416,7 +395,6 @@ mod avx_update {
         x: &[V3],
         y: &mut [V3],
         start: usize,
-        pf: usize,
         acc: &mut A,
         f: &F,
     ) where
@@ -429,12 +407,6 @@ mod avx_update {
             let (s, e) = (rows[k] as usize, rows[k + 1] as usize);
             let (cols, cs) = (&col[s..e], &coef[s..e]);
             let xi = load3(xp.add(3 * i));
-            if pf > 0 {
-                let end = (e + pf).min(col.len());
-                for p in (s + pf).min(end)..end {
-                    _mm_prefetch::<_MM_HINT_T0>(xp.add(3 * *col.get_unchecked(p) as usize) as *const i8);
-                }
-            }
             let mut acc4 = [_mm256_setzero_pd(); 4];
             let quads = cols.len() / 4;
             for q in 0..quads {
@@ -602,7 +574,7 @@ impl Operator {
     pub fn stream_bytes(&self) -> usize {
         self.stream_bytes_rows(self.n_rows())
     }
-    /// `stream_bytes` of rows `0..n` (the owned rows, without the halo rows of a deep halo).
+    /// `stream_bytes` of rows `0..n`.
     pub fn stream_bytes_rows(&self, n: usize) -> usize {
         match self {
             Operator::Compact(c) => {

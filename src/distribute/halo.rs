@@ -76,13 +76,6 @@ impl Halo {
     /// `start` for items of `stride` f64 of which only the first `width` are exchanged (a
     /// padded layout sends what an unpadded one does, so processes may use either).
     pub fn start_part(&self, data: &[f64], stride: usize, width: usize) -> Exchange<'_> {
-        self.start_layers(data, stride, width, 1)
-    }
-
-    /// `start_part` for the first `layers` layers of a deep halo (`Plan::with_depth`): one
-    /// message per neighbour holds every layer. A neighbour with nothing to send or receive in
-    /// those layers (one farther away) gets no message, on both sides alike.
-    pub fn start_layers(&self, data: &[f64], stride: usize, width: usize, layers: usize) -> Exchange<'_> {
         assert!(width <= stride);
         let mut bufs = self.bufs.borrow_mut();
         let nbs = &self.pattern.neighbours;
@@ -93,12 +86,12 @@ impl Halo {
             recv.resize_with(nbs.len(), Vec::new);
             for (nb, b) in nbs.iter().zip(send.iter_mut()) {
                 b.clear();
-                for &l in nb.send_to(layers) {
+                for &l in &nb.send {
                     b.extend_from_slice(&data[l as usize * stride..l as usize * stride + width]);
                 }
             }
             for (nb, b) in nbs.iter().zip(recv.iter_mut()) {
-                b.resize(nb.recv_from(layers).len() * width, 0.0);
+                b.resize(nb.recv.len() * width, 0.0);
             }
             let raw = comm.as_raw();
             let idle = |k: usize| send[k].is_empty() && recv[k].is_empty();
@@ -140,7 +133,6 @@ impl Halo {
             reqs,
             stride,
             width,
-            layers,
             open: true,
         }
     }
@@ -148,16 +140,6 @@ impl Halo {
     /// Overwrites the halo entries of `data` with their owners' values (no overlap).
     pub fn exchange(&self, data: &mut [f64], stride: usize) {
         self.start(data, stride).finish(data);
-    }
-
-    /// The largest value of each entry over the processes of the exchange (a collective: every
-    /// process calls it at the same point; nothing to do on one process).
-    pub fn max_all(&self, v: &mut [f64]) {
-        if let Some(comm) = &self.comm {
-            use mpi::collective::{CommunicatorCollectives, SystemOperation};
-            let mine = v.to_vec();
-            comm.all_reduce_into(&mine[..], v, SystemOperation::max());
-        }
     }
 
     /// Seconds spent waiting in `finish` so far.
@@ -177,8 +159,6 @@ pub struct Exchange<'h> {
     reqs: Vec<ffi::MPI_Request>,
     stride: usize,
     width: usize,
-    /// Halo layers exchanged.
-    layers: usize,
     open: bool,
 }
 
@@ -222,7 +202,7 @@ impl Exchange<'_> {
         halo.waited.set(halo.waited.get() + t.elapsed().as_secs_f64());
         let (s, w) = (self.stride, self.width);
         for (nb, buf) in halo.pattern.neighbours.iter().zip(self.bufs.recv.iter()) {
-            for (k, &l) in nb.recv_from(self.layers).iter().enumerate() {
+            for (k, &l) in nb.recv.iter().enumerate() {
                 data[l as usize * s..l as usize * s + w].copy_from_slice(&buf[k * w..(k + 1) * w]);
             }
         }

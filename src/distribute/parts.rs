@@ -104,6 +104,7 @@ impl Setup {
             law: self.law,
             time: self.time,
             output: self.output.clone(),
+            performance: self.performance,
         }
     }
 }
@@ -157,34 +158,6 @@ impl std::fmt::Display for Collective {
 
 impl std::error::Error for Collective {}
 
-/// Halo layers of every process's plan (`Plan::with_depth`): `EPROP_HALO=d` (1 to 16) on
-/// several processes running the compact scheme, else 1. A deep halo (d >= 2) lets several
-/// processes fuse sweeps of up to d substeps with one exchange each (`Propagation::substeps`,
-/// which then chooses the depth by timing unless `EPROP_FUSE` says). It is off by default: on
-/// the loaded two-core machine of BENCHMARKS.md the fused sweeps of two processes waited on
-/// each other and ran slower than one substep per sweep. The paper scheme keeps one layer.
-///
-/// Tools keep one layer: their sources fall on the owned nodes they reach, step by step, and
-/// the halo rows a deep sweep computes would lack them.
-pub fn halo_depth(setup: &Setup, processes: usize) -> usize {
-    halo_depth_for(setup, processes, std::env::var("EPROP_HALO").ok().as_deref())
-}
-
-/// `halo_depth` with `EPROP_HALO`'s value.
-fn halo_depth_for(setup: &Setup, processes: usize, setting: Option<&str>) -> usize {
-    if !matches!(setup.model.scheme(), crate::config::Scheme::Compact) || processes < 2 {
-        return 1;
-    }
-    let d = setting
-        .and_then(|v| v.parse::<usize>().ok())
-        .map_or(1, |d| d.clamp(1, 16));
-    if d > 1 && !setup.tools.is_empty() {
-        tracing::warn!("EPROP_HALO={d} ignored: a scenario with [[tool]] keeps one halo layer");
-        return 1;
-    }
-    d
-}
-
 /// Rank 0's split of the whole mesh: the METIS part of every node and the locality keys.
 fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
     let mesh = &setup.mesh;
@@ -225,23 +198,17 @@ pub fn scatter(
     };
     let mesh = &setup.mesh;
     let sizes = GlobalSizes::of(mesh);
-    let depth = halo_depth(&setup, size);
-    let plan_of = |r| Plan::with_depth(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys), depth);
+    let plan_of = |r| Plan::new(mesh.n_nodes(), &mesh.offsets, &mesh.conn, &part, r, Some(&keys));
     for r in 1..size {
         let plan = plan_of(r);
-        let (owned, halo, neighbours, rows) = (
-            plan.numbering.n_owned,
-            plan.n_halo(),
-            plan.pattern.neighbours.len(),
-            plan.rows(),
-        );
+        let (owned, halo, neighbours) = (plan.numbering.n_owned, plan.n_halo(), plan.pattern.neighbours.len());
         let msg = encode(&Part {
             setup: setup.restrict(&plan),
             plan,
             sizes,
         })?;
         tracing::debug!(
-            "part {r}: {owned} owned, {halo} halo in {depth} layers, {rows} rows, {neighbours} neighbours; {} bytes",
+            "part {r}: {owned} owned, {halo} halo, {neighbours} neighbours; {} bytes",
             msg.len()
         );
         world.process_at_rank(r as i32).send(&msg[..]);
@@ -271,23 +238,6 @@ mod tests {
         let mut mesh = box_mesh([1.0; 3], [3; 3], BoxCells::Wedge).unwrap();
         mesh.warnings.push("a warning".into());
         Setup::with_mesh(sc, mesh).unwrap()
-    }
-
-    #[test]
-    fn a_deep_halo_needs_several_compact_processes_and_no_tools() {
-        let compact = crate::cli::bench::box_setup(3, "compact").unwrap();
-        assert_eq!(halo_depth_for(&compact, 2, Some("4")), 4);
-        assert_eq!(halo_depth_for(&compact, 3, Some("40")), 16);
-        assert_eq!(halo_depth_for(&compact, 2, None), 1, "off by default");
-        assert_eq!(halo_depth_for(&compact, 2, Some("four")), 1);
-        assert_eq!(halo_depth_for(&compact, 1, Some("4")), 1);
-        let paper = crate::cli::bench::box_setup(3, "paper").unwrap();
-        assert_eq!(halo_depth_for(&paper, 2, Some("4")), 1);
-        // the halo rows would lack the tools' sources
-        let mut tools = compact;
-        tools.tools = setup().tools;
-        assert!(!tools.tools.is_empty());
-        assert_eq!(halo_depth_for(&tools, 2, Some("4")), 1);
     }
 
     /// A split into two parts by x < 0.5.

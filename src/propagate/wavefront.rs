@@ -32,39 +32,14 @@ pub struct Segment {
     pub need: u32,
 }
 
-/// A segment of one level of a wavefront: it runs once the level before has passed `need`, and
-/// brings its own level to `end`.
-pub trait Step {
-    fn need(&self) -> u32;
-    fn end(&self) -> u32;
-}
-
-impl Step for Segment {
-    fn need(&self) -> u32 {
-        self.need
-    }
-    fn end(&self) -> u32 {
-        self.end
-    }
-}
-
-impl Step for DeepSegment {
-    fn need(&self) -> u32 {
-        self.need
-    }
-    fn end(&self) -> u32 {
-        self.end
-    }
-}
-
 /// Runs the segments of the levels `levels[0..d]` in wavefront order: one segment of level 1,
 /// then every other level as far as the level before allows, and again, until no level can go
 /// on. `run(st, l, segment)` runs a segment of level l and returns the rows it counts towards
 /// `poke(st)`, called after every 16k rows (the MPI progress of an exchange in flight).
-pub fn drive<S: Step, T>(
-    levels: &[Vec<S>],
+pub fn drive<T>(
+    levels: &[Vec<Segment>],
     st: &mut T,
-    mut run: impl FnMut(&mut T, usize, &S) -> usize,
+    mut run: impl FnMut(&mut T, usize, &Segment) -> usize,
     mut poke: impl FnMut(&mut T),
 ) {
     let d = levels.len();
@@ -77,11 +52,11 @@ pub fn drive<S: Step, T>(
         for l in 1..=d {
             let segs = &levels[l - 1];
             while let Some(s) = segs.get(at[l]) {
-                if s.need() >= done[l - 1] {
+                if s.need >= done[l - 1] {
                     break;
                 }
                 rows_since += run(st, l, s);
-                done[l] = s.end();
+                done[l] = s.end;
                 at[l] += 1;
                 busy = true;
                 if l == 1 {
@@ -177,97 +152,6 @@ impl Wavefront {
                     .unwrap_or(0)
             })
             .unwrap_or(0)
-    }
-}
-
-/// A segment of a deep sweep: consecutive positions of the visiting order, as runs of
-/// consecutive rows.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct DeepSegment {
-    /// `DeepFront::runs[runs]`: the rows of this segment that the level computes.
-    pub runs: Range<u32>,
-    /// One past the last position of the visiting order this segment covers.
-    pub end: u32,
-    /// The largest position it reads at the level before (level 1: 0, it reads phi).
-    pub need: u32,
-    /// Level 1 only: some row reads a halo value (the exchange must be finished first).
-    pub halo: bool,
-}
-
-/// The schedule of a fused sweep of `depth` levels over a deep halo (`Plan::with_depth`): level
-/// l computes the owned rows and halo layers 1..depth-l, every value it reads at level l - 1
-/// having been computed there (level 0: phi with `depth` layers of halo, one exchange). One
-/// wavefront visits all these rows in the plan's visiting order (the locality key: interior,
-/// border and halo rows of one region of the mesh together), in segments of `SEG` positions,
-/// each a few runs of consecutive rows; level l runs a segment once level l - 1 has passed every
-/// position it reads. Level 1 waits for the exchange at its first segment that reads the halo.
-#[derive(Clone, Debug)]
-pub struct DeepFront {
-    pub depth: usize,
-    /// `levels[l - 1]`: the segments of level l, in visiting order.
-    pub levels: Vec<Vec<DeepSegment>>,
-    pub runs: Vec<Range<u32>>,
-}
-
-impl DeepFront {
-    /// The schedule of `depth` levels for the rows of `c`: the owned rows of `layout`, then halo
-    /// layer k ending at `layer_end[k - 1]`; `order` visits the rows `0..layer_end[depth - 2]`
-    /// (empty: in their local order).
-    pub fn new(c: &Compact, layout: Layout, layer_end: &[usize], order: &[u32], depth: usize) -> DeepFront {
-        let depth = depth.max(1);
-        let rows = if depth >= 2 {
-            layer_end[depth - 2]
-        } else {
-            layout.n_owned
-        };
-        let ident: Vec<u32>;
-        let order = if order.len() == rows {
-            order
-        } else {
-            ident = (0..rows as u32).collect();
-            &ident
-        };
-        let mut pos = vec![0u32; rows];
-        for (p, &i) in order.iter().enumerate() {
-            pos[i as usize] = p as u32;
-        }
-        let cols = |i: usize| &c.col[c.row_ptr[i] as usize..c.row_ptr[i + 1] as usize];
-        let mut levels = Vec::with_capacity(depth);
-        let mut runs: Vec<Range<u32>> = vec![];
-        for l in 1..=depth {
-            // level l computes rows 0..end: the owned ones and halo layers 1..depth-l
-            let end = if l < depth {
-                layer_end[depth - l - 1]
-            } else {
-                layout.n_owned
-            };
-            let mut segs = vec![];
-            for (k, chunk) in order.chunks(SEG).enumerate() {
-                let first = runs.len() as u32;
-                let (mut need, mut halo) = (0u32, false);
-                for &i in chunk.iter().filter(|&&i| (i as usize) < end) {
-                    let i = i as usize;
-                    let open = runs.len() as u32 > first;
-                    match runs.last_mut() {
-                        Some(r) if open && r.end as usize == i => r.end += 1,
-                        _ => runs.push(i as u32..i as u32 + 1),
-                    }
-                    if l == 1 {
-                        halo |= i >= layout.n_interior;
-                    } else {
-                        need = cols(i).iter().fold(need.max(pos[i]), |m, &j| m.max(pos[j as usize]));
-                    }
-                }
-                segs.push(DeepSegment {
-                    runs: first..runs.len() as u32,
-                    end: (k * SEG + chunk.len()) as u32,
-                    need,
-                    halo,
-                });
-            }
-            levels.push(segs);
-        }
-        DeepFront { depth, levels, runs }
     }
 }
 

@@ -29,11 +29,9 @@ pub fn build_mpi(world: SimpleCommunicator, make_setup: impl FnOnce() -> Result<
     let (mine, global) = parts::scatter(&world, make_setup)?;
     let rank0_scatter_peak = if rank == 0 { peak_rss() } else { 0 };
     tracing::info!(
-        "rank {rank}: part received ({} owned, {} halo nodes in {} layers, {} operator rows); building geometry and operator",
+        "rank {rank}: part received ({} owned, {} halo nodes); building geometry and operator",
         mine.plan.numbering.n_owned,
-        mine.plan.n_halo(),
-        mine.plan.depth(),
-        mine.plan.rows()
+        mine.plan.n_halo()
     );
     let halo = Halo::new(mine.plan.pattern.clone(), halo_comm);
     let sim = Simulation::new_with(mine.setup, Box::new(Mpi::new(world)), halo, mine.plan, global)?;

@@ -7,7 +7,7 @@ pub mod distributed;
 #[cfg(test)]
 mod tests;
 
-use crate::config::{Load, Precision, Scheme, Setup, Stop};
+use crate::config::{Fuse, Load, Precision, Scheme, Setup, Stop};
 use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
 use crate::discretize::operator::{Compact, Operator, Paper, V3};
 use crate::distribute::comm::{exact_sum, Comm, Serial};
@@ -81,8 +81,6 @@ pub struct Simulation {
     pub loads: Vec<Load>,
     /// owned contact nodes of each load (local index, probe weight, force weight, source weight)
     pub load_local: Vec<Vec<(u32, f64, f64, f64)>>,
-    /// contact nodes of each load among the halo rows (local index, source weight)
-    load_halo: Vec<Vec<(u32, f64)>>,
     /// control volumes of this process's output block
     pub(crate) vol_block: Vec<f64>,
     /// fixed nodes of the whole mesh
@@ -179,28 +177,20 @@ fn build_stepper(
 }
 
 /// Per load: its contact area and force direction (summed over the owners of its contact
-/// nodes), the owned contact nodes with their probe, force and source weights, and the contact
-/// nodes among the halo rows (`rows`: the owned nodes and the halo layers whose operator rows
-/// this process builds) with their source weights, computed as their owners compute them.
+/// nodes) and the owned contact nodes with their probe, force and source weights.
 #[allow(clippy::type_complexity)]
 fn resolve_loads(
     setup: &Setup,
     dual: &Dual,
     numbering: &LocalNumbering,
-    rows: usize,
     comm: &dyn Comm,
-) -> Result<(Vec<Load>, Vec<Vec<(u32, f64, f64, f64)>>, Vec<Vec<(u32, f64)>>)> {
+) -> Result<(Vec<Load>, Vec<Vec<(u32, f64, f64, f64)>>)> {
     let mut local_of = std::collections::HashMap::new();
     for i in 0..numbering.n_owned {
         local_of.insert(numbering.global[i], i as u32);
     }
-    let mut halo_of = std::collections::HashMap::new();
-    for i in numbering.n_owned..rows {
-        halo_of.insert(numbering.global[i], i as u32);
-    }
     let mut loads = setup.loads.clone();
     let mut load_local = Vec::new();
-    let mut load_halo = Vec::new();
     for (k, l) in loads.iter_mut().enumerate() {
         let mine: Vec<(u32, f64)> = l
             .nodes
@@ -236,15 +226,8 @@ fn resolve_loads(
             .map(|&(li, w)| (li, w, if l.depth.is_some() { 1.0 } else { w }, source(li, w)))
             .collect();
         load_local.push(mine);
-        let halo: Vec<(u32, f64)> = l
-            .nodes
-            .iter()
-            .zip(&l.weights)
-            .filter_map(|(gn, &w)| halo_of.get(gn).map(|&li| (li, source(li, w))))
-            .collect();
-        load_halo.push(halo);
     }
-    Ok((loads, load_local, load_halo))
+    Ok((loads, load_local))
 }
 
 /// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):
@@ -352,11 +335,10 @@ impl Simulation {
         global: Option<Mesh>,
     ) -> Result<Simulation> {
         let c = comm.as_ref();
-        // operator rows: the owned nodes and, over a deep halo, halo layers 1..depth-1
-        let n_rows = plan.rows();
         let numbering = plan.numbering;
         let layout = numbering.layout();
         let n_owned = numbering.n_owned;
+        let n_rows = n_owned; // operator rows: the owned nodes
         let gid: Vec<u64> = numbering.global.iter().map(|&g| g as u64).collect();
         let n_global = c.sum_i128(n_owned as i128) as usize;
         let inc = Incidence::new(&setup.mesh);
@@ -364,20 +346,26 @@ impl Simulation {
         let mut dual = Dual::build(&setup.mesh, &inc, n_rows, Some(gid.as_slice()));
         crate::diagnostics::log_memory("the dual geometry");
         let inactive_nodes = c.sum_i128(dual.vol[..n_owned].iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
-        // activity of halo nodes without a row comes from their owners; only fixedness matters
-        // there (the halo rows are the owners' rows)
+        // halo nodes have no row here; only their fixedness matters
         let active: Vec<bool> = (0..layout.n_local)
             .map(|i| !setup.fixed[i] && (i >= n_rows || dual.vol[i] > 0.0))
             .collect();
         let fixed_nodes = c.sum_i128(setup.fixed[..n_owned].iter().filter(|&&b| b).count() as i128) as usize;
-        let op = build_operator(&setup, &inc, &mut dual, &active, n_rows);
+        let mut op = build_operator(&setup, &inc, &mut dual, &active, n_rows);
+        if let Operator::Compact(c) = &mut op {
+            c.kernel.vector &= setup.performance.simd;
+        }
         drop(inc);
         dual.release_pairs();
         dual.col = Vec::new();
         dual.row_ptr = Vec::new();
         crate::diagnostics::log_memory("the operator");
-        let mut prop = Propagation::new(op, halo, layout);
-        prop.set_sweep_order(plan.order);
+        // several processes do not fuse unless told: see `Propagation::new`
+        let fuse = match setup.performance.fuse {
+            Fuse::Auto if c.size() > 1 => Fuse::Fixed(1),
+            f => f,
+        };
+        let mut prop = Propagation::new(op, halo, layout, fuse);
         tracing::info!(
             "geometry and operator built ({} rows); searching the stable substep",
             n_owned
@@ -385,7 +373,7 @@ impl Simulation {
         let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
         let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
         let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, c)?;
-        let (loads, load_local, load_halo) = resolve_loads(&setup, &dual, &numbering, n_rows, c)?;
+        let (loads, load_local) = resolve_loads(&setup, &dual, &numbering, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
         let mut tools: Vec<ToolRun> = setup.tools.iter().cloned().map(ToolRun::new).collect();
@@ -418,7 +406,6 @@ impl Simulation {
             active,
             loads,
             load_local,
-            load_halo,
             vol_block,
             fixed_nodes,
             blocks,
@@ -481,14 +468,11 @@ impl Simulation {
             .collect()
     }
 
-    /// Nodal sources Q on the owned nodes and forces f for the loads at time t; the sources
-    /// of the halo rows (a deep halo) go to the propagation (`Propagation::set_halo_sources`),
-    /// each computed as its owner computes it.
+    /// Nodal sources Q on the owned nodes and forces f for the loads at time t.
     pub fn sources(&mut self, t: f64) -> Vec<(u32, V3)> {
         let applied = self.applied(t);
         let mut q = Vec::new();
-        let mut hq = Vec::new();
-        for ((mine, halo), a) in self.load_local.iter().zip(&self.load_halo).zip(&applied) {
+        for (mine, a) in self.load_local.iter().zip(&applied) {
             let fn_ = norm(a.force);
             for &(i, _, fw, sw) in mine {
                 self.force[i as usize] = scale(a.force, fw);
@@ -496,11 +480,7 @@ impl Simulation {
                     q.push((i, scale(a.force, sw * a.q / fn_)));
                 }
             }
-            if fn_ > 0.0 {
-                hq.extend(halo.iter().map(|&(i, sw)| (i, scale(a.force, sw * a.q / fn_))));
-            }
         }
-        self.prop.set_halo_sources(hq);
         q
     }
 

@@ -83,8 +83,7 @@ pub fn median_positive(g: &[f64]) -> f64 {
 }
 
 /// The median of the Gershgorin bounds of the owned rows `0..n_owned` over every process
-/// (empty rows left out; the halo rows of a deep halo are their owners' rows and are left out
-/// too): a bisection on the value with exact counts, so the same on any number of processes.
+/// (empty rows left out): a bisection on the value with exact counts, so the same on any number of processes.
 pub fn median_bound(op: &Compact, n_owned: usize, comm: &dyn crate::distribute::comm::Comm) -> f64 {
     let mut g = row_bounds(op);
     g.truncate(n_owned);

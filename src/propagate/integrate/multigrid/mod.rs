@@ -48,7 +48,7 @@ const POWER_ITERATIONS: usize = 12;
 /// V-cycle of 7.5 such applications took 10.5 times an operator application on the 50^3 box
 /// (`examples/multigrid.rs`), the operator application about one substep.
 pub const SWEEP_COST: f64 = 1.4;
-/// The default Chebyshev degree (`EPROP_MG_DEGREE` overrides it, 1-6).
+/// The Chebyshev degree of the smoother.
 pub const DEGREE: usize = 2;
 
 /// One level: A = V + c K on one pattern, its Chebyshev smoother and its work vectors.
@@ -359,11 +359,7 @@ impl Multigrid {
             p0.ptr.push(p0.ptr[i] + len);
         }
         let r0 = p0.transpose();
-        let degree = std::env::var("EPROP_MG_DEGREE")
-            .ok()
-            .and_then(|d| d.parse().ok())
-            .unwrap_or(DEGREE)
-            .clamp(1, 6);
+        let degree = DEGREE;
         let layout = prop.layout();
         let mut mg = Multigrid {
             rows,
