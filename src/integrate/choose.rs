@@ -130,7 +130,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         Kind::Rkl2 => {
             let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
             let st = stages_for(cx.dt / n as f64, cx.h_bound);
-            Ok(Box::new(Rkl2::new(
+            let mut r = Rkl2::new(
                 cx.h_bound,
                 cx.dt,
                 n,
@@ -138,10 +138,13 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 layout,
                 cx.path,
                 format!("the scenario's choice: {st} stages per super-step, {n} super-step(s) per step"),
-            )?))
+            )?;
+            r.set_accuracy(s.accuracy);
+            Ok(Box::new(r))
         }
         Kind::Implicit => {
             let mut imp = implicit(cx, 0, String::new())?;
+            imp.set_accuracy(s.accuracy);
             // a trial solve estimates the work per step (for `eprop check` and the summary)
             let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
             imp.set_plan(
@@ -207,17 +210,22 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 }
             );
             match best {
-                Kind::Rkl2 => Ok(Box::new(Rkl2::new(
-                    cx.h_bound,
-                    cx.dt,
-                    n,
-                    s.max_stages,
-                    layout,
-                    cx.path,
-                    format!("auto: rkl2 is the cheapest: {others}"),
-                )?)),
+                Kind::Rkl2 => {
+                    let mut r = Rkl2::new(
+                        cx.h_bound,
+                        cx.dt,
+                        n,
+                        s.max_stages,
+                        layout,
+                        cx.path,
+                        format!("auto: rkl2 is the cheapest: {others}"),
+                    )?;
+                    r.set_accuracy(s.accuracy);
+                    Ok(Box::new(r))
+                }
                 Kind::Implicit => {
                     let (mut imp, _, apps, _) = trial.expect("implicit was tried");
+                    imp.set_accuracy(s.accuracy);
                     imp.set_plan(
                         apps,
                         format!(

@@ -130,13 +130,23 @@ impl Preconditioner {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Settings {
     pub kind: Kind,
+    /// The relative error each mechanics step may add to the potential, ||e|| / ||phi|| over
+    /// every node (`[integrator] accuracy`); infinite: no error control (the stability bound
+    /// alone sets rkl2's and implicit's steps).
+    pub accuracy: f64,
+    /// The relative residual of the implicit solves (`[integrator] tolerance`; by default
+    /// CG_SHARE times the accuracy).
     pub tolerance: f64,
     pub max_iterations: usize,
     pub max_stages: usize,
     pub preconditioner: Preconditioner,
 }
 
-pub const DEFAULT_TOLERANCE: f64 = 1e-8;
+pub const DEFAULT_ACCURACY: f64 = 1e-3;
+/// The implicit solves' default tolerance as a share of the accuracy: a solve need not be
+/// much more exact than the step it serves.
+pub const CG_SHARE: f64 = 1e-2;
+pub const DEFAULT_TOLERANCE: f64 = CG_SHARE * DEFAULT_ACCURACY;
 pub const DEFAULT_MAX_ITERATIONS: usize = 2000;
 pub const DEFAULT_MAX_STAGES: usize = 4096;
 
@@ -144,6 +154,7 @@ impl Default for Settings {
     fn default() -> Self {
         Settings {
             kind: Kind::Auto,
+            accuracy: DEFAULT_ACCURACY,
             tolerance: DEFAULT_TOLERANCE,
             max_iterations: DEFAULT_MAX_ITERATIONS,
             max_stages: DEFAULT_MAX_STAGES,
@@ -159,6 +170,81 @@ pub fn euler_substep(dt: f64, h_bound: f64) -> f64 {
         dt / (dt / (euler::SAFETY * h_bound)).ceil().max(1.0)
     } else {
         dt
+    }
+}
+
+/// Sums of squares over the owned rows `0..n` of every process, exact (the same bits on any
+/// number of processes and threads): K values per row.
+pub fn squares<const K: usize, F>(comm: &dyn Comm, n: usize, rows: F) -> [f64; K]
+where
+    F: Fn(usize) -> [V3; K] + Sync,
+{
+    crate::comm::exact_sums_par(comm, n, |i| rows(i).map(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+}
+
+/// The most levels (halvings of the mechanics step) the error control may take: a step of
+/// dt / 2^MAX_LEVEL that is still not accurate enough is an error that names the fixes.
+pub const MAX_LEVEL: u32 = 16;
+
+/// A step that changes phi by so little against its size is accurate whatever its estimate:
+/// relative errors below this (roundoff of the norms) are taken as zero.
+pub const ROUNDOFF: f64 = 1e-13;
+
+/// Error control over the levels of one mechanics step: sub-steps of dt / 2^level, the level
+/// raised after a rejected sub-step (by as many halvings as the estimate asks for, order `p`
+/// of the estimate in the sub-step) and lowered after a sub-step well inside the accuracy when
+/// the position allows the longer sub-step. Every decision comes from globally reduced norms,
+/// so every process takes the same sub-steps; a mechanics step starts at `start` whatever the
+/// last one did, so a restarted run continues bit for bit.
+#[derive(Clone, Copy, Debug)]
+pub struct Control {
+    /// Current level and the position in the mechanics step in units of dt / 2^level.
+    pub level: u32,
+    pub pos: u64,
+    /// Error exponent: the estimate per sub-step scales like (dt / 2^level)^p, the
+    /// tolerance of a sub-step like its length.
+    p: f64,
+}
+
+impl Control {
+    pub fn new(start: u32, p: f64) -> Control {
+        Control {
+            level: start,
+            pos: 0,
+            p,
+        }
+    }
+    /// The sub-step's share of dt.
+    pub fn fraction(&self) -> f64 {
+        0.5f64.powi(self.level as i32)
+    }
+    pub fn done(&self) -> bool {
+        self.pos >= 1u64 << self.level
+    }
+    /// After a sub-step whose error over its tolerance is `ratio` (<= 1: accepted, when the
+    /// caller accepted it): whether it was accepted; the next level is set.
+    pub fn after(&mut self, ratio: f64) -> bool {
+        // the estimate per unit step scales like (length)^(p - 1): one halving divides the
+        // ratio by 2^(p-1)
+        let q = (self.p - 1.0).max(0.5);
+        if !(ratio <= 1.0) {
+            let halvings = if ratio.is_finite() {
+                ((ratio / 0.8).log2() / q).ceil().clamp(1.0, 8.0) as u32
+            } else {
+                4
+            };
+            self.level += halvings;
+            self.pos <<= halvings;
+            return false;
+        }
+        self.pos += 1;
+        // one level up when the longer sub-step would still be inside the accuracy (with a
+        // margin) and starts here
+        if self.level > 0 && ratio * 2f64.powf(q) < 0.5 && self.pos.is_multiple_of(2) && !self.done() {
+            self.level -= 1;
+            self.pos /= 2;
+        }
+        true
     }
 }
 
