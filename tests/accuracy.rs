@@ -16,8 +16,14 @@ fn run(dir: &Path, mesh: &eprop_io::Mesh, toml: &str, kind: &str) -> (Vec<Vec<V3
     let extra = std::env::var("EPROP_ACC")
         .map(|a| format!("[integrator]\naccuracy = {a}\n"))
         .unwrap_or_default();
-    let text = format!("[model]\nintegrator = \"{kind}\"\n{toml}{extra}");
+    let base = if kind == "euler/2" { "euler" } else { kind };
+    let text = format!("[model]\nintegrator = \"{base}\"\n{toml}{extra}");
     let mut s = Simulation::new(common::setup(mesh.clone(), &text, dir)).expect("simulation builds");
+    if kind == "euler/2" {
+        // euler at half its substep: how far the reference is from its own limit
+        let p = s.step_plan().clone();
+        s.stepper = Box::new(eprop::integrate::Euler::new(p.h_bound, p.dt, Some(p.h / 2.0), "t", "compact").unwrap());
+    }
     let chosen = s.step_plan().integrator.to_string();
     let (mut us, mut forces) = (vec![], vec![]);
     while !s.done() {
@@ -60,12 +66,19 @@ fn against_euler(mesh: eprop_io::Mesh, toml: &str, files: &[(&str, &str)], kinds
         std::fs::write(d.path().join(name), text).unwrap();
     }
     let (ue, fe, _) = run(d.path(), &mesh, toml, "euler");
+    // euler's own error, first order in its substep: twice its distance to euler at h / 2
+    let (ue2, _, _) = run(d.path(), &mesh, toml, "euler/2");
+    let own: Vec<f64> = ue2.iter().zip(&ue).map(|(a, b)| 2.0 * rel(a, b)).collect();
     let peak = fe.iter().map(|f| eprop_io::geom::norm(*f)).fold(0.0, f64::max);
     let only = std::env::var("EPROP_KINDS").ok();
     let kinds: Vec<&str> = match &only {
         Some(k) => k.split(',').collect(),
         None => kinds.to_vec(),
     };
+    eprintln!(
+        "euler's own error (step doubling): max {:.2e}",
+        own.iter().copied().fold(0.0, f64::max)
+    );
     for kind in kinds {
         let (u, f, chosen) = run(d.path(), &mesh, toml, kind);
         assert_eq!(u.len(), ue.len());
@@ -77,12 +90,21 @@ fn against_euler(mesh: eprop_io::Mesh, toml: &str, files: &[(&str, &str)], kinds
             .map(|(a, b)| eprop_io::geom::norm([a[0] - b[0], a[1] - b[1], a[2] - b[2]]))
             .fold(0.0, f64::max)
             / peak.max(f64::MIN_POSITIVE);
-        eprintln!("{kind} ({chosen}): max rel. error of u {worst:.2e} over {} steps (per step {}); tool force {fworst:.2e} of the peak", errs.len(), fmt(&errs));
-        assert!(
-            worst < 1e-3,
-            "{kind} ({chosen}): u differs from euler's by {worst:.2e}: {}",
+        eprintln!(
+            "{kind} ({chosen}): max rel. error of u {worst:.2e} over {} steps (per step {}); tool force {fworst:.2e} of the peak",
+            errs.len(),
             fmt(&errs)
         );
+        // within 1e-3 of euler, or (where euler's own first-order error is larger, as when u
+        // decays after a tool lets go) within euler's own error of it
+        for (k, (e, o)) in errs.iter().zip(&own).enumerate() {
+            assert!(
+                *e < 1e-3 || *e < 1.5 * o,
+                "{kind} ({chosen}): u differs from euler's by {e:.2e} at step {} (euler's own error {o:.2e}): {}",
+                k + 1,
+                fmt(&errs)
+            );
+        }
         if peak > 0.0 {
             assert!(
                 fworst < 1e-2,

@@ -24,6 +24,31 @@ pub const CG_COST: f64 = 2.4;
 /// `rkl2` takes super-steps short enough that the median node's modes see tau / h <= Z_RKL2
 /// (past that, its stages damp them little and they lose accuracy).
 pub const Z_RKL2: f64 = 20.0;
+/// Under error control each rkl2 super-step is taken once and again as two halves (step
+/// doubling): 1 + sqrt 2 times the stages of the super-step alone.
+pub const DOUBLING: f64 = 1.0 + std::f64::consts::SQRT_2;
+
+/// Operator applications of one controlled TR-BDF2 step whose solves take `it` iterations:
+/// the two stages, the estimate's operator application and its two filter solves (to 1e-2,
+/// about 0.4 of the iterations of a stage's solve).
+pub fn controlled_applications(it: usize, controlled: bool) -> usize {
+    let stages = 2 * (it + 2) + 1;
+    if controlled {
+        stages + 1 + 2 * ((2 * it).div_ceil(5) + 2)
+    } else {
+        stages
+    }
+}
+
+/// The accuracy in a plan's words.
+fn accuracy_phrase(a: f64) -> String {
+    if a.is_finite() {
+        format!("accuracy {a:e} per step, error-controlled")
+    } else {
+        "no error control (accuracy = inf)".into()
+    }
+}
+
 /// `auto` keeps euler unless another integrator is estimated this many times cheaper.
 pub const MARGIN: f64 = 1.5;
 
@@ -137,7 +162,10 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 s.max_stages,
                 layout,
                 cx.path,
-                format!("the scenario's choice: {st} stages per super-step, {n} super-step(s) per step"),
+                format!(
+                    "the scenario's choice: {st} stages per super-step, {n} super-step(s) per step to start, {}",
+                    accuracy_phrase(s.accuracy)
+                ),
             )?;
             r.set_accuracy(s.accuracy);
             Ok(Box::new(r))
@@ -148,10 +176,11 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             // a trial solve estimates the work per step (for `eprop check` and the summary)
             let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
             imp.set_plan(
-                2 * (it + 2) + 1,
+                controlled_applications(it, s.accuracy.is_finite()),
                 format!(
-                    "the scenario's choice: TR-BDF2, {} preconditioner ({it} iterations per solve in a trial)",
-                    s.preconditioner.name()
+                    "the scenario's choice: TR-BDF2, {} preconditioner ({it} iterations per solve in a trial), {}",
+                    s.preconditioner.name(),
+                    accuracy_phrase(s.accuracy)
                 ),
             );
             Ok(Box::new(imp))
@@ -176,7 +205,8 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             };
             let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
             let st = stages_for(cx.dt / n as f64, cx.h_bound);
-            let rkl2_cost = STAGE_COST * st.saturating_mul(n) as f64;
+            let doubling = if s.accuracy.is_finite() { DOUBLING } else { 1.0 };
+            let rkl2_cost = doubling * STAGE_COST * st.saturating_mul(n) as f64;
             let (mut best, mut best_cost) = (Kind::Euler, substeps);
             if st.saturating_mul(n) <= s.max_stages && rkl2_cost * MARGIN < best_cost {
                 (best, best_cost) = (Kind::Rkl2, rkl2_cost);
@@ -187,7 +217,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             if floor * MARGIN < best_cost {
                 let mut imp = implicit(cx, 0, String::new())?;
                 if let Ok(it) = imp.trial(cx.prop, cx.gid, cx.comm) {
-                    let apps = 2 * (it + 2) + 1;
+                    let apps = controlled_applications(it, s.accuracy.is_finite());
                     let cost = CG_COST * apps as f64;
                     let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
                     if cost * margin < best_cost {
@@ -218,7 +248,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                         s.max_stages,
                         layout,
                         cx.path,
-                        format!("auto: rkl2 is the cheapest: {others}"),
+                        format!("auto: rkl2 is the cheapest: {others}; {}", accuracy_phrase(s.accuracy)),
                     )?;
                     r.set_accuracy(s.accuracy);
                     Ok(Box::new(r))
@@ -229,8 +259,9 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                     imp.set_plan(
                         apps,
                         format!(
-                            "auto: implicit (TR-BDF2, {} preconditioner) is the cheapest: {others}",
-                            s.preconditioner.name()
+                            "auto: implicit (TR-BDF2, {} preconditioner) is the cheapest: {others}; {}",
+                            s.preconditioner.name(),
+                            accuracy_phrase(s.accuracy)
                         ),
                     );
                     Ok(Box::new(imp))
