@@ -154,6 +154,7 @@ fn build_stepper(
     gid: &[u64],
     h_bound: f64,
     dt: f64,
+    trial: Option<(Vec<(u32, V3)>, Vec<(u32, V3)>)>,
     comm: &dyn Comm,
 ) -> Result<Box<dyn Stepper>> {
     let path = setup.scenario.path.display().to_string();
@@ -169,6 +170,7 @@ fn build_stepper(
         vol,
         active,
         gid,
+        trial,
         comm,
     })
 }
@@ -240,6 +242,60 @@ fn resolve_loads(
         load_halo.push(halo);
     }
     Ok((loads, load_local, load_halo))
+}
+
+/// The sources of loads as applied: on the owned contact nodes and on the halo rows' (a deep
+/// halo).
+#[allow(clippy::type_complexity)]
+fn load_sources(
+    load_local: &[Vec<(u32, f64, f64, f64)>],
+    load_halo: &[Vec<(u32, f64)>],
+    applied: &[Applied],
+) -> (Vec<(u32, V3)>, Vec<(u32, V3)>) {
+    let mut q = Vec::new();
+    let mut hq = Vec::new();
+    for ((mine, halo), a) in load_local.iter().zip(load_halo).zip(applied) {
+        let fn_ = norm(a.force);
+        if fn_ > 0.0 {
+            q.extend(mine.iter().map(|&(i, _, _, sw)| (i, scale(a.force, sw * a.q / fn_))));
+            hq.extend(halo.iter().map(|&(i, sw)| (i, scale(a.force, sw * a.q / fn_))));
+        }
+    }
+    (q, hq)
+}
+
+/// The loads' sources at the first step whose loads push (within the first TRIAL_SEARCH
+/// steps), for the automatic choice's trial steps; None when no load pushes by then. The
+/// same answer on every process (the loads' forces are global).
+#[allow(clippy::type_complexity)]
+fn trial_sources(
+    setup: &Setup,
+    loads: &[Load],
+    load_local: &[Vec<(u32, f64, f64, f64)>],
+    load_halo: &[Vec<(u32, f64)>],
+    dt: f64,
+) -> Option<(Vec<(u32, V3)>, Vec<(u32, V3)>)> {
+    const TRIAL_SEARCH: u64 = 1000;
+    (0..TRIAL_SEARCH).find_map(|k| {
+        let t = k as f64 * dt;
+        let applied: Vec<Applied> = loads
+            .iter()
+            .map(|l| {
+                let f = l.force_at(t);
+                let sigma = norm(f) / l.area;
+                Applied {
+                    force: f,
+                    q: setup.law.energy_density(sigma),
+                    sigma,
+                }
+            })
+            .collect();
+        if applied.iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0) {
+            Some(load_sources(load_local, load_halo, &applied))
+        } else {
+            None
+        }
+    })
 }
 
 /// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):
@@ -379,8 +435,9 @@ impl Simulation {
         );
         let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
         let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
-        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, c)?;
         let (loads, load_local, load_halo) = resolve_loads(&setup, &dual, &numbering, n_rows, c)?;
+        let trial = trial_sources(&setup, &loads, &load_local, &load_halo, dt);
+        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, trial, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
         let mut tools: Vec<ToolRun> = setup.tools.iter().cloned().map(ToolRun::new).collect();
@@ -446,6 +503,7 @@ impl Simulation {
 
     /// Replaces the mechanics step (and re-plans the propagation for it).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
+        let trial = trial_sources(&self.setup, &self.loads, &self.load_local, &self.load_halo, dt);
         self.stepper = build_stepper(
             &self.setup,
             &mut self.prop,
@@ -454,6 +512,7 @@ impl Simulation {
             &self.gid,
             self.stepper.plan().h_bound,
             dt,
+            trial,
             self.comm.as_ref(),
         )?;
         self.dt = dt;
@@ -481,20 +540,12 @@ impl Simulation {
     /// each computed as its owner computes it.
     pub fn sources(&mut self, t: f64) -> Vec<(u32, V3)> {
         let applied = self.applied(t);
-        let mut q = Vec::new();
-        let mut hq = Vec::new();
-        for ((mine, halo), a) in self.load_local.iter().zip(&self.load_halo).zip(&applied) {
-            let fn_ = norm(a.force);
-            for &(i, _, fw, sw) in mine {
+        for (mine, a) in self.load_local.iter().zip(&applied) {
+            for &(i, _, fw, _) in mine {
                 self.force[i as usize] = scale(a.force, fw);
-                if fn_ > 0.0 {
-                    q.push((i, scale(a.force, sw * a.q / fn_)));
-                }
-            }
-            if fn_ > 0.0 {
-                hq.extend(halo.iter().map(|&(i, sw)| (i, scale(a.force, sw * a.q / fn_))));
             }
         }
+        let (q, hq) = load_sources(&self.load_local, &self.load_halo, &applied);
         self.prop.set_halo_sources(hq);
         q
     }

@@ -464,6 +464,7 @@ fn scenario_keys_are_checked() {
     for (text, want) in [
         ("[model]\nintegrator = \"rk4\"\n", "\"rkl2\" or \"implicit\""),
         ("[integrator]\ntolerance = 2.0\n", "between 0 and 1"),
+        ("[integrator]\naccuracy = 0.0\n", "inf for no error control"),
         ("[integrator]\npreconditioner = \"ilu\"\n", "\"jacobi\""),
         ("[integrator]\nmax_iterations = 0\n", "at least 1"),
         ("[integrator]\nmax_stages = 1\n", "at least 2"),

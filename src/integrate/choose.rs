@@ -14,6 +14,7 @@ use super::euler::SAFETY;
 use super::rkl2::{stages_for, STAGE_COST};
 use super::{Euler, Implicit, Kind, Rkl2, Settings, Stepper};
 use crate::comm::Comm;
+use crate::operator::V3;
 use crate::propagation::Propagation;
 use anyhow::{bail, Result};
 
@@ -71,8 +72,14 @@ pub struct Context<'a> {
     pub vol: &'a [f64],
     pub active: &'a [bool],
     pub gid: &'a [u64],
+    /// The loads' sources (owned rows, halo rows) at the first step a load pushes: `auto`
+    /// measures the candidates on two steps under them.
+    pub trial: Option<Trial>,
     pub comm: &'a dyn Comm,
 }
+
+/// Sources of a trial: on the owned rows and on the halo rows of a deep halo.
+pub type Trial = (Vec<(u32, V3)>, Vec<(u32, V3)>);
 
 /// A count for a message: whole below 1e9, else in exponent form (a saturated count is
 /// `usize::MAX`, which says nothing in full).
@@ -129,6 +136,24 @@ fn implicit(cx: &Context, per_step: usize, why: String) -> Result<Implicit> {
         why,
         cx.comm,
     )
+}
+
+/// Two mechanics steps of `st` from phi = 0 under the trial sources: the operator
+/// applications and the estimated error of the second (phi is zero again afterwards).
+fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &Trial) -> Result<(usize, f64)> {
+    let zero = |p: &mut Propagation| p.phi.iter_mut().for_each(|x| *x = [0.0; 3]);
+    zero(cx.prop);
+    cx.prop.set_halo_sources(q.1.clone());
+    let mut run = || -> Result<(usize, f64)> {
+        st.advance(cx.prop, &q.0, cx.comm)?;
+        let e1 = st.last_error().unwrap_or(0.0);
+        let b = st.advance(cx.prop, &q.0, cx.comm)?;
+        Ok((b.applications, e1.max(st.last_error().unwrap_or(0.0))))
+    };
+    let r = run();
+    zero(cx.prop);
+    cx.prop.set_halo_sources(Vec::new());
+    r
 }
 
 /// The stepper of the scenario.
@@ -205,57 +230,99 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             };
             let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
             let st = stages_for(cx.dt / n as f64, cx.h_bound);
-            let doubling = if s.accuracy.is_finite() { DOUBLING } else { 1.0 };
-            let rkl2_cost = doubling * STAGE_COST * st.saturating_mul(n) as f64;
+            let controlled = s.accuracy.is_finite();
+            let doubling = if controlled { DOUBLING } else { 1.0 };
+            // the stability model's costs, replaced by two trial steps under the first load
+            // where the accuracy is controlled and a load pushes
+            let mut rkl2_cost = doubling * STAGE_COST * st.saturating_mul(n) as f64;
+            let (mut rkl2, mut rkl2_trial) = (None, None);
+            if st.saturating_mul(n) <= s.max_stages && rkl2_cost < substeps {
+                let mut r = Rkl2::new(cx.h_bound, cx.dt, n, s.max_stages, layout, cx.path, String::new())?;
+                r.set_accuracy(s.accuracy);
+                if controlled {
+                    if let Some(q) = cx.trial.clone() {
+                        let t = trial_steps(&mut r, cx, &q);
+                        r.restart_count();
+                        match t {
+                            Ok((apps, err)) => {
+                                rkl2_cost = STAGE_COST * apps as f64;
+                                rkl2_trial = Some((apps, err));
+                            }
+                            Err(_) => rkl2_cost = f64::INFINITY,
+                        }
+                    }
+                }
+                if rkl2_cost.is_finite() {
+                    rkl2 = Some(r);
+                }
+            }
             let (mut best, mut best_cost) = (Kind::Euler, substeps);
-            if st.saturating_mul(n) <= s.max_stages && rkl2_cost * MARGIN < best_cost {
+            if rkl2.is_some() && rkl2_cost * MARGIN < best_cost {
                 (best, best_cost) = (Kind::Rkl2, rkl2_cost);
             }
             // implicit costs at least one iteration per stage: try it only where it can win
             let floor = CG_COST * (2.0 * 3.0 + 1.0);
             let mut trial = None;
-            if floor * MARGIN < best_cost {
+            if floor * MARGIN < best_cost.max(substeps.min(rkl2_cost)) {
                 let mut imp = implicit(cx, 0, String::new())?;
                 if let Ok(it) = imp.trial(cx.prop, cx.gid, cx.comm) {
-                    let apps = controlled_applications(it, s.accuracy.is_finite());
-                    let cost = CG_COST * apps as f64;
-                    let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
-                    if cost * margin < best_cost {
-                        (best, best_cost) = (Kind::Implicit, cost);
+                    imp.set_accuracy(s.accuracy);
+                    let mut apps = controlled_applications(it, controlled);
+                    let mut err = None;
+                    let mut ok = true;
+                    if controlled {
+                        if let Some(q) = cx.trial.clone() {
+                            let t = trial_steps(&mut imp, cx, &q);
+                            imp.restart_count();
+                            match t {
+                                Ok((a, e)) => (apps, err) = (a, Some(e)),
+                                Err(_) => ok = false,
+                            }
+                        }
                     }
-                    trial = Some((imp, it, apps, cost));
+                    let cost = CG_COST * apps as f64;
+                    if ok {
+                        let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
+                        if cost * margin < best_cost {
+                            (best, best_cost) = (Kind::Implicit, cost);
+                        }
+                        trial = Some((imp, it, apps, cost, err));
+                    }
                 }
             }
             let _ = best_cost;
+            let predicted = |e: Option<f64>| match e {
+                Some(e) => format!(", predicted error {e:.1e}"),
+                None => String::new(),
+            };
             let others = format!(
-                "per step euler {} substeps, rkl2 {} stages (~{} substeps){}",
+                "per step euler {} substeps, rkl2 {} (~{} substeps{}){}",
                 count(substeps),
-                count(st.saturating_mul(n) as f64),
+                match rkl2_trial {
+                    Some((apps, _)) => format!("{apps} stages in a trial step"),
+                    None => format!("{} stages", count(st.saturating_mul(n) as f64)),
+                },
                 count(rkl2_cost),
+                predicted(rkl2_trial.map(|t| t.1)),
                 match &trial {
-                    Some((_, it, apps, cost)) => format!(
-                        ", implicit ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps)"
+                    Some((_, it, apps, cost, err)) => format!(
+                        ", implicit ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps{})",
+                        predicted(*err)
                     ),
                     None => String::new(),
                 }
             );
             match best {
                 Kind::Rkl2 => {
-                    let mut r = Rkl2::new(
-                        cx.h_bound,
-                        cx.dt,
-                        n,
-                        s.max_stages,
-                        layout,
-                        cx.path,
-                        format!("auto: rkl2 is the cheapest: {others}; {}", accuracy_phrase(s.accuracy)),
-                    )?;
-                    r.set_accuracy(s.accuracy);
+                    let mut r = rkl2.expect("rkl2 was built");
+                    r.set_why(format!(
+                        "auto: rkl2 is the cheapest: {others}; {}",
+                        accuracy_phrase(s.accuracy)
+                    ));
                     Ok(Box::new(r))
                 }
                 Kind::Implicit => {
-                    let (mut imp, _, apps, _) = trial.expect("implicit was tried");
-                    imp.set_accuracy(s.accuracy);
+                    let (mut imp, _, apps, _, _) = trial.expect("implicit was tried");
                     imp.set_plan(
                         apps,
                         format!(
@@ -266,7 +333,13 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                     );
                     Ok(Box::new(imp))
                 }
-                _ => euler(cx, format!("auto: euler, no other is {MARGIN}x cheaper: {others}")),
+                _ => euler(
+                    cx,
+                    format!(
+                        "auto: euler, no other is {MARGIN}x cheaper: {others}; accuracy {:e} per step for the others",
+                        s.accuracy
+                    ),
+                ),
             }
         }
     }

@@ -149,6 +149,8 @@ pub struct Implicit {
     levels: Vec<Option<Level>>,
     /// Sub-steps of the last mechanics step: (accepted, rejected).
     pub substeps: (usize, usize),
+    /// The estimated relative error of the last mechanics step (sum over its sub-steps).
+    pub error: f64,
     theta_tau: f64,
     /// max_i V_i (1 + 2 theta tau sum_j |c_ij|): bounds |(A u)_i| / max |u| on every process
     a_bound: f64,
@@ -211,6 +213,7 @@ impl Implicit {
             level: 0,
             levels: Vec::new(),
             substeps: (0, 0),
+            error: 0.0,
             theta_tau,
             a_bound,
             vol,
@@ -230,6 +233,11 @@ impl Implicit {
             p: zo(),
             s: zo(),
         })
+    }
+
+    /// Numbers the next step 1 again (after the automatic choice's trial steps).
+    pub fn restart_count(&mut self) {
+        self.step = 0;
     }
 
     /// Turns the error control on: sub-steps of dt / 2^k, as many as `accuracy` (the relative
@@ -274,15 +282,9 @@ impl Implicit {
     ///   est = tau/3 ((1 - sqrt 2) f(phi_n) + f(Y) - gamma f(phi_n+1)),  f = L phi + Q
     /// (Q cancels: V est = tau/3 W z, z = (1 - sqrt 2) phi_n + Y - gamma phi_n+1), filtered as
     /// in ode23tb through A e = V est so that stiff modes, which TR-BDF2 damps, do not count;
-    /// then ||e|| / (accuracy share max(||phi_n||, ||phi_n+1||)), every norm an exact sum over
+    /// then ||e|| / (accuracy max(||phi_n||, ||phi_n+1||, floor)), every norm an exact sum over
     /// every process. Returns the ratio and the operator applications it took.
-    fn estimate(
-        &mut self,
-        prop: &mut Propagation,
-        comm: &dyn Comm,
-        share: f64,
-        floor: &mut f64,
-    ) -> Result<(f64, usize)> {
+    fn estimate(&mut self, prop: &mut Propagation, comm: &dyn Comm, floor: &mut f64) -> Result<(f64, usize)> {
         let n = self.vol.len();
         let c = (self.theta_tau / THETA) / 3.0;
         let a0 = 1.0 - std::f64::consts::SQRT_2;
@@ -329,7 +331,7 @@ impl Implicit {
         let ratio = if err <= super::ROUNDOFF * scale {
             0.0
         } else {
-            err / (self.accuracy * share * scale)
+            err / (self.accuracy * scale)
         };
         Ok((ratio, 1 + it))
     }
@@ -573,6 +575,9 @@ impl Stepper for Implicit {
     fn plan(&self) -> &StepPlan {
         &self.plan
     }
+    fn last_error(&self) -> Option<f64> {
+        self.accuracy.is_finite().then_some(self.error)
+    }
 
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<StepStats> {
         if !self.accuracy.is_finite() {
@@ -585,6 +590,7 @@ impl Stepper for Implicit {
         let mut applications = 0;
         let (mut accepted, mut rejected) = (0, 0);
         let mut floor = 0.0;
+        let mut error = 0.0;
         while !c.done() {
             if c.level > super::MAX_LEVEL {
                 bail!(
@@ -597,7 +603,7 @@ impl Stepper for Implicit {
             }
             self.set_level(c.level, prop, comm)?;
             applications += self.tr_bdf2(prop, q, comm)?;
-            let (ratio, apps) = self.estimate(prop, comm, c.fraction(), &mut floor)?;
+            let (ratio, apps) = self.estimate(prop, comm, &mut floor)?;
             applications += apps;
             tracing::trace!(
                 "implicit step {} level {} pos {} ratio {ratio:.3e} its {:?}",
@@ -606,8 +612,10 @@ impl Stepper for Implicit {
                 c.pos,
                 self.last.iterations
             );
+            let added = ratio * self.accuracy;
             if c.after(ratio) {
                 accepted += 1;
+                error += added;
             } else {
                 rejected += 1;
                 // back to phi_n (prop.phi's buffer is free)
@@ -617,6 +625,7 @@ impl Stepper for Implicit {
         self.set_level(0, prop, comm)?;
         self.step += 1;
         self.substeps = (accepted, rejected);
+        self.error = error;
         tracing::debug!(
             "implicit step {}: {accepted} TR-BDF2 steps, {rejected} rejected",
             self.step

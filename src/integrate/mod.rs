@@ -73,6 +73,11 @@ pub trait Stepper {
     fn plan(&self) -> &StepPlan;
     /// Advances `prop.phi` over the plan's dt with the constant sources `q`.
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<StepStats>;
+    /// The estimated relative error ||e|| / ||phi|| the last step added (error-controlled
+    /// integrators; None for the others).
+    fn last_error(&self) -> Option<f64> {
+        None
+    }
 }
 
 /// `[model] integrator`.
@@ -147,6 +152,8 @@ pub const DEFAULT_ACCURACY: f64 = 1e-3;
 /// much more exact than the step it serves.
 pub const CG_SHARE: f64 = 1e-2;
 pub const DEFAULT_TOLERANCE: f64 = CG_SHARE * DEFAULT_ACCURACY;
+/// The implicit solves' default tolerance without error control (`accuracy = inf`).
+pub const UNCONTROLLED_TOLERANCE: f64 = 1e-8;
 pub const DEFAULT_MAX_ITERATIONS: usize = 2000;
 pub const DEFAULT_MAX_STAGES: usize = 4096;
 
@@ -193,16 +200,17 @@ pub const ROUNDOFF: f64 = 1e-13;
 /// Error control over the levels of one mechanics step: sub-steps of dt / 2^level, the level
 /// raised after a rejected sub-step (by as many halvings as the estimate asks for, order `p`
 /// of the estimate in the sub-step) and lowered after a sub-step well inside the accuracy when
-/// the position allows the longer sub-step. Every decision comes from globally reduced norms,
-/// so every process takes the same sub-steps; a mechanics step starts at `start` whatever the
-/// last one did, so a restarted run continues bit for bit.
+/// the position allows the longer sub-step. The tolerance is per sub-step (error per step, not
+/// per unit step: the errors that force short sub-steps are those of an initial layer, which
+/// decay rather than add up). Every decision comes from globally reduced norms, so every
+/// process takes the same sub-steps; a mechanics step starts at `start` whatever the last one
+/// did, so a restarted run continues bit for bit.
 #[derive(Clone, Copy, Debug)]
 pub struct Control {
     /// Current level and the position in the mechanics step in units of dt / 2^level.
     pub level: u32,
     pub pos: u64,
-    /// Error exponent: the estimate per sub-step scales like (dt / 2^level)^p, the
-    /// tolerance of a sub-step like its length.
+    /// Error exponent: the estimate per sub-step scales like (dt / 2^level)^p.
     p: f64,
 }
 
@@ -224,9 +232,8 @@ impl Control {
     /// After a sub-step whose error over its tolerance is `ratio` (<= 1: accepted, when the
     /// caller accepted it): whether it was accepted; the next level is set.
     pub fn after(&mut self, ratio: f64) -> bool {
-        // the estimate per unit step scales like (length)^(p - 1): one halving divides the
-        // ratio by 2^(p-1)
-        let q = (self.p - 1.0).max(0.5);
+        // the estimate scales like (length)^p: one halving divides the ratio by 2^p
+        let q = self.p.max(0.5);
         if !(ratio <= 1.0) {
             let halvings = if ratio.is_finite() {
                 ((ratio / 0.8).log2() / q).ceil().clamp(1.0, 8.0) as u32

@@ -113,8 +113,10 @@ pub struct Rkl2 {
     full: Vec<V3>,
     path: String,
     step: u64,
-    /// Super-steps of the last mechanics step: (accepted, rejected).
+    /// Sub-steps of the last mechanics step: (accepted, rejected).
     pub substeps: (usize, usize),
+    /// The estimated relative error of the last mechanics step (sum over its sub-steps).
+    pub error: f64,
 }
 
 impl Rkl2 {
@@ -157,6 +159,7 @@ impl Rkl2 {
             path: path.to_string(),
             step: 0,
             substeps: (0, 0),
+            error: 0.0,
             plan: StepPlan {
                 integrator: "rkl2",
                 dt,
@@ -178,6 +181,11 @@ impl Rkl2 {
         })
     }
 
+    /// Numbers the next step 1 again (after the automatic choice's trial steps).
+    pub fn restart_count(&mut self) {
+        self.step = 0;
+    }
+
     /// Turns the error control on: super-steps of dt / 2^k (from the level of the super-step
     /// count given to `new`), as many as `accuracy` (the relative error per mechanics step)
     /// needs, each checked by step doubling (`Control`).
@@ -188,6 +196,11 @@ impl Rkl2 {
             self.start = vec![[0.0; 3]; n];
             self.full = vec![[0.0; 3]; n];
         }
+    }
+
+    /// Replaces the plan's reason (the automatic choice says why it chose rkl2).
+    pub fn set_why(&mut self, why: String) {
+        self.plan.why = why;
     }
 
     /// Uses `stages` stages per super-step from here on.
@@ -201,12 +214,13 @@ impl Rkl2 {
     /// One mechanics step under error control: each super-step of tau is taken once with
     /// the stages tau needs and again as two halves; the halves are kept, and
     /// |halves - single| / 3 (Richardson, second order) is its error, against
-    /// accuracy (tau / dt) max(||phi_start||, ||phi_end||), every norm an exact sum over every
+    /// accuracy max(||phi_start||, ||phi_end||, floor), every norm an exact sum over every
     /// process. Returns the operator applications.
     fn controlled(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<usize> {
         let n = prop.layout().n_owned;
         let mut c = super::Control::new(self.start_level, 3.0);
         let (mut apps, mut accepted, mut rejected) = (0usize, 0, 0);
+        let mut error = 0.0;
         // the first attempt of the mechanics step sets a floor under the norm of phi (from
         // phi = 0 the first super-steps see a tiny phi, against which nothing is accurate)
         let mut floor = 0.0f64;
@@ -252,7 +266,7 @@ impl Rkl2 {
             let ratio = if err <= super::ROUNDOFF * scale {
                 0.0
             } else {
-                err / (self.accuracy * c.fraction() * scale)
+                err / (self.accuracy * scale)
             };
             tracing::trace!(
                 "rkl2 step {} level {} pos {} stages {one}/{half} err {err:.3e} scale {scale:.3e} ratio {ratio:.3e}",
@@ -260,14 +274,17 @@ impl Rkl2 {
                 c.level,
                 c.pos
             );
+            let added = ratio * self.accuracy;
             if c.after(ratio) {
                 accepted += 1;
+                error += added;
             } else {
                 rejected += 1;
                 prop.phi[..n].copy_from_slice(&self.start);
             }
         }
         self.substeps = (accepted, rejected);
+        self.error = error;
         tracing::debug!(
             "rkl2 step {}: {accepted} super-steps (doubled), {rejected} rejected",
             self.step + 1
@@ -331,6 +348,9 @@ impl Rkl2 {
 impl Stepper for Rkl2 {
     fn plan(&self) -> &StepPlan {
         &self.plan
+    }
+    fn last_error(&self) -> Option<f64> {
+        self.accuracy.is_finite().then_some(self.error)
     }
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<StepStats> {
         if self.accuracy.is_finite() {

@@ -142,7 +142,7 @@ impl IntegratorSec {
             tolerance: self.tolerance.unwrap_or(if self.accuracy.is_finite() {
                 (integrate::CG_SHARE * self.accuracy).max(1e-14)
             } else {
-                integrate::DEFAULT_TOLERANCE
+                integrate::UNCONTROLLED_TOLERANCE
             }),
             max_iterations: self.max_iterations as usize,
             max_stages: self.max_stages as usize,
