@@ -2,9 +2,9 @@
 # Accuracy and time of every integrator against euler (BENCHMARKS.md, "Accuracy"): for each
 # case the largest relative L2 error of u over the steps (and of a tool's force against
 # euler's peak), operator applications per step and seconds (one process, examples/accuracy.rs).
-# Cases: a 30^3-cell unit box with a patch load (conductivity 0.05), the same box under a load
-# table, the SOFA liver (mor_liverFine.vtu, 4293 nodes) with a patch load, the paper's cylinder
-# pressed by a sphere.
+# Cases: 30^3- and 50^3-cell unit boxes with a patch load (conductivity 0.05), the 30^3 box
+# under a load table, the SOFA liver (mor_liverFine.vtu, 4293 nodes) with a ramped patch load,
+# the paper's cylinder pressed by a sphere. CASES="box_patch liver" runs some of them.
 #   scripts/accuracy.sh [OUT_DIR] [SHARED_MESH_DIR]
 # ACCURACY=1e-4 sets [integrator] accuracy (default: the default, 1e-3).
 set -euo pipefail
@@ -18,7 +18,8 @@ cargo build --release --quiet --example accuracy --bin eprop
 bin="$root/target/release/examples/accuracy"
 acc=""
 if [ -n "${ACCURACY:-}" ]; then acc=$'[integrator]\naccuracy = '"$ACCURACY"; fi
-target/release/eprop mesh box --cells 30,30,30 -o "$out/box30.msh" >/dev/null
+[ -s "$out/box30.msh" ] || target/release/eprop mesh box --cells 30,30,30 -o "$out/box30.msh" >/dev/null
+[ -s "$out/box50.msh" ] || target/release/eprop mesh box --cells 50,50,50 -o "$out/box50.msh" >/dev/null
 cp "$shared/tet/mor_liverFine.vtu" "$out/liver.vtu"
 cp scenarios/cylinder.msh scenarios/cylinder_indent_path.csv "$out/"
 printf 't,fx,fy,fz\n0,0,0,0\n3,-1,0.2,0\n6,0.5,0,0.3\n9,0,0,0\n' >"$out/f.csv"
@@ -37,6 +38,7 @@ normal = 1.0
 steps = 10
 $acc
 TOML
+sed 's/box30.msh/box50.msh/' "$out/box_patch.toml" >"$out/box50_patch.toml"
 cat >"$out/box_table.toml" <<TOML
 [mesh]
 file = "box30.msh"
@@ -78,6 +80,6 @@ table = "cylinder_indent_path.csv"
 end = 100.0
 $acc
 TOML
-for case in box_patch box_table liver cylinder_indent; do
+for case in ${CASES:-box_patch box50_patch box_table liver cylinder_indent}; do
   RAYON_NUM_THREADS=2 "$bin" "$out/$case.toml" | tee "$out/$case.txt"
 done

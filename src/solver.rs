@@ -154,7 +154,7 @@ fn build_stepper(
     gid: &[u64],
     h_bound: f64,
     dt: f64,
-    trial: Option<(Vec<(u32, V3)>, Vec<(u32, V3)>)>,
+    trial: Option<[crate::integrate::choose::Trial; 2]>,
     comm: &dyn Comm,
 ) -> Result<Box<dyn Stepper>> {
     let path = setup.scenario.path.display().to_string();
@@ -265,8 +265,8 @@ fn load_sources(
 }
 
 /// The loads' sources at the first step whose loads push (within the first TRIAL_SEARCH
-/// steps), for the automatic choice's trial steps; None when no load pushes by then. The
-/// same answer on every process (the loads' forces are global).
+/// steps) and at the step after it, for the automatic choice's trial steps; None when no load
+/// pushes by then. The same answer on every process (the loads' forces are global).
 #[allow(clippy::type_complexity)]
 fn trial_sources(
     setup: &Setup,
@@ -274,11 +274,11 @@ fn trial_sources(
     load_local: &[Vec<(u32, f64, f64, f64)>],
     load_halo: &[Vec<(u32, f64)>],
     dt: f64,
-) -> Option<(Vec<(u32, V3)>, Vec<(u32, V3)>)> {
+) -> Option<[crate::integrate::choose::Trial; 2]> {
     const TRIAL_SEARCH: u64 = 1000;
-    (0..TRIAL_SEARCH).find_map(|k| {
+    let applied = |k: u64| -> Vec<Applied> {
         let t = k as f64 * dt;
-        let applied: Vec<Applied> = loads
+        loads
             .iter()
             .map(|l| {
                 let f = l.force_at(t);
@@ -289,13 +289,10 @@ fn trial_sources(
                     sigma,
                 }
             })
-            .collect();
-        if applied.iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0) {
-            Some(load_sources(load_local, load_halo, &applied))
-        } else {
-            None
-        }
-    })
+            .collect()
+    };
+    let first = (0..TRIAL_SEARCH).find(|&k| applied(k).iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0))?;
+    Some([first, first + 1].map(|k| load_sources(load_local, load_halo, &applied(k))))
 }
 
 /// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):

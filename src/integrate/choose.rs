@@ -72,9 +72,9 @@ pub struct Context<'a> {
     pub vol: &'a [f64],
     pub active: &'a [bool],
     pub gid: &'a [u64],
-    /// The loads' sources (owned rows, halo rows) at the first step a load pushes: `auto`
-    /// measures the candidates on two steps under them.
-    pub trial: Option<Trial>,
+    /// The loads' sources (owned rows, halo rows) at the first step a load pushes and at the
+    /// step after it: `auto` measures the candidates on these two steps.
+    pub trial: Option<[Trial; 2]>,
     pub comm: &'a dyn Comm,
 }
 
@@ -138,16 +138,17 @@ fn implicit(cx: &Context, per_step: usize, why: String) -> Result<Implicit> {
     )
 }
 
-/// Two mechanics steps of `st` from phi = 0 under the trial sources: the operator
+/// Two mechanics steps of `st` from phi = 0 under the two trial sources: the operator
 /// applications and the estimated error of the second (phi is zero again afterwards).
-fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &Trial) -> Result<(usize, f64)> {
+fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &[Trial; 2]) -> Result<(usize, f64)> {
     let zero = |p: &mut Propagation| p.phi.iter_mut().for_each(|x| *x = [0.0; 3]);
     zero(cx.prop);
-    cx.prop.set_halo_sources(q.1.clone());
     let mut run = || -> Result<(usize, f64)> {
-        st.advance(cx.prop, &q.0, cx.comm)?;
+        cx.prop.set_halo_sources(q[0].1.clone());
+        st.advance(cx.prop, &q[0].0, cx.comm)?;
         let e1 = st.last_error().unwrap_or(0.0);
-        let b = st.advance(cx.prop, &q.0, cx.comm)?;
+        cx.prop.set_halo_sources(q[1].1.clone());
+        let b = st.advance(cx.prop, &q[1].0, cx.comm)?;
         Ok((b.applications, e1.max(st.last_error().unwrap_or(0.0))))
     };
     let r = run();
