@@ -264,3 +264,54 @@ pub trait Precond: Send {
         None
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Runs a control to the end of a step with the error ratio `ratio(level, pos)`; returns
+    /// the accepted (level, pos) in order.
+    fn walk(start: u32, ratio: impl Fn(u32, u64) -> f64) -> Vec<(u32, u64)> {
+        let mut c = Control::new(start, 3.0);
+        let mut taken = vec![];
+        let mut covered = 0.0;
+        for _ in 0..10_000 {
+            if c.done() {
+                break;
+            }
+            let (l, p, f) = (c.level, c.pos, c.fraction());
+            if c.after(ratio(l, p)) {
+                taken.push((l, p));
+                covered += f;
+            }
+        }
+        assert!(c.done() && (covered - 1.0f64).abs() < 1e-12, "{taken:?}");
+        taken
+    }
+
+    #[test]
+    fn the_control_covers_the_step_and_halves_as_the_estimate_asks() {
+        // accurate everywhere: one step of dt
+        assert_eq!(walk(0, |_, _| 0.1), vec![(0, 0)]);
+        // the error of a sub-step of dt / 2^l is 1000 / 8^l: level 4 is the first below 0.8
+        // (1000 / 4096); a rejection at level 0 asks for ceil(log2(1250) / 3) = 4 halvings
+        let t = walk(0, |l, _| 1000.0 / 8f64.powi(l as i32));
+        assert_eq!(t[0], (4, 0));
+        // once well inside (1000 / 8^4 * 8 = 1.95 > 0.5), it stays at level 4
+        assert!(t.iter().all(|&(l, _)| l == 4) && t.len() == 16, "{t:?}");
+        // an initial layer: only the first sixteenth is hard; the control climbs back up on
+        // aligned positions
+        let t = walk(0, |l, p| {
+            let start = p as f64 * 0.5f64.powi(l as i32);
+            if start < 1.0 / 16.0 {
+                1000.0 / 8f64.powi(l as i32)
+            } else {
+                1e-3
+            }
+        });
+        assert!(t.len() < 12 && t.last().unwrap().0 < 4, "{t:?}");
+        // a ratio that is not finite (a blown-up step) halves four times
+        let mut c = Control::new(0, 3.0);
+        assert!(!c.after(f64::NAN) && c.level == 4 && c.pos == 0);
+    }
+}
