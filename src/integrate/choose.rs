@@ -237,7 +237,9 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             // where the accuracy is controlled and a load pushes
             let mut rkl2_cost = doubling * STAGE_COST * st.saturating_mul(n) as f64;
             let (mut rkl2, mut rkl2_trial) = (None, None);
-            if st.saturating_mul(n) <= s.max_stages && rkl2_cost < substeps {
+            // a candidate when the super-steps alone (without the doubling, which the trial
+            // measures with the levels the control takes) are cheaper than euler
+            if st.saturating_mul(n) <= s.max_stages && rkl2_cost / doubling < substeps {
                 let mut r = Rkl2::new(cx.h_bound, cx.dt, n, s.max_stages, layout, cx.path, String::new())?;
                 r.set_accuracy(s.accuracy);
                 if controlled {
