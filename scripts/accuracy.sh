@@ -4,7 +4,8 @@
 # euler's peak), operator applications per step and seconds (one process, examples/accuracy.rs).
 # Cases: 30^3- and 50^3-cell unit boxes with a patch load (conductivity 0.05), the 30^3 box
 # under a load table, the SOFA liver (mor_liverFine.vtu, 4293 nodes) with a ramped patch load,
-# the paper's cylinder pressed by a sphere. CASES="box_patch liver" runs some of them.
+# scenarios/organs/liver_indent.toml (a sphere pressing that liver), the paper's cylinder pressed
+# by a sphere. CASES="box_patch liver" runs some of them; KINDS="rkl2 auto" some integrators.
 #   scripts/accuracy.sh [OUT_DIR] [SHARED_MESH_DIR]
 # ACCURACY=1e-4 sets [integrator] accuracy (default: the default, 1e-3).
 set -euo pipefail
@@ -80,6 +81,9 @@ table = "cylinder_indent_path.csv"
 end = 100.0
 $acc
 TOML
-for case in ${CASES:-box_patch box50_patch box_table liver cylinder_indent}; do
-  RAYON_NUM_THREADS=2 "$bin" "$out/$case.toml" | tee "$out/$case.txt"
+sed 's#../../../shared/meshes/tet/mor_liverFine.vtu#liver.vtu#' scenarios/organs/liver_indent.toml >"$out/liver_indent.toml"
+printf '%s\n' "$acc" >>"$out/liver_indent.toml"
+for case in ${CASES:-box_patch box50_patch box_table liver liver_indent cylinder_indent}; do
+  # shellcheck disable=SC2086
+  RAYON_NUM_THREADS=2 "$bin" "$out/$case.toml" ${KINDS:-} | tee "$out/$case.txt"
 done

@@ -153,3 +153,18 @@ fn a_tool_pressing_the_cylinder() {
         &["rkl2", "implicit", "auto"],
     );
 }
+
+#[test]
+fn a_sphere_pressing_the_sofa_liver() {
+    // scenarios/organs/liver_indent.toml: the tool force and u of the contact it makes
+    let Some(path) = common::shared_mesh("mor_liverFine.vtu") else {
+        return;
+    };
+    let mesh = eprop_io::read_mesh(&path).unwrap();
+    against_euler(
+        mesh,
+        "[material]\nconductivity = 0.05\n[[fixed]]\nhalfspace = { point = [-3.8, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[tool]]\nshape = \"sphere\"\nradius = 0.8\nstart = [0.0, 5.9, 0.5]\nvelocity = [0.0, -0.004, 0.0]\n[time]\nsteps = 200\n",
+        &[],
+        &["rkl2", "implicit", "auto"],
+    );
+}
