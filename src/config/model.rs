@@ -58,9 +58,13 @@ pub struct Model {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct IntegratorSec {
-    /// implicit: relative residual of every solve
-    #[serde(default = "default_tolerance", deserialize_with = "tolerance")]
-    pub tolerance: f64,
+    /// rkl2 and implicit: the relative error each mechanics step may add to the potential
+    /// (`inf`: no error control)
+    #[serde(default = "default_accuracy", deserialize_with = "accuracy")]
+    pub accuracy: f64,
+    /// implicit: relative residual of every solve (by default tied to the accuracy)
+    #[serde(default, deserialize_with = "tolerance")]
+    pub tolerance: Option<f64>,
     /// implicit: conjugate-gradient iterations per solve before it is an error
     #[serde(default = "default_max_iterations", deserialize_with = "max_iterations")]
     pub max_iterations: u64,
@@ -73,8 +77,20 @@ pub struct IntegratorSec {
     pub preconditioner: Preconditioner,
 }
 
-fn default_tolerance() -> f64 {
-    integrate::DEFAULT_TOLERANCE
+fn default_accuracy() -> f64 {
+    integrate::DEFAULT_ACCURACY
+}
+
+fn accuracy<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    let a = f64::deserialize(d)?;
+    if a > 0.0 && (a < 1.0 || a == f64::INFINITY) {
+        Ok(a)
+    } else {
+        Err(D::Error::custom(format!(
+            "{a} is not a relative error per step; fix: a number between 0 and 1, such as {:e} (the default), or inf for no error control",
+            integrate::DEFAULT_ACCURACY
+        )))
+    }
 }
 fn default_max_iterations() -> u64 {
     integrate::DEFAULT_MAX_ITERATIONS as u64
@@ -83,13 +99,13 @@ fn default_max_stages() -> u64 {
     integrate::DEFAULT_MAX_STAGES as u64
 }
 
-fn tolerance<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+fn tolerance<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
     let t = f64::deserialize(d)?;
     if t > 0.0 && t < 1.0 {
-        Ok(t)
+        Ok(Some(t))
     } else {
         Err(D::Error::custom(format!(
-            "{t} is not a relative residual; fix: a number between 0 and 1, such as 1e-8 (the default)"
+            "{t} is not a relative residual; fix: a number between 0 and 1, such as 1e-8 (by default 1e-2 of [integrator] accuracy)"
         )))
     }
 }
@@ -123,7 +139,12 @@ impl IntegratorSec {
     pub fn settings(&self, kind: Kind) -> Settings {
         Settings {
             kind,
-            tolerance: self.tolerance,
+            accuracy: self.accuracy,
+            tolerance: self.tolerance.unwrap_or(if self.accuracy.is_finite() {
+                (integrate::CG_SHARE * self.accuracy).max(1e-14)
+            } else {
+                integrate::UNCONTROLLED_TOLERANCE
+            }),
             max_iterations: self.max_iterations as usize,
             max_stages: self.max_stages as usize,
             preconditioner: self.preconditioner,

@@ -157,6 +157,7 @@ fn build_stepper(
     gid: &[u64],
     h_bound: f64,
     dt: f64,
+    trial: Option<[crate::propagate::integrate::choose::Trial; 2]>,
     comm: &dyn Comm,
 ) -> Result<Box<dyn Stepper>> {
     let path = setup.scenario.path.display().to_string();
@@ -172,6 +173,7 @@ fn build_stepper(
         vol,
         active,
         gid,
+        trial,
         comm,
     })
 }
@@ -228,6 +230,48 @@ fn resolve_loads(
         load_local.push(mine);
     }
     Ok((loads, load_local))
+}
+
+/// The sources of loads as applied, on the owned contact nodes.
+fn load_sources(load_local: &[Vec<(u32, f64, f64, f64)>], applied: &[Applied]) -> Vec<(u32, V3)> {
+    let mut q = Vec::new();
+    for (mine, a) in load_local.iter().zip(applied) {
+        let fn_ = norm(a.force);
+        if fn_ > 0.0 {
+            q.extend(mine.iter().map(|&(i, _, _, sw)| (i, scale(a.force, sw * a.q / fn_))));
+        }
+    }
+    q
+}
+
+/// The loads' sources at the first step whose loads push (within the first TRIAL_SEARCH
+/// steps) and at the step after it, for the automatic choice's trial steps; None when no load
+/// pushes by then. The same answer on every process (the loads' forces are global).
+#[allow(clippy::type_complexity)]
+fn trial_sources(
+    setup: &Setup,
+    loads: &[Load],
+    load_local: &[Vec<(u32, f64, f64, f64)>],
+    dt: f64,
+) -> Option<[crate::propagate::integrate::choose::Trial; 2]> {
+    const TRIAL_SEARCH: u64 = 1000;
+    let applied = |k: u64| -> Vec<Applied> {
+        let t = k as f64 * dt;
+        loads
+            .iter()
+            .map(|l| {
+                let f = l.force_at(t);
+                let sigma = norm(f) / l.area;
+                Applied {
+                    force: f,
+                    q: setup.law.energy_density(sigma),
+                    sigma,
+                }
+            })
+            .collect()
+    };
+    let first = (0..TRIAL_SEARCH).find(|&k| applied(k).iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0))?;
+    Some([first, first + 1].map(|k| load_sources(load_local, &applied(k))))
 }
 
 /// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):
@@ -372,8 +416,9 @@ impl Simulation {
         );
         let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
         let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
-        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, c)?;
         let (loads, load_local) = resolve_loads(&setup, &dual, &numbering, c)?;
+        let trial = trial_sources(&setup, &loads, &load_local, dt);
+        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, trial, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
         let mut tools: Vec<ToolRun> = setup.tools.iter().cloned().map(ToolRun::new).collect();
@@ -438,6 +483,7 @@ impl Simulation {
 
     /// Replaces the mechanics step (and re-plans the propagation for it).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
+        let trial = trial_sources(&self.setup, &self.loads, &self.load_local, dt);
         self.stepper = build_stepper(
             &self.setup,
             &mut self.prop,
@@ -446,6 +492,7 @@ impl Simulation {
             &self.gid,
             self.stepper.plan().h_bound,
             dt,
+            trial,
             self.comm.as_ref(),
         )?;
         self.dt = dt;
@@ -471,17 +518,12 @@ impl Simulation {
     /// Nodal sources Q on the owned nodes and forces f for the loads at time t.
     pub fn sources(&mut self, t: f64) -> Vec<(u32, V3)> {
         let applied = self.applied(t);
-        let mut q = Vec::new();
         for (mine, a) in self.load_local.iter().zip(&applied) {
-            let fn_ = norm(a.force);
-            for &(i, _, fw, sw) in mine {
+            for &(i, _, fw, _) in mine {
                 self.force[i as usize] = scale(a.force, fw);
-                if fn_ > 0.0 {
-                    q.push((i, scale(a.force, sw * a.q / fn_)));
-                }
             }
         }
-        q
+        load_sources(&self.load_local, &applied)
     }
 
     /// One mechanics step: the loads at t_n (and the tools' forces of the last step) give the

@@ -16,6 +16,7 @@
 use super::euler::SAFETY;
 use super::rkl2::{stages_for, STAGE_COST};
 use super::{Euler, Implicit, Kind, Rkl2, Settings, Stepper};
+use crate::discretize::operator::V3;
 use crate::distribute::comm::Comm;
 use crate::propagate::Propagation;
 use anyhow::{bail, Result};
@@ -27,6 +28,31 @@ pub const CG_COST: f64 = 2.4;
 /// `rkl2` takes super-steps short enough that the median node's modes see tau / h <= Z_RKL2
 /// (past that, its stages damp them little and they lose accuracy).
 pub const Z_RKL2: f64 = 20.0;
+/// Under error control each rkl2 super-step is taken once and again as two halves (step
+/// doubling): 1 + sqrt 2 times the stages of the super-step alone.
+pub const DOUBLING: f64 = 1.0 + std::f64::consts::SQRT_2;
+
+/// Operator applications of one controlled TR-BDF2 step whose solves take `it` iterations:
+/// the two stages, the estimate's operator application and its two filter solves (to 1e-2,
+/// about 0.4 of the iterations of a stage's solve).
+pub fn controlled_applications(it: usize, controlled: bool) -> usize {
+    let stages = 2 * (it + 2) + 1;
+    if controlled {
+        stages + 1 + 2 * ((2 * it).div_ceil(5) + 2)
+    } else {
+        stages
+    }
+}
+
+/// The accuracy in a plan's words.
+fn accuracy_phrase(a: f64) -> String {
+    if a.is_finite() {
+        format!("accuracy {a:e} per step, error-controlled")
+    } else {
+        "no error control (accuracy = inf)".into()
+    }
+}
+
 /// `auto` keeps euler unless another integrator is estimated this many times cheaper.
 pub const MARGIN: f64 = 1.5;
 
@@ -49,8 +75,14 @@ pub struct Context<'a> {
     pub vol: &'a [f64],
     pub active: &'a [bool],
     pub gid: &'a [u64],
+    /// The loads' sources (owned rows) at the first step a load pushes and at the step after
+    /// it: `auto` measures the candidates on these two steps.
+    pub trial: Option<[Trial; 2]>,
     pub comm: &'a dyn Comm,
 }
+
+/// Sources of a trial step, on the owned rows.
+pub type Trial = Vec<(u32, V3)>;
 
 /// A count for a message: whole below 1e9, else in exponent form (a saturated count is
 /// `usize::MAX`, which says nothing in full).
@@ -109,6 +141,22 @@ fn implicit(cx: &Context, per_step: usize, why: String) -> Result<Implicit> {
     )
 }
 
+/// Two mechanics steps of `st` from phi = 0 under the two trial sources: the operator
+/// applications and the estimated error of the second (phi is zero again afterwards).
+fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &[Trial; 2]) -> Result<(usize, f64)> {
+    let zero = |p: &mut Propagation| p.phi.iter_mut().for_each(|x| *x = [0.0; 3]);
+    zero(cx.prop);
+    let mut run = || -> Result<(usize, f64)> {
+        st.advance(cx.prop, &q[0], cx.comm)?;
+        let e1 = st.last_error().unwrap_or(0.0);
+        let b = st.advance(cx.prop, &q[1], cx.comm)?;
+        Ok((b.applications, e1.max(st.last_error().unwrap_or(0.0))))
+    };
+    let r = run();
+    zero(cx.prop);
+    r
+}
+
 /// The stepper of the scenario.
 pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
     let s = cx.settings;
@@ -133,27 +181,35 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         Kind::Rkl2 => {
             let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
             let st = stages_for(cx.dt / n as f64, cx.h_bound);
-            Ok(Box::new(Rkl2::new(
+            let mut r = Rkl2::new(
                 cx.h_bound,
                 cx.dt,
                 n,
                 s.max_stages,
                 layout,
                 cx.path,
-                format!("the scenario's choice: {st} stages per super-step, {n} super-step(s) per step"),
-            )?))
+                format!(
+                    "the scenario's choice: {st} stages per super-step, {n} super-step(s) per step to start, {}",
+                    accuracy_phrase(s.accuracy)
+                ),
+            )?;
+            r.set_accuracy(s.accuracy);
+            Ok(Box::new(r))
         }
         Kind::Implicit => {
             let mut imp = implicit(cx, 0, String::new())?;
+            imp.set_accuracy(s.accuracy);
             // a trial solve estimates the work per step (for `eprop check` and the summary)
             let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
-            let (apps, cost) = imp.estimate(it);
+            let apps = controlled_applications(it, s.accuracy.is_finite());
+            let cost = imp.cost_of(apps);
             imp.set_plan(
                 apps,
                 cost,
                 format!(
-                    "the scenario's choice: TR-BDF2, {} preconditioner ({it} iterations per solve in a trial)",
-                    s.preconditioner.name()
+                    "the scenario's choice: TR-BDF2, {} preconditioner ({it} iterations per solve in a trial), {}",
+                    s.preconditioner.name(),
+                    accuracy_phrase(s.accuracy)
                 ),
             );
             Ok(Box::new(imp))
@@ -178,62 +234,120 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             };
             let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
             let st = stages_for(cx.dt / n as f64, cx.h_bound);
-            let rkl2_cost = STAGE_COST * st.saturating_mul(n) as f64;
+            let controlled = s.accuracy.is_finite();
+            let doubling = if controlled { DOUBLING } else { 1.0 };
+            // the stability model's costs, replaced by two trial steps under the first load
+            // where the accuracy is controlled and a load pushes
+            let mut rkl2_cost = doubling * STAGE_COST * st.saturating_mul(n) as f64;
+            let (mut rkl2, mut rkl2_trial) = (None, None);
+            // a candidate when the super-steps alone (without the doubling, which the trial
+            // measures with the levels the control takes) are cheaper than euler
+            if st.saturating_mul(n) <= s.max_stages && rkl2_cost / doubling < substeps {
+                let mut r = Rkl2::new(cx.h_bound, cx.dt, n, s.max_stages, layout, cx.path, String::new())?;
+                r.set_accuracy(s.accuracy);
+                if controlled {
+                    if let Some(q) = cx.trial.clone() {
+                        let t = trial_steps(&mut r, cx, &q);
+                        r.restart_count();
+                        match t {
+                            Ok((apps, err)) => {
+                                rkl2_cost = STAGE_COST * apps as f64;
+                                rkl2_trial = Some((apps, err));
+                            }
+                            Err(_) => rkl2_cost = f64::INFINITY,
+                        }
+                    }
+                }
+                if rkl2_cost.is_finite() {
+                    rkl2 = Some(r);
+                }
+            }
             let (mut best, mut best_cost) = (Kind::Euler, substeps);
-            if st.saturating_mul(n) <= s.max_stages && rkl2_cost * MARGIN < best_cost {
+            if rkl2.is_some() && rkl2_cost * MARGIN < best_cost {
                 (best, best_cost) = (Kind::Rkl2, rkl2_cost);
             }
             // implicit costs at least one iteration per stage: try it only where it can win
             let floor = CG_COST * (2.0 * 3.0 + 1.0);
             let mut trial = None;
-            if floor * MARGIN < best_cost {
+            if floor * MARGIN < best_cost.max(substeps.min(rkl2_cost)) {
                 let mut imp = implicit(cx, 0, String::new())?;
                 if let Ok(it) = imp.trial(cx.prop, cx.gid, cx.comm) {
-                    let (apps, cost) = imp.estimate(it);
-                    let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
-                    if cost * margin < best_cost {
-                        (best, best_cost) = (Kind::Implicit, cost);
+                    imp.set_accuracy(s.accuracy);
+                    let mut apps = controlled_applications(it, controlled);
+                    let mut err = None;
+                    let mut ok = true;
+                    if controlled {
+                        if let Some(q) = cx.trial.clone() {
+                            let t = trial_steps(&mut imp, cx, &q);
+                            imp.restart_count();
+                            match t {
+                                Ok((a, e)) => (apps, err) = (a, Some(e)),
+                                Err(_) => ok = false,
+                            }
+                        }
                     }
-                    trial = Some((imp, it, apps, cost));
+                    let cost = imp.cost_of(apps);
+                    if ok {
+                        let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
+                        if cost * margin < best_cost {
+                            (best, best_cost) = (Kind::Implicit, cost);
+                        }
+                        trial = Some((imp, it, apps, cost, err));
+                    }
                 }
             }
             let _ = best_cost;
+            let predicted = |e: Option<f64>| match e {
+                Some(e) => format!(", predicted error {e:.1e}"),
+                None => String::new(),
+            };
             let others = format!(
-                "per step euler {} substeps, rkl2 {} stages (~{} substeps){}",
+                "per step euler {} substeps, rkl2 {} (~{} substeps{}){}",
                 count(substeps),
-                count(st.saturating_mul(n) as f64),
+                match rkl2_trial {
+                    Some((apps, _)) => format!("{apps} stages in a trial step"),
+                    None => format!("{} stages", count(st.saturating_mul(n) as f64)),
+                },
                 count(rkl2_cost),
+                predicted(rkl2_trial.map(|t| t.1)),
                 match &trial {
-                    Some((_, it, apps, cost)) => format!(
-                        ", implicit ({}) ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps)",
-                        s.preconditioner.name()
+                    Some((_, it, apps, cost, err)) => format!(
+                        ", implicit ({}) ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps{})",
+                        s.preconditioner.name(),
+                        predicted(*err)
                     ),
                     None => String::new(),
                 }
             );
             match best {
-                Kind::Rkl2 => Ok(Box::new(Rkl2::new(
-                    cx.h_bound,
-                    cx.dt,
-                    n,
-                    s.max_stages,
-                    layout,
-                    cx.path,
-                    format!("auto: rkl2 is the cheapest: {others}"),
-                )?)),
+                Kind::Rkl2 => {
+                    let mut r = rkl2.expect("rkl2 was built");
+                    r.set_why(format!(
+                        "auto: rkl2 is the cheapest: {others}; {}",
+                        accuracy_phrase(s.accuracy)
+                    ));
+                    Ok(Box::new(r))
+                }
                 Kind::Implicit => {
-                    let (mut imp, _, apps, cost) = trial.expect("implicit was tried");
+                    let (mut imp, _, apps, cost, _) = trial.expect("implicit was tried");
                     imp.set_plan(
                         apps,
                         cost,
                         format!(
-                            "auto: implicit (TR-BDF2, {} preconditioner) is the cheapest: {others}",
-                            s.preconditioner.name()
+                            "auto: implicit (TR-BDF2, {} preconditioner) is the cheapest: {others}; {}",
+                            s.preconditioner.name(),
+                            accuracy_phrase(s.accuracy)
                         ),
                     );
                     Ok(Box::new(imp))
                 }
-                _ => euler(cx, format!("auto: euler, no other is {MARGIN}x cheaper: {others}")),
+                _ => euler(
+                    cx,
+                    format!(
+                        "auto: euler, no other is {MARGIN}x cheaper: {others}; accuracy {:e} per step for the others",
+                        s.accuracy
+                    ),
+                ),
             }
         }
     }

@@ -91,6 +91,50 @@ fn row_bound(op: &Operator, vol: &[f64], theta_tau: f64) -> f64 {
         .reduce(|| 0.0, f64::max)
 }
 
+/// The preconditioner of A = V - theta_tau W (`vol`: the volumes of the rows that move).
+fn preconditioner(
+    kind: Preconditioner,
+    prop: &Propagation,
+    vol: &[f64],
+    theta_tau: f64,
+    comm: &dyn Comm,
+    path: &str,
+) -> Result<Box<dyn Precond>> {
+    let _ = (comm, path);
+    Ok(match kind {
+        Preconditioner::Jacobi => {
+            let d = diagonal(&prop.op, vol, theta_tau);
+            Box::new(Jacobi {
+                inv: d.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect(),
+            })
+        }
+        Preconditioner::Multigrid => Box::new(
+            super::multigrid::Multigrid::new(prop, vol, theta_tau).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
+        ),
+        #[cfg(eprop_hypre)]
+        Preconditioner::Amg => Box::new(
+            super::amg::Amg::new(prop, vol, theta_tau, comm).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
+        ),
+        #[cfg(not(eprop_hypre))]
+        Preconditioner::Amg => bail!(
+            "{path}: [integrator] preconditioner = \"amg\" needs hypre, and this eprop was built without it; fix: use \"multigrid\" or \"jacobi\", or install hypre with 32-bit integers (Debian: libhypre-dev; elsewhere set HYPRE_DIR) and rebuild: it is found at build time"
+        ),
+    })
+}
+
+/// The matrix of one level (sub-steps of dt / 2^level): theta tau, the bound of its rows and
+/// its preconditioner.
+struct Level {
+    theta_tau: f64,
+    a_bound: f64,
+    pre: Box<dyn Precond>,
+}
+
+/// The relative tolerance of the error estimate's filter solve (an estimate needs two digits).
+pub const FILTER_TOLERANCE: f64 = 1e-2;
+/// How often the estimate goes through (V - theta tau W)^-1 V.
+pub const FILTER_PASSES: usize = 2;
+
 /// Conjugate-gradient iterations of the last step's solves.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SolveStats {
@@ -99,6 +143,17 @@ pub struct SolveStats {
 
 pub struct Implicit {
     plan: StepPlan,
+    /// The relative error per mechanics step (`Settings::accuracy`; infinite: one TR-BDF2 step
+    /// per mechanics step, no estimate).
+    accuracy: f64,
+    kind: Preconditioner,
+    /// The level whose matrix theta_tau, a_bound and pre hold, and the other levels built
+    level: u32,
+    levels: Vec<Option<Level>>,
+    /// Sub-steps of the last mechanics step: (accepted, rejected).
+    pub substeps: (usize, usize),
+    /// The estimated relative error of the last mechanics step (sum over its sub-steps).
+    pub error: f64,
     theta_tau: f64,
     /// max_i V_i (1 + 2 theta tau sum_j |c_ij|): bounds |(A u)_i| / max |u| on every process
     a_bound: f64,
@@ -114,6 +169,7 @@ pub struct Implicit {
     phi_n: NodeField<V3>,
     y: NodeField<V3>,
     u: NodeField<V3>,
+    e: NodeField<V3>,
     b: Vec<V3>,
     r: Vec<V3>,
     w: Vec<V3>,
@@ -140,24 +196,8 @@ impl Implicit {
         let n = layout.n_owned;
         let theta_tau = THETA * dt;
         let vol: Vec<f64> = (0..n).map(|i| if active[i] { vol[i] } else { 0.0 }).collect();
-        let d = diagonal(&prop.op, &vol, theta_tau);
         let a_bound = comm.max(row_bound(&prop.op, &vol, theta_tau));
-        let pre: Box<dyn Precond> = match settings.preconditioner {
-            Preconditioner::Multigrid => Box::new(
-                super::multigrid::Multigrid::new(prop, &vol, theta_tau).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
-            ),
-            Preconditioner::Jacobi => Box::new(Jacobi {
-                inv: d.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect(),
-            }),
-            #[cfg(eprop_hypre)]
-            Preconditioner::Amg => Box::new(
-                super::amg::Amg::new(prop, &vol, theta_tau, comm).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
-            ),
-            #[cfg(not(eprop_hypre))]
-            Preconditioner::Amg => bail!(
-                "{path}: [integrator] preconditioner = \"amg\" needs hypre, and this eprop was built without it; fix: use \"jacobi\", or install hypre with 32-bit integers (Debian: libhypre-dev; elsewhere set HYPRE_DIR) and rebuild: it is found at build time"
-            ),
-        };
+        let pre = preconditioner(settings.preconditioner, prop, &vol, theta_tau, comm, path)?;
         let z = || NodeField::filled(layout, [0.0; 3]);
         let zo = || vec![[0.0; 3]; n];
         Ok(Implicit {
@@ -171,6 +211,12 @@ impl Implicit {
                 cost: super::choose::CG_COST * per_step as f64,
                 why,
             },
+            accuracy: f64::INFINITY,
+            kind: settings.preconditioner,
+            level: 0,
+            levels: Vec::new(),
+            substeps: (0, 0),
+            error: 0.0,
             theta_tau,
             a_bound,
             vol,
@@ -183,6 +229,7 @@ impl Implicit {
             phi_n: z(),
             y: z(),
             u: z(),
+            e: z(),
             b: zo(),
             r: zo(),
             w: zo(),
@@ -191,13 +238,112 @@ impl Implicit {
         })
     }
 
-    /// Operator applications and the cost in forward Euler substeps of a step whose solves
-    /// take `it` iterations each: 2 (it + 2) + 1 applications at `choose::CG_COST`, and
-    /// 2 (it + 1) preconditioner applications at their own cost (`Precond::cost`).
-    pub fn estimate(&self, it: usize) -> (usize, f64) {
-        let apps = 2 * (it + 2) + 1;
-        let cost = super::choose::CG_COST * apps as f64 + self.pre.cost() * (2 * (it + 1)) as f64;
-        (apps, cost)
+    /// The cost in forward Euler substeps of `apps` operator applications of this
+    /// integrator's solves: each at `choose::CG_COST`, plus one preconditioner application
+    /// each at its own cost (`Precond::cost`; 0 for Jacobi, fused into the vector update).
+    pub fn cost_of(&self, apps: usize) -> f64 {
+        (super::choose::CG_COST + self.pre.cost()) * apps as f64
+    }
+
+    /// Numbers the next step 1 again (after the automatic choice's trial steps).
+    pub fn restart_count(&mut self) {
+        self.step = 0;
+    }
+
+    /// Turns the error control on: sub-steps of dt / 2^k, as many as `accuracy` (the relative
+    /// error per mechanics step) needs (`Control`).
+    pub fn set_accuracy(&mut self, accuracy: f64) {
+        self.accuracy = accuracy;
+    }
+
+    /// Makes `level`'s matrix (sub-steps of dt / 2^level) the current one, building its
+    /// preconditioner the first time.
+    fn set_level(&mut self, level: u32, prop: &Propagation, comm: &dyn Comm) -> Result<()> {
+        if level == self.level {
+            return Ok(());
+        }
+        let k = level as usize;
+        if self.levels.len() <= k.max(self.level as usize) {
+            self.levels.resize_with(k.max(self.level as usize) + 1, || None);
+        }
+        let next = match self.levels[k].take() {
+            Some(l) => l,
+            None => {
+                let theta_tau = THETA * self.plan.dt * 0.5f64.powi(level as i32);
+                Level {
+                    theta_tau,
+                    a_bound: comm.max(row_bound(&prop.op, &self.vol, theta_tau)),
+                    pre: preconditioner(self.kind, prop, &self.vol, theta_tau, comm, &self.path)?,
+                }
+            }
+        };
+        let old = Level {
+            theta_tau: self.theta_tau,
+            a_bound: self.a_bound,
+            pre: std::mem::replace(&mut self.pre, next.pre),
+        };
+        self.levels[self.level as usize] = Some(old);
+        (self.theta_tau, self.a_bound, self.level) = (next.theta_tau, next.a_bound, level);
+        Ok(())
+    }
+
+    /// The error of the TR-BDF2 step just taken (phi_n to prop.phi through self.y) against
+    /// its tolerance: Hosea and Shampine's embedded third-order estimate,
+    ///   est = tau/3 ((1 - sqrt 2) f(phi_n) + f(Y) - gamma f(phi_n+1)),  f = L phi + Q
+    /// (Q cancels: V est = tau/3 W z, z = (1 - sqrt 2) phi_n + Y - gamma phi_n+1), filtered as
+    /// in ode23tb through A e = V est so that stiff modes, which TR-BDF2 damps, do not count;
+    /// then ||e|| / (accuracy max(||phi_n||, ||phi_n+1||, floor)), every norm an exact sum over
+    /// every process. Returns the ratio and the operator applications it took.
+    fn estimate(&mut self, prop: &mut Propagation, comm: &dyn Comm, floor: &mut f64) -> Result<(f64, usize)> {
+        let n = self.vol.len();
+        let c = (self.theta_tau / THETA) / 3.0;
+        let a0 = 1.0 - std::f64::consts::SQRT_2;
+        for i in 0..n {
+            let (p0, y, p1) = (self.phi_n[i], self.y[i], prop.phi[i]);
+            self.e[i] = std::array::from_fn(|d| a0 * p0[d] + y[d] - GAMMA * p1[d]);
+        }
+        {
+            let Implicit { vol, e, b, .. } = self;
+            let vol = &vol[..];
+            prop.update_to(e, b, |i, _, l, bi| {
+                let v = vol[i] * c;
+                *bi = [v * l[0], v * l[1], v * l[2]];
+            });
+        }
+        let mut e = std::mem::replace(&mut self.e, NodeField::filled(Default::default(), [0.0; 3]));
+        let mut it = 0;
+        for pass in 0..FILTER_PASSES {
+            if pass > 0 {
+                for i in 0..n {
+                    let v = self.vol[i];
+                    self.b[i] = [v * e[i][0], v * e[i][1], v * e[i][2]];
+                }
+            }
+            e[..n].iter_mut().for_each(|x| *x = [0.0; 3]);
+            match self.solve(prop, &mut e, comm, 3, FILTER_TOLERANCE.max(self.tol)) {
+                Ok(k) => it += k + 2,
+                Err(err) => {
+                    self.e = e;
+                    return Err(err);
+                }
+            }
+        }
+        self.e = e;
+        let (e, p0, p1) = (&self.e[..n], &self.phi_n[..n], &prop.phi[..n]);
+        let [ee, s0, s1] = super::squares(comm, n, |i| [e[i], p0[i], p1[i]]);
+        // the first attempt of a mechanics step sets the floor: from phi = 0 the first
+        // sub-steps see a tiny phi, against which nothing short is accurate
+        let scale = s0.max(s1).sqrt().max(*floor);
+        if *floor == 0.0 {
+            *floor = scale;
+        }
+        let err = ee.sqrt();
+        let ratio = if err <= super::ROUNDOFF * scale {
+            0.0
+        } else {
+            err / (self.accuracy * scale)
+        };
+        Ok((ratio, 1 + it))
     }
 
     /// Replaces the planned applications per step, their cost and the reason (the automatic
@@ -220,12 +366,19 @@ impl Implicit {
             self.b[i] = [v * hash_unit(3 * g), v * hash_unit(3 * g + 1), v * hash_unit(3 * g + 2)];
         }
         let mut x = NodeField::filled(prop.layout(), [0.0; 3]);
-        self.solve(prop, &mut x, comm, 0)
+        self.solve(prop, &mut x, comm, 0, self.tol)
     }
 
     /// Solves A x = self.b for the three components, starting from x; returns the iterations
     /// (each one operator application; the solve makes two more to start).
-    fn solve(&mut self, prop: &mut Propagation, x: &mut NodeField<V3>, comm: &dyn Comm, stage: usize) -> Result<usize> {
+    fn solve(
+        &mut self,
+        prop: &mut Propagation,
+        x: &mut NodeField<V3>,
+        comm: &dyn Comm,
+        stage: usize,
+        tol: f64,
+    ) -> Result<usize> {
         let n = self.vol.len();
         let tt = self.theta_tau;
         let a_bound = self.a_bound;
@@ -257,9 +410,11 @@ impl Implicit {
                 [b_[i][0] * p_[i][0], b_[i][1] * p_[i][1], b_[i][2] * p_[i][2]]
             })
         };
-        let bound = self.tol * self.tol * (bb[0] + bb[1] + bb[2]);
+        let bound = tol * tol * (bb[0] + bb[1] + bb[2]);
         let what = if stage == 0 {
             "the trial solve (a pseudo-random right-hand side, to estimate the work per step)".to_string()
+        } else if stage == 3 {
+            format!("the error estimate's solve of step {}", self.step + 1)
         } else {
             format!("the solve of stage {stage} of step {}", self.step + 1)
         };
@@ -283,8 +438,8 @@ impl Implicit {
                      fix: raise [integrator] max_iterations, or loosen [integrator] tolerance, or use [integrator] preconditioner = \"amg\", or [model] integrator = \"rkl2\"",
                     self.path,
                     self.max_iterations,
-                    (gamma / (bound / (self.tol * self.tol))).sqrt(),
-                    self.tol
+                    (gamma / (bound / (tol * tol))).sqrt(),
+                    tol
                 );
             }
             let (beta, den) = if it == 0 {
@@ -431,8 +586,69 @@ impl Stepper for Implicit {
     fn plan(&self) -> &StepPlan {
         &self.plan
     }
+    fn last_error(&self) -> Option<f64> {
+        self.accuracy.is_finite().then_some(self.error)
+    }
 
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<StepStats> {
+        if !self.accuracy.is_finite() {
+            let applications = self.tr_bdf2(prop, q, comm)?;
+            self.step += 1;
+            self.substeps = (1, 0);
+            return Ok(StepStats { applications });
+        }
+        let mut c = super::Control::new(0, 3.0);
+        let mut applications = 0;
+        let (mut accepted, mut rejected) = (0, 0);
+        let mut floor = 0.0;
+        let mut error = 0.0;
+        while !c.done() {
+            if c.level > super::MAX_LEVEL {
+                bail!(
+                    "{}: implicit: step {} needs TR-BDF2 steps shorter than dt / 2^{} to keep [integrator] accuracy = {:e}; fix: loosen accuracy, or use [model] integrator = \"euler\", or lower dt",
+                    self.path,
+                    self.step + 1,
+                    super::MAX_LEVEL,
+                    self.accuracy
+                );
+            }
+            self.set_level(c.level, prop, comm)?;
+            applications += self.tr_bdf2(prop, q, comm)?;
+            let (ratio, apps) = self.estimate(prop, comm, &mut floor)?;
+            applications += apps;
+            tracing::trace!(
+                "implicit step {} level {} pos {} ratio {ratio:.3e} its {:?}",
+                self.step + 1,
+                c.level,
+                c.pos,
+                self.last.iterations
+            );
+            let added = ratio * self.accuracy;
+            if c.after(ratio) {
+                accepted += 1;
+                error += added;
+            } else {
+                rejected += 1;
+                // back to phi_n (prop.phi's buffer is free)
+                std::mem::swap(&mut self.phi_n, &mut prop.phi);
+            }
+        }
+        self.set_level(0, prop, comm)?;
+        self.step += 1;
+        self.substeps = (accepted, rejected);
+        self.error = error;
+        tracing::debug!(
+            "implicit step {}: {accepted} TR-BDF2 steps, {rejected} rejected",
+            self.step
+        );
+        Ok(StepStats { applications })
+    }
+}
+
+impl Implicit {
+    /// One TR-BDF2 step of the current level's length from prop.phi (kept in phi_n, the
+    /// stage value in y); returns the operator applications.
+    fn tr_bdf2(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<usize> {
         let n = self.vol.len();
         let tt = self.theta_tau;
         // phi^n, and stage 1's right-hand side V phi + theta tau (W phi + 2 V Q)
@@ -454,7 +670,14 @@ impl Stepper for Implicit {
         }
         let mut y = std::mem::replace(&mut self.y, NodeField::filled(Default::default(), [0.0; 3]));
         y[..n].copy_from_slice(&self.phi_n[..n]);
-        let it1 = self.solve(prop, &mut y, comm, 1)?;
+        let it1 = self.solve(prop, &mut y, comm, 1, self.tol);
+        let it1 = match it1 {
+            Ok(it) => it,
+            Err(e) => {
+                self.y = y;
+                return Err(e);
+            }
+        };
         // stage 2: V (c1 Y - c2 phi^n) + theta tau V Q, from phi^n + (Y - phi^n) / gamma
         let g2 = GAMMA * (2.0 - GAMMA);
         let (c1, c2) = (1.0 / g2, (1.0 - GAMMA) * (1.0 - GAMMA) / g2);
@@ -472,15 +695,13 @@ impl Stepper for Implicit {
                 self.b[i as usize][d] += tt * v * qi[d];
             }
         }
-        let it2 = self.solve(prop, &mut x, comm, 2)?;
-        prop.phi = x;
         self.y = y;
-        self.step += 1;
+        let it2 = self.solve(prop, &mut x, comm, 2, self.tol);
+        prop.phi = x;
+        let it2 = it2?;
         self.last = SolveStats { iterations: [it1, it2] };
-        tracing::debug!("implicit step {}: {it1} + {it2} iterations", self.step);
-        Ok(StepStats {
-            applications: 1 + (it1 + 2) + (it2 + 2),
-        })
+        tracing::trace!("implicit step {}: {it1} + {it2} iterations", self.step + 1);
+        Ok(1 + (it1 + 2) + (it2 + 2))
     }
 }
 

@@ -74,6 +74,11 @@ pub trait Stepper {
     fn plan(&self) -> &StepPlan;
     /// Advances `prop.phi` over the plan's dt with the constant sources `q`.
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<StepStats>;
+    /// The estimated relative error ||e|| / ||phi|| the last step added (error-controlled
+    /// integrators; None for the others).
+    fn last_error(&self) -> Option<f64> {
+        None
+    }
 }
 
 /// `[model] integrator`.
@@ -138,13 +143,25 @@ impl Preconditioner {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Settings {
     pub kind: Kind,
+    /// The relative error each mechanics step may add to the potential, ||e|| / ||phi|| over
+    /// every node (`[integrator] accuracy`); infinite: no error control (the stability bound
+    /// alone sets rkl2's and implicit's steps).
+    pub accuracy: f64,
+    /// The relative residual of the implicit solves (`[integrator] tolerance`; by default
+    /// CG_SHARE times the accuracy).
     pub tolerance: f64,
     pub max_iterations: usize,
     pub max_stages: usize,
     pub preconditioner: Preconditioner,
 }
 
-pub const DEFAULT_TOLERANCE: f64 = 1e-8;
+pub const DEFAULT_ACCURACY: f64 = 1e-3;
+/// The implicit solves' default tolerance as a share of the accuracy: a solve need not be
+/// much more exact than the step it serves.
+pub const CG_SHARE: f64 = 1e-2;
+pub const DEFAULT_TOLERANCE: f64 = CG_SHARE * DEFAULT_ACCURACY;
+/// The implicit solves' default tolerance without error control (`accuracy = inf`).
+pub const UNCONTROLLED_TOLERANCE: f64 = 1e-8;
 pub const DEFAULT_MAX_ITERATIONS: usize = 2000;
 pub const DEFAULT_MAX_STAGES: usize = 4096;
 
@@ -152,6 +169,7 @@ impl Default for Settings {
     fn default() -> Self {
         Settings {
             kind: Kind::Auto,
+            accuracy: DEFAULT_ACCURACY,
             tolerance: DEFAULT_TOLERANCE,
             max_iterations: DEFAULT_MAX_ITERATIONS,
             max_stages: DEFAULT_MAX_STAGES,
@@ -170,6 +188,81 @@ pub fn euler_substep(dt: f64, h_bound: f64) -> f64 {
     }
 }
 
+/// Sums of squares over the owned rows `0..n` of every process, exact (the same bits on any
+/// number of processes and threads): K values per row.
+pub fn squares<const K: usize, F>(comm: &dyn Comm, n: usize, rows: F) -> [f64; K]
+where
+    F: Fn(usize) -> [V3; K] + Sync,
+{
+    crate::distribute::comm::exact_sums_par(comm, n, |i| rows(i).map(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+}
+
+/// The most levels (halvings of the mechanics step) the error control may take: a step of
+/// dt / 2^MAX_LEVEL that is still not accurate enough is an error that names the fixes.
+pub const MAX_LEVEL: u32 = 16;
+
+/// A step that changes phi by so little against its size is accurate whatever its estimate:
+/// relative errors below this (roundoff of the norms) are taken as zero.
+pub const ROUNDOFF: f64 = 1e-13;
+
+/// Error control over the levels of one mechanics step: sub-steps of dt / 2^level, the level
+/// raised after a rejected sub-step (by as many halvings as the estimate asks for, order `p`
+/// of the estimate in the sub-step) and lowered after a sub-step well inside the accuracy when
+/// the position allows the longer sub-step. The tolerance is per sub-step (error per step, not
+/// per unit step: the errors that force short sub-steps are those of an initial layer, which
+/// decay rather than add up). Every decision comes from globally reduced norms, so every
+/// process takes the same sub-steps; a mechanics step starts at `start` whatever the last one
+/// did, so a restarted run continues bit for bit.
+#[derive(Clone, Copy, Debug)]
+pub struct Control {
+    /// Current level and the position in the mechanics step in units of dt / 2^level.
+    pub level: u32,
+    pub pos: u64,
+    /// Error exponent: the estimate per sub-step scales like (dt / 2^level)^p.
+    p: f64,
+}
+
+impl Control {
+    pub fn new(start: u32, p: f64) -> Control {
+        Control {
+            level: start,
+            pos: 0,
+            p,
+        }
+    }
+    /// The sub-step's share of dt.
+    pub fn fraction(&self) -> f64 {
+        0.5f64.powi(self.level as i32)
+    }
+    pub fn done(&self) -> bool {
+        self.pos >= 1u64 << self.level
+    }
+    /// After a sub-step whose error over its tolerance is `ratio` (<= 1: accepted, when the
+    /// caller accepted it): whether it was accepted; the next level is set.
+    pub fn after(&mut self, ratio: f64) -> bool {
+        // the estimate scales like (length)^p: one halving divides the ratio by 2^p
+        let q = self.p.max(0.5);
+        if !(ratio <= 1.0) {
+            let halvings = if ratio.is_finite() {
+                ((ratio / 0.8).log2() / q).ceil().clamp(1.0, 8.0) as u32
+            } else {
+                4
+            };
+            self.level += halvings;
+            self.pos <<= halvings;
+            return false;
+        }
+        self.pos += 1;
+        // one level up when the longer sub-step would still be inside the accuracy (with a
+        // margin) and starts here
+        if self.level > 0 && ratio * 2f64.powf(q) < 0.5 && self.pos.is_multiple_of(2) && !self.done() {
+            self.level -= 1;
+            self.pos /= 2;
+        }
+        true
+    }
+}
+
 /// A preconditioner M ~ A^-1 of the implicit solves, applied to the owned rows.
 pub trait Precond: Send {
     /// z = M r on the owned rows (three components). Every process calls it at the same
@@ -183,5 +276,56 @@ pub trait Precond: Send {
     /// iteration's own (`choose::CG_COST`; a diagonal one is fused into it: 0).
     fn cost(&self) -> f64 {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Runs a control to the end of a step with the error ratio `ratio(level, pos)`; returns
+    /// the accepted (level, pos) in order.
+    fn walk(start: u32, ratio: impl Fn(u32, u64) -> f64) -> Vec<(u32, u64)> {
+        let mut c = Control::new(start, 3.0);
+        let mut taken = vec![];
+        let mut covered = 0.0;
+        for _ in 0..10_000 {
+            if c.done() {
+                break;
+            }
+            let (l, p, f) = (c.level, c.pos, c.fraction());
+            if c.after(ratio(l, p)) {
+                taken.push((l, p));
+                covered += f;
+            }
+        }
+        assert!(c.done() && (covered - 1.0f64).abs() < 1e-12, "{taken:?}");
+        taken
+    }
+
+    #[test]
+    fn the_control_covers_the_step_and_halves_as_the_estimate_asks() {
+        // accurate everywhere: one step of dt
+        assert_eq!(walk(0, |_, _| 0.1), vec![(0, 0)]);
+        // the error of a sub-step of dt / 2^l is 1000 / 8^l: level 4 is the first below 0.8
+        // (1000 / 4096); a rejection at level 0 asks for ceil(log2(1250) / 3) = 4 halvings
+        let t = walk(0, |l, _| 1000.0 / 8f64.powi(l as i32));
+        assert_eq!(t[0], (4, 0));
+        // once well inside (1000 / 8^4 * 8 = 1.95 > 0.5), it stays at level 4
+        assert!(t.iter().all(|&(l, _)| l == 4) && t.len() == 16, "{t:?}");
+        // an initial layer: only the first sixteenth is hard; the control climbs back up on
+        // aligned positions
+        let t = walk(0, |l, p| {
+            let start = p as f64 * 0.5f64.powi(l as i32);
+            if start < 1.0 / 16.0 {
+                1000.0 / 8f64.powi(l as i32)
+            } else {
+                1e-3
+            }
+        });
+        assert!(t.len() < 12 && t.last().unwrap().0 < 4, "{t:?}");
+        // a ratio that is not finite (a blown-up step) halves four times
+        let mut c = Control::new(0, 3.0);
+        assert!(!c.after(f64::NAN) && c.level == 4 && c.pos == 0);
     }
 }
