@@ -153,7 +153,7 @@ pub fn check(sim: &Simulation, s: &Settings) -> Result<Checked> {
     let plan = sim.step_plan();
     tracing::info!(
         "{}: Euler substep h = {:.4e} (bound {:.4e}), dt = {:.4e}, {} per step; writing {}",
-        plan.integrator,
+        plan.integrator.name(),
         plan.h,
         plan.h_bound,
         sim.dt,

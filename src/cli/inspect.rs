@@ -325,7 +325,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
             })
             .collect(),
         scheme: scheme_name(sim.setup.model.scheme()).to_string(),
-        integrator: sim.step_plan().integrator.to_string(),
+        integrator: sim.step_plan().integrator.name().to_string(),
         integrator_why: sim.step_plan().why.clone(),
         per_step: sim.step_plan().per_step_phrase(),
         stiffness: sim.stiffness(),

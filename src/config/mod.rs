@@ -21,6 +21,7 @@
 //! nodes (`select`); checked values and choices shared by sections are in `values`.
 
 mod fixed;
+pub mod integrator;
 mod loads;
 mod material;
 mod mesh;

@@ -9,7 +9,7 @@
 
 use super::values::{finite, non_negative, one, positive, yes, Precision};
 use crate::discretize::material::TissueLaw;
-use crate::propagate::integrate::{self, Kind, Preconditioner, Settings};
+use crate::config::integrator::{self, Kind, Preconditioner, Settings};
 use serde::{de::Error, Deserialize, Deserializer, Serialize};
 
 /// The scheme of the propagation operator, as the scenario spells it.
@@ -78,7 +78,7 @@ pub struct IntegratorSec {
 }
 
 fn default_accuracy() -> f64 {
-    integrate::DEFAULT_ACCURACY
+    integrator::DEFAULT_ACCURACY
 }
 
 fn accuracy<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
@@ -88,15 +88,15 @@ fn accuracy<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     } else {
         Err(D::Error::custom(format!(
             "{a} is not a relative error per step; fix: a number between 0 and 1, such as {:e} (the default), or inf for no error control",
-            integrate::DEFAULT_ACCURACY
+            integrator::DEFAULT_ACCURACY
         )))
     }
 }
 fn default_max_iterations() -> u64 {
-    integrate::DEFAULT_MAX_ITERATIONS as u64
+    integrator::DEFAULT_MAX_ITERATIONS as u64
 }
 fn default_max_stages() -> u64 {
-    integrate::DEFAULT_MAX_STAGES as u64
+    integrator::DEFAULT_MAX_STAGES as u64
 }
 
 fn tolerance<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
@@ -117,7 +117,7 @@ fn max_iterations<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
     } else {
         Err(D::Error::custom(format!(
             "must be at least 1; fix: leave it out (default {})",
-            integrate::DEFAULT_MAX_ITERATIONS
+            integrator::DEFAULT_MAX_ITERATIONS
         )))
     }
 }
@@ -129,7 +129,7 @@ fn max_stages<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
     } else {
         Err(D::Error::custom(format!(
             "rkl2 needs at least 2 stages; fix: leave it out (default {})",
-            integrate::DEFAULT_MAX_STAGES
+            integrator::DEFAULT_MAX_STAGES
         )))
     }
 }
@@ -141,9 +141,9 @@ impl IntegratorSec {
             kind,
             accuracy: self.accuracy,
             tolerance: self.tolerance.unwrap_or(if self.accuracy.is_finite() {
-                (integrate::CG_SHARE * self.accuracy).max(1e-14)
+                (integrator::CG_SHARE * self.accuracy).max(1e-14)
             } else {
-                integrate::UNCONTROLLED_TOLERANCE
+                integrator::UNCONTROLLED_TOLERANCE
             }),
             max_iterations: self.max_iterations as usize,
             max_stages: self.max_stages as usize,

@@ -2,6 +2,7 @@
 //! arithmetic that cannot wrap or saturate silently, and the size of the output it writes.
 //! `eprop check` and `eprop run` apply the same checks, so what `check` accepts runs.
 
+use crate::config::integrator::Kind;
 use crate::config::{Output, Precision, Stop};
 use crate::distribute::parts::GlobalSizes;
 use crate::propagate::integrate::StepPlan;
@@ -10,8 +11,7 @@ use anyhow::Result;
 
 /// Most mechanics steps a run may take.
 pub const MAX_STEPS: u64 = 1_000_000_000;
-/// Most substeps (or stages) of the propagation per mechanics step.
-pub const MAX_SUBSTEPS: usize = 1_000_000;
+pub use crate::propagate::integrate::MAX_SUBSTEPS;
 /// Most Euler substeps a mechanics step may stand for, whatever the integrator (the ratio of dt
 /// to the stable Euler substep; the benchmark liver has 1.8e4).
 pub const MAX_RATIO: f64 = 1e12;
@@ -85,10 +85,10 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
     // the Euler substeps one mechanics step stands for: past MAX_RATIO the operator is too
     // stiff against dt for any integrator in double precision (the implicit solve breaks down)
     let ratio = dt / (crate::simulate::SAFETY * plan.h_bound);
-    if plan.integrator != "euler" && !(ratio <= MAX_RATIO) {
+    if plan.integrator != Kind::Euler && !(ratio <= MAX_RATIO) {
         return Err(format!(
             "{path}: the mechanics step dt = {dt:.4e} spans {ratio:.3e} stable Euler substeps per mechanics step (Euler bound {:.3e} from [material] conductivity on this mesh), above the limit of {MAX_RATIO:e} for any integrator ({} included): no integrator resolves so stiff an operator in double precision; fix: a smaller [material] conductivity (check its units and the mesh's, [mesh] scale) or a smaller [time] dt",
-            plan.h_bound, plan.integrator
+            plan.h_bound, plan.integrator.name()
         ));
     }
     if plan.per_step > MAX_SUBSTEPS {
@@ -122,8 +122,8 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
     if !(plan.step.is_normal() && plan.step >= MIN_STEP) {
         return Err(format!(
             "{path}: the propagation step of {} ({}) = {:e} is below {MIN_STEP:e}; fix: check [material] conductivity and the mesh's units ([mesh] scale)",
-            plan.integrator,
-            if plan.integrator == "euler" { "its substep h" } else { "its own step" },
+            plan.integrator.name(),
+            if plan.integrator == Kind::Euler { "its substep h" } else { "its own step" },
             plan.step
         ));
     }
@@ -243,7 +243,7 @@ mod tests {
 
     fn plan(dt: f64, h: f64, per_step: usize) -> StepPlan {
         StepPlan {
-            integrator: "euler",
+            integrator: Kind::Euler,
             dt,
             h,
             step: h,
@@ -303,7 +303,7 @@ mod tests {
         // another integrator takes no Euler substep, but past 1e12 of them per step no
         // integrator resolves the operator (conductivity = 1e300 under auto)
         let mut p = plan(0.1, 1e-302, 129);
-        (p.integrator, p.step, p.h_bound) = ("implicit", 0.1, 1e-302);
+        (p.integrator, p.step, p.h_bound) = (Kind::Implicit, 0.1, 1e-302);
         let e = step_sizes(&p, false, None, "s").unwrap_err();
         assert!(
             e.contains("substeps per mechanics step") && e.contains("implicit included") && e.contains("conductivity"),

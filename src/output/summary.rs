@@ -249,7 +249,7 @@ pub fn summarize(
         processes: sim.comm.size(),
         fixed_nodes: sim.fixed_nodes,
         scheme: scheme_name(sim.setup.model.scheme()).to_string(),
-        integrator: plan.integrator.to_string(),
+        integrator: plan.integrator.name().to_string(),
         integrator_why: plan.why.clone(),
         per_step: plan.per_step_phrase(),
         h: plan.h,

@@ -38,7 +38,7 @@ impl Euler {
         };
         Ok(Euler {
             plan: StepPlan {
-                integrator: "euler",
+                integrator: super::Kind::Euler,
                 dt,
                 h: dt / substeps as f64,
                 step: dt / substeps as f64,

@@ -202,7 +202,7 @@ impl Implicit {
         let zo = || vec![[0.0; 3]; n];
         Ok(Implicit {
             plan: StepPlan {
-                integrator: "implicit",
+                integrator: super::Kind::Implicit,
                 dt,
                 h: super::euler_substep(dt, h_bound),
                 step: dt,

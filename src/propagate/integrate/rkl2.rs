@@ -168,7 +168,7 @@ impl Rkl2 {
             substeps: (0, 0),
             error: 0.0,
             plan: StepPlan {
-                integrator: "rkl2",
+                integrator: super::Kind::Rkl2,
                 dt,
                 h: super::euler_substep(dt, h_bound),
                 step: tau,
@@ -243,12 +243,12 @@ impl Rkl2 {
             }
             let tau = self.plan.dt * c.fraction();
             let (one, half) = (stages_for(tau, self.h_bound), stages_for(tau / 2.0, self.h_bound));
-            if one == usize::MAX || apps.saturating_add(one + 2 * half) > crate::guard::limits::MAX_SUBSTEPS {
+            if one == usize::MAX || apps.saturating_add(one + 2 * half) > super::MAX_SUBSTEPS {
                 bail!(
                     "{}: rkl2: step {} needs more than {} stages to keep [integrator] accuracy = {:e}; fix: use [model] integrator = \"implicit\", or loosen accuracy, or lower dt",
                     self.path,
                     self.step + 1,
-                    crate::guard::limits::MAX_SUBSTEPS,
+                    super::MAX_SUBSTEPS,
                     self.accuracy
                 );
             }

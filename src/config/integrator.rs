@@ -1,0 +1,108 @@
+//! The integrator of the propagation as a scenario names it (`[model] integrator`) and its
+//! settings (`[integrator]`), typed: the kind, the accuracy, the implicit solves' tolerance,
+//! preconditioner and limits. `propagate::integrate` builds the stepper from them.
+
+use serde::{Deserialize, Serialize};
+
+/// `[model] integrator`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    #[default]
+    Auto,
+    Euler,
+    Rkl2,
+    Implicit,
+}
+
+/// Every value of `[model] integrator`, as the scenario spells it.
+pub const KINDS: [(&str, Kind); 4] = [
+    ("auto", Kind::Auto),
+    ("euler", Kind::Euler),
+    ("rkl2", Kind::Rkl2),
+    ("implicit", Kind::Implicit),
+];
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        KINDS.iter().find(|k| k.1 == self).map(|k| k.0).unwrap_or("auto")
+    }
+}
+
+impl std::fmt::Display for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The preconditioner of the implicit solves.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Preconditioner {
+    /// Smoothed-aggregation multigrid (`multigrid`): one V-cycle per iteration; each
+    /// process's hierarchy is its own, so results agree across process counts to the solver
+    /// tolerance, not bitwise.
+    #[default]
+    Multigrid,
+    /// Diagonal: deterministic, the same bits on any number of processes.
+    Jacobi,
+    /// hypre BoomerAMG (algebraic multigrid): fewer iterations; agrees across process counts
+    /// to the solver tolerance, not bitwise.
+    Amg,
+}
+
+pub const PRECONDITIONERS: [(&str, Preconditioner); 3] = [
+    ("multigrid", Preconditioner::Multigrid),
+    ("jacobi", Preconditioner::Jacobi),
+    ("amg", Preconditioner::Amg),
+];
+
+impl Preconditioner {
+    pub fn name(self) -> &'static str {
+        PRECONDITIONERS
+            .iter()
+            .find(|k| k.1 == self)
+            .map(|k| k.0)
+            .unwrap_or("multigrid")
+    }
+}
+
+/// The integrator of a scenario with its settings, resolved (`[model] integrator` and the
+/// `[integrator]` section, both checked while the scenario is parsed).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Settings {
+    pub kind: Kind,
+    /// The relative error each mechanics step may add to the potential, ||e|| / ||phi|| over
+    /// every node (`[integrator] accuracy`); infinite: no error control (the stability bound
+    /// alone sets rkl2's and implicit's steps).
+    pub accuracy: f64,
+    /// The relative residual of the implicit solves (`[integrator] tolerance`; by default
+    /// CG_SHARE times the accuracy).
+    pub tolerance: f64,
+    pub max_iterations: usize,
+    pub max_stages: usize,
+    pub preconditioner: Preconditioner,
+}
+
+pub const DEFAULT_ACCURACY: f64 = 1e-3;
+/// The implicit solves' default tolerance as a share of the accuracy: a solve need not be
+/// much more exact than the step it serves.
+pub const CG_SHARE: f64 = 1e-2;
+pub const DEFAULT_TOLERANCE: f64 = CG_SHARE * DEFAULT_ACCURACY;
+/// The implicit solves' default tolerance without error control (`accuracy = inf`).
+pub const UNCONTROLLED_TOLERANCE: f64 = 1e-8;
+pub const DEFAULT_MAX_ITERATIONS: usize = 2000;
+pub const DEFAULT_MAX_STAGES: usize = 4096;
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            kind: Kind::Auto,
+            accuracy: DEFAULT_ACCURACY,
+            tolerance: DEFAULT_TOLERANCE,
+            max_iterations: DEFAULT_MAX_ITERATIONS,
+            max_stages: DEFAULT_MAX_STAGES,
+            preconditioner: Preconditioner::Multigrid,
+        }
+    }
+}
