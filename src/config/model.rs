@@ -8,8 +8,8 @@
 //! `values`). `Setup::model` carries it to every process and to the simulation.
 
 use super::values::{finite, non_negative, one, positive, yes, Precision};
-use crate::discretize::material::TissueLaw;
 use crate::config::integrator::{self, Kind, Preconditioner, Settings};
+use crate::discretize::material::TissueLaw;
 use serde::{de::Error, Deserialize, Deserializer, Serialize};
 
 /// The scheme of the propagation operator, as the scenario spells it.
