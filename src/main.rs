@@ -171,11 +171,14 @@ step computed, and exits with status 1. SIGTERM, SIGINT or SIGHUP stop it the sa
     Convert {
         /// Input mesh (.msh, .vtk, .vtu, .node/.ele, .mesh)
         input: PathBuf,
-        /// Output mesh (.msh or .vtu)
+        /// Output mesh (.msh or .vtu); never one of the input's files
         output: PathBuf,
         /// Refuse inverted cells instead of reorienting them
         #[arg(long)]
         strict: bool,
+        /// Replace OUTPUT if it exists (refused otherwise)
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Split a mesh's node graph for K processes and report the quality of the split.
     #[command(
@@ -217,6 +220,9 @@ B/node* = peak resident memory per node, all processes."
         /// Also write the cases as JSON to this file
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Replace the --json file if it exists (refused otherwise)
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Write a scenario's compact operator L (with its diagonal) as CSR in HDF5, for comparisons.
     #[command(
@@ -228,14 +234,20 @@ nodes. One explicit substep is x <- x + h L x; scripts/bench_petsc.py times it w
     ExportOperator {
         /// Scenario file (TOML); its mesh, material and fixed set define L
         scenario: PathBuf,
-        /// Output file (.h5)
+        /// Output file (.h5); never one of the scenario's inputs
         #[arg(short, long)]
         output: PathBuf,
+        /// Replace the output file if it exists (refused otherwise)
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Generate a mesh: the paper's cylinder or a box.
     Mesh {
         #[command(subcommand)]
         shape: Shape,
+        /// Replace the output file if it exists (refused otherwise)
+        #[arg(long, global = true)]
+        overwrite: bool,
     },
 }
 
@@ -405,7 +417,12 @@ fn real_main(cli: Cli) -> Result<()> {
             let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
             print(&inspect::mesh_info(&m), json)?;
         }
-        Cmd::Convert { input, output, strict } => {
+        Cmd::Convert {
+            input,
+            output,
+            strict,
+            overwrite,
+        } => {
             let inputs: Vec<eprop::guard::safety::Input> = eprop_io::mesh_files(&input)
                 .into_iter()
                 .map(|p| eprop::guard::safety::Input {
@@ -413,7 +430,7 @@ fn real_main(cli: Cli) -> Result<()> {
                     path: p,
                 })
                 .collect();
-            eprop::guard::safety::refuse_inputs(&output, "the converted mesh (OUTPUT)", &inputs)?;
+            let _lock = eprop::guard::safety::claim_file(&output, "the converted mesh (OUTPUT)", &inputs, overwrite)?;
             let m = eprop_io::read_mesh_with(&input, &eprop_io::ReadOptions { strict })?;
             for w in &m.warnings {
                 eprintln!("warning: {w}");
@@ -425,9 +442,21 @@ fn real_main(cli: Cli) -> Result<()> {
             let m = eprop_io::read_mesh(&mesh)?;
             print(&inspect::partition_report(&m, parts)?, json)?;
         }
-        Cmd::Bench { cells, schemes, json } => {
-            let (root, cases) = launch(|world| {
+        Cmd::Bench {
+            cells,
+            schemes,
+            json,
+            overwrite,
+        } => {
+            let (root, cases, _lock) = launch(|world| {
                 let root = is_root(world.as_ref());
+                // the --json file is claimed before the measurement (rank 0 writes it)
+                let lock = eprop::distribute::launch::on_root(world.as_ref(), || {
+                    json.as_ref()
+                        .map(|j| eprop::guard::safety::claim_file(j, "the JSON file (--json)", &[], overwrite))
+                        .transpose()
+                })?
+                .flatten();
                 if root {
                     println!("{}", bench::header());
                 }
@@ -439,6 +468,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 Ok((
                     root,
                     bench::bench(world, &cells, &schemes, &std::env::temp_dir(), report)?,
+                    lock,
                 ))
             })?;
             if let (true, Some(j)) = (root, json) {
@@ -446,11 +476,24 @@ fn real_main(cli: Cli) -> Result<()> {
                     .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", j.display()))?;
             }
         }
-        Cmd::ExportOperator { scenario, output } => {
-            println!("{}", inspect::export_operator(&scenario, &output)?);
+        Cmd::ExportOperator {
+            scenario,
+            output,
+            overwrite,
+        } => {
+            // one writer: rank 0 builds and writes the operator, the other processes wait
+            let report = launch(|world| {
+                eprop::distribute::launch::on_root(world.as_ref(), || {
+                    inspect::export_operator(&scenario, &output, overwrite)
+                })
+            })?;
+            if let Some(r) = report {
+                println!("{r}");
+            }
         }
-        Cmd::Mesh { shape } => {
+        Cmd::Mesh { shape, overwrite } => {
             let (mesh, out) = generate(shape)?;
+            let _lock = eprop::guard::safety::claim_file(&out, "the mesh file (-o)", &[], overwrite)?;
             eprop_io::write_mesh(&mesh, &out)?;
             println!("{}: {} nodes, {} cells", out.display(), mesh.n_nodes(), mesh.n_cells());
         }

@@ -77,6 +77,22 @@ fn resolve(scenario: Scenario, opts: &RunOptions) -> Result<Setup> {
     Ok(setup)
 }
 
+/// The command that continues this job's series and finishes the job: the options given that
+/// change the job (--steps, --force, -q) are kept.
+fn again(scenario: &Path, file: &Path, procs: usize, opts: &RunOptions) -> String {
+    let mut o = vec![];
+    if let Some(n) = opts.steps {
+        o.push(format!("--steps {n}"));
+    }
+    if opts.force {
+        o.push("--force".into());
+    }
+    if opts.quiet {
+        o.push("-q".into());
+    }
+    safety::restart_command(scenario, file, procs, &o)
+}
+
 /// Reads and resolves a scenario with the command-line overrides applied.
 pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
     let scenario = Scenario::load(path)?;
@@ -112,7 +128,7 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
         Some(_) => {}
         None => {
             let overwrite = opts.overwrite || scenario.file.output.overwrite;
-            let again = safety::restart_command(path, &file, 1);
+            let again = again(path, &file, 1, opts);
             safety::check_existing(&file, &role, overwrite, &again)?;
         }
     }
@@ -216,7 +232,7 @@ fn run_simulation(
     let file = sim.setup.output.file.clone();
     let scenario = sim.setup.scenario.path.clone();
     let procs = sim.comm.size();
-    let again = safety::restart_command(&scenario, &file, procs);
+    let again = again(&scenario, &file, procs, opts);
     let root = sim.comm.rank() == 0;
     let show = root && !opts.quiet;
     let space = |sim: &Simulation, budget: &Budget| {
