@@ -64,7 +64,8 @@ results. Run under mpirun for several processes; --restart FILE continues an int
 from its last complete step (not with tools).\n\n\
 Safety: an output that is one of the run's inputs is refused; an existing series is replaced\n\
 only with --overwrite, any other existing file never; one run writes a file at a time (a lock,\n\
-<output>.lock); a run whose output would not fit on its disk is refused (--force starts it\n\
+<output>.lock, and an inode lock: links to a series being written are refused too); --restart\n\
+refuses a changed scenario, mesh or table; a run whose output would not fit on its disk is refused (--force starts it\n\
 anyway). SIGTERM, SIGINT and SIGHUP stop the run after a complete, written step.\n\
 Exit status: 0 done, 1 error or refusal (or a state that is no longer finite), 2 bad command\n\
 line, 3 stopped by a signal (continue with --restart), 4 the output could not be written\n\
@@ -229,7 +230,9 @@ B/node* = peak resident memory per node, all processes."
         long_about = "Write the compact operator L of a scenario (mesh, conductivity, fixed set) as a \
 CSR matrix in HDF5: datasets row_ptr, col, val over the nodes in input order, the diagonal \
 included (rows of fixed nodes are empty), and attributes h (the substep eprop would use) and \
-nodes. One explicit substep is x <- x + h L x; scripts/bench_petsc.py times it with PETSc."
+nodes. One explicit substep is x <- x + h L x; scripts/bench_petsc.py times it with PETSc.\n\n\
+An existing output file is replaced only with --overwrite; the output is never one of the \
+scenario's inputs nor a series a run is writing. Under mpirun rank 0 builds and writes the file."
     )]
     ExportOperator {
         /// Scenario file (TOML); its mesh, material and fixed set define L
