@@ -275,6 +275,7 @@ fn run_simulation(
         }
     }
     let mut series = Series::start(&mut sim, &sizes, !fresh, io_comm).map_err(|e| match fresh {
+        true if file.exists() => write_failed(e, "nothing was written; the file is left as it is", "run again"),
         true => write_failed(e, "nothing was written (the unfinished file was removed)", "run again"),
         false => write_failed(e, "the file holds what it held", "restart again"),
     })?;

@@ -198,6 +198,14 @@ impl Series {
                 }
                 Err(e)
             }
+            // the creation itself failed (a full disk at the superblock): an empty file it
+            // left holds nothing of anyone's and goes too; any other file stays as it is
+            Err(e) if e.downcast_ref::<WriteFailed>().is_some() => {
+                if sim.comm.rank() == 0 && std::fs::symlink_metadata(&file).is_ok_and(|m| m.is_file() && m.len() == 0) {
+                    let _ = std::fs::remove_file(&file);
+                }
+                Err(e)
+            }
             other => other,
         }
     }
