@@ -1172,3 +1172,24 @@ fn a_creation_that_fails_on_a_tiny_disk_leaves_no_file_when_it_says_so() {
         assert!(!disk.path().join("o.h5.lock").exists());
     }
 }
+
+#[test]
+fn the_existing_series_refusal_advises_restart_only_where_restart_works() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    for f in ["cylinder_indent.toml", "cylinder_indent_path.csv", "cylinder.msh"] {
+        std::fs::copy(root.join(f), dir.join(f)).unwrap();
+    }
+    let sc = dir.join("cylinder_indent.toml");
+    let h5 = dir.join("tool.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "2"]));
+    let o = eprop(1, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "2"]);
+    refused(&o, 1, &["holds an eprop series", "--overwrite"]);
+    assert!(!stderr(&o).contains("--restart"), "{}", stderr(&o));
+    let plain = cylinder(dir, "s.toml", "", 2);
+    let h5 = dir.join("plain.h5");
+    ok(&eprop(1, &["run", s(&plain), "-q", "-o", s(&h5)]));
+    let o = eprop(1, &["run", s(&plain), "-q", "-o", s(&h5)]);
+    refused(&o, 1, &["continue it with `eprop run", "--restart"]);
+}

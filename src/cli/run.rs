@@ -128,7 +128,11 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
         Some(_) => {}
         None => {
             let overwrite = opts.overwrite || scenario.file.output.overwrite;
-            let again = again(path, &file, 1, opts);
+            // --restart cannot continue a scenario with tools: not advised then
+            let again = match scenario.file.tool.is_empty() {
+                true => again(path, &file, 1, opts),
+                false => String::new(),
+            };
             safety::check_existing(&file, &role, overwrite, &again)?;
         }
     }

@@ -75,7 +75,8 @@ pub fn refuse_inputs(out: &Path, role: &str, inputs: &[Input]) -> Result<()> {
 }
 
 /// Refuses to replace an existing file, unless it is an eprop series and `overwrite` is set.
-/// `role` names how the path was given; `restart` is the command that would continue it.
+/// `role` names how the path was given; `restart` is the command that would continue it (empty
+/// when none can: the advice then leaves it out).
 pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -> Result<()> {
     let Ok(meta) = std::fs::metadata(path) else {
         return Ok(());
@@ -91,10 +92,17 @@ pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -
             tracing::info!("{}: replacing a series of {steps} steps (--overwrite)", path.display());
             Ok(())
         }
-        Kind::Series { steps, .. } => bail!(
-            "{}: {role} exists and holds an eprop series of {steps} complete step(s); eprop does not replace it silently; fix: continue it with `{restart}`, replace it with --overwrite (or [output] overwrite = true), or write another file with -o FILE.h5",
-            path.display()
-        ),
+        Kind::Series { steps, .. } => {
+            let continue_it = if restart.is_empty() {
+                String::new()
+            } else {
+                format!("continue it with `{restart}`, ")
+            };
+            bail!(
+                "{}: {role} exists and holds an eprop series of {steps} complete step(s); eprop does not replace it silently; fix: {continue_it}replace it with --overwrite (or [output] overwrite = true), or write another file with -o FILE.h5",
+                path.display()
+            )
+        }
         other => {
             let what = if other == Kind::NotHdf5 {
                 "is not an HDF5 file"
