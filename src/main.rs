@@ -113,7 +113,9 @@ step k (time k dt) waits until the client has sent a sample of every live input 
 in a table: a session is reproducible bit for bit. After bye the inputs hold their last samples \
 and the run goes on to its stop condition. A malformed message, a second client, or no sample \
 within --timeout seconds gets an error message; the run then stops, ends the series with the last \
-step computed, and exits with status 1. SIGTERM, SIGINT or SIGHUP stop it the same way with status 3 (also while it waits for the client); a failed write with status 4. Under mpirun rank 0 holds the socket."
+step computed, and exits with status 1. SIGTERM, SIGINT or SIGHUP stop it the same way with status 3 (also while it waits for the client); a failed write or a full disk with status 4; a state that is no longer finite (NaN or inf) with status 1, as `eprop run` stops. \
+Every check of `eprop run` applies (the output claims, the limits on steps, substeps and step sizes, the free space): a refused run \
+ends before the `listening on` line. Under mpirun rank 0 holds the socket."
     )]
     Serve {
         /// Scenario file (TOML) with at least one `live = true` tool or load
@@ -143,6 +145,10 @@ step computed, and exits with status 1. SIGTERM, SIGINT or SIGHUP stop it the sa
         /// Replace the series in the output file if there is one (never a file of another kind)
         #[arg(long)]
         overwrite: bool,
+        /// Start even when the estimated output exceeds the free space of its disk (the run
+        /// then writes until the disk refuses, and stops cleanly)
+        #[arg(long)]
+        force: bool,
     },
     /// Validate a scenario without running it and print what it derives: counts, fixed and
     /// loaded nodes, h, dt, substeps, estimated run time, memory and output size.
@@ -388,6 +394,7 @@ fn real_main(cli: Cli) -> Result<()> {
             quiet,
             progress_every,
             overwrite,
+            force,
         } => {
             if !(timeout > 0.0 && timeout <= 1e9) {
                 bail!("--timeout {timeout:?}: must be a positive number of seconds (at most 1e9); fix: give, say, --timeout 10");
@@ -401,7 +408,7 @@ fn real_main(cli: Cli) -> Result<()> {
                     quiet: quiet || json,
                     restart: None,
                     overwrite,
-                    force: false,
+                    force,
                     progress_every,
                 },
             };

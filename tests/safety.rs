@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::assert_same;
+use common::{assert_same, Tmpfs};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -680,77 +680,6 @@ fn sigterm_on_2_ranks_stops_after_one_step_and_the_restart_is_bit_for_bit() {
     let o = finish(run, 120, "the interrupted run");
     refused(&o, 3, &["stopped by SIGINT", "continue with `eprop run"]);
     assert!(last_step(&one).1);
-}
-
-/// A tmpfs of `size` mounted in a temporary directory, unmounted when dropped; None (said and
-/// logged) where mounting is not permitted.
-struct Tmpfs {
-    dir: tempfile::TempDir,
-}
-
-impl Tmpfs {
-    fn mount(size: &str) -> Option<Tmpfs> {
-        let dir = tempfile::tempdir().unwrap();
-        let st = Command::new("mount")
-            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
-            .arg(dir.path())
-            .output();
-        match st {
-            Ok(o) if o.status.success() => Some(Tmpfs { dir }),
-            Ok(o) => {
-                common::unsupported(&format!(
-                    "cannot mount a tmpfs ({}): the full-disk cases did not run",
-                    String::from_utf8_lossy(&o.stderr).trim()
-                ));
-                None
-            }
-            Err(e) => {
-                common::unsupported(&format!("no `mount` ({e}): the full-disk cases did not run"));
-                None
-            }
-        }
-    }
-    fn path(&self) -> &Path {
-        self.dir.path()
-    }
-    /// Fills the file system (a filler file takes every free byte).
-    fn fill(&self) -> PathBuf {
-        use std::io::Write;
-        let p = self.path().join("filler");
-        let mut f = std::fs::OpenOptions::new().create(true).append(true).open(&p).unwrap();
-        let block = vec![0u8; 4096];
-        let e = loop {
-            if let Err(e) = f.write_all(&block) {
-                break e;
-            }
-        };
-        // only a full disk ends the filler (ENOSPC = 28 on Linux)
-        assert_eq!(e.raw_os_error(), Some(28), "filling {}: {e}", p.display());
-        let _ = f.sync_all();
-        p
-    }
-    /// Fills the file system, then frees `bytes` of the filler: the disk has about that much
-    /// room (checked with statvfs).
-    fn leave_free(&self, bytes: u64) -> PathBuf {
-        let p = self.fill();
-        let f = std::fs::OpenOptions::new().write(true).open(&p).unwrap();
-        f.set_len(std::fs::metadata(&p).unwrap().len() - bytes).unwrap();
-        f.sync_all().unwrap();
-        drop(f);
-        let free = eprop_series::outcome::free_bytes(self.path()).unwrap();
-        assert!(
-            free <= bytes + 64 * 1024,
-            "{}: {free} bytes free after leaving {bytes}",
-            self.path().display()
-        );
-        p
-    }
-}
-
-impl Drop for Tmpfs {
-    fn drop(&mut self) {
-        let _ = Command::new("umount").arg("-l").arg(self.dir.path()).status();
-    }
 }
 
 #[test]

@@ -547,3 +547,277 @@ fn sigterm_while_the_client_is_quiet_stops_every_process_and_keeps_the_series() 
         holds_steps_to_12(&out);
     }
 }
+
+/// The rows of both tables in time order, as (message kind, row).
+fn in_time_order(path: &[[f64; 4]], force: &[[f64; 4]]) -> Vec<(u32, [f64; 4])> {
+    let mut all: Vec<(u32, [f64; 4])> = path.iter().map(|r| (p::kind::POSE, *r)).collect();
+    all.extend(force.iter().map(|r| (p::kind::FORCE, *r)));
+    all.sort_by(|a, b| a.1[0].total_cmp(&b.1[0]));
+    all
+}
+
+/// Sends rows until the server answers with an error, which it returns (the server must send
+/// one, at the latest after the last row).
+fn until_error(c: &mut Client, rows: &[(u32, [f64; 4])]) -> (u32, String) {
+    for (kind, r) in rows {
+        c.raw(&p::client_message(*kind, 0, r[0], [r[1], r[2], r[3]]));
+        match c.reply() {
+            Reply::Answer(_) => {}
+            Reply::Error { code, message } => return (code, message),
+            r => panic!("{r:?}"),
+        }
+    }
+    c.error()
+}
+
+/// A live load of -1e300 turns the state non-finite: the served run stops as `eprop run` stops
+/// on the same samples in a table (status 1, the same message), and the client gets error 8.
+#[test]
+fn a_live_load_that_turns_the_state_non_finite_stops_the_session_as_it_stops_a_run() {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, path, _) = scenario(d.path(), "");
+    let force: Vec<[f64; 4]> = (0..=30).map(|k| [k as f64 * 1.7, 0.0, 0.0, -1e300]).collect();
+    let csv: String = std::iter::once("t,fx,fy,fz\n".to_string())
+        .chain(force.iter().map(|r| format!("{},{},{},{}\n", r[0], r[1], r[2], r[3])))
+        .collect();
+    std::fs::write(d.path().join("force.csv"), csv).unwrap();
+    let out = d.path().join("nan.h5");
+    let o = common::serial(&["run", sc.to_str().unwrap(), "-q", "-o", out.to_str().unwrap()], 1);
+    let batch = String::from_utf8_lossy(&o.stderr).trim().to_string();
+    assert_eq!(o.status.code(), Some(1), "{batch}");
+    assert!(
+        batch.contains("no longer finite (NaN or inf)") && batch.contains("Likely cause: load 1"),
+        "{batch}"
+    );
+    let rows = in_time_order(&path, &force);
+    for ranks in [1, 2] {
+        let server = serve(ranks, &sc, &out, &["--timeout", "30"]);
+        let mut c = Client::connect(&server.addr);
+        c.hello();
+        let (code, message) = until_error(&mut c, &rows);
+        assert_eq!(code, 8, "{message}");
+        assert!(message.contains("no longer finite (NaN or inf)"), "{message}");
+        let (status, err) = server.finish_status(60);
+        assert_eq!(status, Some(1), "{ranks} ranks: {err}");
+        assert!(err.contains(&batch), "{ranks} ranks: `{batch}` is not in: {err}");
+        let (step, finite) = {
+            let k = common::steps_complete(&out) as usize;
+            let f = hdf5::File::open(&out).unwrap();
+            let step = f.dataset("eprop/probes/step").unwrap().read_raw::<i64>().unwrap()[k - 1];
+            let u = eprop_series::vtkhdf::read_step(&out, "displacement", k - 1).unwrap();
+            (step, u.iter().all(|x| x.is_finite()))
+        };
+        assert!(finite, "step {step} of the series is not finite");
+    }
+}
+
+/// A full disk: when the series is created (the disk filled once the server listens) and in
+/// the middle of a session; the server ends with status 4 and the client gets error 8.
+#[test]
+fn a_full_disk_at_creation_and_mid_session_ends_with_status_4() {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, _, _) = scenario(d.path(), "");
+    let Some(disk) = common::Tmpfs::mount("16m") else {
+        return;
+    };
+    let out = disk.path().join("live.h5");
+    // at creation: the estimate fits, then a filler takes the disk before step 0's samples
+    let server = serve(1, &sc, &out, &["--timeout", "30"]);
+    let filler = disk.fill();
+    let mut c = Client::connect(&server.addr);
+    c.hello();
+    let (code, message) = until_error(
+        &mut c,
+        &[(p::kind::FORCE, [0.0; 4]), (p::kind::POSE, [0.0, 1.6, 0.0, 2.0])],
+    );
+    assert_eq!(code, 8, "{message}");
+    assert!(
+        message.contains("could not be created") && message.contains("ENOSPC"),
+        "{message}"
+    );
+    let (status, err) = server.finish_status(60);
+    assert_eq!(status, Some(4), "{err}");
+    assert!(
+        err.contains("no space left on device (ENOSPC)")
+            && err.contains("nothing was written")
+            && err.contains("fix: free space"),
+        "{err}"
+    );
+    std::fs::remove_file(&filler).unwrap();
+    let _ = std::fs::remove_file(&out);
+    // mid-session: the disk fills while the client drives
+    for ranks in [1, 2] {
+        let server = serve(ranks, &sc, &out, &["--timeout", "30"]);
+        let mut c = Client::connect(&server.addr);
+        c.hello();
+        catch_up(&mut c);
+        let filler = disk.fill();
+        let rows: Vec<(u32, [f64; 4])> = (1..2000)
+            .flat_map(|k| {
+                let t = 10.0 + 0.05 * k as f64;
+                [
+                    (p::kind::POSE, [t, 1.5, 0.0, 2.0]),
+                    (p::kind::FORCE, [t + 20.0, 0.0, -0.05, 0.0]),
+                ]
+            })
+            .collect();
+        let (code, message) = until_error(&mut c, &rows);
+        assert_eq!(code, 8, "{message}");
+        assert!(message.contains("the disk is full (ENOSPC)"), "{message}");
+        let (status, err) = server.finish_status(60);
+        assert_eq!(status, Some(4), "{ranks} ranks: {err}");
+        assert!(
+            err.contains("the disk is full")
+                && err.contains("complete output steps")
+                && err.contains("fix: free space"),
+            "{err}"
+        );
+        assert_eq!(err.matches("ENOSPC").count(), 1, "one message: {err}");
+        holds_steps_to_12(&out);
+        std::fs::remove_file(&filler).unwrap();
+        std::fs::remove_file(&out).unwrap();
+    }
+}
+
+/// `eprop serve ARGS` that must be refused before it says it listens: status 1, every needle
+/// in its message.
+fn refused_before_listening(args: &[&str], needles: &[&str]) {
+    let mut all = vec!["serve"];
+    all.extend(args);
+    all.extend(["--listen", "127.0.0.1:0", "--timeout", "2", "-q"]);
+    let o = common::serial(&all, 1);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+    assert!(
+        !err.contains("listening on"),
+        "{args:?} listened before it refused: {err}"
+    );
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: `{n}` is not in: {err}");
+    }
+}
+
+/// Every refusal of a served run comes before the `listening on` line: the step limits and
+/// the free space (as `eprop run` checks them), an output that is an input or an existing
+/// series, no live input, more than 32.
+#[test]
+fn a_served_run_is_refused_before_it_listens_and_respects_the_limits() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let (sc, _, _) = scenario(dir, "");
+    let sc = sc.to_str().unwrap();
+    let out = dir.join("live.h5");
+    let o = out.to_str().unwrap();
+    refused_before_listening(
+        &[sc, "-o", o, "--steps", "1000000001"],
+        &[
+            "--steps = 1,000,000,001 steps, above the limit of 1,000,000,000",
+            "fix:",
+        ],
+    );
+    refused_before_listening(
+        &[sc, "-o", o, "--steps", "1000000000"],
+        &["the run would write about", "free", "--force"],
+    );
+    assert!(!out.exists());
+    let mesh = dir.join("cyl.msh");
+    refused_before_listening(&[sc, "-o", mesh.to_str().unwrap()], &["is the mesh", "fix:"]);
+    refused_before_listening(
+        &[sc, "-o", dir.join("path.csv").to_str().unwrap()],
+        &["is the path table of [[tool]] 1"],
+    );
+    batch(Path::new(sc), &out);
+    refused_before_listening(&[sc, "-o", o], &["holds an eprop series", "--overwrite"]);
+    let text = std::fs::read_to_string(sc).unwrap();
+    std::fs::write(dir.join("none.toml"), text.replace("live = true", "live = false")).unwrap();
+    refused_before_listening(
+        &[dir.join("none.toml").to_str().unwrap(), "-o", o, "--overwrite"],
+        &["no [[tool]] or [[load]] has `live = true`"],
+    );
+    let loads: String = (0..33)
+        .map(|k| {
+            format!(
+                "[[load]]\nnearest = [1.0, 0.0, {}]\nforce = [-0.01, 0.0, 0.0]\nlive = true\n",
+                1.0 + 0.05 * k as f64
+            )
+        })
+        .collect();
+    std::fs::write(
+        dir.join("many.toml"),
+        format!("[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n{loads}[time]\nend = 5\n"),
+    )
+    .unwrap();
+    refused_before_listening(
+        &[dir.join("many.toml").to_str().unwrap(), "-o", o, "--overwrite"],
+        &["load 33 is live, but only the first 32"],
+    );
+}
+
+/// Bye before any sample of a live input: the client gets error 8 instead of a bye answer,
+/// and the server ends with status 1 and the same message.
+#[test]
+fn bye_before_any_sample_of_a_live_input_is_an_error_to_both_sides() {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, _, _) = scenario(d.path(), "");
+    let out = d.path().join("live.h5");
+    for (samples, name) in [(&[p::kind::POSE][..], "load 0"), (&[][..], "tool 0")] {
+        let server = serve(1, &sc, &out, &["--timeout", "20"]);
+        let mut c = Client::connect(&server.addr);
+        c.hello();
+        for &k in samples {
+            c.answer(k, 0, 0.5, [1.6, 0.0, 2.0]);
+        }
+        let (code, message) = match c.send(p::kind::BYE, 0, 0.0, [0.0; 3]) {
+            Reply::Error { code, message } => (code, message),
+            r => panic!("bye before any sample of {name} was answered {r:?}"),
+        };
+        assert_eq!(code, 8, "{message}");
+        let text = format!("bye before any sample of {name}");
+        assert!(message.contains(&text), "{message}");
+        let (status, err) = server.finish_status(60);
+        assert_eq!(status, Some(1), "{err}");
+        assert!(err.contains(&text) && err.contains("fix:"), "{err}");
+    }
+}
+
+/// A client that sends without reading its answers: the server, blocked on an answer, reads
+/// no more samples; it says so, not that the client sent none.
+#[test]
+fn a_client_that_does_not_read_its_answers_is_told_so() {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, _, _) = scenario(d.path(), "");
+    let server = serve(1, &sc, &d.path().join("live.h5"), &["--timeout", "1"]);
+    let mut c = Client::connect(&server.addr);
+    c.hello();
+    let mut w = c.s.try_clone().unwrap();
+    let writer = std::thread::spawn(move || {
+        // far more than the socket buffers hold, at times the physics needs one by one
+        for k in 0..2_000_000u64 {
+            let t = k as f64 * 1e-5;
+            let pose = p::client_message(p::kind::POSE, 0, t, [1.6, 0.0, 2.0]);
+            let force = p::client_message(p::kind::FORCE, 0, t, [0.0; 3]);
+            if w.write_all(&pose).and_then(|_| w.write_all(&force)).is_err() {
+                return k;
+            }
+        }
+        u64::MAX
+    });
+    std::thread::sleep(Duration::from_secs(4));
+    // what the client reads afterwards: answers, perhaps an error, then the end
+    let mut seen = Vec::new();
+    let mut b = [0u8; p::SERVER_SIZE];
+    while c.s.read_exact(&mut b).is_ok() {
+        if let Reply::Error { code, message } = p::read_reply(&b) {
+            seen.push(format!("{code}: {message}"));
+        }
+    }
+    let sent = writer.join().unwrap();
+    assert!(sent < u64::MAX, "the server read every message");
+    let (status, err) = server.finish_status(60);
+    assert_eq!(status, Some(1), "{err}");
+    assert!(err.contains("the client does not read its answers"), "{err}");
+    assert!(!err.contains("sent no sample"), "{err}");
+    for s in &seen {
+        assert!(s.contains("does not read its answers"), "{s}");
+    }
+}

@@ -2,6 +2,7 @@
 //! `info`/`check`/`partition`/`export-operator` (`inspect`), `bench`.
 
 pub mod bench;
+pub(crate) mod drive;
 pub mod inspect;
 pub mod run;
 pub mod serve;

@@ -3,22 +3,22 @@
 //!
 //! Rank 0 holds the socket in a network thread (`session`), which answers each client message
 //! at once from the latest physics results. The main thread of every process runs the
-//! physics: before step k (time t_k) rank 0 waits until the client has sent a sample of
-//! every live input at or beyond t_k (or bye) and broadcasts the new samples; every process
-//! appends them to the same histories, so step k uses the inputs interpolated at t_k exactly
-//! as a batch run with the same samples in a table does, and writes the same series.
+//! physics in the time loop of `eprop run` (`drive`), fed by the client (`Live`): before step
+//! k (time t_k) rank 0 waits until the client has sent a sample of every live input at or
+//! beyond t_k (or bye) and broadcasts the new samples; every process appends them to the same
+//! histories, so step k uses the inputs interpolated at t_k exactly as a batch run with the
+//! same samples in a table does, and writes the same series.
 
 pub mod protocol;
 pub mod session;
 
-use crate::cli::run::{prepare_claimed, write_failed, RunOptions};
+use crate::cli::drive::{self, Feed, Halt, Settings};
+use crate::cli::run::{prepare_claimed, RunOptions};
 use crate::config::tables::History;
 use crate::config::{Setup, Trajectory};
 use crate::discretize::operator::V3;
-use crate::distribute::parts::{Collective, GlobalSizes, ReportedElsewhere};
-use crate::output::progress::Progress;
-use crate::output::series::Series;
-use crate::output::summary::{summarize, Summary, Timing};
+use crate::distribute::parts::GlobalSizes;
+use crate::output::summary::Summary;
 use crate::simulate::distributed::build_mpi;
 use crate::simulate::Simulation;
 use anyhow::{anyhow, bail, Result};
@@ -67,15 +67,18 @@ impl std::fmt::Display for ServeReport {
 
 /// Binds the listening socket (rank 0, before the setup, so a busy port fails at once).
 fn bind(addr: &str) -> Result<TcpListener> {
-    let l = TcpListener::bind(addr).map_err(|e| {
+    TcpListener::bind(addr).map_err(|e| {
         anyhow!("{addr}: cannot listen: {e}; fix: give a free port of this machine as --listen HOST:PORT (port 0 picks one)")
-    })?;
+    })
+}
+
+/// Says where the server listens, once every check of the run has passed.
+fn announce(l: &TcpListener, addr: &str) {
     let at = l
         .local_addr()
         .map(|a| a.to_string())
         .unwrap_or_else(|_| addr.to_string());
     eprintln!("eprop serve: listening on {at}");
-    Ok(l)
 }
 
 /// The scenario must give the client something to drive.
@@ -110,18 +113,31 @@ pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOpti
         check_live(&setup)?;
         Ok(setup)
     };
-    let (sim, sizes, io_comm) = match world {
+    let (sim, sizes, io_comm, peak) = match world {
         None => {
             let setup = make()?;
             let sizes = GlobalSizes::of(&setup.mesh);
-            (Simulation::new(setup)?, sizes, None)
+            (Simulation::new(setup)?, sizes, None, 0)
         }
         Some(w) => {
             let b = build_mpi(w, make)?;
-            (b.sim, b.sizes, Some(b.io_comm))
+            (b.sim, b.sizes, Some(b.io_comm), b.rank0_scatter_peak)
         }
     };
-    let report = serve_simulation(sim, sizes, listener.into_inner(), io_comm.as_ref(), opts, t0);
+    let settings = Settings {
+        sizes,
+        io: io_comm.as_ref(),
+        restart: false,
+        steps_from_cli: opts.run.steps.is_some(),
+        force: opts.run.force,
+        quiet: opts.run.quiet,
+        progress_every: opts.run.progress_every,
+        again: "serve again",
+        next: "serve again".into(),
+        t0,
+        rank0_scatter_peak: peak,
+    };
+    let report = serve_simulation(sim, &settings, listener.into_inner(), opts);
     drop(claim);
     report
 }
@@ -173,15 +189,9 @@ fn forget_before(sim: &mut Simulation, t: f64) {
 }
 
 /// Rank 0 waits for the samples that cover time t and sends them to every process; every
-/// process appends them. Err: the session ended (rank 0 has the message).
-/// How the session ended before a step: rank 0's message, and the stop signal that ended it
-/// (0: the client or a timeout).
-struct Ended {
-    msg: String,
-    signal: i32,
-}
-
-fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64) -> Result<Result<(), Ended>> {
+/// process appends them. `Some`: the session ended (rank 0 has the message), with the stop
+/// signal that ended it (0: the client or a timeout).
+fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64) -> Result<Option<Halt>> {
     let got = match session {
         Some(s) => s.wait(t),
         None => Ok(Vec::new()),
@@ -194,9 +204,11 @@ fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64) -> Result
     };
     c.broadcast(0, &mut head);
     if head[0] != 0.0 {
-        let msg = got.err().unwrap_or_default();
-        return Ok(Err(Ended {
-            msg,
+        return Ok(Some(Halt {
+            message: match got {
+                Err(msg) => format!("eprop serve: {msg}"),
+                Ok(_) => String::new(),
+            },
             signal: head[2] as i32,
         }));
     }
@@ -214,7 +226,7 @@ fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64) -> Result
         .map(|s| (s[0] as u32, [s[1], s[2], s[3], s[4]]))
         .collect();
     apply(sim, &samples)?;
-    Ok(Ok(()))
+    Ok(None)
 }
 
 /// Each entity's result at the current step (every process calls: the loads' probes are
@@ -244,38 +256,57 @@ fn outcomes(sim: &Simulation, any_live_load: bool) -> Vec<Outcome> {
     out
 }
 
-/// What a series holds, for messages.
-fn keeps(series: &Series, last: u64) -> String {
-    format!(
-        "{} keeps its {} complete output steps (to step {last})",
-        series.path().display(),
-        series.steps_written()
-    )
+/// The feed of a served run: the client's samples before each step, the step's results to
+/// the client after it (rank 0 holds the session; every process calls).
+struct Live {
+    session: Option<Session>,
+    any_live_load: bool,
 }
 
-/// The error every process returns when the session ended: rank 0 prints it once; a stop
-/// signal ends every process with the stop status.
-fn ended(rank: usize, e: Ended) -> anyhow::Error {
-    let msg = e.msg;
-    if e.signal != 0 {
-        return crate::guard::safety::Agreed::error(crate::guard::safety::EXIT_STOPPED, format!("eprop serve: {msg}"));
+impl Feed for Live {
+    fn start(&mut self, sim: &mut Simulation) -> Result<Option<Halt>> {
+        let start = sim.time;
+        let halt = inputs(sim, self.session.as_mut(), start)?;
+        if halt.is_none() {
+            sim.tools_at_rest();
+        }
+        Ok(halt)
     }
-    if rank == 0 {
-        Collective(format!("eprop serve: {msg}")).into()
-    } else {
-        ReportedElsewhere.into()
+
+    fn before_step(&mut self, sim: &mut Simulation) -> Result<Option<Halt>> {
+        let t_next = (sim.step + 1) as f64 * sim.dt;
+        if let Some(h) = inputs(sim, self.session.as_mut(), t_next)? {
+            return Ok(Some(h));
+        }
+        let now = sim.time;
+        forget_before(sim, now);
+        Ok(None)
+    }
+
+    fn after_step(&mut self, sim: &Simulation) {
+        let o = outcomes(sim, self.any_live_load);
+        if let Some(s) = &self.session {
+            s.publish(&o);
+        }
+    }
+
+    fn failed(&mut self, why: &str) {
+        if let Some(s) = &self.session {
+            s.fail(why);
+        }
     }
 }
 
+/// Checks the run as `eprop run` does, then says where it listens and serves the client
+/// while the shared time loop (`drive`) steps the simulation.
 fn serve_simulation(
     mut sim: Simulation,
-    sizes: GlobalSizes,
+    settings: &Settings,
     listener: Option<TcpListener>,
-    io_comm: Option<&SimpleCommunicator>,
     opts: &ServeOptions,
-    t0: Instant,
 ) -> Result<Option<ServeReport>> {
-    let rank = sim.comm.rank();
+    // every refusal comes before the listening line
+    let checked = drive::check(&sim, settings)?;
     let ents = entities(&sim);
     let any_live_load = ents.live[ents.tools..].iter().any(|&b| b);
     // live inputs start empty: the client's samples are their history
@@ -301,119 +332,19 @@ fn serve_simulation(
         max_steps: sim.max_steps(),
     };
     let timeout = Duration::from_secs_f64(opts.timeout);
-    let mut session = match listener {
-        Some(l) => Some(
-            Session::start(l, ents.clone(), hello, timeout)
-                .map_err(|e| anyhow!("eprop serve: cannot start the network thread: {e}"))?,
-        ),
+    let session = match listener {
+        Some(l) => {
+            announce(&l, &opts.listen);
+            Some(
+                Session::start(l, ents.clone(), hello, timeout)
+                    .map_err(|e| anyhow!("eprop serve: cannot start the network thread: {e}"))?,
+            )
+        }
         None => None,
     };
-    // step 0: its inputs, then the series as in batch
-    let start = sim.time;
-    if let Err(msg) = inputs(&mut sim, session.as_mut(), start)? {
-        drop(session);
-        return Err(ended(rank, msg));
-    }
-    sim.tools_at_rest();
-    let mut series = Series::start(&mut sim, &sizes, false, io_comm).map_err(|e| {
-        write_failed(
-            e,
-            "nothing was written (the unfinished file was removed)",
-            "serve again",
-        )
-    })?;
-    let mut written = sim.step;
-    if let Some(s) = &session {
-        s.publish(&outcomes(&sim, any_live_load));
-    } else if any_live_load {
-        outcomes(&sim, any_live_load);
-    }
-    let setup_seconds = t0.elapsed().as_secs_f64();
-    let t1 = Instant::now();
-    let every = sim.setup.output.every;
-    let mut progress = Progress::new(
-        rank == 0 && !opts.run.quiet,
-        sim.step,
-        sim.max_steps(),
-        opts.run.progress_every,
-    );
-    let mut failure = None;
-    while !sim.done() {
-        let t_next = (sim.step + 1) as f64 * sim.dt;
-        if let Err(msg) = inputs(&mut sim, session.as_mut(), t_next)? {
-            failure = Some(msg);
-            break;
-        }
-        let now = sim.time;
-        forget_before(&mut sim, now);
-        if let Err(e) = sim.advance() {
-            if let Some(s) = &session {
-                s.fail(&format!("the run failed: {e:#}"));
-            }
-            return Err(e);
-        }
-        // a stop signal rides on the step's reduction: every process stops after this step
-        let stop = sim.stop_signal;
-        if sim.step.is_multiple_of(every) || sim.done() || stop != 0 {
-            if let Err(e) = series.append(&sim) {
-                let e = write_failed(e, &keeps(&series, written), "serve again");
-                if let Some(s) = &session {
-                    s.fail(&format!("the series could not be written: {e:#}"));
-                }
-                return Err(e);
-            }
-            written = sim.step;
-        }
-        let o = outcomes(&sim, any_live_load);
-        if let Some(s) = &session {
-            s.publish(&o);
-        }
-        progress.update(sim.step, sim.max_speed);
-        if stop != 0 {
-            progress.finish();
-            let msg = format!(
-                "eprop serve: stopped by {} after step {} of {}: {}",
-                crate::guard::signals::name(stop),
-                sim.step,
-                sim.max_steps(),
-                keeps(&series, written)
-            );
-            if let Some(s) = &session {
-                s.fail(&msg);
-            }
-            drop(session);
-            return Err(crate::guard::safety::Agreed::error(
-                crate::guard::safety::EXIT_STOPPED,
-                msg,
-            ));
-        }
-    }
-    progress.finish();
-    // the series ends with the last step computed, whatever the client did
-    if written != sim.step {
-        series
-            .append(&sim)
-            .map_err(|e| write_failed(e, &keeps(&series, written), "serve again"))?;
-    }
-    if let Some(mut e) = failure {
-        drop(session);
-        if e.signal != 0 {
-            e.msg = format!("{}; {}", e.msg, keeps(&series, sim.step));
-        }
-        return Err(ended(rank, e));
-    }
-    let timing = Timing {
-        setup_seconds,
-        wall_seconds: t1.elapsed().as_secs_f64(),
-        restarted_from_step: None,
-        rank0_scatter_peak: 0,
-    };
-    let warnings = match &sim.global {
-        Some(mesh) => crate::guard::plausible::load_warnings(&sim, mesh),
-        None => vec![],
-    };
-    let summary = summarize(&sim, &sizes, &series, timing, warnings);
-    let session = session.map(Session::finish);
+    let mut feed = Live { session, any_live_load };
+    let summary = drive::drive(sim, &mut feed, settings, checked)?;
+    let session = feed.session.map(Session::finish);
     Ok(summary
         .zip(session)
         .map(|(summary, session)| ServeReport { summary, session }))

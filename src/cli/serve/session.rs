@@ -16,6 +16,12 @@ use std::time::{Duration, Instant};
 /// How often the network thread looks at the listener and the run while the client is quiet.
 const TICK: Duration = Duration::from_millis(5);
 
+/// An answer not sent within this time is stuck: the client does not read.
+const STUCK: Duration = Duration::from_millis(100);
+
+/// What a client that sends without reading its answers is told.
+const NOT_READING: &str = "the client does not read its answers: the server could not send one";
+
 /// The tools and loads of the run, tools first: entity k < tools is tool k, entity
 /// tools + l is load l.
 #[derive(Clone, Debug)]
@@ -71,6 +77,10 @@ struct State {
     answers: u64,
     /// Why the session ended, once it has.
     ended: Option<String>,
+    /// Since when the network thread has been sending an answer (None: it is not sending).
+    /// A send that does not finish means the client does not read: meanwhile the thread
+    /// reads none of the client's samples.
+    sending: Option<Instant>,
 }
 
 type Shared = Arc<(Mutex<State>, Condvar)>;
@@ -127,6 +137,7 @@ impl Session {
                 messages: 0,
                 answers: 0,
                 ended: None,
+                sending: None,
             }),
             Condvar::new(),
         ));
@@ -160,21 +171,21 @@ impl Session {
             let missing = (0..self.ents.live.len()).find(|&e| self.ents.live[e] && !(g.latest[e] >= t));
             match missing {
                 None => break Ok(std::mem::take(&mut g.pending)),
-                Some(e) if g.phase == Phase::Bye => {
-                    if g.latest[e] == f64::NEG_INFINITY {
-                        let msg = format!(
-                            "the client said bye before sending any sample of {}; the run has no input for it",
-                            self.ents.name(e)
-                        );
-                        fail(&mut g, Code::Server, &msg);
-                        break Err(msg);
-                    }
-                    break Ok(std::mem::take(&mut g.pending));
-                }
+                // after bye every live input holds its last sample (a bye before any sample
+                // of one ended the session instead: `serve_client`)
+                Some(_) if g.phase == Phase::Bye => break Ok(std::mem::take(&mut g.pending)),
                 Some(e) => {
                     let left = self.timeout.saturating_sub(start.elapsed());
                     if left.is_zero() {
-                        let msg = if g.phase == Phase::Waiting {
+                        let unread = g.sending.filter(|&since| since <= start || since.elapsed() >= STUCK);
+                        let msg = if let Some(since) = unread {
+                            format!(
+                                "{} (for {:.1} s), so it read none of the samples sent since; the next step needs one of {} at or beyond t = {t}; fix: read the answer to every message",
+                                NOT_READING,
+                                since.elapsed().as_secs_f64(),
+                                self.ents.name(e)
+                            )
+                        } else if g.phase == Phase::Waiting {
                             format!(
                                 "no client connected within {} s; fix: start the client or raise --timeout",
                                 self.timeout.as_secs_f64()
@@ -496,6 +507,18 @@ fn serve_client(
             Message::Bye => {
                 let mut g = lock(shared);
                 g.messages += 1;
+                // an input without any sample has no value to hold: the run cannot go on,
+                // and the client hears so instead of a bye answer
+                if let Some(e) = (0..ents.live.len()).find(|&e| ents.live[e] && g.latest[e] == f64::NEG_INFINITY) {
+                    drop(g);
+                    return End::Error(
+                        Some(Code::Server),
+                        format!(
+                            "bye before any sample of {}: the run has no input for it; fix: send a sample of every live tool and load before bye",
+                            ents.name(e)
+                        ),
+                    );
+                }
                 if g.phase == Phase::Connected {
                     g.phase = Phase::Bye;
                 }
@@ -552,6 +575,7 @@ fn serve_client(
         let (te, force, displacement) = extrapolate(&g.results[e], t);
         let last = g.results[e].1;
         g.answers += 1;
+        g.sending = Some(Instant::now());
         drop(g);
         cv.notify_all();
         let a = p::Answer {
@@ -563,8 +587,17 @@ fn serve_client(
             force,
             displacement,
         };
-        if !send(stream, &p::answer(&a)) {
-            return End::Error(None, "the client stopped reading answers".into());
+        let sent = stream.write_all(&p::answer(&a));
+        lock(shared).sending = None;
+        if let Err(e) = sent {
+            let msg = match e.kind() {
+                ErrorKind::WouldBlock | ErrorKind::TimedOut => format!(
+                    "{NOT_READING} within {} s; fix: read the answer to every message",
+                    timeout.as_secs_f64()
+                ),
+                _ => format!("the client left while the server sent an answer ({e})"),
+            };
+            return End::Error(None, msg);
         }
     }
 }
