@@ -67,7 +67,8 @@ results. Run under mpirun for several processes; --restart FILE continues an int
 from its last complete step (not with tools).\n\n\
 Safety: an output that is one of the run's inputs is refused; an existing series is replaced\n\
 only with --overwrite, any other existing file never; one run writes a file at a time (a lock,\n\
-<output>.lock); a run whose output would not fit on its disk is refused (--force starts it\n\
+<output>.lock, and an inode lock: links to a series being written are refused too); --restart\n\
+refuses a changed scenario, mesh or table; a run whose output would not fit on its disk is refused (--force starts it\n\
 anyway). SIGTERM, SIGINT and SIGHUP stop the run after a complete, written step.\n\
 Exit status: 0 done, 1 error or refusal (or a state that is no longer finite), 2 bad command\n\
 line, 3 stopped by a signal (continue with --restart), 4 the output could not be written\n\
@@ -184,11 +185,14 @@ ends before the `listening on` line. Under mpirun rank 0 holds the socket."
     Convert {
         /// Input mesh (.msh, .vtk, .vtu, .node/.ele, .mesh)
         input: PathBuf,
-        /// Output mesh (.msh or .vtu)
+        /// Output mesh (.msh or .vtu); never one of the input's files
         output: PathBuf,
         /// Refuse inverted cells instead of reorienting them
         #[arg(long)]
         strict: bool,
+        /// Replace OUTPUT if it exists (refused otherwise)
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Split a mesh's node graph for K processes and report the quality of the split.
     #[command(
@@ -236,6 +240,9 @@ B/node* = peak resident memory per node, all processes."
         /// The AVX2+FMA kernel where the CPU has it (off: the portable kernel)
         #[arg(long, default_value = "on", value_parser = ["on", "off"])]
         simd: String,
+        /// Replace the --json file if it exists (refused otherwise)
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Write a scenario's compact operator L (with its diagonal) as CSR in HDF5, for comparisons.
     #[command(
@@ -244,19 +251,27 @@ CSR matrix in HDF5: datasets row_ptr, col, val over the nodes in input order, th
 included (rows of fixed nodes are empty), vol (the free nodes' control volumes V, 0 on fixed \
 rows), and attributes h (the substep eprop would use), nodes, dt (the mechanics step) and theta. \
 One explicit substep is x <- x + h L x; the implicit integrator solves (V - theta dt V L) x = b. \
-scripts/bench_petsc.py and scripts/bench_ksp.py time them with PETSc."
+scripts/bench_petsc.py and scripts/bench_ksp.py time them with PETSc.\n\n\
+An existing output file is replaced only with --overwrite; the output is never one of the \
+scenario's inputs nor a series a run is writing. Under mpirun rank 0 builds and writes the file."
     )]
     ExportOperator {
         /// Scenario file (TOML); its mesh, material and fixed set define L
         scenario: PathBuf,
-        /// Output file (.h5)
+        /// Output file (.h5); never one of the scenario's inputs
         #[arg(short, long)]
         output: PathBuf,
+        /// Replace the output file if it exists (refused otherwise)
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Generate a mesh: the paper's cylinder or a box.
     Mesh {
         #[command(subcommand)]
         shape: Shape,
+        /// Replace the output file if it exists (refused otherwise)
+        #[arg(long, global = true)]
+        overwrite: bool,
     },
 }
 
@@ -430,7 +445,12 @@ fn real_main(cli: Cli) -> Result<()> {
             let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
             print(&inspect::mesh_info(&m), json)?;
         }
-        Cmd::Convert { input, output, strict } => {
+        Cmd::Convert {
+            input,
+            output,
+            strict,
+            overwrite,
+        } => {
             let inputs: Vec<eprop::guard::safety::Input> = eprop_io::mesh_files(&input)
                 .into_iter()
                 .map(|p| eprop::guard::safety::Input {
@@ -438,7 +458,7 @@ fn real_main(cli: Cli) -> Result<()> {
                     path: p,
                 })
                 .collect();
-            eprop::guard::safety::refuse_inputs(&output, "the converted mesh (OUTPUT)", &inputs)?;
+            let _lock = eprop::guard::safety::claim_file(&output, "the converted mesh (OUTPUT)", &inputs, overwrite)?;
             let m = eprop_io::read_mesh_with(&input, &eprop_io::ReadOptions { strict })?;
             for w in &m.warnings {
                 eprintln!("warning: {w}");
@@ -456,13 +476,21 @@ fn real_main(cli: Cli) -> Result<()> {
             json,
             fuse,
             simd,
+            overwrite,
         } => {
             let perf = eprop::config::Performance {
                 fuse,
                 simd: simd == "on",
             };
-            let (root, cases) = launch(|world| {
+            let (root, cases, _lock) = launch(|world| {
                 let root = is_root(world.as_ref());
+                // the --json file is claimed before the measurement (rank 0 writes it)
+                let lock = eprop::distribute::launch::on_root(world.as_ref(), || {
+                    json.as_ref()
+                        .map(|j| eprop::guard::safety::claim_file(j, "the JSON file (--json)", &[], overwrite))
+                        .transpose()
+                })?
+                .flatten();
                 if root {
                     println!("{}", bench::header());
                 }
@@ -474,6 +502,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 Ok((
                     root,
                     bench::bench(world, &cells, &schemes, perf, &std::env::temp_dir(), report)?,
+                    lock,
                 ))
             })?;
             if let (true, Some(j)) = (root, json) {
@@ -481,11 +510,24 @@ fn real_main(cli: Cli) -> Result<()> {
                     .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", j.display()))?;
             }
         }
-        Cmd::ExportOperator { scenario, output } => {
-            println!("{}", inspect::export_operator(&scenario, &output)?);
+        Cmd::ExportOperator {
+            scenario,
+            output,
+            overwrite,
+        } => {
+            // one writer: rank 0 builds and writes the operator, the other processes wait
+            let report = launch(|world| {
+                eprop::distribute::launch::on_root(world.as_ref(), || {
+                    inspect::export_operator(&scenario, &output, overwrite)
+                })
+            })?;
+            if let Some(r) = report {
+                println!("{r}");
+            }
         }
-        Cmd::Mesh { shape } => {
+        Cmd::Mesh { shape, overwrite } => {
             let (mesh, out) = generate(shape)?;
+            let _lock = eprop::guard::safety::claim_file(&out, "the mesh file (-o)", &[], overwrite)?;
             eprop_io::write_mesh(&mesh, &out)?;
             println!("{}: {} nodes, {} cells", out.display(), mesh.n_nodes(), mesh.n_cells());
         }

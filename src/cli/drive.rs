@@ -303,6 +303,9 @@ fn steps(
     let series = Series::start(sim, &s.sizes, s.restart, s.io).map_err(|e| Failure {
         why: format!("the series could not be created: {}", cause(&e)),
         error: match fresh {
+            true if sim.setup.output.file.exists() => {
+                write_failed(e, "nothing was written; the file is left as it is", s.again)
+            }
             true => write_failed(e, "nothing was written (the unfinished file was removed)", s.again),
             false => write_failed(e, "the file holds what it held", "restart again"),
         },

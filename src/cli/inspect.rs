@@ -290,7 +290,10 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         warnings.push(format!("`eprop run` will refuse: {e:#}"));
     } else if file.exists() {
         let overwrite = sim.setup.output.overwrite;
-        let again = crate::guard::safety::restart_command(path, file, 1);
+        let again = match sim.setup.tools.is_empty() {
+            true => crate::guard::safety::restart_command(path, file, 1, &[]),
+            false => String::new(),
+        };
         if let Err(e) = crate::guard::safety::check_existing(file, "the output file", overwrite, &again) {
             warnings.push(format!("`eprop run` will refuse: {e:#}"));
         }
@@ -441,9 +444,14 @@ pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<
 /// Writes a scenario's compact operator L to `output` (HDF5: row_ptr, col, val, and vol, the
 /// free nodes' control volumes; attributes h, the substep eprop would use, nodes, dt, the
 /// mechanics step, and theta, TR-BDF2's implicit weight), built on one process.
-pub fn export_operator(scenario: &Path, output: &Path) -> Result<ExportReport> {
+pub fn export_operator(scenario: &Path, output: &Path, overwrite: bool) -> Result<ExportReport> {
     let sc = Scenario::load(scenario)?;
-    crate::guard::safety::refuse_inputs(output, "the operator file (export-operator -o)", &sc.inputs())?;
+    let _lock = crate::guard::safety::claim_file(
+        output,
+        "the operator file (export-operator -o)",
+        &sc.inputs(),
+        overwrite,
+    )?;
     let setup = Setup::new(sc)?;
     let sim = Simulation::new(setup)?;
     let Operator::Compact(op) = &sim.prop.op else {
@@ -551,14 +559,16 @@ mod tests {
             "[mesh]\nfile = \"m.msh\"\n[model]\nscheme = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
         )
         .unwrap();
-        let e = export_operator(&sc, &d.path().join("op.h5")).unwrap_err().to_string();
+        let e = export_operator(&sc, &d.path().join("op.h5"), false)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("needs [model] scheme = \"compact\""), "{e}");
         std::fs::write(
             &sc,
             "[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
         )
         .unwrap();
-        let r = export_operator(&sc, &d.path().join("op.h5")).unwrap();
+        let r = export_operator(&sc, &d.path().join("op.h5"), false).unwrap();
         assert_eq!(r.rows, 27);
         assert!(r
             .to_string()

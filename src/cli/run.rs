@@ -80,6 +80,22 @@ fn resolve(scenario: Scenario, opts: &RunOptions) -> Result<Setup> {
     Ok(setup)
 }
 
+/// The command that continues this job's series and finishes the job: the options given that
+/// change the job (--steps, --force, -q) are kept.
+fn again(scenario: &Path, file: &Path, procs: usize, opts: &RunOptions) -> String {
+    let mut o = vec![];
+    if let Some(n) = opts.steps {
+        o.push(format!("--steps {n}"));
+    }
+    if opts.force {
+        o.push("--force".into());
+    }
+    if opts.quiet {
+        o.push("-q".into());
+    }
+    safety::restart_command(scenario, file, procs, &o)
+}
+
 /// Reads and resolves a scenario with the command-line overrides applied.
 pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
     let scenario = Scenario::load(path)?;
@@ -115,7 +131,11 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
         Some(_) => {}
         None => {
             let overwrite = opts.overwrite || scenario.file.output.overwrite;
-            let again = safety::restart_command(path, &file, 1);
+            // --restart cannot continue a scenario with tools: not advised then
+            let again = match scenario.file.tool.is_empty() {
+                true => again(path, &file, 1, opts),
+                false => String::new(),
+            };
             safety::check_existing(&file, &role, overwrite, &again)?;
         }
     }
@@ -172,7 +192,7 @@ fn run_simulation(
     io: Option<&SimpleCommunicator>,
     rank0_scatter_peak: u64,
 ) -> Result<Option<Summary>> {
-    let again = safety::restart_command(&sim.setup.scenario.path, &sim.setup.output.file, sim.comm.size());
+    let again = again(&sim.setup.scenario.path, &sim.setup.output.file, sim.comm.size(), opts);
     let settings = Settings {
         sizes,
         io,

@@ -170,6 +170,37 @@ impl Scenario {
         Self::parse(path, text)
     }
 
+    /// The tables the scenario names (force tables of loads, path tables of tools): the name as
+    /// written in the scenario, and the file.
+    pub fn tables(&self) -> Vec<(String, crate::guard::safety::Input)> {
+        let name = self.path.display();
+        let base = self.path.parent().unwrap_or(Path::new("."));
+        let mut out = vec![];
+        for (k, l) in self.file.load.iter().enumerate() {
+            if let Some(t) = &l.with.table {
+                out.push((
+                    t.get_ref().to_string(),
+                    crate::guard::safety::Input {
+                        role: format!("the force table of [[load]] {} ({}, in {name})", k + 1, t.get_ref()),
+                        path: base.join(t.get_ref()),
+                    },
+                ));
+            }
+        }
+        for (k, t) in self.file.tool.iter().enumerate() {
+            if let Some(f) = &t.get_ref().table {
+                out.push((
+                    f.get_ref().to_string(),
+                    crate::guard::safety::Input {
+                        role: format!("the path table of [[tool]] {} ({}, in {name})", k + 1, f.get_ref()),
+                        path: base.join(f.get_ref()),
+                    },
+                ));
+            }
+        }
+        out
+    }
+
     /// Every file a run of this scenario reads, with its role (for the refusal to write over
     /// one): the scenario, its mesh, and the tables of loads and tools. A section that reads
     /// another file adds it here.
@@ -185,23 +216,7 @@ impl Scenario {
                 path: p,
             });
         }
-        let base = self.path.parent().unwrap_or(Path::new("."));
-        for (k, l) in self.file.load.iter().enumerate() {
-            if let Some(t) = &l.with.table {
-                out.push(crate::guard::safety::Input {
-                    role: format!("the force table of [[load]] {} ({}, in {name})", k + 1, t.get_ref()),
-                    path: base.join(t.get_ref()),
-                });
-            }
-        }
-        for (k, t) in self.file.tool.iter().enumerate() {
-            if let Some(f) = &t.get_ref().table {
-                out.push(crate::guard::safety::Input {
-                    role: format!("the path table of [[tool]] {} ({}, in {name})", k + 1, f.get_ref()),
-                    path: base.join(f.get_ref()),
-                });
-            }
-        }
+        out.extend(self.tables().into_iter().map(|(_, i)| i));
         out
     }
 

@@ -57,6 +57,26 @@ pub fn is_root(world: Option<&SimpleCommunicator>) -> bool {
     world.is_none_or(|w| w.rank() == 0)
 }
 
+/// Runs `body` on rank 0 only (the one writer of a file), the other processes waiting for it:
+/// rank 0's error becomes every process's (an `Agreed` error with status 1, printed once by
+/// rank 0); rank 0 gets `Some` of its value, the others `None`.
+pub fn on_root<T>(world: Option<&SimpleCommunicator>, body: impl FnOnce() -> Result<T>) -> Result<Option<T>> {
+    let root = is_root(world);
+    let r = if root { Some(body()) } else { None };
+    let Some(w) = world else {
+        return r.transpose();
+    };
+    use mpi::collective::{CommunicatorCollectives, SystemOperation};
+    let failed = i32::from(matches!(r, Some(Err(_))));
+    let mut any = 0i32;
+    w.all_reduce_into(&failed, &mut any, SystemOperation::max());
+    match r {
+        Some(Err(e)) => Err(Agreed::error(EXIT_ERROR, format!("{e:#}"))),
+        _ if any > 0 => Err(Agreed::error(EXIT_ERROR, "rank 0 failed")),
+        r => r.transpose(),
+    }
+}
+
 /// Runs `body` on this process alone (`None`), or, under mpirun, on every process with the
 /// world communicator and the job's error policy: under MPI an error never returns here, the
 /// process exits (or the job is aborted) as the policy says.

@@ -75,7 +75,8 @@ pub fn refuse_inputs(out: &Path, role: &str, inputs: &[Input]) -> Result<()> {
 }
 
 /// Refuses to replace an existing file, unless it is an eprop series and `overwrite` is set.
-/// `role` names how the path was given; `restart` is the command that would continue it.
+/// `role` names how the path was given; `restart` is the command that would continue it (empty
+/// when none can: the advice then leaves it out).
 pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -> Result<()> {
     let Ok(meta) = std::fs::metadata(path) else {
         return Ok(());
@@ -91,10 +92,17 @@ pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -
             tracing::info!("{}: replacing a series of {steps} steps (--overwrite)", path.display());
             Ok(())
         }
-        Kind::Series { steps, .. } => bail!(
-            "{}: {role} exists and holds an eprop series of {steps} complete step(s); eprop does not replace it silently; fix: continue it with `{restart}`, replace it with --overwrite (or [output] overwrite = true), or write another file with -o FILE.h5",
-            path.display()
-        ),
+        Kind::Series { steps, .. } => {
+            let continue_it = if restart.is_empty() {
+                String::new()
+            } else {
+                format!("continue it with `{restart}`, ")
+            };
+            bail!(
+                "{}: {role} exists and holds an eprop series of {steps} complete step(s); eprop does not replace it silently; fix: {continue_it}replace it with --overwrite (or [output] overwrite = true), or write another file with -o FILE.h5",
+                path.display()
+            )
+        }
         other => {
             let what = if other == Kind::NotHdf5 {
                 "is not an HDF5 file"
@@ -110,25 +118,117 @@ pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -
     }
 }
 
-/// An advisory lock for the one writer of an output file: `flock` on `<output>.lock`, which
-/// holds the writer's process id. Released (and the side file removed) when dropped; the
-/// system releases it when the process dies.
+/// An advisory lock for the one writer of an output file, taken before the output is opened
+/// and held to the end of the run:
+/// - `flock` on `<output>.lock` beside the file the output path resolves to (a symbolic link
+///   is followed: writers through a link take the same lock), a file that holds
+///   "eprop lock", the writer's process id and host;
+/// - when the output exists (and once a series is created, `hold_output`), an open-file-
+///   description lock on the output file itself, which is per device and inode: a writer
+///   through a hard link is refused too.
+///
+/// The lock file is opened without following links, and anything at its path that is not a
+/// regular file holding our lock format is refused, never written nor removed. Released (and
+/// the side file removed) when dropped; the system releases both locks when the process dies.
 pub struct OutputLock {
     path: PathBuf,
-    _file: std::fs::File,
+    output: PathBuf,
+    file: std::fs::File,
 }
 
-/// The side file of an output's lock.
+/// First line of every lock file eprop writes.
+const LOCK_MAGIC: &str = "eprop lock";
+
+/// Inode locks held by this process: (canonical output path, the output opened and locked).
+static HOLDS: std::sync::Mutex<Vec<(PathBuf, Option<std::fs::File>)>> = std::sync::Mutex::new(Vec::new());
+
+/// The side file of an output's lock: `<output>.lock` beside the file the path resolves to.
 pub fn lock_path(output: &Path) -> PathBuf {
-    let mut s = output.as_os_str().to_owned();
+    let mut s = canonical(output)
+        .unwrap_or_else(|| output.to_path_buf())
+        .into_os_string();
     s.push(".lock");
     PathBuf::from(s)
+}
+
+/// Tries an exclusive open-file-description lock on one byte far past any data of `f`:
+/// Ok(true) taken, Ok(false) held by another open file, Err when the file system has none.
+fn ofd_lock(f: &std::fs::File) -> std::io::Result<bool> {
+    use std::os::fd::AsRawFd;
+    // SAFETY: a zeroed flock is a valid argument; fcntl only reads it
+    let mut l: libc::flock = unsafe { std::mem::zeroed() };
+    l.l_type = libc::F_WRLCK as _;
+    l.l_whence = libc::SEEK_SET as _;
+    l.l_start = 1 << 62;
+    l.l_len = 1;
+    // SAFETY: a valid descriptor and a valid flock
+    let r = unsafe { libc::fcntl(f.as_raw_fd(), libc::F_OFD_SETLK, &l) };
+    if r == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    match e.raw_os_error() {
+        Some(libc::EAGAIN) | Some(libc::EACCES) => Ok(false),
+        _ => Err(e),
+    }
+}
+
+/// Locks the inode of the existing file `output` for this process (a no-op when it does not
+/// exist, cannot be opened for writing, or its file system has no such locks); refuses when
+/// another writer holds it.
+fn lock_inode(output: &Path) -> Result<Option<std::fs::File>> {
+    let Ok(meta) = std::fs::metadata(output) else {
+        return Ok(None);
+    };
+    if !meta.is_file() {
+        return Ok(None);
+    }
+    let Ok(f) = std::fs::OpenOptions::new().write(true).open(output) else {
+        return Ok(None);
+    };
+    match ofd_lock(&f) {
+        Ok(true) => Ok(Some(f)),
+        Ok(false) => bail!(
+            "{}: another eprop run is writing this file now, through another name (a hard link to the same file, device {} inode {}); two writers would mix their steps; fix: wait for that run to end, or write another file with -o FILE.h5",
+            output.display(),
+            meta.dev(),
+            meta.ino()
+        ),
+        Err(e) => {
+            tracing::debug!("{}: no inode lock on this file system: {e}", output.display());
+            Ok(None)
+        }
+    }
+}
+
+/// After a claimed output was created (a new file, a new inode): lock its inode too, so a
+/// writer through a hard link made later is refused. A no-op for an output this process has
+/// not claimed.
+pub fn hold_output(output: &Path) {
+    let key = canonical(output).unwrap_or_else(|| output.to_path_buf());
+    let mut holds = HOLDS.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(entry) = holds.iter_mut().find(|(p, _)| *p == key) else {
+        return;
+    };
+    let held = entry
+        .1
+        .as_ref()
+        .and_then(|f| f.metadata().ok())
+        .map(|m| (m.dev(), m.ino()));
+    if held.is_some() && held == identity(output) {
+        return;
+    }
+    match lock_inode(output) {
+        Ok(f) => entry.1 = f,
+        Err(e) => tracing::warn!("{e:#}"),
+    }
 }
 
 impl OutputLock {
     /// Takes the lock of `output`, or says which process holds it.
     pub fn take(output: &Path) -> Result<OutputLock> {
         use std::io::{Read, Seek, Write};
+        use std::os::unix::fs::OpenOptionsExt;
         let path = lock_path(output);
         for _ in 0..8 {
             let mut f = std::fs::OpenOptions::new()
@@ -136,21 +236,45 @@ impl OutputLock {
                 .write(true)
                 .create(true)
                 .truncate(false)
+                .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
                 .open(&path)
                 .map_err(|e| {
-                    anyhow!(
-                        "{}: cannot create the lock file of the output: {e}; fix: make the directory writable or choose another output file",
-                        path.display()
-                    )
+                    if e.raw_os_error() == Some(libc::ELOOP) {
+                        anyhow!(
+                            "{}: the lock file of the output is a symbolic link; eprop never writes through a link there (it would overwrite the link's target); fix: remove the link {} if nothing uses it, or write another file with -o FILE.h5",
+                            path.display(),
+                            path.display()
+                        )
+                    } else {
+                        anyhow!(
+                            "{}: cannot create the lock file of the output: {e}; fix: make the directory writable or choose another output file",
+                            path.display()
+                        )
+                    }
                 })?;
+            let meta = f.metadata()?;
+            let mut text = String::new();
+            let readable = meta.is_file() && f.read_to_string(&mut text).is_ok();
+            if !meta.is_file()
+                || !readable
+                || !(text.is_empty() || text.starts_with(LOCK_MAGIC) || text.starts_with("pid "))
+            {
+                bail!(
+                    "{}: the lock file of the output exists and is not an eprop lock file ({}); eprop neither overwrites nor removes it; fix: move it away if nothing uses it, or write another file with -o FILE.h5",
+                    path.display(),
+                    if meta.is_file() {
+                        human_bytes(meta.len() as f64)
+                    } else {
+                        "not a regular file".to_string()
+                    }
+                );
+            }
             if f.try_lock().is_err() {
-                let mut who = String::new();
-                let _ = f.read_to_string(&mut who);
-                let who = who.trim();
+                let who = text.strip_prefix(LOCK_MAGIC).unwrap_or(&text).trim();
                 let who = if who.is_empty() {
                     "another process".to_string()
                 } else {
-                    format!("another eprop run ({who})")
+                    format!("another eprop run ({})", who.replace('\n', ", "))
                 };
                 bail!(
                     "{}: {who} is writing this file now (it holds {}); two writers would mix their steps; fix: wait for that run to end, or write another file with -o FILE.h5",
@@ -160,18 +284,28 @@ impl OutputLock {
             }
             // the file locked must still be the one at `path` (a run that ended may have
             // removed it between our open and our lock)
-            let same = match (f.metadata(), std::fs::metadata(&path)) {
-                (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            let same = match std::fs::symlink_metadata(&path) {
+                Ok(b) => meta.dev() == b.dev() && meta.ino() == b.ino(),
                 _ => false,
             };
             if !same {
                 continue;
             }
+            let inode = lock_inode(output)?;
             let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
             let _ = f.set_len(0).and_then(|_| f.rewind());
-            let _ = write!(f, "pid {} on {}", std::process::id(), host.trim());
+            let _ = write!(f, "{LOCK_MAGIC}\npid {} on {}\n", std::process::id(), host.trim());
             let _ = f.flush();
-            return Ok(OutputLock { path, _file: f });
+            let key = canonical(output).unwrap_or_else(|| output.to_path_buf());
+            HOLDS
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push((key.clone(), inode));
+            return Ok(OutputLock {
+                path,
+                output: key,
+                file: f,
+            });
         }
         bail!(
             "{}: the lock file keeps changing (runs starting and ending on this output); fix: try again",
@@ -182,10 +316,56 @@ impl OutputLock {
 
 impl Drop for OutputLock {
     fn drop(&mut self) {
-        // removed while still locked: a run that opened it meanwhile sees another inode and
-        // takes a new one
-        let _ = std::fs::remove_file(&self.path);
+        HOLDS
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .retain(|(p, _)| *p != self.output);
+        // removed while still locked (and only while it is still ours): a run that opened it
+        // meanwhile sees another inode and takes a new one
+        let ours = match (self.file.metadata(), std::fs::symlink_metadata(&self.path)) {
+            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            _ => false,
+        };
+        if ours {
+            let _ = std::fs::remove_file(&self.path);
+        }
     }
+}
+
+/// Claims a file that a command other than `run` writes (`role`: how it was named): it must
+/// not be one of `inputs`, not be written by another run (the lock, held until the returned
+/// guard drops), and an existing file is replaced only with `overwrite` (and only a regular
+/// file).
+pub fn claim_file(out: &Path, role: &str, inputs: &[Input], overwrite: bool) -> Result<OutputLock> {
+    refuse_inputs(out, role, inputs)?;
+    refuse_inputs(&lock_path(out), "the lock file of the output", inputs)?;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        if !dir.is_dir() {
+            bail!(
+                "{}: {role}: the directory {} does not exist; fix: create it or write elsewhere",
+                out.display(),
+                dir.display()
+            );
+        }
+    }
+    let lock = OutputLock::take(out)?;
+    if let Ok(meta) = std::fs::metadata(out) {
+        if !meta.is_file() {
+            bail!(
+                "{}: {role} exists and is not a regular file; fix: give the path of a new file",
+                out.display()
+            );
+        }
+        if !overwrite {
+            bail!(
+                "{}: {role} exists ({}); eprop does not replace a file silently; fix: replace it with --overwrite, or write another file",
+                out.display(),
+                human_bytes(meta.len() as f64)
+            );
+        }
+        tracing::info!("{}: replacing it (--overwrite)", out.display());
+    }
+    Ok(lock)
 }
 
 /// Refuses a run whose output (`need` bytes, estimated from `what`) exceeds the free space of
@@ -208,14 +388,29 @@ pub fn check_space(output: &Path, need: f64, reclaimed: u64, what: &str, force: 
     )
 }
 
-/// The command that continues a run's series: `[mpirun -n N] eprop run SCENARIO --restart FILE`.
-pub fn restart_command(scenario: &Path, file: &Path, processes: usize) -> String {
+/// The command that continues a run's series and finishes the job:
+/// `[mpirun -n N] eprop run SCENARIO --restart FILE [OPTIONS]`, with the options of the
+/// interrupted run that change the job (`--steps N`, `--force`, ...) in `options`.
+pub fn restart_command(scenario: &Path, file: &Path, processes: usize, options: &[String]) -> String {
     let mpi = if processes > 1 {
         format!("mpirun -n {processes} ")
     } else {
         String::new()
     };
-    format!("{mpi}eprop run {} --restart {}", scenario.display(), file.display())
+    let quote = |p: &Path| {
+        let s = p.display().to_string();
+        if s.is_empty() || s.contains(|c: char| !(c.is_ascii_alphanumeric() || "/._-+,:=@%".contains(c))) {
+            format!("'{}'", s.replace('\'', "'\\''"))
+        } else {
+            s
+        }
+    };
+    let mut cmd = format!("{mpi}eprop run {} --restart {}", quote(scenario), quote(file));
+    for o in options {
+        cmd.push(' ');
+        cmd.push_str(o);
+    }
+    cmd
 }
 
 #[cfg(test)]
@@ -275,6 +470,30 @@ mod tests {
     }
 
     #[test]
+    fn the_lock_covers_symbolic_and_hard_links_and_never_follows_a_link_at_the_lock() {
+        let t = tempfile::tempdir().unwrap();
+        let d = t.path();
+        let out = d.join("o.h5");
+        std::fs::write(&out, "series").unwrap();
+        std::fs::create_dir(d.join("sub")).unwrap();
+        std::os::unix::fs::symlink(&out, d.join("soft.h5")).unwrap();
+        std::fs::hard_link(&out, d.join("sub/hard.h5")).unwrap();
+        let first = OutputLock::take(&out).unwrap();
+        let e = OutputLock::take(&d.join("soft.h5")).err().unwrap().to_string();
+        assert!(e.contains("is writing this file now"), "{e}");
+        let e = OutputLock::take(&d.join("sub/hard.h5")).err().unwrap().to_string();
+        assert!(e.contains("a hard link to the same file"), "{e}");
+        drop(first);
+        drop(OutputLock::take(&d.join("sub/hard.h5")).unwrap());
+        // a link where the lock goes is refused and kept, its target untouched
+        std::os::unix::fs::symlink(&out, d.join("x.h5.lock")).unwrap();
+        let e = OutputLock::take(&d.join("x.h5")).err().unwrap().to_string();
+        assert!(e.contains("is a symbolic link") && e.contains("fix:"), "{e}");
+        assert!(d.join("x.h5.lock").is_symlink());
+        assert_eq!(std::fs::read(&out).unwrap(), b"series");
+    }
+
+    #[test]
     fn only_a_series_is_replaced_and_only_when_asked() {
         let t = tempfile::tempdir().unwrap();
         let txt = t.path().join("notes.txt");
@@ -304,8 +523,12 @@ mod tests {
         assert!(e.contains("would write about") && e.contains("--force"), "{e}");
         assert!(check_space(&out, 1e30, 0, "many steps", true).is_ok());
         assert_eq!(
-            restart_command(Path::new("s.toml"), Path::new("o.h5"), 2),
+            restart_command(Path::new("s.toml"), Path::new("o.h5"), 2, &[]),
             "mpirun -n 2 eprop run s.toml --restart o.h5"
+        );
+        assert_eq!(
+            restart_command(Path::new("a b.toml"), Path::new("o.h5"), 1, &["--steps 9".into()]),
+            "eprop run 'a b.toml' --restart o.h5 --steps 9"
         );
     }
 }

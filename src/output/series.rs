@@ -10,7 +10,7 @@ use crate::simulate::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
 use eprop_series::outcome::WriteFailed;
-use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow, CREATING};
+use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow, CREATING, TABLE_HASH};
 use std::path::Path;
 use std::time::Instant;
 
@@ -98,10 +98,34 @@ impl Series {
         let fields = output.fields();
         let mut text_hash = Fnv::default();
         text_hash.bytes(sim.setup.scenario.text.as_bytes());
+        // every table the scenario names is an input too: a restart refuses a changed one
+        // (rank 0 reads them, as it read the scenario; an unreadable one hashes to 0)
+        let named = sim.setup.scenario.tables();
+        let mut hashes: Vec<f64> = named
+            .iter()
+            .map(|(_, input)| {
+                let mut h = Fnv::default();
+                match sim.comm.rank() == 0 {
+                    true => std::fs::read(&input.path).map_or(0.0, |bytes| {
+                        h.bytes(&bytes);
+                        f64::from_bits(h.finish())
+                    }),
+                    false => 0.0,
+                }
+            })
+            .collect();
+        sim.comm.broadcast(0, &mut hashes);
+        let tables: Vec<(String, u64)> = named
+            .iter()
+            .zip(&hashes)
+            .map(|((name, _), h)| (format!("{TABLE_HASH}{name}"), h.to_bits()))
+            .collect();
         let plan = sim.step_plan();
+        let mut ids = vec![("scenario_hash", text_hash.finish()), ("mesh_hash", sizes.mesh_hash)];
+        ids.extend(tables.iter().map(|(n, h)| (n.as_str(), *h)));
         let spec = SeriesSpec {
             fields: fields.iter().map(|f| (f.name(), f.components())).collect(),
-            ids: vec![("scenario_hash", text_hash.finish()), ("mesh_hash", sizes.mesh_hash)],
+            ids,
             float32: output.precision == Precision::Float32,
             compression: output.compression,
             n_loads: sim.loads.len(),
@@ -150,6 +174,8 @@ impl Series {
         }
         let created =
             SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io).and_then(|mut writer| {
+                // a new file is a new inode: the writer lock covers its hard links from now on
+                crate::guard::safety::hold_output(&file);
                 if !sim.tools.is_empty() {
                     writer.add_tools(sim.tools.len())?;
                 }
@@ -168,6 +194,14 @@ impl Series {
             // closed it), so that running again needs no --overwrite
             Err(e) if e.downcast_ref::<WriteFailed>().is_some_and(|w| w.what != CREATING) => {
                 if sim.comm.rank() == 0 {
+                    let _ = std::fs::remove_file(&file);
+                }
+                Err(e)
+            }
+            // the creation itself failed (a full disk at the superblock): an empty file it
+            // left holds nothing of anyone's and goes too; any other file stays as it is
+            Err(e) if e.downcast_ref::<WriteFailed>().is_some() => {
+                if sim.comm.rank() == 0 && std::fs::symlink_metadata(&file).is_ok_and(|m| m.is_file() && m.len() == 0) {
                     let _ = std::fs::remove_file(&file);
                 }
                 Err(e)

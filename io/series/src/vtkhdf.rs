@@ -36,6 +36,10 @@ impl Layout {
     }
 }
 
+/// Prefix of the identity attribute that holds the hash of a table the scenario names
+/// (`table_hash:forces.csv`): a restart refuses a file whose table changed.
+pub const TABLE_HASH: &str = "table_hash:";
+
 /// What a series holds besides the mesh.
 pub struct SeriesSpec<'a> {
     /// Point arrays written every output step: (name, components).
@@ -637,10 +641,13 @@ impl SeriesWriter {
                 .settle_opt(read(name), ep.attr(name).and_then(|a| a.read_scalar()))?
                 .ok_or_else(|| bad(format!("no {name} attribute")))?;
             if got != *v {
-                return Err(bad(format!(
-                    "it was written for a different {}",
-                    name.trim_end_matches("_hash")
-                )));
+                return Err(match name.strip_prefix(TABLE_HASH) {
+                    Some(table) => anyhow!(
+                        "{}: cannot restart: the table {table} changed since this file was written (its contents differ), so the continued series would mix two input histories; fix: restore {table} as it was, or start a new run (--overwrite)",
+                        path.display()
+                    ),
+                    None => bad(format!("it was written for a different {}", name.trim_end_matches("_hash"))),
+                });
             }
         }
         let f32_file: u8 = t
