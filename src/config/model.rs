@@ -71,8 +71,8 @@ pub struct IntegratorSec {
     /// rkl2: stages per mechanics step before it is an error
     #[serde(default = "default_max_stages", deserialize_with = "max_stages")]
     pub max_stages: u64,
-    /// implicit: "multigrid" (smoothed aggregation, the default), "jacobi" (the same bits on
-    /// any number of processes) or "amg" (hypre BoomerAMG)
+    /// implicit: "jacobi" (the default: the same bits on any number of processes),
+    /// "multigrid" (smoothed aggregation) or "amg" (hypre BoomerAMG)
     #[serde(default)]
     pub preconditioner: Preconditioner,
 }
