@@ -7,7 +7,7 @@ cd "$(dirname "$0")/.."
 scripts/setup.sh
 source scripts/env.sh
 mkdir -p out
-./target/release/eprop mesh cylinder -o out/cylinder.msh
+./target/release/eprop mesh cylinder -o out/cylinder.msh --overwrite
 # --overwrite: the demo makes out/cylinder.h5 anew each time
 cp scenarios/cylinder_indent.toml scenarios/cylinder_indent_path.csv out/
 mpirun -n 2 ./target/release/eprop run out/cylinder_indent.toml --output out/cylinder.h5 --quiet --overwrite
