@@ -24,7 +24,7 @@ Results go to one HDF5 file (VTKHDF) that ParaView opens and h5py reads.",
     after_help = "Examples:\n  eprop mesh cylinder -o cyl.msh\n  eprop info cyl.msh\n  eprop run scenarios/cylinder.toml\n  eprop partition cyl.msh --parts 4\n  mpirun -n 2 eprop run scenarios/cylinder.toml --output out.h5"
 )]
 struct Cli {
-    /// More log lines on stderr: -v the setup phases, -vv details
+    /// More log lines on stderr: -v the setup phases, -vv details, -vvv every solve
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
     verbose: u8,
     #[command(subcommand)]
@@ -323,10 +323,10 @@ enum Shape {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     if cli.verbose > 0 {
-        let level = if cli.verbose > 1 {
-            tracing::Level::DEBUG
-        } else {
-            tracing::Level::INFO
+        let level = match cli.verbose {
+            1 => tracing::Level::INFO,
+            2 => tracing::Level::DEBUG,
+            _ => tracing::Level::TRACE,
         };
         tracing_subscriber::fmt()
             .with_max_level(level)

@@ -13,10 +13,18 @@ use std::path::Path;
 
 /// u after every step and the first tool's force of every step.
 fn run(dir: &Path, mesh: &eprop_io::Mesh, toml: &str, kind: &str) -> (Vec<Vec<V3>>, Vec<V3>, String) {
-    let extra = std::env::var("EPROP_ACC")
-        .map(|a| format!("[integrator]\naccuracy = {a}\n"))
+    let mut extra = std::env::var("EPROP_ACC")
+        .map(|a| format!("accuracy = {a}\n"))
         .unwrap_or_default();
-    let base = if kind == "euler/2" { "euler" } else { kind };
+    // "implicit+multigrid": implicit with the multigrid preconditioner
+    let (kind_only, pre) = kind.split_once('+').unwrap_or((kind, ""));
+    if !pre.is_empty() {
+        extra.push_str(&format!("preconditioner = \"{pre}\"\n"));
+    }
+    if !extra.is_empty() {
+        extra.insert_str(0, "[integrator]\n");
+    }
+    let base = if kind == "euler/2" { "euler" } else { kind_only };
     let text = format!("[model]\nintegrator = \"{base}\"\n{toml}{extra}");
     let mut s = Simulation::new(common::setup(mesh.clone(), &text, dir)).expect("simulation builds");
     if kind == "euler/2" {
@@ -125,7 +133,7 @@ fn a_box_with_a_patch_load() {
         mesh,
         &format!("[material]\nconductivity = 0.05\n{PATCH}normal = 1.0\n[time]\nsteps = 10\n"),
         &[],
-        &["rkl2", "implicit", "auto"],
+        &["rkl2", "implicit", "implicit+multigrid", "auto"],
     );
 }
 
@@ -167,6 +175,6 @@ fn a_sphere_pressing_the_sofa_liver() {
         mesh,
         "[material]\nconductivity = 0.05\n[[fixed]]\nhalfspace = { point = [-3.8, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[tool]]\nshape = \"sphere\"\nradius = 0.8\nstart = [0.0, 5.9, 0.5]\nvelocity = [0.0, -0.004, 0.0]\n[time]\nsteps = 200\n",
         &[],
-        &["rkl2", "implicit", "auto"],
+        &["rkl2", "implicit", "implicit+multigrid", "auto"],
     );
 }

@@ -429,6 +429,12 @@ impl Implicit {
                     self.path
                 );
             }
+            if gamma < 0.0 {
+                bail!(
+                    "{}: implicit: {what}: the preconditioner is not positive definite (r M r = {gamma:.3e}), so conjugate gradients cannot converge; fix: use [integrator] preconditioner = \"jacobi\"",
+                    self.path
+                );
+            }
             if gamma <= bound {
                 return Ok(it);
             }

@@ -14,7 +14,7 @@
 //!   omega = 4 / (3 lambda_max(D_K^-1 K)) by power iteration;
 //! - Galerkin coarse matrices kept apart, V_c = P^T V P and K_c = P^T K P, so that a new c
 //!   only recombines A_c = V_c + c K_c (`set_coefficient`), the prolongators stay;
-//! - smoothing: Chebyshev of degree 2 on D_A^-1 A over [0.1, 1.1] lambda_max (power
+//! - smoothing: Chebyshev of degree 2 on D_A^-1 A over [0.1 lambda, max(1.1 lambda, Gershgorin)] (power
 //!   iteration), the same polynomial before and after the coarse correction, so the V-cycle is
 //!   a fixed symmetric positive-definite operator and conjugate gradients stay valid;
 //! - coarsest level (at most COARSE_MAX rows, or where aggregation stalls): dense Cholesky.
@@ -151,9 +151,17 @@ impl Level {
                 }
             })
             .collect();
+        // Chebyshev over [lo, hi] must cover the whole spectrum of D^-1 A at the top, or it
+        // amplifies the modes above hi and the preconditioner is no longer positive definite
+        // (conjugate gradients then stop early on a wrong answer): hi is at least the
+        // Gershgorin bound max_i sum_j |a_ij| / a_ii, which no eigenvalue exceeds; the power
+        // iteration (from a smooth start it underestimates) sets the bottom of the interval.
         let lam = lambda_max(&self.ptr, &self.col, &self.a, &self.dinv);
-        self.hi = 1.1 * lam;
-        self.lo = 0.1 * lam;
+        let gershgorin = (0..n)
+            .map(|i| self.dinv[i] * (self.ptr[i]..self.ptr[i + 1]).map(|p| self.a[p].abs()).sum::<f64>())
+            .fold(0.0, f64::max);
+        self.hi = (1.1 * lam).max(gershgorin);
+        self.lo = 0.1 * lam.min(self.hi);
     }
 
     /// Chebyshev smoothing of A x = b: `degree` steps from x = 0 (`zero`) or from x.
