@@ -265,6 +265,37 @@ scenario's inputs nor a series a run is writing. Under mpirun rank 0 builds and 
         #[arg(long)]
         overwrite: bool,
     },
+    /// The deformed outer surface of a series' steps as OBJ, STL, PLY or VTU files.
+    #[command(
+        long_about = "The deformed outer surface of a series' steps (the rest mesh's boundary \
+faces, quadrilaterals split in two, moved by each step's displacement) as files a viewer or a \
+game engine loads: <prefix>_<step>.obj|stl|ply|vtu, one per output step (all of them, every \
+--every-th, or --step N). --scalar FIELD adds a value per vertex (a vector field's magnitude): \
+a blue-white-red colour in OBJ (v x y z r g b) and PLY (with the value), point data in VTU.\n\n\
+Example: eprop export out/cylinder.h5 --surface obj --every 10 -o out/frames/cyl --scalar energy"
+    )]
+    Export {
+        /// The series (.h5) written by eprop run or serve
+        series: PathBuf,
+        /// obj, stl, ply or vtu
+        #[arg(long, default_value = "obj")]
+        surface: String,
+        /// Every k-th output step
+        #[arg(long, default_value_t = 1)]
+        every: usize,
+        /// One output step only (0 is the first)
+        #[arg(long)]
+        step: Option<usize>,
+        /// A point field to write per vertex: displacement, potential, energy, ...
+        #[arg(long)]
+        scalar: Option<String>,
+        /// Prefix of the files: <prefix>_<step>.<ext>
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Replace files that exist (refused otherwise)
+        #[arg(long)]
+        overwrite: bool,
+    },
     /// Generate a mesh: the paper's cylinder or a box.
     Mesh {
         #[command(subcommand)]
@@ -524,6 +555,35 @@ fn real_main(cli: Cli) -> Result<()> {
             if let Some(r) = report {
                 println!("{r}");
             }
+        }
+        Cmd::Export {
+            series,
+            surface,
+            every,
+            step,
+            scalar,
+            output,
+            overwrite,
+        } => {
+            if every == 0 {
+                bail!("--every 0: must be at least 1; fix: --every 1 exports every step");
+            }
+            let o = eprop::cli::export::ExportOptions {
+                format: eprop::cli::export::Format::parse(&surface)?,
+                every,
+                step,
+                scalar,
+                prefix: output,
+                overwrite,
+            };
+            let files = eprop::cli::export::export(&series, &o)?;
+            println!(
+                "{}: {} file(s), {} .. {}",
+                series.display(),
+                files.len(),
+                files.first().map(|f| f.display().to_string()).unwrap_or_default(),
+                files.last().map(|f| f.display().to_string()).unwrap_or_default()
+            );
         }
         Cmd::Mesh { shape, overwrite } => {
             let (mesh, out) = generate(shape)?;

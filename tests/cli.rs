@@ -298,3 +298,86 @@ fn progress_lines_appear_without_a_terminal() {
     let (ok, _, err) = eprop(&["run", sc, "-o", h, "--overwrite", "--progress-every", "soon"]);
     assert!(!ok && err.contains("`soon`") && err.contains("fix:"), "{err}");
 }
+
+#[test]
+fn export_writes_the_deformed_surface_of_each_chosen_step() {
+    let d = workdir("export");
+    let sc = d.path().join("s.toml");
+    std::fs::write(&sc, SCENARIO).unwrap();
+    let (ok, _, err) = eprop(&["run", sc.to_str().unwrap(), "--quiet"]);
+    assert!(ok, "{err}");
+    let h5 = d.path().join("out.h5");
+    let prefix = d.path().join("frames/cyl");
+    let (p, h) = (prefix.to_str().unwrap(), h5.to_str().unwrap());
+    // 4 output steps (0, 2, 4, 6): every second one
+    let (ok, out, err) = eprop(&[
+        "export",
+        h,
+        "--surface",
+        "obj",
+        "--every",
+        "2",
+        "-o",
+        p,
+        "--scalar",
+        "energy",
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("2 file(s)"), "{out}");
+    let obj = std::fs::read_to_string(d.path().join("frames/cyl_000002.obj")).unwrap();
+    let v: Vec<[f64; 3]> = obj
+        .lines()
+        .filter(|l| l.starts_with("v "))
+        .map(|l| {
+            let x: Vec<f64> = l
+                .split_whitespace()
+                .skip(1)
+                .take(3)
+                .map(|t| t.parse().unwrap())
+                .collect();
+            [x[0], x[1], x[2]]
+        })
+        .collect();
+    let faces = obj.lines().filter(|l| l.starts_with("f ")).count();
+    // a closed triangulated surface: V - E + F = 2 with E = 3F / 2
+    assert_eq!(v.len() as i64 - (3 * faces as i64) / 2 + faces as i64, 2);
+    // the vertices are the rest surface moved by step 2's displacement
+    let mesh = eprop_io::read_mesh(&d.path().join("cyl.msh")).unwrap();
+    let u = eprop_series::vtkhdf::read_step(&h5, "displacement", 2).unwrap();
+    let moved: Vec<[f64; 3]> = (0..mesh.n_nodes())
+        .map(|g| {
+            let p = mesh.points[g];
+            [p[0] + u[3 * g], p[1] + u[3 * g + 1], p[2] + u[3 * g + 2]]
+        })
+        .collect();
+    for x in &v {
+        assert!(
+            moved
+                .iter()
+                .any(|m| (0..3).all(|k| (m[k] - x[k]).abs() <= 1e-12 * (1.0 + x[k].abs()))),
+            "{x:?}"
+        );
+    }
+    // the other formats, one step each
+    for f in ["stl", "ply", "vtu"] {
+        let (ok, _, err) = eprop(&["export", h, "--surface", f, "--step", "3", "-o", p]);
+        assert!(ok, "{f}: {err}");
+        assert!(
+            std::fs::metadata(d.path().join(format!("frames/cyl_000003.{f}")))
+                .unwrap()
+                .len()
+                > 100
+        );
+    }
+    // an existing file is refused without --overwrite, replaced with it; bad arguments are named
+    let (ok, _, err) = eprop(&["export", h, "--surface", "stl", "--step", "3", "-o", p]);
+    assert!(!ok && err.contains("exists") && err.contains("--overwrite"), "{err}");
+    let (ok, _, err) = eprop(&["export", h, "--surface", "stl", "--step", "3", "-o", p, "--overwrite"]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = eprop(&["export", h, "--surface", "gltf", "-o", p]);
+    assert!(!ok && err.contains("obj, stl, ply or vtu"), "{err}");
+    let (ok, _, err) = eprop(&["export", h, "--step", "9", "-o", p]);
+    assert!(!ok && err.contains("output steps 0 to 3"), "{err}");
+    let (ok, _, err) = eprop(&["export", h, "--scalar", "nothing", "--step", "1", "-o", p]);
+    assert!(!ok && err.contains("--scalar"), "{err}");
+}

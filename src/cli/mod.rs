@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub(crate) mod drive;
+pub mod export;
 pub mod inspect;
 pub mod run;
 pub mod serve;

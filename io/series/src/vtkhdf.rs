@@ -916,3 +916,43 @@ pub fn add_dataset(path: &Path, name: &str, data: &[f64]) -> Result<()> {
     h5(f.new_dataset_builder().with_data(data).create(name), path, name)?;
     Ok(())
 }
+
+/// The rest mesh a series was written for (points, cells and their tags as the file holds
+/// them), and its complete steps (`/eprop` `steps_complete`).
+pub fn read_mesh(path: &Path) -> Result<(Mesh, usize)> {
+    let f = File::open(path).map_err(|e| anyhow!("{}: cannot open: {e}", path.display()))?;
+    let read_i = |name: &str| -> Result<Vec<i64>> {
+        h5(f.dataset(&format!("VTKHDF/{name}")), path, name)
+            .and_then(|d| h5(d.read_raw::<i64>(), path, name))
+            .map_err(|e| anyhow!("{e}; fix: give a series written by eprop run"))
+    };
+    let points = h5(f.dataset("VTKHDF/Points"), path, "Points")?;
+    let points: Vec<f64> = h5(points.read_raw::<f64>(), path, "Points")?;
+    let conn = read_i("Connectivity")?;
+    let starts = read_i("Offsets")?;
+    let types: Vec<i64> = h5(f.dataset("VTKHDF/Types"), path, "Types")
+        .and_then(|d| h5(d.read_raw::<u8>(), path, "Types"))?
+        .into_iter()
+        .map(i64::from)
+        .collect();
+    let steps = f
+        .group("eprop")
+        .and_then(|g| g.attr("steps_complete"))
+        .and_then(|a| a.read_scalar::<i64>())
+        .map_err(|e| {
+            anyhow!(
+                "{}: not an eprop series (no /eprop steps_complete: {e})",
+                path.display()
+            )
+        })?;
+    let d = eprop_io::vtk::VtkData {
+        points,
+        conn,
+        starts,
+        types,
+        cell_arrays: vec![],
+        point_arrays: vec![],
+    };
+    let mesh = eprop_io::vtk::build(&path.display().to_string(), d)?;
+    Ok((mesh, steps.max(0) as usize))
+}
