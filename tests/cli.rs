@@ -298,3 +298,76 @@ fn progress_lines_appear_without_a_terminal() {
     let (ok, _, err) = eprop(&["run", sc, "-o", h, "--overwrite", "--progress-every", "soon"]);
     assert!(!ok && err.contains("`soon`") && err.contains("fix:"), "{err}");
 }
+
+#[test]
+fn a_set_override_runs_as_the_edited_file() {
+    let d = workdir("set");
+    let (sc, edited) = (d.path().join("s.toml"), d.path().join("e.toml"));
+    std::fs::write(&sc, SCENARIO).unwrap();
+    let text = SCENARIO
+        .replace("normal = 1.0", "normal = 2.0")
+        .replace("steps = 6", "steps = 4")
+        .replace("out.h5", "edited.h5")
+        + "[material]\nconductivity = 0.1\n";
+    std::fs::write(&edited, text).unwrap();
+    let (ok, _, err) = eprop(&["run", edited.to_str().unwrap(), "-q"]);
+    assert!(ok, "{err}");
+    let sets = ["load.1.normal=2.0", "time.steps=4", "material.conductivity=0.1"];
+    let mut args = vec!["run", sc.to_str().unwrap(), "-q"];
+    for s in &sets {
+        args.extend(["--set", s]);
+    }
+    let (ok, _, err) = eprop(&args);
+    assert!(ok, "{err}");
+    // every dataset bit for bit but the scenario text, which records the overrides
+    let f = hdf5::File::open(d.path().join("out.h5")).unwrap();
+    let g = hdf5::File::open(d.path().join("edited.h5")).unwrap();
+    let (mut names, mut other) = (vec![], vec![]);
+    common::datasets(&f, &mut names);
+    common::datasets(&g, &mut other);
+    names.sort();
+    other.sort();
+    assert_eq!(names, other);
+    assert!(names.len() >= 20, "{names:?}");
+    let text = names
+        .iter()
+        .find(|n| n.ends_with("/scenario"))
+        .expect("the scenario text");
+    let stored: Vec<u8> = f.dataset(text).unwrap().read_raw().unwrap();
+    let stored = String::from_utf8(stored).unwrap();
+    assert!(
+        stored.contains("normal = 2.0") && stored.ends_with("# eprop --set material.conductivity=0.1\n"),
+        "{stored}"
+    );
+    for n in names.iter().filter(|n| *n != text) {
+        assert_eq!(common::bits(&f, n), common::bits(&g, n), "{n}");
+    }
+    let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "time.stepz=3"]);
+    assert!(!ok);
+    assert!(
+        err.contains("s.toml: --set time.stepz: [time] stepz: unknown field `stepz`"),
+        "{err}"
+    );
+    let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "material.mass=-1"]);
+    assert!(!ok);
+    assert!(
+        err.contains("--set material.mass: [material] mass: -1 must be a positive number"),
+        "{err}"
+    );
+    let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "time.steps=[1,"]);
+    assert!(!ok);
+    assert!(
+        err.contains("--set time.steps: `[1,` is not a TOML value; fix:"),
+        "{err}"
+    );
+    let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "load.2.normal=1"]);
+    assert!(!ok);
+    assert!(err.contains("1-based index 1..=1"), "{err}");
+    for cmd in ["run", "check", "serve"] {
+        let (ok, out, _) = eprop(&[cmd, "--help"]);
+        assert!(
+            ok && out.contains("--set <KEY=VALUE>") && out.contains("load.1.normal=2.0"),
+            "{cmd}: {out}"
+        );
+    }
+}
