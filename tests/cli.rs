@@ -207,6 +207,27 @@ fn info_reports_the_geometry_checks() {
     assert!(((vol - sum) / vol).abs() < 1e-12);
     assert!(v["max_closure_error"].as_f64().unwrap() < 1e-12);
     assert!(v["stable_h_r005"].as_f64().unwrap() > 0.0);
+    let faces = v["boundary_faces"].as_u64().unwrap();
+    assert!(faces > 0 && v["surface_facets"].as_u64().unwrap() > 0, "{out}");
+    // a .vtk of volume cells only (as other tools write them): info reports the boundary
+    // faces it finds (two tetrahedra sharing a face: 6 boundary faces)
+    let vtk = d.path().join("two.vtk");
+    std::fs::write(
+        &vtk,
+        "# vtk DataFile Version 2.0\ntwo tets\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 5 double\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n0 0 -1\nCELLS 2 10\n4 0 1 2 3\n4 0 2 1 4\nCELL_TYPES 2\n10\n10\n",
+    )
+    .unwrap();
+    let (ok, out, err) = eprop(&["info", vtk.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("surface facets   none stored in the file; 6 boundary faces found"),
+        "{out}"
+    );
+    let (ok, out, _) = eprop(&["info", d.path().join("cyl.msh").to_str().unwrap()]);
+    assert!(
+        ok && out.contains(&format!("surface facets   504 stored; {faces} boundary faces found")),
+        "{out}"
+    );
     let (ok, _, err) = eprop(&["info", "/nonexistent/x.msh"]);
     assert!(!ok && err.contains("no such mesh file"));
 }
@@ -342,6 +363,18 @@ fn a_set_override_runs_as_the_edited_file() {
     for n in names.iter().filter(|n| *n != text) {
         assert_eq!(common::bits(&f, n), common::bits(&g, n), "{n}");
     }
+    // a restart with other overrides is a changed scenario: refused
+    let out = d.path().join("out.h5");
+    let (ok, _, err) = eprop(&[
+        "run",
+        sc.to_str().unwrap(),
+        "-q",
+        "--restart",
+        out.to_str().unwrap(),
+        "--set",
+        "time.steps=4",
+    ]);
+    assert!(!ok && err.contains("written for a different scenario"), "{err}");
     let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "time.stepz=3"]);
     assert!(!ok);
     assert!(
