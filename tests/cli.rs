@@ -224,6 +224,11 @@ fn info_reports_the_geometry_checks() {
         "{out}"
     );
     let (ok, out, _) = eprop(&["info", d.path().join("cyl.msh").to_str().unwrap()]);
+    // a good mesh: nothing to repair, and no advice to
+    assert!(
+        out.contains("(no cell needs repair") && !out.contains("repair the cells"),
+        "{out}"
+    );
     assert!(
         ok && out.contains(&format!("surface facets   504 stored; {faces} boundary faces found")),
         "{out}"
