@@ -10,10 +10,14 @@ displacement of the latest physics step, extrapolated to the message's time. At 
 says bye, prints the round-trip times, writes the PNG (force against time and against the
 tool's travel) and prints its path.
 
+The scenario served needs a `live = true` tool or load (scenarios/cylinder_live.toml has a live
+sphere); for real time, match its dt to the haptic loop (docs/protocol.md, "Real-time settings").
+
 examples:
-  eprop serve scenarios/cylinder_indent.toml --listen 127.0.0.1:5555 &
-  haptic_client.py 127.0.0.1:5555 --from 1.55,0,2 --to 1.25,0,2 --duration 30 --back --speed 30 -o force.png
+  eprop serve scenarios/cylinder_live.toml --listen 127.0.0.1:5555 &
+  haptic_client.py 127.0.0.1:5555 --from 1.85,0,2 --to 1.5,0,2 --duration 40 --back --speed 40 -o force.png
   haptic_client.py 127.0.0.1:5555 --path scenarios/cylinder_indent_path.csv -o force.png --csv answers.csv
+  # a scenario with a live load (a [[load]] with live = true) instead of a tool:
   haptic_client.py 127.0.0.1:5555 --load 0 --from 0,0,0 --to 0,0,-0.3 --duration 10 -o f.png
 """
 import argparse

@@ -82,6 +82,12 @@ line, 3 stopped by a signal (continue with --restart), 4 the output could not be
         /// Number of steps (overrides [time])
         #[arg(long)]
         steps: Option<u64>,
+        /// Override a scenario key by its TOML path, as if edited in the file (repeatable):
+        /// --set material.conductivity=0.1, --set time.steps=50, --set load.1.normal=2.0 (an
+        /// array of tables by its 1-based index); VALUE is a TOML value (a bare word is a
+        /// string); the series records the overrides with the scenario text
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
         /// Print the summary as JSON
         #[arg(long)]
         json: bool,
@@ -139,6 +145,12 @@ ends before the `listening on` line. Under mpirun rank 0 holds the socket."
         /// Number of steps (overrides [time])
         #[arg(long)]
         steps: Option<u64>,
+        /// Override a scenario key by its TOML path, as if edited in the file (repeatable):
+        /// --set material.conductivity=0.1, --set time.steps=50, --set load.1.normal=2.0 (an
+        /// array of tables by its 1-based index); VALUE is a TOML value (a bare word is a
+        /// string); the series records the overrides with the scenario text
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
         /// Print the summary as JSON
         #[arg(long)]
         json: bool,
@@ -165,6 +177,12 @@ ends before the `listening on` line. Under mpirun rank 0 holds the socket."
         /// Number of steps (overrides [time])
         #[arg(long)]
         steps: Option<u64>,
+        /// Override a scenario key by its TOML path, as if edited in the file (repeatable):
+        /// --set material.conductivity=0.1, --set time.steps=50, --set load.1.normal=2.0 (an
+        /// array of tables by its 1-based index); VALUE is a TOML value (a bare word is a
+        /// string); the series records the overrides with the scenario text
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
         /// Print JSON
         #[arg(long)]
         json: bool,
@@ -404,6 +422,7 @@ fn real_main(cli: Cli) -> Result<()> {
             scenario,
             output,
             steps,
+            set,
             json,
             quiet,
             progress_every,
@@ -427,6 +446,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 force,
                 progress_every,
                 fuse,
+                sets: set,
             };
             if let Some(s) = launch(|world| run_on(world, &scenario, &opts))? {
                 print(&s, json)?;
@@ -438,6 +458,7 @@ fn real_main(cli: Cli) -> Result<()> {
             timeout,
             output,
             steps,
+            set,
             json,
             quiet,
             progress_every,
@@ -459,15 +480,22 @@ fn real_main(cli: Cli) -> Result<()> {
                     force,
                     progress_every,
                     fuse: None,
+                    sets: set,
                 },
             };
             if let Some(r) = launch(|world| serve_on(world, &scenario, &opts))? {
                 print(&r, json)?;
             }
         }
-        Cmd::Check { scenario, steps, json } => {
+        Cmd::Check {
+            scenario,
+            steps,
+            set,
+            json,
+        } => {
             let opts = RunOptions {
                 steps,
+                sets: set,
                 ..Default::default()
             };
             print(&inspect::check(&scenario, &opts)?, json)?;

@@ -207,6 +207,32 @@ fn info_reports_the_geometry_checks() {
     assert!(((vol - sum) / vol).abs() < 1e-12);
     assert!(v["max_closure_error"].as_f64().unwrap() < 1e-12);
     assert!(v["stable_h_r005"].as_f64().unwrap() > 0.0);
+    let faces = v["boundary_faces"].as_u64().unwrap();
+    assert!(faces > 0 && v["surface_facets"].as_u64().unwrap() > 0, "{out}");
+    // a .vtk of volume cells only (as other tools write them): info reports the boundary
+    // faces it finds (two tetrahedra sharing a face: 6 boundary faces)
+    let vtk = d.path().join("two.vtk");
+    std::fs::write(
+        &vtk,
+        "# vtk DataFile Version 2.0\ntwo tets\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 5 double\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n0 0 -1\nCELLS 2 10\n4 0 1 2 3\n4 0 2 1 4\nCELL_TYPES 2\n10\n10\n",
+    )
+    .unwrap();
+    let (ok, out, err) = eprop(&["info", vtk.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("surface facets   none stored in the file; 6 boundary faces found"),
+        "{out}"
+    );
+    let (ok, out, _) = eprop(&["info", d.path().join("cyl.msh").to_str().unwrap()]);
+    // a good mesh: nothing to repair, and no advice to
+    assert!(
+        out.contains("(no cell needs repair") && !out.contains("repair the cells"),
+        "{out}"
+    );
+    assert!(
+        ok && out.contains(&format!("surface facets   504 stored; {faces} boundary faces found")),
+        "{out}"
+    );
     let (ok, _, err) = eprop(&["info", "/nonexistent/x.msh"]);
     assert!(!ok && err.contains("no such mesh file"));
 }
@@ -380,4 +406,89 @@ fn export_writes_the_deformed_surface_of_each_chosen_step() {
     assert!(!ok && err.contains("output steps 0 to 3"), "{err}");
     let (ok, _, err) = eprop(&["export", h, "--scalar", "nothing", "--step", "1", "-o", p]);
     assert!(!ok && err.contains("--scalar"), "{err}");
+}
+
+#[test]
+fn a_set_override_runs_as_the_edited_file() {
+    let d = workdir("set");
+    let (sc, edited) = (d.path().join("s.toml"), d.path().join("e.toml"));
+    std::fs::write(&sc, SCENARIO).unwrap();
+    let text = SCENARIO
+        .replace("normal = 1.0", "normal = 2.0")
+        .replace("steps = 6", "steps = 4")
+        .replace("out.h5", "edited.h5")
+        + "[material]\nconductivity = 0.1\n";
+    std::fs::write(&edited, text).unwrap();
+    let (ok, _, err) = eprop(&["run", edited.to_str().unwrap(), "-q"]);
+    assert!(ok, "{err}");
+    let sets = ["load.1.normal=2.0", "time.steps=4", "material.conductivity=0.1"];
+    let mut args = vec!["run", sc.to_str().unwrap(), "-q"];
+    for s in &sets {
+        args.extend(["--set", s]);
+    }
+    let (ok, _, err) = eprop(&args);
+    assert!(ok, "{err}");
+    // every dataset bit for bit but the scenario text, which records the overrides
+    let f = hdf5::File::open(d.path().join("out.h5")).unwrap();
+    let g = hdf5::File::open(d.path().join("edited.h5")).unwrap();
+    let (mut names, mut other) = (vec![], vec![]);
+    common::datasets(&f, &mut names);
+    common::datasets(&g, &mut other);
+    names.sort();
+    other.sort();
+    assert_eq!(names, other);
+    assert!(names.len() >= 20, "{names:?}");
+    let text = names
+        .iter()
+        .find(|n| n.ends_with("/scenario"))
+        .expect("the scenario text");
+    let stored: Vec<u8> = f.dataset(text).unwrap().read_raw().unwrap();
+    let stored = String::from_utf8(stored).unwrap();
+    assert!(
+        stored.contains("normal = 2.0") && stored.ends_with("# eprop --set material.conductivity=0.1\n"),
+        "{stored}"
+    );
+    for n in names.iter().filter(|n| *n != text) {
+        assert_eq!(common::bits(&f, n), common::bits(&g, n), "{n}");
+    }
+    // a restart with other overrides is a changed scenario: refused
+    let out = d.path().join("out.h5");
+    let (ok, _, err) = eprop(&[
+        "run",
+        sc.to_str().unwrap(),
+        "-q",
+        "--restart",
+        out.to_str().unwrap(),
+        "--set",
+        "time.steps=4",
+    ]);
+    assert!(!ok && err.contains("written for a different scenario"), "{err}");
+    let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "time.stepz=3"]);
+    assert!(!ok);
+    assert!(
+        err.contains("s.toml: --set time.stepz: [time] stepz: unknown field `stepz`"),
+        "{err}"
+    );
+    let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "material.mass=-1"]);
+    assert!(!ok);
+    assert!(
+        err.contains("--set material.mass: [material] mass: -1 must be a positive number"),
+        "{err}"
+    );
+    let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "time.steps=[1,"]);
+    assert!(!ok);
+    assert!(
+        err.contains("--set time.steps: `[1,` is not a TOML value; fix:"),
+        "{err}"
+    );
+    let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", "load.2.normal=1"]);
+    assert!(!ok);
+    assert!(err.contains("1-based index 1..=1"), "{err}");
+    for cmd in ["run", "check", "serve"] {
+        let (ok, out, _) = eprop(&[cmd, "--help"]);
+        assert!(
+            ok && out.contains("--set <KEY=VALUE>") && out.contains("load.1.normal=2.0"),
+            "{cmd}: {out}"
+        );
+    }
 }

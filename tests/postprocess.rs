@@ -118,6 +118,18 @@ fn scripts_teach_and_fail_cleanly() {
             "{s}: --help shows no example"
         );
     }
+    // the scenario haptic_client.py's example serves has live inputs
+    let out = py(&[script("haptic_client.py").to_str().unwrap(), "--help"]);
+    let help = String::from_utf8_lossy(&out.stdout);
+    let served: Vec<&str> = help
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("eprop serve "))
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    assert_eq!(served, ["scenarios/cylinder_live.toml"], "{help}");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join(served[0])).unwrap();
+    assert!(text.contains("live = true"), "{}", served[0]);
     for s in [
         "history.py",
         "force_displacement.py",

@@ -821,3 +821,35 @@ fn a_client_that_does_not_read_its_answers_is_told_so() {
         assert!(s.contains("does not read its answers"), "{s}");
     }
 }
+
+/// A client whose samples run far ahead of the steps computed: the physics falls behind, and
+/// the server says so once on stderr and in the summary.
+#[test]
+fn a_physics_behind_the_client_is_warned_of_once() {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, _, _) = scenario(d.path(), "");
+    let server = serve(1, &sc, &d.path().join("live.h5"), &["--timeout", "20", "--json"]);
+    let mut c = Client::connect(&server.addr);
+    let h = c.hello();
+    c.answer(p::kind::FORCE, 0, 30.0, [0.0, -0.05, 0.0]);
+    c.answer(p::kind::POSE, 0, 30.0, [1.6, 0.0, 2.0]);
+    match c.send(p::kind::BYE, 0, 0.0, [0.0; 3]) {
+        Reply::Answer(a) => assert_eq!(a.kind, p::answer::BYE),
+        r => panic!("{r:?}"),
+    }
+    let (ok, out, err) = server.finish(120);
+    assert!(ok, "{err}");
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let behind = report["session"]["max_behind_steps"].as_f64().unwrap();
+    assert!(behind >= 30.0 / h.dt - 1.0 - 1e-9, "{behind} steps, dt {}", h.dt);
+    let warning = report["session"]["warning"].as_str().unwrap();
+    assert!(
+        warning.contains("the physics fell behind the client") && warning.contains("fix:"),
+        "{warning}"
+    );
+    assert_eq!(
+        err.matches("warning: the physics fell behind the client").count(),
+        1,
+        "{err}"
+    );
+}

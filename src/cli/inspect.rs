@@ -24,7 +24,10 @@ pub struct MeshInfo {
     pub nodes: usize,
     pub cells: usize,
     pub cell_kinds: Vec<(String, usize)>,
+    /// Surface facets stored in the file (gmsh's triangles and quads; none in .vtu/.vtk).
     pub surface_facets: usize,
+    /// Faces of the volume cells that belong to one cell: the mesh's boundary, computed.
+    pub boundary_faces: usize,
     pub groups: Vec<(u8, i32, String)>,
     pub bounds: [[f64; 3]; 2],
     pub volume: f64,
@@ -74,6 +77,7 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
             .map(|(k, c)| (k.name().to_string(), c))
             .collect(),
         surface_facets: mesh.facets.len(),
+        boundary_faces: eprop_io::mesh::boundary_faces(mesh).len(),
         groups: mesh.group_names.iter().map(|((d, t), s)| (*d, *t, s.clone())).collect(),
         bounds: [lo, hi],
         volume,
@@ -94,7 +98,18 @@ impl std::fmt::Display for MeshInfo {
         let kinds: Vec<String> = self.cell_kinds.iter().map(|(k, c)| format!("{c} {k}")).collect();
         writeln!(f, "  nodes            {}", self.nodes)?;
         writeln!(f, "  cells            {} ({})", self.cells, kinds.join(", "))?;
-        writeln!(f, "  surface facets   {}", self.surface_facets)?;
+        match self.surface_facets {
+            0 => writeln!(
+                f,
+                "  surface facets   none stored in the file; {} boundary faces found",
+                self.boundary_faces
+            )?,
+            n => writeln!(
+                f,
+                "  surface facets   {n} stored; {} boundary faces found",
+                self.boundary_faces
+            )?,
+        }
         for (d, t, s) in &self.groups {
             writeln!(f, "  group            {s:?} (dim {d}, tag {t})")?;
         }

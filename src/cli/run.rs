@@ -32,6 +32,8 @@ pub struct RunOptions {
     pub fuse: Option<Fuse>,
     /// How often a run without a terminal prints a progress line.
     pub progress_every: Every,
+    /// `--set KEY=VALUE` overrides of scenario keys (`config::set`), in order.
+    pub sets: Vec<String>,
 }
 
 /// The output file of a scenario with the command-line overrides, and how it was named.
@@ -93,12 +95,15 @@ fn again(scenario: &Path, file: &Path, procs: usize, opts: &RunOptions) -> Strin
     if opts.quiet {
         o.push("-q".into());
     }
+    for s in &opts.sets {
+        o.push(format!("--set '{}'", s.replace('\'', "'\\''")));
+    }
     safety::restart_command(scenario, file, procs, &o)
 }
 
 /// Reads and resolves a scenario with the command-line overrides applied.
 pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
-    let scenario = Scenario::load(path)?;
+    let scenario = Scenario::load_with(path, &opts.sets)?;
     let setup = resolve(scenario, opts)?;
     check_output_dir(&setup.output.file)?;
     Ok(setup)
@@ -114,7 +119,7 @@ pub struct Claim {
 /// another run (the lock), and an existing file is replaced only when it is a series and the
 /// user said so (or continued, with --restart).
 pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)> {
-    let scenario = Scenario::load(path)?;
+    let scenario = Scenario::load_with(path, &opts.sets)?;
     let (file, role) = output_of(&scenario, opts);
     check_output_dir(&file)?;
     let inputs = scenario.inputs();

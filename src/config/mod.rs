@@ -18,7 +18,8 @@
 //! | `[performance]` | `performance` | `Performance`: substeps per fused sweep, vector kernel |
 //!
 //! Selectors (`box`, `sphere`, ..., `patch`) are one type for the three tables that select
-//! nodes (`select`); checked values and choices shared by sections are in `values`.
+//! nodes (`select`); checked values and choices shared by sections are in `values`; command-line
+//! overrides (`--set KEY=VALUE`) edit the text before it is parsed (`set`).
 
 mod fixed;
 pub mod integrator;
@@ -29,6 +30,7 @@ mod model;
 mod output;
 mod performance;
 mod select;
+pub mod set;
 pub mod tables;
 mod time;
 mod tools;
@@ -170,6 +172,18 @@ impl Scenario {
         Self::parse(path, text)
     }
 
+    /// Reads a scenario with `--set KEY=VALUE` overrides applied (`set`).
+    pub fn load_with(path: &Path, sets: &[String]) -> Result<Scenario> {
+        let text = eprop_io::read_input_text(path, "scenario")?;
+        let text = set::apply(&text, sets).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        Self::parse(path, text)
+    }
+
+    /// The `--set KEY` whose value (in the scenario text) holds byte `at`, if any.
+    fn override_at(&self, at: usize) -> Option<String> {
+        overridden(&self.text, at)
+    }
+
     /// The tables the scenario names (force tables of loads, path tables of tools): the name as
     /// written in the scenario, and the file.
     pub fn tables(&self) -> Vec<(String, crate::guard::safety::Input)> {
@@ -225,6 +239,15 @@ impl Scenario {
         let file: ScenarioFile = toml::from_str(&text).map_err(|e| {
             let msg = plain(e.message().trim());
             match e.span() {
+                Some(s) if overridden(&text, s.start).is_some() => {
+                    let p = place(&text, s.start);
+                    let at = format!(
+                        "{}: --set {}",
+                        path.display(),
+                        overridden(&text, s.start).unwrap_or_default()
+                    );
+                    anyhow!("{}", located(&at, p.section.as_deref(), p.key.as_deref(), &msg))
+                }
                 Some(s) => {
                     let p = place(&text, s.start);
                     let at = format!("{}:{}:{}", path.display(), p.line, p.col);
@@ -251,6 +274,8 @@ impl Scenario {
     pub fn error_at(&self, span: Range<usize>, section: &str, key: &str, msg: impl std::fmt::Display) -> anyhow::Error {
         let at = if span.is_empty() {
             self.path.display().to_string()
+        } else if let Some(k) = self.override_at(span.start) {
+            format!("{}: --set {k}", self.path.display())
         } else {
             format!("{}:{}", self.path.display(), place(&self.text, span.start).line)
         };
@@ -271,6 +296,15 @@ impl Scenario {
         }
         Ok(set)
     }
+}
+
+/// The `--set KEY` recorded in a scenario text whose line holds byte `at`, if any.
+fn overridden(text: &str, at: usize) -> Option<String> {
+    set::recorded(text)
+        .into_iter()
+        .rev()
+        .find(|(_, r)| r.contains(&at))
+        .map(|(k, _)| k)
 }
 
 /// `AT: [section] key: message; fix: ...`, with a generic fix when the message has none.

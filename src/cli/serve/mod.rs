@@ -61,7 +61,11 @@ impl std::fmt::Display for ServeReport {
             s.answers,
             s.waited_seconds,
             s.ended
-        )
+        )?;
+        if let Some(w) = &s.warning {
+            write!(f, "\n  warning     {w}")?;
+        }
+        Ok(())
     }
 }
 

@@ -18,6 +18,9 @@ const TICK: Duration = Duration::from_millis(5);
 
 /// An answer not sent within this time is stuck: the client does not read.
 const STUCK: Duration = Duration::from_millis(100);
+/// Steps the physics may lag behind the client's latest sample before it is said to fall
+/// behind (a client a step or two ahead is the normal state of a live session).
+pub const BEHIND: f64 = 10.0;
 
 /// What a client that sends without reading its answers is told.
 const NOT_READING: &str = "the client does not read its answers: the server could not send one";
@@ -100,6 +103,11 @@ pub struct SessionSummary {
     pub ended: String,
     /// Seconds the physics waited for the client's samples.
     pub waited_seconds: f64,
+    /// The most steps the physics lagged behind the client's latest sample when it took a
+    /// step's samples (more than BEHIND: the physics is slower than the client).
+    pub max_behind_steps: f64,
+    /// Said when the physics fell behind the client, with the fix.
+    pub warning: Option<String>,
 }
 
 /// The network thread and the state it shares with the physics.
@@ -110,6 +118,10 @@ pub struct Session {
     timeout: Duration,
     listen: String,
     waited: Duration,
+    /// The step dt, and the most the client's latest sample was ahead of a step's time.
+    dt: f64,
+    behind: f64,
+    warned: bool,
 }
 
 impl Session {
@@ -142,6 +154,7 @@ impl Session {
             Condvar::new(),
         ));
         let (s, e) = (shared.clone(), ents.clone());
+        let dt = hello.dt;
         let thread = std::thread::Builder::new()
             .name("eprop-serve".into())
             .spawn(move || network(listener, s, e, hello, timeout))?;
@@ -151,6 +164,9 @@ impl Session {
             ents,
             timeout,
             listen,
+            dt,
+            behind: 0.0,
+            warned: false,
             waited: Duration::ZERO,
         })
     }
@@ -217,9 +233,30 @@ impl Session {
                 }
             }
         };
+        // how far the client is ahead of this step: the physics falls behind when the lead grows
+        let lead = (0..self.ents.live.len())
+            .filter(|&e| self.ents.live[e] && g.latest[e].is_finite())
+            .map(|e| g.latest[e] - t)
+            .fold(0.0f64, f64::max);
         drop(g);
         self.waited += start.elapsed();
+        if out.is_ok() && lead > self.behind {
+            self.behind = lead;
+            if !self.warned && self.dt > 0.0 && lead / self.dt > BEHIND {
+                self.warned = true;
+                eprintln!("warning: {}", self.behind_warning());
+            }
+        }
         out
+    }
+
+    /// The warning when the physics falls behind the client.
+    fn behind_warning(&self) -> String {
+        format!(
+            "the physics fell behind the client: when a step took its samples, the client's latest sample was up to {:.0} steps ({:.3e} s of simulated time) ahead, so the answers come from older steps than the client's time; fix: compute steps faster than the client sends them: a larger dt matched to the client's sample period (docs/protocol.md, \"Real-time settings\"), a coarser mesh, [model] integrator = \"implicit\" on a stiff mesh, or more processes",
+            self.behind / self.dt,
+            self.behind
+        )
     }
 
     /// The results of a physics step, one per entity (those of non-live entities are kept
@@ -257,6 +294,8 @@ impl Session {
             answers: g.answers,
             ended: g.ended.clone().unwrap_or_else(|| "no client".into()),
             waited_seconds: self.waited.as_secs_f64(),
+            max_behind_steps: if self.dt > 0.0 { self.behind / self.dt } else { 0.0 },
+            warning: self.warned.then(|| self.behind_warning()),
         }
     }
 }

@@ -205,6 +205,19 @@ fn cell_weight(mesh: &Mesh, c: usize, li: usize, r: &[Tensor]) -> f64 {
 }
 
 impl Stiffness {
+    /// Whether some cells are worth repairing: a node's bound more than FAR times the median's.
+    pub fn needs_repair(&self) -> bool {
+        self.far_above > 0 || self.stiffest.first().is_some_and(|n| n.ratio > FAR)
+    }
+
+    /// What to do about the stiffest cells, in parentheses.
+    fn advice(&self) -> &'static str {
+        match self.needs_repair() {
+            true => "(repair the cells named below to raise the substep: remesh with a quality bound, `tetgen -q`, or improve them with gmsh's optimiser, `gmsh -3 -optimize` or `-optimize_netgen`; or let [model] integrator = \"implicit\" absorb them)",
+            false => "(no cell needs repair: the substep is set by the mesh size)",
+        }
+    }
+
     /// The report as lines under a key column of `width` characters (after two spaces).
     pub fn describe(&self, width: usize) -> String {
         let mut out = String::new();
@@ -213,14 +226,15 @@ impl Stiffness {
             return format!("{}no node moves", key("stiffness"));
         };
         out += &format!(
-            "{}the Euler substep {:.3e} is set by node {}, {:.0}x the median node's bound (substep {:.3e}); {} of {} nodes lie more than {FAR}x above the median (repair the cells named below to raise the substep)",
+            "{}the Euler substep {:.3e} is set by node {}, {:.0}x the median node's bound (substep {:.3e}); {} of {} nodes lie more than {FAR}x above the median {}",
             key("stiffness"),
             top.h,
             top.id,
             top.ratio,
             self.median_h,
             self.far_above,
-            self.nodes
+            self.nodes,
+            self.advice()
         );
         // positions to about six significant digits of the largest coordinate named
         let big = self
@@ -309,6 +323,11 @@ mod tests {
         assert!(worst.ratio > 3.0 && s.worst_h < before.worst_h, "{s:?}");
         assert_eq!(s.worst_h, worst.h);
         assert!(s.far_above < n);
+        // the advice to repair (and how) only when a node lies more than FAR above the median
+        assert!(!before.needs_repair() && before.describe(12).contains("no cell needs repair"));
+        assert!(!before.describe(12).contains("repair the cells"));
+        assert_eq!(s.needs_repair(), worst.ratio > FAR || s.far_above > 0);
+        assert_eq!(s.needs_repair(), s.describe(12).contains("repair the cells named below to raise the substep: remesh with a quality bound, `tetgen -q`, or improve them with gmsh's optimiser, `gmsh -3 -optimize` or `-optimize_netgen`"), "{}", s.describe(12));
         let med = median_bound(&op, n, &crate::distribute::comm::Serial);
         assert!(
             (med - 2.0 / s.median_h).abs() <= 1e-12 * med,
