@@ -1121,3 +1121,42 @@ fn the_existing_series_refusal_advises_restart_only_where_restart_works() {
     let o = eprop(1, &["run", s(&plain), "-q", "-o", s(&h5)]);
     refused(&o, 1, &["continue it with `eprop run", "--restart"]);
 }
+
+#[test]
+fn a_state_near_overflow_stops_the_run_and_is_not_restarted_from() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // products that overflow: the energy |phi| and max |u| would be written as inf
+    for (name, extra) in [
+        ("young", "[tissue]\nyoung = 1e-300\n"),
+        ("coupling", "[model]\ncoupling = 1e300\n"),
+    ] {
+        let sc = cylinder(dir, &format!("{name}.toml"), extra, 10);
+        for ranks in [1, 2] {
+            let h5 = dir.join(format!("{name}{ranks}.h5"));
+            let o = eprop(ranks, &["run", s(&sc), "-q", "-o", s(&h5)]);
+            refused(&o, 1, &["no longer finite (NaN or inf)", "Likely cause:", "fix:"]);
+            assert!(!stderr(&o).contains("young = 0.000"), "{}", stderr(&o));
+            let (_, finite) = last_step(&h5);
+            assert!(finite);
+        }
+    }
+    // a restart from a last step whose potential is finite but whose energy |phi| overflows
+    let sc = cylinder(dir, "s.toml", "", 4);
+    let h5 = dir.join("s.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q"]));
+    {
+        let f = hdf5::File::open_rw(&h5).unwrap();
+        let n = f.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
+        let phi = f.dataset("VTKHDF/PointData/potential").unwrap();
+        let row = 4 * n + n / 2;
+        phi.write_slice(&ndarray::arr2(&[[1e308, 1e308, 0.0]]), ndarray::s![row..row + 1, ..])
+            .unwrap();
+    }
+    let before = contents(&[&h5]);
+    for ranks in [1, 2] {
+        let o = eprop(ranks, &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "8"]);
+        refused(&o, 1, &["cannot restart", "(step 4) holds NaN or inf", "fix:"]);
+    }
+    assert_eq!(contents(&[&h5]), before);
+}
