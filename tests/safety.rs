@@ -1160,3 +1160,37 @@ fn a_state_near_overflow_stops_the_run_and_is_not_restarted_from() {
     }
     assert_eq!(contents(&[&h5]), before);
 }
+
+#[test]
+fn nonsense_geometry_is_refused_or_warned_about() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // a scale that makes volumes overflow and the contact stress underflow (a load of zero)
+    let sc = cylinder(dir, "big.toml", "", 4);
+    edit(&sc, "file = \"cyl.msh\"\n", "file = \"cyl.msh\"\nscale = 1e100\n");
+    for cmd in ["run", "check"] {
+        let o = eprop(1, &[cmd, s(&sc)]);
+        refused(&o, 1, &["[mesh] scale = 1e100 makes the mesh span", "fix:"]);
+    }
+    assert!(!dir.join("big.h5").exists());
+    // a `nearest` point 1e150 away (every node equally far: node 1, "in the fixed set") is
+    // refused as what it is
+    let sc = cylinder(dir, "far.toml", "", 4);
+    edit(&sc, "nearest = [1.0, 0.0, 2.0]", "nearest = [1e150, 0.0, 2.0]");
+    for cmd in ["run", "check"] {
+        let o = eprop(1, &[cmd, s(&sc)]);
+        refused(
+            &o,
+            1,
+            &[
+                "[load] nearest: [1e150, 0e0, 2e0] is 1.0000e150 from the centre of the mesh",
+                "fix:",
+            ],
+        );
+        assert!(!stderr(&o).contains("fixed set"), "{}", stderr(&o));
+    }
+    // 20 extents away: still the nearest node, with its warning
+    edit(&sc, "nearest = [1e150, 0.0, 2.0]", "nearest = [100.0, 0.0, 2.0]");
+    let ws = warnings(&summary(&["check", s(&sc), "--json"]));
+    assert!(has(&ws, &["load 1", "`nearest = [100, 0, 2]`", "fix:"]), "{ws:?}");
+}

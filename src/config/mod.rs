@@ -41,7 +41,7 @@ pub use mesh::MeshSec;
 pub use model::{IntegratorSec, Model, Scheme, SchemeName, TissueSec};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
-pub use select::{Entry, Keys, Selector};
+pub use select::{distance, Entry, Keys, Selector};
 pub use time::{Stop, Time, TimeSec};
 pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
 pub use values::Precision;

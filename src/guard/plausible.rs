@@ -18,6 +18,16 @@ pub const AREA_FRACTION: f64 = 1e-6;
 /// The tissue law is meant for contact stresses sigma up to this multiple of `young`.
 pub const STRESS_RATIO: f64 = 1.0;
 
+/// A number as written in a scenario, in exponent form when it is very large or very small
+/// (no 300-digit decimals in a message).
+pub fn short(x: f64) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-4..1e6).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
 fn diagonal(mesh: &Mesh) -> f64 {
     let (lo, hi) = mesh.bounds();
     norm(sub(hi, lo))
@@ -47,10 +57,11 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
         let sigma = f / l.area;
         if sigma / young > STRESS_RATIO {
             out.push(format!(
-                "load {}: its contact stress sigma = |F| / A = {f:.4e} / {:.4e} = {sigma:.4e} is {:.3e} times [tissue] young = {young:e}, far outside the tissue law's range (sigma/young up to {STRESS_RATIO}): the source and the displacements will be far too large; fix: check the force, young and the units{metres}",
+                "load {}: its contact stress sigma = |F| / A = {f:.4e} / {:.4e} = {sigma:.4e} is {:.3e} times [tissue] young = {}, far outside the tissue law's range (sigma/young up to {STRESS_RATIO}): the source and the displacements will be far too large; fix: check the force, young and the units{metres}",
                 k + 1,
                 l.area,
-                sigma / young
+                sigma / young,
+                short(young)
             ));
         }
         if l.area < AREA_FRACTION * diag * diag {
@@ -63,7 +74,7 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
         }
         if let Some(crate::config::Selector::Nearest(p)) = entries.get(k).map(|e| e.selector.get_ref()) {
             let node = l.nodes[0] as usize;
-            let d = norm(sub(mesh.points[node], p.0));
+            let d = crate::config::distance(mesh.points[node], p.0);
             if d > NEAREST_FRACTION * diag {
                 let x = mesh.points[node];
                 out.push(format!(
