@@ -1194,3 +1194,65 @@ fn nonsense_geometry_is_refused_or_warned_about() {
     let ws = warnings(&summary(&["check", s(&sc), "--json"]));
     assert!(has(&ws, &["load 1", "`nearest = [100, 0, 2]`", "fix:"]), "{ws:?}");
 }
+
+#[test]
+fn an_unwritable_name_or_a_damaged_restart_file_is_status_1_not_disk_full() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 4);
+    // a name HDF5 cannot take (not UTF-8)
+    use std::os::unix::ffi::OsStrExt;
+    let bad = dir.join(std::ffi::OsStr::from_bytes(b"\xff.h5"));
+    let o = command(1, &["run", s(&sc), "-q", "-o"]).arg(&bad).output().unwrap();
+    refused(
+        &o,
+        1,
+        &[
+            "creating the output file failed",
+            "is the output a valid file name?",
+            "fix:",
+        ],
+    );
+    let h5 = dir.join("s.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q"]));
+    // a truncated copy
+    let cut = dir.join("cut.h5");
+    std::fs::copy(&h5, &cut).unwrap();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&cut)
+        .unwrap()
+        .set_len(20_000)
+        .unwrap();
+    for ranks in [1, 2] {
+        let o = eprop(ranks, &["run", s(&sc), "-q", "--restart", s(&cut), "--steps", "8"]);
+        refused(
+            &o,
+            1,
+            &["opening the file to restart failed", "not truncated or damaged", "fix:"],
+        );
+    }
+    // a tampered count of complete steps
+    {
+        let f = hdf5::File::open_rw(&h5).unwrap();
+        f.group("eprop")
+            .unwrap()
+            .attr("steps_complete")
+            .unwrap()
+            .write_scalar(&301i64)
+            .unwrap();
+    }
+    for ranks in [1, 2] {
+        let o = eprop(ranks, &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "8"]);
+        refused(
+            &o,
+            1,
+            &[
+                "steps_complete = 301 but `",
+                "holds 5 complete steps",
+                "changed or damaged",
+                "fix:",
+            ],
+        );
+    }
+}
