@@ -1256,3 +1256,16 @@ fn an_unwritable_name_or_a_damaged_restart_file_is_status_1_not_disk_full() {
         );
     }
 }
+
+#[test]
+fn a_missing_time_table_is_named_as_such() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 4);
+    edit(&sc, "[time]\nsteps = 4\n", "");
+    for cmd in ["run", "check"] {
+        let o = eprop(1, &[cmd, s(&sc)]);
+        refused(&o, 1, &["s.toml: missing table [time]; fix: add a [time] table"]);
+        assert!(!stderr(&o).contains("[mesh]"), "{}", stderr(&o));
+    }
+}

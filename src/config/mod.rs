@@ -225,6 +225,15 @@ impl Scenario {
         let file: ScenarioFile = toml::from_str(&text).map_err(|e| {
             let msg = plain(e.message().trim());
             match e.span() {
+                // a top-level table that is missing: an empty span at the start of the file,
+                // whose first line is some other table
+                Some(s) if s.is_empty() && s.start == 0 && msg.starts_with("missing field `") => {
+                    let name = msg.trim_start_matches("missing field `").trim_end_matches('`');
+                    anyhow!(
+                        "{}: missing table [{name}]; fix: add a [{name}] table (`eprop run --help` lists its keys)",
+                        path.display()
+                    )
+                }
                 Some(s) => {
                     let p = place(&text, s.start);
                     let at = format!("{}:{}:{}", path.display(), p.line, p.col);
