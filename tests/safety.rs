@@ -1269,3 +1269,21 @@ fn a_missing_time_table_is_named_as_such() {
         assert!(!stderr(&o).contains("[mesh]"), "{}", stderr(&o));
     }
 }
+
+#[test]
+fn a_generator_refuses_sizes_whose_mesh_its_reader_would_refuse() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    for (args, name) in [
+        (vec!["box", "--size", "1e150,1e150,1e150"], "box.msh"),
+        (vec!["box", "--size", "1e-100,1e-100,1e-100"], "small.msh"),
+    ] {
+        let out = dir.join(name);
+        let mut a = vec!["mesh"];
+        a.extend(args);
+        a.extend(["-o", s(&out)]);
+        let o = eprop(1, &a);
+        refused(&o, 1, &["must lie between 1e-60 and 1e60", "fix:"]);
+        assert!(!out.exists());
+    }
+}
