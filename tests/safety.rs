@@ -1287,3 +1287,19 @@ fn a_generator_refuses_sizes_whose_mesh_its_reader_would_refuse() {
         assert!(!out.exists());
     }
 }
+
+#[test]
+fn check_warns_about_what_serve_refuses() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let tool = "[[tool]]\nshape = \"sphere\"\nradius = 0.1\nstart = [0, 0, 10]\nlive = true\n";
+    let sc = cylinder(dir, "live.toml", &tool.repeat(33), 4);
+    let ws = warnings(&summary(&["check", s(&sc), "--json"]));
+    assert!(
+        has(&ws, &["`eprop serve` will refuse", "tool or load 33 is live", "fix:"]),
+        "{ws:?}"
+    );
+    let sc = cylinder(dir, "ok.toml", &tool.repeat(32), 4);
+    let ws = warnings(&summary(&["check", s(&sc), "--json"]));
+    assert!(!has(&ws, &["`eprop serve` will refuse"]), "{ws:?}");
+}
