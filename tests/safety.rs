@@ -1121,3 +1121,185 @@ fn the_existing_series_refusal_advises_restart_only_where_restart_works() {
     let o = eprop(1, &["run", s(&plain), "-q", "-o", s(&h5)]);
     refused(&o, 1, &["continue it with `eprop run", "--restart"]);
 }
+
+#[test]
+fn a_state_near_overflow_stops_the_run_and_is_not_restarted_from() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // products that overflow: the energy |phi| and max |u| would be written as inf
+    for (name, extra) in [
+        ("young", "[tissue]\nyoung = 1e-300\n"),
+        ("coupling", "[model]\ncoupling = 1e300\n"),
+    ] {
+        let sc = cylinder(dir, &format!("{name}.toml"), extra, 10);
+        for ranks in [1, 2] {
+            let h5 = dir.join(format!("{name}{ranks}.h5"));
+            let o = eprop(ranks, &["run", s(&sc), "-q", "-o", s(&h5)]);
+            refused(&o, 1, &["no longer finite (NaN or inf)", "Likely cause:", "fix:"]);
+            assert!(!stderr(&o).contains("young = 0.000"), "{}", stderr(&o));
+            let (_, finite) = last_step(&h5);
+            assert!(finite);
+        }
+    }
+    // a restart from a last step whose potential is finite but whose energy |phi| overflows
+    let sc = cylinder(dir, "s.toml", "", 4);
+    let h5 = dir.join("s.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q"]));
+    {
+        let f = hdf5::File::open_rw(&h5).unwrap();
+        let n = f.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
+        let phi = f.dataset("VTKHDF/PointData/potential").unwrap();
+        let row = 4 * n + n / 2;
+        phi.write_slice(&ndarray::arr2(&[[1e308, 1e308, 0.0]]), ndarray::s![row..row + 1, ..])
+            .unwrap();
+    }
+    let before = contents(&[&h5]);
+    for ranks in [1, 2] {
+        let o = eprop(ranks, &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "8"]);
+        refused(&o, 1, &["cannot restart", "(step 4) holds NaN or inf", "fix:"]);
+    }
+    assert_eq!(contents(&[&h5]), before);
+}
+
+#[test]
+fn nonsense_geometry_is_refused_or_warned_about() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // a scale that makes volumes overflow and the contact stress underflow (a load of zero)
+    let sc = cylinder(dir, "big.toml", "", 4);
+    edit(&sc, "file = \"cyl.msh\"\n", "file = \"cyl.msh\"\nscale = 1e100\n");
+    for cmd in ["run", "check"] {
+        let o = eprop(1, &[cmd, s(&sc)]);
+        refused(&o, 1, &["[mesh] scale = 1e100 makes the mesh span", "fix:"]);
+    }
+    assert!(!dir.join("big.h5").exists());
+    // a `nearest` point 1e150 away (every node equally far: node 1, "in the fixed set") is
+    // refused as what it is
+    let sc = cylinder(dir, "far.toml", "", 4);
+    edit(&sc, "nearest = [1.0, 0.0, 2.0]", "nearest = [1e150, 0.0, 2.0]");
+    for cmd in ["run", "check"] {
+        let o = eprop(1, &[cmd, s(&sc)]);
+        refused(
+            &o,
+            1,
+            &[
+                "[load] nearest: [1e150, 0e0, 2e0] is 1.0000e150 from the centre of the mesh",
+                "fix:",
+            ],
+        );
+        assert!(!stderr(&o).contains("fixed set"), "{}", stderr(&o));
+    }
+    // 20 extents away: still the nearest node, with its warning
+    edit(&sc, "nearest = [1e150, 0.0, 2.0]", "nearest = [100.0, 0.0, 2.0]");
+    let ws = warnings(&summary(&["check", s(&sc), "--json"]));
+    assert!(has(&ws, &["load 1", "`nearest = [100, 0, 2]`", "fix:"]), "{ws:?}");
+}
+
+#[test]
+fn an_unwritable_name_or_a_damaged_restart_file_is_status_1_not_disk_full() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 4);
+    // a name HDF5 cannot take (not UTF-8)
+    use std::os::unix::ffi::OsStrExt;
+    let bad = dir.join(std::ffi::OsStr::from_bytes(b"\xff.h5"));
+    let o = command(1, &["run", s(&sc), "-q", "-o"]).arg(&bad).output().unwrap();
+    refused(
+        &o,
+        1,
+        &[
+            "creating the output file failed",
+            "is the output a valid file name?",
+            "fix:",
+        ],
+    );
+    let h5 = dir.join("s.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q"]));
+    // a truncated copy
+    let cut = dir.join("cut.h5");
+    std::fs::copy(&h5, &cut).unwrap();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&cut)
+        .unwrap()
+        .set_len(20_000)
+        .unwrap();
+    for ranks in [1, 2] {
+        let o = eprop(ranks, &["run", s(&sc), "-q", "--restart", s(&cut), "--steps", "8"]);
+        refused(
+            &o,
+            1,
+            &["opening the file to restart failed", "not truncated or damaged", "fix:"],
+        );
+    }
+    // a tampered count of complete steps
+    {
+        let f = hdf5::File::open_rw(&h5).unwrap();
+        f.group("eprop")
+            .unwrap()
+            .attr("steps_complete")
+            .unwrap()
+            .write_scalar(&301i64)
+            .unwrap();
+    }
+    for ranks in [1, 2] {
+        let o = eprop(ranks, &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "8"]);
+        refused(
+            &o,
+            1,
+            &[
+                "steps_complete = 301 but `",
+                "holds 5 complete steps",
+                "changed or damaged",
+                "fix:",
+            ],
+        );
+    }
+}
+
+#[test]
+fn a_missing_time_table_is_named_as_such() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let sc = cylinder(dir, "s.toml", "", 4);
+    edit(&sc, "[time]\nsteps = 4\n", "");
+    for cmd in ["run", "check"] {
+        let o = eprop(1, &[cmd, s(&sc)]);
+        refused(&o, 1, &["s.toml: missing table [time]; fix: add a [time] table"]);
+        assert!(!stderr(&o).contains("[mesh]"), "{}", stderr(&o));
+    }
+}
+
+#[test]
+fn a_generator_refuses_sizes_whose_mesh_its_reader_would_refuse() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    for (args, name) in [
+        (vec!["box", "--size", "1e150,1e150,1e150"], "box.msh"),
+        (vec!["box", "--size", "1e-100,1e-100,1e-100"], "small.msh"),
+    ] {
+        let out = dir.join(name);
+        let mut a = vec!["mesh"];
+        a.extend(args);
+        a.extend(["-o", s(&out)]);
+        let o = eprop(1, &a);
+        refused(&o, 1, &["must lie between 1e-60 and 1e60", "fix:"]);
+        assert!(!out.exists());
+    }
+}
+
+#[test]
+fn check_warns_about_what_serve_refuses() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let tool = "[[tool]]\nshape = \"sphere\"\nradius = 0.1\nstart = [0, 0, 10]\nlive = true\n";
+    let sc = cylinder(dir, "live.toml", &tool.repeat(33), 4);
+    let ws = warnings(&summary(&["check", s(&sc), "--json"]));
+    assert!(
+        has(&ws, &["`eprop serve` will refuse", "tool or load 33 is live", "fix:"]),
+        "{ws:?}"
+    );
+    let sc = cylinder(dir, "ok.toml", &tool.repeat(32), 4);
+    let ws = warnings(&summary(&["check", s(&sc), "--json"]));
+    assert!(!has(&ws, &["`eprop serve` will refuse"]), "{ws:?}");
+}

@@ -26,6 +26,23 @@ fn push_oriented(mesh: &mut Mesh, kind: CellKind, nodes: &[u32], tag: i32) {
     }
 }
 
+/// Generated lengths must lie in this range: outside it cell volumes overflow or underflow
+/// and the reader refuses the mesh as degenerate.
+pub const LENGTHS: (f64, f64) = (1e-60, 1e60);
+
+fn in_range(what: &str, keys: &str, lengths: &[f64]) -> Result<()> {
+    let lo = lengths.iter().fold(f64::INFINITY, |m, &x| m.min(x));
+    let hi = lengths.iter().fold(0.0f64, |m, &x| m.max(x));
+    if lo < LENGTHS.0 || hi > LENGTHS.1 {
+        bail!(
+            "{what}: {keys} must lie between {:e} and {:e} (given {lo:e} to {hi:e}): beyond that the cells' volumes overflow or underflow and the mesh reader refuses the file; fix: give the sizes in a unit that makes them a few units to a few thousand (`[mesh] scale` converts on reading)",
+            LENGTHS.0,
+            LENGTHS.1
+        );
+    }
+    Ok(())
+}
+
 /// A box `[0,lx]x[0,ly]x[0,lz]` with `n` cells along each axis. Hexahedra are split into six
 /// tetrahedra around their main diagonal (a conforming Kuhn split) or into two prisms.
 /// Boundary triangles/quads are tagged 1..6 = xmin, xmax, ymin, ymax, zmin, zmax.
@@ -33,6 +50,7 @@ pub fn box_mesh(size: [f64; 3], n: [usize; 3], cells: BoxCells) -> Result<Mesh> 
     if n.contains(&0) || size.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
         bail!("box: every size must be positive and every cell count at least 1");
     }
+    in_range("box", "every size", &size)?;
     let lattice = (n[0] + 1) * (n[1] + 1) * (n[2] + 1);
     let np = lattice
         + if cells == BoxCells::PyramidTet {
@@ -151,6 +169,7 @@ pub fn cylinder_mesh(radius: f64, length: f64, rings: usize, layers: usize) -> R
     if rings == 0 || layers == 0 || !(radius > 0.0 && radius.is_finite()) || !(length > 0.0 && length.is_finite()) {
         bail!("cylinder: radius and length must be positive, rings and layers at least 1");
     }
+    in_range("cylinder", "the radius and the length", &[radius, length])?;
     let per_layer = 1 + 3 * rings * (rings + 1);
     let np = per_layer * (layers + 1);
     if np > u32::MAX as usize / 2 {

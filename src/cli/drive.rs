@@ -15,7 +15,7 @@ use crate::output::series::Series;
 use crate::output::summary::{summarize, Summary, Timing};
 use crate::simulate::Simulation;
 use anyhow::Result;
-use eprop_series::outcome::{dir_of, free_bytes, human_bytes, WriteFailed};
+use eprop_series::outcome::{dir_of, free_bytes, human_bytes, Cause, WriteFailed};
 use mpi::topology::SimpleCommunicator;
 use std::time::Instant;
 
@@ -100,6 +100,25 @@ fn write_failed(e: anyhow::Error, state: &str, next: &str) -> anyhow::Error {
     match e.downcast_ref::<WriteFailed>() {
         Some(w) => Agreed::error(EXIT_WRITE, format!("{w}; {state}; fix: {}, then {next}", w.cause.fix())),
         None => e,
+    }
+}
+
+/// A failed creation or reopening: status 4 (write again after freeing space) only when the
+/// system names a write cause; otherwise (a file name HDF5 cannot take, a truncated or
+/// damaged file to restart from) it is an error of the input, status 1.
+fn open_failed(e: anyhow::Error, state: &str, next: &str, restart: bool) -> anyhow::Error {
+    match e.downcast_ref::<WriteFailed>() {
+        Some(w) if w.cause == Cause::Other => {
+            let what = match restart {
+                true => "is it a complete series written by `eprop run` (not truncated or damaged)? ",
+                false => "is the output a valid file name? ",
+            };
+            Agreed::error(
+                EXIT_ERROR,
+                format!("{w}; {state}; fix: {what}{}, then {next}", w.cause.fix()),
+            )
+        }
+        _ => write_failed(e, state, next),
     }
 }
 
@@ -304,10 +323,15 @@ fn steps(
         why: format!("the series could not be created: {}", cause(&e)),
         error: match fresh {
             true if sim.setup.output.file.exists() => {
-                write_failed(e, "nothing was written; the file is left as it is", s.again)
+                open_failed(e, "nothing was written; the file is left as it is", s.again, false)
             }
-            true => write_failed(e, "nothing was written (the unfinished file was removed)", s.again),
-            false => write_failed(e, "the file holds what it held", "restart again"),
+            true => open_failed(
+                e,
+                "nothing was written (the unfinished file was removed)",
+                s.again,
+                false,
+            ),
+            false => open_failed(e, "the file holds what it held", "restart again", true),
         },
     })?;
     let budget = match fresh {

@@ -299,6 +299,13 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
                 .into(),
         );
     }
+    // a scenario with a live input is one for `eprop serve`: its refusals too
+    let live = sim.setup.tools.iter().any(|t| t.live) || sim.setup.loads.iter().any(|l| l.live);
+    if live {
+        if let Err(e) = crate::cli::serve::check_live(&sim.setup) {
+            warnings.push(format!("`eprop serve` will refuse: {e:#}"));
+        }
+    }
     let file = &sim.setup.output.file;
     let inputs = sim.setup.scenario.inputs();
     if let Err(e) = crate::guard::safety::refuse_inputs(file, "the output file", &inputs) {

@@ -31,7 +31,10 @@ fn scale<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     }
 }
 
-/// Reads the mesh the scenario names and scales it.
+/// The scaled mesh's bounding-box diagonal must lie in this range.
+pub const EXTENT: (f64, f64) = (1e-60, 1e60);
+
+/// Reads the mesh the scenario names and scales it (refused if its extent is out of `EXTENT`).
 pub fn read(sc: &Scenario) -> Result<Mesh> {
     let ms = &sc.file.mesh;
     let opts = eprop_io::ReadOptions { strict: ms.strict };
@@ -43,6 +46,23 @@ pub fn read(sc: &Scenario) -> Result<Mesh> {
                 *x *= ms.scale;
             }
         }
+    }
+    // volumes go as the extent cubed, contact stresses as its inverse square: outside this
+    // range they overflow or underflow (a load of zero, an operator of inf)
+    let (lo, hi) = mesh.bounds();
+    let extent = super::distance(hi, lo);
+    if !mesh.points.is_empty() && !(EXTENT.0..=EXTENT.1).contains(&extent) {
+        let key = if ms.scale != 1.0 {
+            format!("[mesh] scale = {:e} makes the mesh span", ms.scale)
+        } else {
+            "the mesh spans".to_string()
+        };
+        return Err(anyhow!(
+            "{}: {key} {extent:.4e} units (its bounding-box diagonal), outside {:e} to {:e}, where volumes and contact stresses overflow or underflow; fix: a [mesh] scale that makes it a few units to a few thousand across (1000 turns metres into mm, 0.001 mm into metres)",
+            sc.path.display(),
+            EXTENT.0,
+            EXTENT.1
+        ));
     }
     Ok(mesh)
 }

@@ -43,7 +43,7 @@ pub use mesh::MeshSec;
 pub use model::{IntegratorSec, Model, Scheme, SchemeName, TissueSec};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
-pub use select::{Entry, Keys, Selector};
+pub use select::{distance, Entry, Keys, Selector};
 pub use time::{Stop, Time, TimeSec};
 pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
 pub use values::Precision;
@@ -239,6 +239,15 @@ impl Scenario {
         let file: ScenarioFile = toml::from_str(&text).map_err(|e| {
             let msg = plain(e.message().trim());
             match e.span() {
+                // a top-level table that is missing: an empty span at the start of the file,
+                // whose first line is some other table
+                Some(s) if s.is_empty() && s.start == 0 && msg.starts_with("missing field `") => {
+                    let name = msg.trim_start_matches("missing field `").trim_end_matches('`');
+                    anyhow!(
+                        "{}: missing table [{name}]; fix: add a [{name}] table (`eprop run --help` lists its keys)",
+                        path.display()
+                    )
+                }
                 Some(s) if overridden(&text, s.start).is_some() => {
                     let p = place(&text, s.start);
                     let at = format!(

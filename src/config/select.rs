@@ -161,6 +161,18 @@ impl Selector {
                 }
             },
             Selector::Nearest(p) => {
+                // from far enough away every node is equally far in floating point, and the
+                // choice would be the lowest index
+                let (lo, hi) = mesh.bounds();
+                let extent = distance(hi, lo);
+                let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
+                let far = distance(p.0, centre);
+                if !(far <= NEAREST_FAR * extent.max(f64::MIN_POSITIVE)) {
+                    return Err(format!(
+                        "[{:e}, {:e}, {:e}] is {far:.4e} from the centre of the mesh, more than {NEAREST_FAR:e} times its extent {extent:.4e}, so no node is nearer than another; fix: give a point on the surface of the mesh",
+                        p.0[0], p.0[1], p.0[2]
+                    ));
+                }
                 let i = nearest_surface_node(mesh, p.0).ok_or("the mesh has no surface node")?;
                 set[i as usize] = true;
             }
@@ -251,6 +263,21 @@ pub fn surface_node_areas(mesh: &Mesh) -> Vec<f64> {
     area
 }
 
+/// A `nearest` point farther than this multiple of the mesh's extent from its centre is
+/// refused.
+pub const NEAREST_FAR: f64 = 1e6;
+
+/// |a - b| without overflow where |a - b| itself is finite (the difference is scaled by its
+/// largest component first: a point 1e150 away is 1e150 away, not inf).
+pub fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let d = sub(a, b);
+    let m = d.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if m == 0.0 || !m.is_finite() {
+        return m;
+    }
+    m * norm([d[0] / m, d[1] / m, d[2] / m])
+}
+
 /// The surface node nearest to a point (surface = on a boundary face of the volume cells;
 /// ties: the lowest index).
 pub fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {
@@ -264,8 +291,8 @@ pub fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {
     (0..mesh.n_nodes())
         .filter(|&i| on_surface[i])
         .min_by(|&a, &b| {
-            let da = norm(sub(mesh.points[a], p));
-            let db = norm(sub(mesh.points[b], p));
+            let da = distance(mesh.points[a], p);
+            let db = distance(mesh.points[b], p);
             da.partial_cmp(&db).unwrap().then(a.cmp(&b))
         })
         .map(|i| i as u32)

@@ -106,13 +106,15 @@ fn shape_and_path(t: &ToolSec) -> Result<(Shape, Option<Trajectory>), String> {
             return Err("a punch needs `normal = [nx, ny, nz]`, the direction it presses in; fix: add it".into())
         }
         (ShapeName::Punch, Some(n)) => {
-            let len = norm(n.0);
-            if !(len > 0.0) {
+            // scaled by its largest component first, so a normal of 1e300 is a direction, not inf
+            let m = n.0.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            if !(m > 0.0) {
                 return Err("`normal` must not be zero; fix: give the direction the punch presses in".into());
             }
+            let d = scale(n.0, 1.0 / m);
             Shape::Punch {
                 radius: t.radius,
-                normal: scale(n.0, 1.0 / len),
+                normal: scale(d, 1.0 / norm(d)),
             }
         }
     };
@@ -202,6 +204,16 @@ mod tests {
         );
         assert_eq!(t[0].path.at(0.5), [0.0, 0.0, 0.5]);
         assert!(t[0].live);
+        // a normal whose length overflows is still a direction
+        let t = tools(
+            "shape = \"punch\"\nradius = 0.2\nnormal = [1e300, 1e300, 0]\nstart = [0, 0, 1]",
+            &[],
+        )
+        .unwrap();
+        let Shape::Punch { normal, .. } = t[0].shape else {
+            panic!()
+        };
+        assert!((normal[0] - 0.5f64.sqrt()).abs() < 1e-15 && normal[0] == normal[1] && normal[2] == 0.0);
         let t = tools("shape = \"sphere\"\nradius = 1\nstart = [1, 2, 3]", &[]).unwrap();
         assert_eq!(t[0].path.at(100.0), [1.0, 2.0, 3.0]);
     }

@@ -18,6 +18,16 @@ pub const AREA_FRACTION: f64 = 1e-6;
 /// The tissue law is meant for contact stresses sigma up to this multiple of `young`.
 pub const STRESS_RATIO: f64 = 1.0;
 
+/// A number as written in a scenario, in exponent form when it is very large or very small
+/// (no 300-digit decimals in a message).
+pub fn short(x: f64) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-4..1e6).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
 fn diagonal(mesh: &Mesh) -> f64 {
     let (lo, hi) = mesh.bounds();
     norm(sub(hi, lo))
@@ -47,10 +57,11 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
         let sigma = f / l.area;
         if sigma / young > STRESS_RATIO {
             out.push(format!(
-                "load {}: its contact stress sigma = |F| / A = {f:.4e} / {:.4e} = {sigma:.4e} is {:.3e} times [tissue] young = {young}, far outside the tissue law's range (sigma/young up to {STRESS_RATIO}): the source and the displacements will be far too large; fix: check the force, young and the units{metres}",
+                "load {}: its contact stress sigma = |F| / A = {f:.4e} / {:.4e} = {sigma:.4e} is {:.3e} times [tissue] young = {}, far outside the tissue law's range (sigma/young up to {STRESS_RATIO}): the source and the displacements will be far too large; fix: check the force, young and the units{metres}",
                 k + 1,
                 l.area,
-                sigma / young
+                sigma / young,
+                short(young)
             ));
         }
         if l.area < AREA_FRACTION * diag * diag {
@@ -63,7 +74,7 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
         }
         if let Some(crate::config::Selector::Nearest(p)) = entries.get(k).map(|e| e.selector.get_ref()) {
             let node = l.nodes[0] as usize;
-            let d = norm(sub(mesh.points[node], p.0));
+            let d = crate::config::distance(mesh.points[node], p.0);
             if d > NEAREST_FRACTION * diag {
                 let x = mesh.points[node];
                 out.push(format!(
@@ -108,7 +119,7 @@ pub fn nonfinite_cause(sim: &Simulation) -> String {
 pub enum Look {
     /// Every value finite; a warning the first time max |u| passes its limit.
     Finite(Option<String>),
-    /// Some process holds a NaN or an infinity in u, v or phi.
+    /// Some process holds a NaN or an infinity in u, v, phi, |phi| or a probe.
     NonFinite,
 }
 
@@ -127,11 +138,18 @@ impl Watch {
         Watch { diag, warned: false }
     }
 
-    /// Looks at u, v and phi of the owned nodes (every process calls).
+    /// Looks at u, v, phi and |phi| of the owned nodes and the probes (every process calls).
     pub fn look(&mut self, sim: &Simulation) -> Look {
         let n = sim.n_owned();
-        let finite = |x: &[[f64; 3]]| x.iter().all(|p| p.iter().all(|c| c.is_finite()));
-        let bad = !(finite(&sim.u[..n]) && finite(&sim.v[..n]) && finite(&sim.prop.phi[..n]));
+        // every written field: u, v, phi, the energy |phi|, and the probes' displacements; a
+        // finite norm implies finite components, and the norm of a component near f64::MAX
+        // overflows (the energy written would be inf)
+        let finite = |x: &[[f64; 3]]| x.iter().all(|p| norm(*p).is_finite());
+        let probes = sim
+            .probes()
+            .iter()
+            .all(|(f, d)| norm(*f).is_finite() && norm(*d).is_finite());
+        let bad = !(finite(&sim.u[..n]) && finite(&sim.v[..n]) && finite(&sim.prop.phi[..n]) && probes);
         let umax = sim.u[..n].iter().map(|p| norm(*p)).fold(0.0f64, f64::max);
         let all = sim.comm.max_each(&[f64::from(u8::from(bad)), umax]);
         if all[0] > 0.0 {

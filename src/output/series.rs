@@ -145,14 +145,16 @@ impl Series {
         let file = output.file.clone();
         if restart {
             let (mut writer, resume) = SeriesWriter::reopen(&file, layout(sizes), &spec, io)?;
-            let finite = [&resume.u, &resume.v, &resume.phi]
-                .iter()
-                .all(|x| x.iter().all(|c| c.is_finite()));
+            // the norms too: the energy |phi| and max |u| of a component near f64::MAX overflow
+            let finite = [&resume.u, &resume.v, &resume.phi].iter().all(|x| {
+                x.chunks(3)
+                    .all(|c| c.iter().all(|c| c.is_finite()) && c.iter().map(|c| c * c).sum::<f64>().sqrt().is_finite())
+            });
             if !writer.all(finite) {
                 return Err(Agreed::error(
                     EXIT_ERROR,
                     format!(
-                        "{}: cannot restart: its last complete step (step {}) holds NaN or inf values, which a restart would continue; fix: find the cause (see the warnings of `eprop check`) and start a new run (--overwrite)",
+                        "{}: cannot restart: its last complete step (step {}) holds NaN or inf values (or values whose magnitude overflows), which a restart would continue; fix: find the cause (see the warnings of `eprop check`) and start a new run (--overwrite)",
                         file.display(),
                         resume.step
                     ),

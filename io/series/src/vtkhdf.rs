@@ -691,6 +691,19 @@ impl SeriesWriter {
             });
         }
         let nd = layout.nodes;
+        // a count past the rows the file holds: changed by hand or damaged (the same answer
+        // on every process: the shapes are the file's)
+        for f in &fields {
+            let rows = f.data.shape().first().copied().unwrap_or(0);
+            if rows < k * nd {
+                return Err(anyhow!(
+                    "{}: cannot restart: /eprop steps_complete = {k} but `{}` holds {} complete steps: the file was changed or damaged; fix: restore the file, or start a new run (--overwrite)",
+                    path.display(),
+                    f.name,
+                    rows / nd.max(1)
+                ));
+            }
+        }
         // the state at the last complete step
         let (b0, bl) = (spec.block_start, spec.block_len);
         let mut state = Vec::new();

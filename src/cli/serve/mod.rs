@@ -86,7 +86,7 @@ fn announce(l: &TcpListener, addr: &str) {
 }
 
 /// The scenario must give the client something to drive.
-fn check_live(setup: &Setup) -> Result<()> {
+pub(crate) fn check_live(setup: &Setup) -> Result<()> {
     let path = setup.scenario.path.display();
     let (tools, loads): (Vec<usize>, Vec<usize>) = (
         (0..setup.tools.len()).filter(|&k| setup.tools[k].live).collect(),
