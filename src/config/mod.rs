@@ -57,6 +57,13 @@ use std::path::{Path, PathBuf};
 use toml::Spanned;
 use values::defaults;
 
+/// A file a run reads, and what it is to the run (for messages and the output checks).
+#[derive(Clone, Debug)]
+pub struct Input {
+    pub role: String,
+    pub path: std::path::PathBuf,
+}
+
 /// A scenario file as written.
 #[derive(Deserialize, Debug, Clone)]
 #[serde(deny_unknown_fields)]
@@ -186,7 +193,7 @@ impl Scenario {
 
     /// The tables the scenario names (force tables of loads, path tables of tools): the name as
     /// written in the scenario, and the file.
-    pub fn tables(&self) -> Vec<(String, crate::guard::safety::Input)> {
+    pub fn tables(&self) -> Vec<(String, Input)> {
         let name = self.path.display();
         let base = self.path.parent().unwrap_or(Path::new("."));
         let mut out = vec![];
@@ -194,7 +201,7 @@ impl Scenario {
             if let Some(t) = &l.with.table {
                 out.push((
                     t.get_ref().to_string(),
-                    crate::guard::safety::Input {
+                    Input {
                         role: format!("the force table of [[load]] {} ({}, in {name})", k + 1, t.get_ref()),
                         path: base.join(t.get_ref()),
                     },
@@ -205,7 +212,7 @@ impl Scenario {
             if let Some(f) = &t.get_ref().table {
                 out.push((
                     f.get_ref().to_string(),
-                    crate::guard::safety::Input {
+                    Input {
                         role: format!("the path table of [[tool]] {} ({}, in {name})", k + 1, f.get_ref()),
                         path: base.join(f.get_ref()),
                     },
@@ -218,14 +225,14 @@ impl Scenario {
     /// Every file a run of this scenario reads, with its role (for the refusal to write over
     /// one): the scenario, its mesh, and the tables of loads and tools. A section that reads
     /// another file adds it here.
-    pub fn inputs(&self) -> Vec<crate::guard::safety::Input> {
+    pub fn inputs(&self) -> Vec<Input> {
         let name = self.path.display();
-        let mut out = vec![crate::guard::safety::Input {
+        let mut out = vec![Input {
             role: format!("the scenario ({name})"),
             path: self.path.clone(),
         }];
         for p in eprop_io::mesh_files(&self.mesh_path()) {
-            out.push(crate::guard::safety::Input {
+            out.push(Input {
                 role: format!("the mesh ({}, [mesh] file of {name})", p.display()),
                 path: p,
             });
@@ -349,7 +356,7 @@ pub struct Setup {
     pub tools: Vec<Tool>,
     pub model: Model,
     /// The integrator of the propagation and its settings.
-    pub integrator: crate::propagate::integrate::Settings,
+    pub integrator: integrator::Settings,
     pub law: TissueLaw,
     pub time: Time,
     pub output: Output,

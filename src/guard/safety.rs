@@ -19,12 +19,7 @@ use std::path::{Path, PathBuf};
 
 pub use crate::distribute::launch::{Agreed, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
 
-/// A file a run reads, and what it is to the run (for messages).
-#[derive(Clone, Debug)]
-pub struct Input {
-    pub role: String,
-    pub path: PathBuf,
-}
+pub use crate::config::Input;
 
 /// The canonical form of a path whose file may not exist yet: its directory made canonical.
 fn canonical(path: &Path) -> Option<PathBuf> {
