@@ -61,6 +61,23 @@ fn stepper(s: &mut Simulation, kind: &str, dt: f64, k: usize) -> Box<dyn Stepper
     }
 }
 
+/// sin(pi x) sin(pi y) sin(pi z) times `dir` on the owned nodes that move (0 elsewhere): an
+/// eigenvector of the unit Kuhn box's L with walls on every face.
+fn box_mode(s: &Simulation, dir: V3) -> Vec<V3> {
+    let pts = &s.mesh().points;
+    (0..s.n_owned())
+        .map(|i| {
+            let p = pts[i];
+            let f = if s.active[i] {
+                (PI * p[0]).sin() * (PI * p[1]).sin() * (PI * p[2]).sin()
+            } else {
+                0.0
+            };
+            [dir[0] * f, dir[1] * f, dir[2] * f]
+        })
+        .collect()
+}
+
 #[test]
 fn each_integrator_converges_at_its_order_on_an_eigenvector_of_l() {
     let mesh = box_mesh([1.0; 3], [20, 20, 20], BoxCells::Tet).unwrap();
@@ -69,19 +86,8 @@ fn each_integrator_converges_at_its_order_on_an_eigenvector_of_l() {
         &format!("[material]\nconductivity = 0.1\n{WALLS}[time]\nsteps = 1\n"),
     );
     let n = s.n_owned();
-    let pts = s.mesh().points.clone();
     // v = sin(pi x) sin(pi y) sin(pi z) (1, -2, 0.5) is an eigenvector of the Kuhn box's L
-    let v: Vec<V3> = (0..n)
-        .map(|i| {
-            let p = pts[i];
-            let f = if s.active[i] {
-                (PI * p[0]).sin() * (PI * p[1]).sin() * (PI * p[2]).sin()
-            } else {
-                0.0
-            };
-            [f, -2.0 * f, 0.5 * f]
-        })
-        .collect();
+    let v = box_mode(&s, [1.0, -2.0, 0.5]);
     let mut lv = vec![[0.0; 3]; n];
     s.prop.apply(&v, &mut lv);
     let lambda = {
@@ -582,18 +588,7 @@ fn the_error_estimates_match_the_true_error_on_an_eigenvector() {
         &format!("[material]\nconductivity = 0.1\n{WALLS}[time]\nsteps = 1\n"),
     );
     let n = s.n_owned();
-    let pts = s.mesh().points.clone();
-    let v: Vec<V3> = (0..n)
-        .map(|i| {
-            let p = pts[i];
-            let f = if s.active[i] {
-                (PI * p[0]).sin() * (PI * p[1]).sin() * (PI * p[2]).sin()
-            } else {
-                0.0
-            };
-            [f, 0.5 * f, -f]
-        })
-        .collect();
+    let v = box_mode(&s, [1.0, 0.5, -1.0]);
     let mut lv = vec![[0.0; 3]; n];
     s.prop.apply(&v, &mut lv);
     let lambda = (0..n).map(|i| v[i][0] * lv[i][0]).sum::<f64>() / (0..n).map(|i| v[i][0] * v[i][0]).sum::<f64>();
