@@ -40,7 +40,7 @@ pub use fixed::FixedSet;
 pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
 pub use mesh::MeshSec;
-pub use model::{IntegratorSec, Model, Scheme, SchemeName, TissueSec};
+pub use model::{IntegratorSec, Model, Reading, Scheme, SchemeName, TissueSec};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
 pub use select::{distance, Entry, Keys, Selector};

@@ -21,6 +21,18 @@ pub enum SchemeName {
     Paper,
 }
 
+/// How the model's parameters and loads are read (docs/model.md): `paper` is the per-node
+/// reading of the paper (mass, damping and pull-back per node, loads as nodal forces, no
+/// units); `continuum` reads them as densities and fluxes in SI units, so results converge as
+/// the mesh is refined and do not depend on the mesh file's length unit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Reading {
+    #[default]
+    Paper,
+    Continuum,
+}
+
 /// The propagation operator's scheme, with its option.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Scheme {
@@ -32,6 +44,9 @@ pub enum Scheme {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Model {
+    /// The reading of the parameters and loads.
+    #[serde(default)]
+    pub reading: Reading,
     #[serde(default)]
     pub scheme: SchemeName,
     /// The paper scheme's correction term (MODEL.md, eq. 11).
