@@ -622,29 +622,32 @@ fn a_full_disk_at_creation_and_mid_session_ends_with_status_4() {
     };
     let out = disk.path().join("live.h5");
     // at creation: the estimate fits, then a filler takes the disk before step 0's samples
-    let server = serve(1, &sc, &out, &["--timeout", "30"]);
-    let filler = disk.fill();
-    let mut c = Client::connect(&server.addr);
-    c.hello();
-    let (code, message) = until_error(
-        &mut c,
-        &[(p::kind::FORCE, [0.0; 4]), (p::kind::POSE, [0.0, 1.6, 0.0, 2.0])],
-    );
-    assert_eq!(code, 8, "{message}");
-    assert!(
-        message.contains("could not be created") && message.contains("ENOSPC"),
-        "{message}"
-    );
-    let (status, err) = server.finish_status(60);
-    assert_eq!(status, Some(4), "{err}");
-    assert!(
-        err.contains("no space left on device (ENOSPC)")
-            && err.contains("nothing was written")
-            && err.contains("fix: free space"),
-        "{err}"
-    );
-    std::fs::remove_file(&filler).unwrap();
-    let _ = std::fs::remove_file(&out);
+    // (2 ranks: the disk refuses a write inside HDF5's collective calls)
+    for ranks in [1, 2] {
+        let server = serve(ranks, &sc, &out, &["--timeout", "30"]);
+        let filler = disk.fill();
+        let mut c = Client::connect(&server.addr);
+        c.hello();
+        let (code, message) = until_error(
+            &mut c,
+            &[(p::kind::FORCE, [0.0; 4]), (p::kind::POSE, [0.0, 1.6, 0.0, 2.0])],
+        );
+        assert_eq!(code, 8, "{message}");
+        assert!(
+            message.contains("could not be created") && message.contains("ENOSPC"),
+            "{message}"
+        );
+        let (status, err) = server.finish_status(60);
+        assert_eq!(status, Some(4), "{ranks} ranks: {err}");
+        assert!(
+            err.contains("no space left on device (ENOSPC)")
+                && err.contains("nothing was written")
+                && err.contains("fix: free space"),
+            "{err}"
+        );
+        std::fs::remove_file(&filler).unwrap();
+        let _ = std::fs::remove_file(&out);
+    }
     // mid-session: the disk fills while the client drives
     for ranks in [1, 2] {
         let server = serve(ranks, &sc, &out, &["--timeout", "30"]);
@@ -663,16 +666,17 @@ fn a_full_disk_at_creation_and_mid_session_ends_with_status_4() {
             .collect();
         let (code, message) = until_error(&mut c, &rows);
         assert_eq!(code, 8, "{message}");
-        assert!(message.contains("the disk is full (ENOSPC)"), "{message}");
+        assert!(
+            message.contains("the disk is full (ENOSPC)") || message.contains("the disk is nearly full"),
+            "{message}"
+        );
         let (status, err) = server.finish_status(60);
         assert_eq!(status, Some(4), "{ranks} ranks: {err}");
         assert!(
-            err.contains("the disk is full")
-                && err.contains("complete output steps")
-                && err.contains("fix: free space"),
+            err.contains("the disk is") && err.contains("complete output steps") && err.contains("fix: free space"),
             "{err}"
         );
-        assert_eq!(err.matches("ENOSPC").count(), 1, "one message: {err}");
+        assert!(err.matches("fix: free space").count() == 1, "one message: {err}");
         holds_steps_to_12(&out);
         std::fs::remove_file(&filler).unwrap();
         std::fs::remove_file(&out).unwrap();

@@ -152,7 +152,7 @@ fn space(sim: &Simulation, budget: &Budget, s: &Settings) -> Result<()> {
         }
     );
     let r = if sim.comm.rank() == 0 {
-        safety::check_space(file, budget.output_bytes, reclaimed, &what, s.force)
+        safety::check_space(file, budget, reclaimed, &what, s.force)
     } else {
         Ok(())
     };
@@ -272,23 +272,25 @@ impl Output {
         if !s.force {
             let step_bytes = self.budget.step_bytes;
             let full = root
-                && free_bytes(&dir_of(file)).is_some_and(|free| (free as f64) < 2.0 * step_bytes + (1u64 << 20) as f64);
+                && free_bytes(&dir_of(file))
+                    .is_some_and(|free| (free as f64) < crate::guard::limits::reserve(step_bytes));
             if sim.comm.max(f64::from(u8::from(full))) > 0.0 {
                 let free = free_bytes(&dir_of(file)).unwrap_or(0);
                 return Err(Failure {
                     why: format!(
-                        "the disk is full (ENOSPC): output step {} was not written",
+                        "the disk is nearly full: output step {} was not written",
                         self.series.steps_written()
                     ),
                     error: Agreed::error(
                         EXIT_WRITE,
                         format!(
-                            "{}: the disk is full: no space left on device (ENOSPC) for output step {} ({} free in {}, a step needs about {}); {}; fix: free space on that disk (or move the file to a larger one), then {}",
+                            "{}: the disk is nearly full: {} free in {}, less than the {} kept free while writing (two output steps of about {} and 1 MiB, so that no write fails half-way), so output step {} was not written; {}; fix: free space on that disk (or move the file to a larger one), then {}",
                             file.display(),
-                            self.series.steps_written(),
                             human_bytes(free as f64),
                             dir_of(file).display(),
+                            human_bytes(crate::guard::limits::reserve(step_bytes)),
                             human_bytes(step_bytes),
+                            self.series.steps_written(),
                             holds(&self.series, self.last_written),
                             s.next
                         ),

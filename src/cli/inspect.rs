@@ -322,7 +322,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     }
     let reclaimed = std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
     let what = format!("{} output steps", budget.output_steps);
-    if let Err(e) = crate::guard::safety::check_space(file, budget.output_bytes, reclaimed, &what, false) {
+    if let Err(e) = crate::guard::safety::check_space(file, &budget, reclaimed, &what, false) {
         warnings.push(format!("`eprop run` will refuse without --force: {e:#}"));
     }
     Ok(CheckReport {

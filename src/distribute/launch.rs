@@ -105,6 +105,18 @@ pub fn launch<T>(body: impl FnOnce(Option<SimpleCommunicator>) -> Result<T>) -> 
             universe.world().abort(1)
         }
     };
+    if eprop_series::outcome::stranded() {
+        // a file whose write failed is still open (eprop_series::outcome): finalising MPI
+        // would close it collectively and wait forever, so every process, once all have
+        // printed, ends here with the agreed status
+        use mpi::collective::CommunicatorCollectives;
+        universe.world().barrier();
+        use std::io::Write;
+        let _ = std::io::stdout().flush();
+        let _ = std::io::stderr().flush();
+        // SAFETY: ends the process at once (no destructor, atexit handler or MPI_Finalize)
+        unsafe { libc::_exit(status.into()) }
+    }
     drop(universe);
     std::process::exit(status.into())
 }

@@ -213,6 +213,15 @@ pub struct Budget {
     pub output_bytes: f64,
     /// Bytes of one output step.
     pub step_bytes: f64,
+    /// Bytes up to the first output step (with the static part of a new series).
+    pub start_bytes: f64,
+}
+
+/// The free space kept on the output's disk before every write, so that no write fails half
+/// way (under MPI a write the disk refuses inside HDF5 cannot be recovered): two output steps
+/// and 1 MiB for HDF5's metadata.
+pub fn reserve(step_bytes: f64) -> f64 {
+    2.0 * step_bytes + (1u64 << 20) as f64
 }
 
 impl Budget {
@@ -232,6 +241,7 @@ impl Budget {
             steps,
             output_steps,
             output_bytes: new + step * output_steps as f64,
+            start_bytes: new + if output_steps > 0 { step } else { 0.0 },
             step_bytes: step,
         })
     }

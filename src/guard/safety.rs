@@ -11,6 +11,7 @@
 //! - A run that stops early ends every process with the same status and one message
 //!   (`Agreed`); the statuses are `EXIT_*`.
 
+use crate::guard::limits::{reserve, Budget};
 use anyhow::{anyhow, bail, Result};
 use eprop_series::outcome::{dir_of, free_bytes, human_bytes};
 use eprop_series::vtkhdf::Kind;
@@ -365,22 +366,34 @@ pub fn claim_file(out: &Path, role: &str, inputs: &[Input], overwrite: bool) -> 
 
 /// Refuses a run whose output (`need` bytes, estimated from `what`) exceeds the free space of
 /// its directory (plus `reclaimed`, the bytes of a file the run replaces), unless `force`.
-pub fn check_space(output: &Path, need: f64, reclaimed: u64, what: &str, force: bool) -> Result<()> {
+pub fn check_space(output: &Path, budget: &Budget, reclaimed: u64, what: &str, force: bool) -> Result<()> {
     let dir = dir_of(output);
     let Some(free) = free_bytes(&dir) else {
         return Ok(());
     };
     let free = free.saturating_add(reclaimed);
-    if force || need <= free as f64 {
-        return Ok(());
+    let reserve = reserve(budget.step_bytes);
+    if !force && budget.output_bytes + reserve > free as f64 {
+        bail!(
+            "{}: the run would write about {} ({what}) and keeps {} free while writing, but {} has {} free; fix: free space, write less (`[output] every`, `fields`, precision = \"float32\", or fewer steps), write elsewhere with -o, or start anyway with --force (the run then stops cleanly, with every step written so far, when the disk gets full)",
+            output.display(),
+            human_bytes(budget.output_bytes),
+            human_bytes(reserve),
+            dir.display(),
+            human_bytes(free as f64)
+        )
     }
-    bail!(
-        "{}: the run would write about {} ({what}) but {} has {} free; fix: free space, write less (`[output] every`, `fields`, precision = \"float32\", or fewer steps), write elsewhere with -o, or start anyway with --force (the run then stops cleanly when the disk is full)",
-        output.display(),
-        human_bytes(need),
-        dir.display(),
-        human_bytes(free as f64)
-    )
+    if budget.start_bytes + reserve > free as f64 {
+        bail!(
+            "{}: the first output step needs about {} (with the mesh, for a new series) and {} kept free while writing, but {} has {} free, so not even --force starts; fix: free space or write elsewhere with -o",
+            output.display(),
+            human_bytes(budget.start_bytes),
+            human_bytes(reserve),
+            dir.display(),
+            human_bytes(free as f64)
+        )
+    }
+    Ok(())
 }
 
 /// The command that continues a run's series and finishes the job:
@@ -513,10 +526,23 @@ mod tests {
     fn space_is_checked_unless_forced() {
         let t = tempfile::tempdir().unwrap();
         let out = t.path().join("o.h5");
-        assert!(check_space(&out, 1.0, 0, "1 step", false).is_ok());
-        let e = check_space(&out, 1e30, 0, "many steps", false).unwrap_err().to_string();
+        let budget = |total: f64, start: f64| Budget {
+            steps: 1,
+            output_steps: 1,
+            output_bytes: total,
+            step_bytes: 1.0,
+            start_bytes: start,
+        };
+        assert!(check_space(&out, &budget(1.0, 1.0), 0, "1 step", false).is_ok());
+        let e = check_space(&out, &budget(1e30, 1.0), 0, "many steps", false)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("would write about") && e.contains("--force"), "{e}");
-        assert!(check_space(&out, 1e30, 0, "many steps", true).is_ok());
+        assert!(check_space(&out, &budget(1e30, 1.0), 0, "many steps", true).is_ok());
+        let e = check_space(&out, &budget(1e30, 1e30), 0, "many steps", true)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not even --force starts"), "{e}");
         assert_eq!(
             restart_command(Path::new("s.toml"), Path::new("o.h5"), 2, &[]),
             "mpirun -n 2 eprop run s.toml --restart o.h5"

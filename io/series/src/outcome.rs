@@ -5,9 +5,27 @@
 //! on to the next collective call (they would wait for it forever), and must not close the
 //! file while they write. So every call's outcome is agreed (`Team::settle`: one all-gather
 //! of a small code) before the next one is made; when any process failed, every process
-//! returns the same `WriteFailed` and closes the file at the same point.
+//! returns the same `WriteFailed`.
+//!
+//! After a failed write the processes' HDF5 states differ (the one whose write failed still
+//! holds the unwritten metadata), so closing the file, which is collective, would wait forever:
+//! one process flushing (`H5AC_flush -> MPI_Barrier`), another truncating
+//! (`H5FD_truncate -> MPI_Bcast`). So a file whose write failed under MPI is never closed:
+//! the team keeps a reference to it, and the process ends without the HDF5 and MPI
+//! finalisation (`stranded`, `distribute::launch`), after the data of every step before
+//! the failure was flushed.
 
+use std::cell::Cell;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+static STRANDED: AtomicBool = AtomicBool::new(false);
+
+/// True when a file written by several processes failed: it is left open, and the process
+/// must end without finalising HDF5 and MPI (which would close it and hang).
+pub fn stranded() -> bool {
+    STRANDED.load(Ordering::SeqCst)
+}
 
 /// Why a write failed, as far as the system says (the `errno` class).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -182,6 +200,8 @@ pub fn human_bytes(b: f64) -> String {
 pub struct Team {
     pub path: PathBuf,
     comm: Option<mpi::topology::SimpleCommunicator>,
+    /// The file's HDF5 id, once open: under MPI a failure keeps it open for good.
+    file: Cell<Option<hdf5_sys::h5i::hid_t>>,
 }
 
 /// A call's outcome as one code: 0 done, else the cause's code.
@@ -200,6 +220,28 @@ impl Team {
         Team {
             path: path.to_path_buf(),
             comm: comm.map(|c| c.duplicate()),
+            file: Cell::new(None),
+        }
+    }
+
+    /// The file these processes write: under MPI, a failed call leaves it open (see the
+    /// module's text).
+    pub fn hold(&self, file: &hdf5::File) {
+        self.file.set(Some(file.id()));
+    }
+
+    /// Under MPI after a failure: one more reference to the file, so that dropping every
+    /// handle never closes it, and the process marked to end without finalisation.
+    fn strand(&self) {
+        if self.comm.is_none() {
+            return;
+        }
+        if let Some(id) = self.file.take() {
+            // SAFETY: `id` is the open file's id (held since it was opened)
+            unsafe {
+                hdf5_sys::h5i::H5Iinc_ref(id);
+            }
+            STRANDED.store(true, Ordering::SeqCst);
         }
     }
 
@@ -252,6 +294,7 @@ impl Team {
         if all.iter().all(|&c| c == 0) {
             return r.map_err(|_| unreachable!());
         }
+        self.strand();
         let cause = Cause::from_code(*all.iter().max().unwrap_or(&1));
         let detail = r
             .err()

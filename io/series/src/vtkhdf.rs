@@ -317,6 +317,7 @@ impl SeriesWriter {
         let root = mesh.is_some();
         let team = Team::new(path, comm);
         let file = team.settle_open(at(CREATING), access(comm).create(path))?;
+        team.hold(&file);
         let t = &team;
         let n = layout.nodes;
         let top = t.settle(at("creating the output (/VTKHDF)"), file.create_group("VTKHDF"))?;
@@ -625,6 +626,7 @@ impl SeriesWriter {
         let team = Team::new(path, comm);
         let t = &team;
         let file = t.settle_open(at("opening the file to restart"), access(comm).open_rw(path))?;
+        t.hold(&file);
         let bad = |what: String| {
             anyhow!(
                 "{}: cannot restart: {what}; fix: restart with the scenario and mesh that wrote the file, or start a new run",
