@@ -105,8 +105,9 @@ line, 3 stopped by a signal (continue with --restart), 4 the output could not be
         /// Replace the series in the output file if there is one (never a file of another kind)
         #[arg(long)]
         overwrite: bool,
-        /// Start even when the estimated output exceeds the free space of its disk (the run
-        /// then writes until the disk refuses, and stops cleanly)
+        /// Start even when the estimated output exceeds the free space of its disk (the start,
+        /// the mesh and first step, and 1 MiB + two steps must still fit); the run then writes
+        /// until the disk refuses, and stops with status 4, keeping every complete step
         #[arg(long)]
         force: bool,
         /// Substeps per fused sweep: auto or 1 to 16 (overrides [performance] fuse; the same
@@ -164,8 +165,9 @@ ends before the `listening on` line. Under mpirun rank 0 holds the socket."
         /// Replace the series in the output file if there is one (never a file of another kind)
         #[arg(long)]
         overwrite: bool,
-        /// Start even when the estimated output exceeds the free space of its disk (the run
-        /// then writes until the disk refuses, and stops cleanly)
+        /// Start even when the estimated output exceeds the free space of its disk (the start,
+        /// the mesh and first step, and 1 MiB + two steps must still fit); the run then writes
+        /// until the disk refuses, and stops with status 4, keeping every complete step
         #[arg(long)]
         force: bool,
     },
