@@ -2,6 +2,7 @@
 //! (MODEL.md 3-6). `Simulation::advance` is one mechanics step: the loads at t_n give the
 //! sources Q and the forces f; the stepper advances the potential over dt; the nodes move.
 
+mod access;
 pub mod contact;
 pub mod distributed;
 #[cfg(test)]
