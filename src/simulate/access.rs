@@ -129,4 +129,29 @@ impl Simulation {
     pub fn stop_signal(&self) -> i32 {
         self.stop_signal
     }
+
+    /// Control volumes of this process's output block.
+    pub(crate) fn vol_block(&self) -> &[f64] {
+        &self.vol_block
+    }
+
+    /// Fixed nodes of the whole mesh.
+    pub(crate) fn fixed_nodes(&self) -> usize {
+        self.fixed_nodes
+    }
+
+    /// Nodes of the whole mesh that belong to no cell.
+    pub(crate) fn inactive_nodes(&self) -> usize {
+        self.inactive_nodes
+    }
+
+    /// The mechanics stability bound over every node.
+    pub(crate) fn dt_bound(&self) -> f64 {
+        self.dt_bound
+    }
+
+    /// Operator applications of every step this process advanced.
+    pub(crate) fn applications(&self) -> &[u32] {
+        &self.applications
+    }
 }

@@ -60,44 +60,44 @@ pub struct Applied {
 pub struct Simulation {
     /// This process's view of the scenario: its local mesh and per-node arrays in local
     /// numbering (loads keep global node indices).
-    pub(crate) setup: Setup,
-    pub(crate) comm: Box<dyn Comm>,
+    setup: Setup,
+    comm: Box<dyn Comm>,
     /// The whole mesh, on the process that writes the static part of the output (rank 0).
-    pub(crate) global: Option<Mesh>,
-    pub(crate) n_global: usize,
+    global: Option<Mesh>,
+    n_global: usize,
     numbering: LocalNumbering,
     /// Global node index of each local node.
-    pub(crate) gid: Vec<u64>,
+    gid: Vec<u64>,
     /// Output blocks of the global node order.
-    pub(crate) blocks: BlockScatter,
-    pub(crate) dual: Dual,
+    blocks: BlockScatter,
+    dual: Dual,
     pub(crate) prop: Propagation,
     /// The integrator of the propagation.
-    pub(crate) stepper: Box<dyn Stepper>,
+    stepper: Box<dyn Stepper>,
     /// nodes that move: not fixed and with a control volume
-    pub(crate) active: Vec<bool>,
-    pub(crate) u: NodeField<V3>,
-    pub(crate) v: NodeField<V3>,
+    active: Vec<bool>,
+    u: NodeField<V3>,
+    v: NodeField<V3>,
     force: NodeField<V3>,
     pub(crate) loads: Vec<Load>,
     /// owned contact nodes of each load (local index, probe weight, force weight, source weight)
-    pub(crate) load_local: Vec<Vec<(u32, f64, f64, f64)>>,
+    load_local: Vec<Vec<(u32, f64, f64, f64)>>,
     /// control volumes of this process's output block
-    pub(crate) vol_block: Vec<f64>,
+    vol_block: Vec<f64>,
     /// fixed nodes of the whole mesh
-    pub(crate) fixed_nodes: usize,
-    pub(crate) dt: f64,
-    pub(crate) dt_bound: f64,
-    pub(crate) step: u64,
-    pub(crate) time: f64,
-    pub(crate) max_speed: f64,
+    fixed_nodes: usize,
+    dt: f64,
+    dt_bound: f64,
+    step: u64,
+    time: f64,
+    max_speed: f64,
     /// nodes of the whole mesh that belong to no cell
-    pub(crate) inactive_nodes: usize,
+    inactive_nodes: usize,
     /// Operator applications of every step this process advanced.
-    pub(crate) applications: Vec<u32>,
+    applications: Vec<u32>,
     /// The stop signal some process received before the last step (0: none), agreed by every
     /// process in the step's reduction (`crate::guard::signals`).
-    pub(crate) stop_signal: i32,
+    stop_signal: i32,
     /// The scenario's tools (docs/tools.md).
     pub(crate) tools: Vec<ToolRun>,
     /// Owned surface nodes that move (the tools' contact candidates; empty without tools)
