@@ -116,9 +116,9 @@ fn main() -> anyhow::Result<()> {
             if single {
                 c = c.into_f32();
             }
-            c.kernel = Kernel {
-                vector: c.kernel.vector && vector,
-            };
+            c.set_kernel(Kernel {
+                vector: c.kernel().vector && vector,
+            });
             let mut p = prop(c);
             if fuse > 0 {
                 p.set_fuse(fuse); // 0: chosen by the tuner, as in a run

@@ -348,7 +348,7 @@ fn vector_and_portable_kernels_agree() {
     let mut out = vec![];
     for vector in [false, true] {
         if let Operator::Compact(c) = &mut prop.op {
-            c.kernel = Kernel { vector };
+            c.set_kernel(Kernel { vector });
         }
         let mut y = vec![[0.0; 3]; n];
         prop.op.step_rows(&x, &[], &mut y, h, 0..rows);
