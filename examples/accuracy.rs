@@ -7,7 +7,6 @@
 //! KIND: euler/2 (euler at half its substep: the reference's own error), rkl2, implicit, auto
 //! (default: all four). `[integrator] accuracy` comes from the scenario.
 use eprop::discretize::operator::V3;
-use eprop::propagate::integrate::{Euler, Kind};
 use eprop::simulate::Simulation;
 use std::time::Instant;
 
@@ -20,17 +19,20 @@ struct Run {
 }
 
 fn run(path: &std::path::Path, kind: &str) -> anyhow::Result<Run> {
-    let mut setup = eprop::config::Setup::new(eprop::config::Scenario::load(path)?)?;
-    setup.integrator.kind = match kind {
-        "rkl2" => Kind::Rkl2,
-        "implicit" => Kind::Implicit,
-        "auto" => Kind::Auto,
-        _ => Kind::Euler,
+    let integrator = match kind {
+        "rkl2" | "implicit" | "auto" => kind,
+        _ => "euler",
     };
-    let mut s = Simulation::new(setup)?;
+    let build = |mut sets: Vec<String>| -> anyhow::Result<Simulation> {
+        sets.push(format!("model.integrator={integrator}"));
+        Simulation::new(eprop::config::Setup::new(eprop::config::Scenario::load_with(
+            path, &sets,
+        )?)?)
+    };
+    let mut s = build(vec![])?;
     if kind == "euler/2" {
-        let p = s.step_plan().clone();
-        s.stepper = Box::new(Euler::new(p.h_bound, p.dt, Some(p.h / 2.0), "-", "compact")?);
+        let h = s.step_plan().h;
+        s = build(vec![format!("time.h={:?}", h / 2.0)])?;
     }
     let chosen = s.step_plan().integrator.to_string();
     let (mut u, mut force, mut applications) = (vec![], vec![], 0);
@@ -40,7 +42,7 @@ fn run(path: &std::path::Path, kind: &str) -> anyhow::Result<Run> {
         let t0 = Instant::now();
         applications += s.advance()?.applications;
         seconds += t0.elapsed().as_secs_f64();
-        u.push(s.u.owned().to_vec());
+        u.push(s.u().owned().to_vec());
         if let Some(tool) = s.tool_states().first() {
             force.push(tool.force);
         }

@@ -31,10 +31,11 @@ fn main() -> anyhow::Result<()> {
     let mut sims: Vec<Simulation> = vec![];
     for (_, kind, pre) in &variants {
         let make = || -> anyhow::Result<eprop::config::Setup> {
-            let mut s = eprop::config::Setup::new(eprop::config::Scenario::load(&path)?)?;
-            s.integrator.kind = *kind;
-            s.integrator.preconditioner = *pre;
-            Ok(s)
+            let sets = [
+                format!("model.integrator={}", kind.name()),
+                format!("integrator.preconditioner={}", pre.name()),
+            ];
+            eprop::config::Setup::new(eprop::config::Scenario::load_with(&path, &sets)?)
         };
         let sim = match &universe {
             Some(u) => eprop::simulate::distributed::build_mpi(u.world(), make)?.sim,
@@ -42,7 +43,7 @@ fn main() -> anyhow::Result<()> {
         };
         sims.push(sim);
     }
-    let root = sims[0].comm.rank() == 0;
+    let root = sims[0].comm().rank() == 0;
     let mut times: Vec<Vec<f64>> = vec![vec![]; variants.len()];
     let mut apps: Vec<Vec<usize>> = vec![vec![]; variants.len()];
     for step in 0..steps {
@@ -50,10 +51,10 @@ fn main() -> anyhow::Result<()> {
             if k == 0 && step >= euler_steps {
                 continue;
             }
-            sim.comm.max(0.0); // line the processes up
+            sim.comm().max(0.0); // line the processes up
             let t = Instant::now();
             let st = sim.advance()?;
-            let dt = sim.comm.max(t.elapsed().as_secs_f64());
+            let dt = sim.comm().max(t.elapsed().as_secs_f64());
             times[k].push(dt);
             apps[k].push(st.applications);
         }
@@ -65,8 +66,8 @@ fn main() -> anyhow::Result<()> {
     let errors: Vec<Option<f64>> = match &reference {
         Some(r) if euler_steps == steps => {
             let sim = &sims[0];
-            let mine = sim.in_output_order(&sim.u);
-            let all = sim.comm.all_gather(&mine);
+            let mine = sim.in_output_order(sim.u());
+            let all = sim.comm().all_gather(&mine);
             if root {
                 let bytes: Vec<u8> = all.iter().flat_map(|x| x.to_le_bytes()).collect();
                 std::fs::write(r, bytes)?;
@@ -86,9 +87,9 @@ fn main() -> anyhow::Result<()> {
                     if k == 0 {
                         return None;
                     }
-                    let mine = sim.in_output_order(&sim.u);
-                    let w = &want[3 * sim.blocks.start..3 * (sim.blocks.start + sim.blocks.len)];
-                    let c = sim.comm.as_ref();
+                    let mine = sim.in_output_order(sim.u());
+                    let w = &want[3 * sim.blocks().start..3 * (sim.blocks().start + sim.blocks().len)];
+                    let c = sim.comm();
                     let d = eprop::distribute::comm::exact_sum(c, mine.iter().zip(w).map(|(a, b)| (a - b) * (a - b)));
                     let n = eprop::distribute::comm::exact_sum(c, w.iter().map(|b| b * b));
                     Some((d / n).sqrt())
@@ -106,8 +107,8 @@ fn main() -> anyhow::Result<()> {
         let euler = med(&times[0]);
         println!(
             "{} processes, {} nodes; euler {} substeps per step",
-            sims[0].comm.size(),
-            sims[0].n_global,
+            sims[0].comm().size(),
+            sims[0].n_global(),
             sims[0].step_plan().per_step
         );
         println!(

@@ -30,19 +30,19 @@ fn main() -> anyhow::Result<()> {
     let sim = eprop::simulate::Simulation::new(setup)?;
     let n = sim.n_owned();
     let h = sim.step_plan().h;
-    let Operator::Compact(base) = &sim.prop.op else {
+    let Operator::Compact(base) = &sim.prop().op else {
         anyhow::bail!("kernel_ab times the compact scheme");
     };
     // the orders of the whole mesh restricted to this process's nodes, as `Plan::new` makes
     // them, relative to the simulation's own order
-    let mesh = sim.global.as_ref().expect("a serial simulation keeps its mesh");
+    let mesh = sim.global_mesh().expect("a serial simulation keeps its mesh");
     let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
     let t = Instant::now();
     let key = eprop_partition::rcm_keys(&xadj, &adj);
     let t_rcm = t.elapsed().as_secs_f64();
     let perm = |key: &[u64]| {
         let mut by_key: Vec<u32> = (0..n as u32).collect();
-        by_key.sort_by_key(|&l| key[sim.gid[l as usize] as usize]);
+        by_key.sort_by_key(|&l| key[sim.gid()[l as usize] as usize]);
         let mut new_of = vec![0u32; n];
         for (r, &l) in by_key.iter().enumerate() {
             new_of[l as usize] = r as u32;
@@ -116,9 +116,9 @@ fn main() -> anyhow::Result<()> {
             if single {
                 c = c.into_f32();
             }
-            c.kernel = Kernel {
-                vector: c.kernel.vector && vector,
-            };
+            c.set_kernel(Kernel {
+                vector: c.kernel().vector && vector,
+            });
             let mut p = prop(c);
             if fuse > 0 {
                 p.set_fuse(fuse); // 0: chosen by the tuner, as in a run
@@ -126,7 +126,7 @@ fn main() -> anyhow::Result<()> {
             // the same O(1) field on every variant (no subnormal values, which would time the
             // floating-point assists instead of the kernel), by node
             for l in 0..n {
-                let g = sim.gid[l] as f64;
+                let g = sim.gid()[l] as f64;
                 let at = if order == 0 { mnew_of[l] } else { new_of[l] } as usize;
                 p.phi[at] = [(0.37 * g).sin(), (0.11 * g).cos(), 1.0 + 1.0 / (1.0 + g)];
             }

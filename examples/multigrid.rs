@@ -11,15 +11,16 @@ fn main() -> anyhow::Result<()> {
     let path = std::path::PathBuf::from(&a[1]);
     let secs: f64 = a.get(2).map(|s| s.parse()).transpose()?.unwrap_or(10.0);
     let setup = eprop::config::Setup::new(eprop::config::Scenario::load(&path)?)?;
-    let mut sim = eprop::simulate::Simulation::new(setup)?;
+    let sim = eprop::simulate::Simulation::new(setup)?;
     let n = sim.n_owned();
-    let layout = sim.prop.layout();
+    let layout = sim.prop().layout();
     let vol: Vec<f64> = (0..n)
-        .map(|i| if sim.active[i] { sim.dual.vol[i] } else { 0.0 })
+        .map(|i| if sim.active()[i] { sim.volumes()[i] } else { 0.0 })
         .collect();
-    let tt = eprop::propagate::integrate::implicit::THETA * sim.dt;
+    let tt = eprop::propagate::integrate::implicit::THETA * sim.dt();
     let t = Instant::now();
-    let mut mg = Multigrid::new(&sim.prop, &vol, tt)?;
+    let mut mg = Multigrid::new(sim.prop(), &vol, tt)?;
+    let mut prop = sim.into_propagation();
     let setup_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
     mg.set_coefficient(tt)?;
@@ -34,10 +35,10 @@ fn main() -> anyhow::Result<()> {
     let t0 = Instant::now();
     while t0.elapsed().as_secs_f64() < secs {
         let t = Instant::now();
-        mg.apply(&mut sim.prop, &r, &mut z);
+        mg.apply(&mut prop, &r, &mut z);
         tc.push(t.elapsed().as_secs_f64());
         let t = Instant::now();
-        sim.prop.apply_to(&mut x, &mut y);
+        prop.apply_to(&mut x, &mut y);
         ta.push(t.elapsed().as_secs_f64());
     }
     let med = |v: &mut Vec<f64>| {

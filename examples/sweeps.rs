@@ -10,9 +10,9 @@ fn main() -> anyhow::Result<()> {
     let path = std::path::PathBuf::from(&a[1]);
     let secs: f64 = a.get(2).map(|s| s.parse()).transpose()?.unwrap_or(20.0);
     let setup = eprop::config::Setup::new(eprop::config::Scenario::load(&path)?)?;
-    let mut sim = eprop::simulate::Simulation::new(setup)?;
+    let sim = eprop::simulate::Simulation::new(setup)?;
     let n = sim.n_owned();
-    let layout = sim.prop.layout();
+    let layout = sim.prop().layout();
     let q = vec![(0u32, [1.0, 0.0, 0.0])];
     let h = 1e-5;
     let mut x = eprop::distribute::field::NodeField::filled(layout, [1.0, 2.0, 3.0]);
@@ -32,11 +32,11 @@ fn main() -> anyhow::Result<()> {
     let stages = rk.plan().per_step;
     let settings = eprop::propagate::integrate::Settings::default();
     let active: Vec<bool> = (0..layout.n_local)
-        .map(|i| sim.dual.vol[i] > 0.0 && !sim.setup.fixed[i])
+        .map(|i| sim.volumes()[i] > 0.0 && !sim.setup().fixed[i])
         .collect();
     let mut imp = eprop::propagate::integrate::Implicit::new(
-        &sim.prop,
-        &sim.dual.vol,
+        sim.prop(),
+        sim.volumes(),
         &active,
         0.5,
         1e-5,
@@ -44,8 +44,11 @@ fn main() -> anyhow::Result<()> {
         "x",
         0,
         String::new(),
-        sim.comm.as_ref(),
+        sim.comm(),
     )?;
+    // one process (`Simulation::new`): its collectives are the serial ones
+    let comm = &eprop::distribute::comm::Serial;
+    let mut prop = sim.into_propagation();
     let q2: Vec<(u32, [f64; 3])> = (0..n as u32).step_by(97).map(|i| (i, [1.0, 0.5, 0.25])).collect();
     let t0 = Instant::now();
     while t0.elapsed().as_secs_f64() < secs {
@@ -55,11 +58,11 @@ fn main() -> anyhow::Result<()> {
             let t = Instant::now();
             for _ in 0..reps {
                 match v {
-                    0 => sim.prop.substep(h, &q),
-                    1 => sim.prop.apply_to(&mut x, &mut y),
+                    0 => prop.substep(h, &q),
+                    1 => prop.apply_to(&mut x, &mut y),
                     2 => {
                         let (zr, mr) = (&z[..], &m[..]);
-                        sim.prop.update_to(&mut x, &mut y, |i, xi, l, yi| {
+                        prop.update_to(&mut x, &mut y, |i, xi, l, yi| {
                             for d in 0..3 {
                                 yi[d] = 0.3 * xi[d] + 0.2 * yi[d] + 0.5 * zr[i][d] + 1e-6 * l[d] + 1e-7 * mr[i][d];
                             }
@@ -67,7 +70,7 @@ fn main() -> anyhow::Result<()> {
                     }
                     3 => {
                         let (yr, zr) = (&y[..], &z[..]);
-                        let s: [f64; 6] = eprop::distribute::comm::exact_sums_par(sim.comm.as_ref(), n, |i| {
+                        let s: [f64; 6] = eprop::distribute::comm::exact_sums_par(comm, n, |i| {
                             let (a, b, c) = (yr[i], zr[i], x[i]);
                             [
                                 a[0] * b[0],
@@ -81,10 +84,10 @@ fn main() -> anyhow::Result<()> {
                         std::hint::black_box(s);
                     }
                     4 => {
-                        rk.advance(&mut sim.prop, &q, sim.comm.as_ref())?;
+                        rk.advance(&mut prop, &q, comm)?;
                     }
                     _ => {
-                        apps = imp.advance(&mut sim.prop, &q2, sim.comm.as_ref())?.applications;
+                        apps = imp.advance(&mut prop, &q2, comm)?.applications;
                     }
                 }
             }

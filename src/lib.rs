@@ -12,7 +12,7 @@ pub(crate) mod diagnostics;
 pub mod discretize;
 pub mod distribute;
 pub mod guard;
-pub mod output;
+pub(crate) mod output;
 pub mod propagate;
 pub mod simulate;
 #[cfg(test)]

@@ -7,7 +7,7 @@ use eprop::cli::serve::{serve_on, ServeOptions};
 use eprop::cli::{bench, inspect};
 use eprop::distribute::launch::{is_root, launch};
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -433,12 +433,6 @@ fn real_main(cli: Cli) -> Result<()> {
             force,
             fuse,
         } => {
-            if restart.is_some() && output.is_some() {
-                bail!("--restart continues the series in its FILE; fix: leave out --output");
-            }
-            if restart.is_some() && overwrite {
-                bail!("--restart continues the series in its FILE and --overwrite replaces it; fix: give one of them");
-            }
             let opts = RunOptions {
                 output,
                 steps,
@@ -450,9 +444,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 fuse,
                 sets: set,
             };
-            if let Some(s) = launch(|world| run_on(world, &scenario, &opts))? {
-                print(&s, json)?;
-            }
+            run(&scenario, &opts, json)?;
         }
         Cmd::Serve {
             scenario,
@@ -467,9 +459,6 @@ fn real_main(cli: Cli) -> Result<()> {
             overwrite,
             force,
         } => {
-            if !(timeout > 0.0 && timeout <= 1e9) {
-                bail!("--timeout {timeout:?}: must be a positive number of seconds (at most 1e9); fix: give, say, --timeout 10");
-            }
             let opts = ServeOptions {
                 listen,
                 timeout,
@@ -485,9 +474,7 @@ fn real_main(cli: Cli) -> Result<()> {
                     sets: set,
                 },
             };
-            if let Some(r) = launch(|world| serve_on(world, &scenario, &opts))? {
-                print(&r, json)?;
-            }
+            serve(&scenario, &opts, json)?;
         }
         Cmd::Check {
             scenario,
@@ -511,22 +498,7 @@ fn real_main(cli: Cli) -> Result<()> {
             output,
             strict,
             overwrite,
-        } => {
-            let inputs: Vec<eprop::guard::safety::Input> = eprop_io::mesh_files(&input)
-                .into_iter()
-                .map(|p| eprop::guard::safety::Input {
-                    role: format!("the input mesh ({})", p.display()),
-                    path: p,
-                })
-                .collect();
-            let _lock = eprop::guard::safety::claim_file(&output, "the converted mesh (OUTPUT)", &inputs, overwrite)?;
-            let m = eprop_io::read_mesh_with(&input, &eprop_io::ReadOptions { strict })?;
-            for w in &m.warnings {
-                eprintln!("warning: {w}");
-            }
-            eprop_io::write_mesh(&m, &output)?;
-            println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
-        }
+        } => convert(&input, &output, strict, overwrite)?,
         Cmd::Partition { mesh, parts, json } => {
             let m = eprop_io::read_mesh(&mesh)?;
             print(&inspect::partition_report(&m, parts)?, json)?;
@@ -543,33 +515,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 fuse,
                 simd: simd == "on",
             };
-            let (root, cases, _lock) = launch(|world| {
-                let root = is_root(world.as_ref());
-                // the --json file is claimed before the measurement (rank 0 writes it)
-                let lock = eprop::distribute::launch::on_root(world.as_ref(), || {
-                    json.as_ref()
-                        .map(|j| eprop::guard::safety::claim_file(j, "the JSON file (--json)", &[], overwrite))
-                        .transpose()
-                })?
-                .flatten();
-                if root {
-                    println!("{}", bench::header());
-                }
-                let report = |c: &bench::Case| {
-                    if root {
-                        println!("{}", bench::row(c));
-                    }
-                };
-                Ok((
-                    root,
-                    bench::bench(world, &cells, &schemes, perf, &std::env::temp_dir(), report)?,
-                    lock,
-                ))
-            })?;
-            if let (true, Some(j)) = (root, json) {
-                std::fs::write(&j, serde_json::to_string_pretty(&cases)?)
-                    .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", j.display()))?;
-            }
+            bench_boxes(&cells, &schemes, perf, json, overwrite)?;
         }
         Cmd::ExportOperator {
             scenario,
@@ -606,14 +552,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 prefix: output,
                 overwrite,
             };
-            let files = eprop::cli::export::export(&series, &o)?;
-            println!(
-                "{}: {} file(s), {} .. {}",
-                series.display(),
-                files.len(),
-                files.first().map(|f| f.display().to_string()).unwrap_or_default(),
-                files.last().map(|f| f.display().to_string()).unwrap_or_default()
-            );
+            export_surface(&series, &o)?;
         }
         Cmd::Mesh { shape, overwrite } => {
             let (mesh, out) = generate(shape)?;
@@ -622,6 +561,106 @@ fn real_main(cli: Cli) -> Result<()> {
             println!("{}: {} nodes, {} cells", out.display(), mesh.n_nodes(), mesh.n_cells());
         }
     }
+    Ok(())
+}
+
+/// `eprop run`: the options checked, the run on one process or under mpirun, its summary.
+fn run(scenario: &Path, opts: &RunOptions, json: bool) -> Result<()> {
+    if opts.restart.is_some() && opts.output.is_some() {
+        bail!("--restart continues the series in its FILE; fix: leave out --output");
+    }
+    if opts.restart.is_some() && opts.overwrite {
+        bail!("--restart continues the series in its FILE and --overwrite replaces it; fix: give one of them");
+    }
+    if let Some(s) = launch(|world| run_on(world, scenario, opts))? {
+        print(&s, json)?;
+    }
+    Ok(())
+}
+
+/// `eprop serve`: the timeout checked, the served run, its summary.
+fn serve(scenario: &Path, opts: &ServeOptions, json: bool) -> Result<()> {
+    let timeout = opts.timeout;
+    if !(timeout > 0.0 && timeout <= 1e9) {
+        bail!(
+            "--timeout {timeout:?}: must be a positive number of seconds (at most 1e9); fix: give, say, --timeout 10"
+        );
+    }
+    if let Some(r) = launch(|world| serve_on(world, scenario, opts))? {
+        print(&r, json)?;
+    }
+    Ok(())
+}
+
+/// `eprop convert`: the output claimed (not one of the input's files), the mesh read,
+/// validated and written.
+fn convert(input: &Path, output: &Path, strict: bool, overwrite: bool) -> Result<()> {
+    let inputs: Vec<eprop::guard::safety::Input> = eprop_io::mesh_files(input)
+        .into_iter()
+        .map(|p| eprop::guard::safety::Input {
+            role: format!("the input mesh ({})", p.display()),
+            path: p,
+        })
+        .collect();
+    let _lock = eprop::guard::safety::claim_file(output, "the converted mesh (OUTPUT)", &inputs, overwrite)?;
+    let m = eprop_io::read_mesh_with(input, &eprop_io::ReadOptions { strict })?;
+    for w in &m.warnings {
+        eprintln!("warning: {w}");
+    }
+    eprop_io::write_mesh(&m, output)?;
+    println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
+    Ok(())
+}
+
+/// `eprop bench`: the --json file claimed first (rank 0 writes it), a row per case as it is
+/// measured, then the JSON.
+fn bench_boxes(
+    cells: &[usize],
+    schemes: &[String],
+    perf: eprop::config::Performance,
+    json: Option<PathBuf>,
+    overwrite: bool,
+) -> Result<()> {
+    let (root, cases, _lock) = launch(|world| {
+        let root = is_root(world.as_ref());
+        // the --json file is claimed before the measurement (rank 0 writes it)
+        let lock = eprop::distribute::launch::on_root(world.as_ref(), || {
+            json.as_ref()
+                .map(|j| eprop::guard::safety::claim_file(j, "the JSON file (--json)", &[], overwrite))
+                .transpose()
+        })?
+        .flatten();
+        if root {
+            println!("{}", bench::header());
+        }
+        let report = |c: &bench::Case| {
+            if root {
+                println!("{}", bench::row(c));
+            }
+        };
+        Ok((
+            root,
+            bench::bench(world, cells, schemes, perf, &std::env::temp_dir(), report)?,
+            lock,
+        ))
+    })?;
+    if let (true, Some(j)) = (root, json) {
+        std::fs::write(&j, serde_json::to_string_pretty(&cases)?)
+            .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", j.display()))?;
+    }
+    Ok(())
+}
+
+/// `eprop export`: the files written and the first and last named.
+fn export_surface(series: &Path, o: &eprop::cli::export::ExportOptions) -> Result<()> {
+    let files = eprop::cli::export::export(series, o)?;
+    println!(
+        "{}: {} file(s), {} .. {}",
+        series.display(),
+        files.len(),
+        files.first().map(|f| f.display().to_string()).unwrap_or_default(),
+        files.last().map(|f| f.display().to_string()).unwrap_or_default()
+    );
     Ok(())
 }
 

@@ -26,22 +26,23 @@ fn run(dir: &Path, mesh: &eprop_io::Mesh, toml: &str, kind: &str) -> (Vec<Vec<V3
     }
     let base = if kind == "euler/2" { "euler" } else { kind_only };
     let text = format!("[model]\nintegrator = \"{base}\"\n{toml}{extra}");
-    let mut s = Simulation::new(common::setup(mesh.clone(), &text, dir)).expect("simulation builds");
+    let build = |sets: &[String]| {
+        Simulation::new(common::setup_with(mesh.clone(), &text, dir, sets)).expect("simulation builds")
+    };
+    let mut s = build(&[]);
     if kind == "euler/2" {
         // euler at half its substep: how far the reference is from its own limit
-        let p = s.step_plan().clone();
-        s.stepper = Box::new(
-            eprop::propagate::integrate::Euler::new(p.h_bound, p.dt, Some(p.h / 2.0), "t", "compact").unwrap(),
-        );
+        let h = s.step_plan().h;
+        s = build(&[format!("time.h={:?}", h / 2.0)]);
     }
     let chosen = s.step_plan().integrator.to_string();
     let (mut us, mut forces) = (vec![], vec![]);
     while !s.done() {
         let st = s.advance().unwrap();
         if std::env::var("EPROP_DEBUG_APPS").is_ok() {
-            eprintln!("{kind} step {}: {} applications", s.step, st.applications);
+            eprintln!("{kind} step {}: {} applications", s.step(), st.applications);
         }
-        us.push(s.u.owned().to_vec());
+        us.push(s.u().owned().to_vec());
         if let Some(t) = s.tool_states().first() {
             forces.push(t.force);
         }

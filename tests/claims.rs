@@ -14,17 +14,16 @@ type V3 = [f64; 3];
 fn run(name: &str, steps: u64, edit: &dyn Fn(String) -> String) -> (Vec<V3>, Vec<V3>, V3) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name);
     let text = edit(std::fs::read_to_string(&path).unwrap());
+    let text = eprop::config::set::apply(&text, &[format!("time.steps={steps}")]).unwrap();
     let sc = Scenario::parse(&path, text).unwrap();
-    let mut setup = Setup::new(sc).unwrap();
-    setup.time.stop = eprop::config::Stop::Steps(steps);
-    let mut sim = Simulation::new(setup).unwrap();
+    let mut sim = Simulation::new(Setup::new(sc).unwrap()).unwrap();
     while !sim.done() {
         sim.advance().unwrap();
     }
-    let u = sim.in_output_order(&sim.u);
+    let u = sim.in_output_order(sim.u());
     let u: Vec<V3> = u.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
     let probe = sim.probes()[0].1;
-    (sim.global.as_ref().unwrap().points.clone(), u, probe)
+    (sim.global_mesh().unwrap().points.clone(), u, probe)
 }
 
 fn norm(v: V3) -> f64 {
@@ -134,10 +133,9 @@ fn a_contact_patch_is_far_less_mesh_dependent_than_a_node() {
     let base = std::fs::read_to_string(&path).unwrap();
     let contact = |text: &str, rings: usize, layers: usize| {
         let mesh = eprop_io::generate::cylinder_mesh(1.0, 4.0, rings, layers).unwrap();
-        let sc = Scenario::parse(&path, text.to_string()).unwrap();
-        let mut setup = Setup::with_mesh(sc, mesh).unwrap();
-        setup.time.stop = eprop::config::Stop::Steps(60);
-        let mut sim = Simulation::new(setup).unwrap();
+        let text = eprop::config::set::apply(text, &["time.steps=60".to_string()]).unwrap();
+        let sc = Scenario::parse(&path, text).unwrap();
+        let mut sim = Simulation::new(Setup::with_mesh(sc, mesh).unwrap()).unwrap();
         while !sim.done() {
             sim.advance().unwrap();
         }

@@ -43,14 +43,14 @@ fn output_reads_back_with_the_values_computed() {
         let u = eprop_series::vtkhdf::read_step(&h5, "displacement", k).unwrap();
         let p = eprop_series::vtkhdf::read_step(&h5, "potential", k).unwrap();
         let e = eprop_series::vtkhdf::read_step(&h5, "energy", k).unwrap();
-        assert_eq!(u, s.in_output_order(&s.u), "displacement at output step {k}");
-        assert_eq!(p, s.in_output_order(&s.prop.phi), "potential at output step {k}");
-        assert_eq!(e.len(), s.u.len());
+        assert_eq!(u, s.in_output_order(s.u()), "displacement at output step {k}");
+        assert_eq!(p, s.in_output_order(s.phi()), "potential at output step {k}");
+        assert_eq!(e.len(), s.u().len());
     };
     check(&s, k);
     while !s.done() {
         s.advance().unwrap();
-        if s.step.is_multiple_of(2) {
+        if s.step().is_multiple_of(2) {
             k += 1;
             check(&s, k);
         }

@@ -35,29 +35,23 @@ fn settings() -> Settings {
     }
 }
 
-/// A stepper of the given kind for the mechanics step `dt` on `s`'s operator: "euler" with
-/// `k` substeps, "rkl2" with the fewest stable stages, "implicit".
-fn stepper(s: &mut Simulation, kind: &str, dt: f64, k: usize) -> Box<dyn Stepper> {
-    let hb = s.step_plan().h_bound;
-    let layout = s.prop.layout();
+/// A stepper of the given kind for the mechanics step `dt` on a simulation's propagation
+/// `prop` (its control volumes `vol`, nodes that move `active`, forward Euler bound `hb`):
+/// "euler" with `k` substeps, "rkl2" with the fewest stable stages, "implicit".
+fn stepper(
+    prop: &Propagation,
+    vol: &[f64],
+    active: &[bool],
+    hb: f64,
+    kind: &str,
+    dt: f64,
+    k: usize,
+) -> Box<dyn Stepper> {
+    let layout = prop.layout();
     match kind {
         "euler" => Box::new(Euler::new(hb, dt, Some(dt / k as f64), "t", "compact").unwrap()),
         "rkl2" => Box::new(Rkl2::new(hb, dt, 1, 1 << 20, layout, "t", String::new()).unwrap()),
-        _ => Box::new(
-            Implicit::new(
-                &s.prop,
-                &s.dual.vol,
-                &s.active,
-                dt,
-                hb,
-                &settings(),
-                "t",
-                0,
-                String::new(),
-                &Serial,
-            )
-            .unwrap(),
-        ),
+        _ => Box::new(Implicit::new(prop, vol, active, dt, hb, &settings(), "t", 0, String::new(), &Serial).unwrap()),
     }
 }
 
@@ -68,7 +62,7 @@ fn box_mode(s: &Simulation, dir: V3) -> Vec<V3> {
     (0..s.n_owned())
         .map(|i| {
             let p = pts[i];
-            let f = if s.active[i] {
+            let f = if s.active()[i] {
                 (PI * p[0]).sin() * (PI * p[1]).sin() * (PI * p[2]).sin()
             } else {
                 0.0
@@ -81,15 +75,17 @@ fn box_mode(s: &Simulation, dir: V3) -> Vec<V3> {
 #[test]
 fn each_integrator_converges_at_its_order_on_an_eigenvector_of_l() {
     let mesh = box_mesh([1.0; 3], [20, 20, 20], BoxCells::Tet).unwrap();
-    let mut s = sim(
+    let s = sim(
         mesh,
         &format!("[material]\nconductivity = 0.1\n{WALLS}[time]\nsteps = 1\n"),
     );
     let n = s.n_owned();
     // v = sin(pi x) sin(pi y) sin(pi z) (1, -2, 0.5) is an eigenvector of the Kuhn box's L
     let v = box_mode(&s, [1.0, -2.0, 0.5]);
+    let (vol, active, hb) = (s.volumes().to_vec(), s.active().to_vec(), s.step_plan().h_bound);
+    let mut prop = s.into_propagation();
     let mut lv = vec![[0.0; 3]; n];
-    s.prop.apply(&v, &mut lv);
+    prop.apply(&v, &mut lv);
     let lambda = {
         let (mut num, mut den) = (0.0, 0.0);
         for i in 0..n {
@@ -107,23 +103,22 @@ fn each_integrator_converges_at_its_order_on_an_eigenvector_of_l() {
                                                                 // to t = 1 / |lambda|; steps of lambda dt = -1/4, -1/8, -1/16
     let t_end = -1.0 / lambda;
     let exact: Vec<V3> = v.iter().map(|x| x.map(|c| c * (lambda * t_end).exp())).collect();
-    let hb = s.step_plan().h_bound;
     for (kind, order) in [("euler", 1.0), ("rkl2", 2.0), ("implicit", 2.0)] {
         let mut errors = vec![];
         for level in 0..3 {
             // euler: 256 substeps per step of dt, dt halving; its error follows h = dt / 256
             let steps = 4usize << level;
             let dt = t_end / steps as f64;
-            let mut st = stepper(&mut s, kind, dt, 256);
+            let mut st = stepper(&prop, &vol, &active, hb, kind, dt, 256);
             if kind == "rkl2" && level == 0 {
                 // stiff: a super-step of many Euler bounds, several stages
                 assert!(dt / hb > 15.0 && st.plan().per_step >= 6, "{}", dt / hb);
             }
-            s.prop.phi.owned_mut().copy_from_slice(&v);
+            prop.phi.owned_mut().copy_from_slice(&v);
             for _ in 0..steps {
-                st.advance(&mut s.prop, &[], &Serial).unwrap();
+                st.advance(&mut prop, &[], &Serial).unwrap();
             }
-            errors.push(rel(s.prop.phi.owned(), &exact));
+            errors.push(rel(prop.phi.owned(), &exact));
         }
         let rates: Vec<f64> = errors.windows(2).map(|w| (w[0] / w[1]).log2()).collect();
         eprintln!("{kind}: errors {errors:?}, rates {rates:?}");
@@ -138,7 +133,7 @@ fn each_integrator_converges_at_its_order_on_an_eigenvector_of_l() {
 fn rkl2_and_implicit_take_sources_consistently_and_keep_a_steady_state() {
     // phi* solves L phi* + Q = 0 (Q := -L phi*): every integrator leaves it where it is
     let mesh = box_mesh([1.0, 0.5, 0.5], [8, 4, 4], BoxCells::Tet).unwrap();
-    let mut s = sim(
+    let s = sim(
         mesh,
         &format!("[material]\nconductivity = 0.5\n{WALLS}[time]\nsteps = 1\n"),
     );
@@ -146,26 +141,28 @@ fn rkl2_and_implicit_take_sources_consistently_and_keep_a_steady_state() {
     let target: Vec<V3> = (0..n)
         .map(|i| {
             let p = s.mesh().points[i];
-            if s.active[i] {
+            if s.active()[i] {
                 [p[0] * (1.0 - p[0]), p[1].sin(), p[2] * p[0] - 0.1]
             } else {
                 [0.0; 3]
             }
         })
         .collect();
+    let (vol, active, hb) = (s.volumes().to_vec(), s.active().to_vec(), s.step_plan().h_bound);
+    let mut prop = s.into_propagation();
     let mut l = vec![[0.0; 3]; n];
-    s.prop.apply(&target, &mut l);
+    prop.apply(&target, &mut l);
     let q: Vec<(u32, V3)> = (0..n)
-        .filter(|&i| s.active[i])
+        .filter(|&i| active[i])
         .map(|i| (i as u32, l[i].map(|c| -c)))
         .collect();
     for kind in ["euler", "rkl2", "implicit"] {
-        let mut st = stepper(&mut s, kind, 0.7, 200);
-        s.prop.phi.owned_mut().copy_from_slice(&target);
+        let mut st = stepper(&prop, &vol, &active, hb, kind, 0.7, 200);
+        prop.phi.owned_mut().copy_from_slice(&target);
         for _ in 0..3 {
-            st.advance(&mut s.prop, &q, &Serial).unwrap();
+            st.advance(&mut prop, &q, &Serial).unwrap();
         }
-        let e = rel(s.prop.phi.owned(), &target);
+        let e = rel(prop.phi.owned(), &target);
         assert!(e < 1e-12, "{kind}: the steady state moved by {e}");
     }
 }
@@ -196,19 +193,28 @@ impl Stepper for Halves {
 /// doubling, |X(dt) - X(dt/2)| (2^p / (2^p - 1)), p their orders.
 fn agree_with_euler(mesh: eprop_io::Mesh, toml: &str, steps: usize) {
     let run = |kind: &str, halve: bool| -> (Vec<V3>, Vec<V3>) {
-        let mut s = sim(mesh.clone(), toml);
-        let dt = s.dt;
+        let s = sim(mesh.clone(), toml);
+        let dt = s.dt();
         let hb = s.step_plan().h_bound;
         let k = (dt / (0.9 * hb)).ceil() as usize;
-        s.stepper = if halve {
-            Box::new(Halves(stepper(&mut s, kind, dt / 2.0, k)))
+        let st: Box<dyn Stepper> = if halve {
+            Box::new(Halves(stepper(
+                s.prop(),
+                s.volumes(),
+                s.active(),
+                hb,
+                kind,
+                dt / 2.0,
+                k,
+            )))
         } else {
-            stepper(&mut s, kind, dt, k)
+            stepper(s.prop(), s.volumes(), s.active(), hb, kind, dt, k)
         };
+        let mut s = s.with_stepper(st);
         for _ in 0..steps {
             s.advance().unwrap();
         }
-        (s.prop.phi.owned().to_vec(), s.u.owned().to_vec())
+        (s.phi().owned().to_vec(), s.u().owned().to_vec())
     };
     let norm = |a: &[V3]| a.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
     let diff = |a: &[V3], b: &[V3]| {
@@ -273,12 +279,12 @@ fn rkl2_and_implicit_agree_with_euler_on_an_organ_mesh() {
 /// A direct solve of L phi + Q = 0 on the free nodes (conjugate gradients on the symmetric
 /// form W phi = -V Q, to roundoff).
 fn direct(s: &Simulation, q: &[(u32, V3)]) -> Vec<V3> {
-    let eprop::discretize::operator::Operator::Compact(op) = &s.prop.op else {
+    let eprop::discretize::operator::Operator::Compact(op) = &s.prop().op else {
         panic!()
     };
     let n = s.n_owned();
-    let vol = &s.dual.vol;
-    let active = &s.active;
+    let vol = s.volumes();
+    let active = s.active();
     let apply = |x: &[V3], y: &mut [V3]| {
         for i in 0..n {
             let mut acc = [0.0; 3];
@@ -343,11 +349,11 @@ fn every_integrator_reaches_the_same_equilibrium() {
         while !s.done() {
             s.advance().unwrap();
         }
-        assert!(s.max_speed < 1e-13, "{kind}: no equilibrium after {} steps", s.step);
+        assert!(s.max_speed() < 1e-13, "{kind}: no equilibrium after {} steps", s.step());
         let q: Vec<(u32, V3)> = {
             // the sources of the last step (constant load)
-            let a = s.applied(s.time);
-            s.load_local[0]
+            let a = s.applied(s.time());
+            s.load_nodes()[0]
                 .iter()
                 .map(|&(i, _, _, sw)| {
                     (
@@ -358,10 +364,10 @@ fn every_integrator_reaches_the_same_equilibrium() {
                 .collect()
         };
         let exact = direct(&s, &q);
-        let e = rel(s.prop.phi.owned(), &exact);
-        eprintln!("{kind}: {} steps, |phi - direct| / |direct| = {e:.2e}", s.step);
+        let e = rel(s.phi().owned(), &exact);
+        eprintln!("{kind}: {} steps, |phi - direct| / |direct| = {e:.2e}", s.step());
         assert!(e < 1e-9, "{kind}: equilibrium off the direct solve by {e}");
-        results.push((s.prop.phi.owned().to_vec(), s.u.owned().to_vec()));
+        results.push((s.phi().owned().to_vec(), s.u().owned().to_vec()));
     }
     for (k, r) in results.iter().enumerate().skip(1) {
         assert!(rel(&r.0, &results[0].0) < 1e-9, "{k}: phi");
@@ -393,19 +399,19 @@ fn a_solve_that_does_not_converge_is_an_error_that_names_the_fix() {
         "{e}"
     );
     // during a step
-    let mut s = sim(mesh, STIFF);
+    let s = sim(mesh, STIFF);
     let st = Settings {
         max_iterations: 1,
         tolerance: 1e-14,
         ..Settings::default()
     };
     let hb = s.step_plan().h_bound;
-    s.stepper = Box::new(
+    let implicit = Box::new(
         Implicit::new(
-            &s.prop,
-            &s.dual.vol,
-            &s.active,
-            s.dt,
+            s.prop(),
+            s.volumes(),
+            s.active(),
+            s.dt(),
             hb,
             &st,
             "s.toml",
@@ -415,6 +421,7 @@ fn a_solve_that_does_not_converge_is_an_error_that_names_the_fix() {
         )
         .unwrap(),
     );
+    let mut s = s.with_stepper(implicit);
     let e = format!("{:#}", s.advance().expect_err("one iteration is not enough"));
     assert!(
         e.contains("s.toml") && e.contains("stage 1 of step 1") && e.contains("fix:"),
@@ -583,29 +590,30 @@ fn the_error_estimates_match_the_true_error_on_an_eigenvector() {
     // is exp(tau lambda) v): implicit's embedded estimate and rkl2's step doubling against
     // the true relative error, with an accuracy loose enough that one (super-)step is taken
     let mesh = box_mesh([1.0; 3], [12, 12, 12], BoxCells::Tet).unwrap();
-    let mut s = sim(
+    let s = sim(
         mesh,
         &format!("[material]\nconductivity = 0.1\n{WALLS}[time]\nsteps = 1\n"),
     );
     let n = s.n_owned();
     let v = box_mode(&s, [1.0, 0.5, -1.0]);
+    let (vol, active, hb) = (s.volumes().to_vec(), s.active().to_vec(), s.step_plan().h_bound);
+    let mut prop = s.into_propagation();
     let mut lv = vec![[0.0; 3]; n];
-    s.prop.apply(&v, &mut lv);
+    prop.apply(&v, &mut lv);
     let lambda = (0..n).map(|i| v[i][0] * lv[i][0]).sum::<f64>() / (0..n).map(|i| v[i][0] * v[i][0]).sum::<f64>();
-    let hb = s.step_plan().h_bound;
     for kind in ["implicit", "rkl2"] {
         let mut ratios = vec![];
         for z in [0.25, 0.125] {
             let dt = z / -lambda;
             let mut st: Box<dyn Stepper> = if kind == "rkl2" {
-                let mut r = Rkl2::new(hb, dt, 1, 1 << 20, s.prop.layout(), "t", String::new()).unwrap();
+                let mut r = Rkl2::new(hb, dt, 1, 1 << 20, prop.layout(), "t", String::new()).unwrap();
                 r.set_accuracy(0.5);
                 Box::new(r)
             } else {
                 let mut imp = Implicit::new(
-                    &s.prop,
-                    &s.dual.vol,
-                    &s.active,
+                    &prop,
+                    &vol,
+                    &active,
                     dt,
                     hb,
                     &settings(),
@@ -618,10 +626,10 @@ fn the_error_estimates_match_the_true_error_on_an_eigenvector() {
                 imp.set_accuracy(0.5);
                 Box::new(imp)
             };
-            s.prop.phi.owned_mut().copy_from_slice(&v);
-            st.advance(&mut s.prop, &[], &Serial).unwrap();
+            prop.phi.owned_mut().copy_from_slice(&v);
+            st.advance(&mut prop, &[], &Serial).unwrap();
             let exact: Vec<V3> = v.iter().map(|x| x.map(|c| c * (lambda * dt).exp())).collect();
-            let truth = rel(s.prop.phi.owned(), &exact);
+            let truth = rel(prop.phi.owned(), &exact);
             let est = st.last_error().unwrap();
             eprintln!("{kind}, tau lambda = -{z}: estimate {est:.3e}, true error {truth:.3e}");
             ratios.push(est / truth);

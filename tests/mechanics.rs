@@ -17,24 +17,24 @@ fn equilibrium_is_force_plus_pushed_potential_over_stiffness() {
         while !s.done() {
             s.advance().unwrap();
         }
-        assert!(s.max_speed < 1e-12, "no equilibrium after {} steps", s.step);
-        let c = s.local(s.loads[0].nodes[0]).unwrap();
-        let scale = norm(s.u[c]);
-        for i in 0..s.u.len() {
-            if !s.active[i] {
-                assert_eq!(s.u[i], [0.0; 3]);
+        assert!(s.max_speed() < 1e-12, "no equilibrium after {} steps", s.step());
+        let c = s.local(s.loads()[0].nodes[0]).unwrap();
+        let scale = norm(s.u()[c]);
+        for i in 0..s.u().len() {
+            if !s.active()[i] {
+                assert_eq!(s.u()[i], [0.0; 3]);
                 continue;
             }
-            let ph = s.prop.phi[i];
+            let ph = s.phi()[i];
             let m = norm(ph);
             let push = if m > 0.0 { kappa * m.powf(p - 1.0) } else { 0.0 };
             let f = if i == c { [-0.5, 0.2, 0.1] } else { [0.0; 3] };
             for d in 0..3 {
                 let want = (f[d] + push * ph[d]) / k;
                 assert!(
-                    (s.u[i][d] - want).abs() < 1e-9 * scale,
+                    (s.u()[i][d] - want).abs() < 1e-9 * scale,
                     "k={k} kappa={kappa} p={p} node {i}: u = {} want {want}",
-                    s.u[i][d]
+                    s.u()[i][d]
                 );
             }
         }
@@ -51,7 +51,7 @@ fn contact_after_20(force: f64, damping: f64) -> f64 {
     while !s.done() {
         s.advance().unwrap();
     }
-    norm(s.u[s.local(s.loads[0].nodes[0]).unwrap()])
+    norm(s.u()[s.local(s.loads()[0].nodes[0]).unwrap()])
 }
 
 #[test]

@@ -28,10 +28,10 @@ fn implicit(s: &Simulation, pre: Preconditioner, tolerance: f64) -> Implicit {
     };
     let hb = s.step_plan().h_bound;
     Implicit::new(
-        &s.prop,
-        &s.dual.vol,
-        &s.active,
-        s.dt,
+        s.prop(),
+        s.volumes(),
+        s.active(),
+        s.dt(),
         hb,
         &settings,
         "t",
@@ -45,7 +45,7 @@ fn implicit(s: &Simulation, pre: Preconditioner, tolerance: f64) -> Implicit {
 /// Free-row volumes as the implicit stepper takes them.
 fn volumes(s: &Simulation) -> Vec<f64> {
     (0..s.n_owned())
-        .map(|i| if s.active[i] { s.dual.vol[i] } else { 0.0 })
+        .map(|i| if s.active()[i] { s.volumes()[i] } else { 0.0 })
         .collect()
 }
 
@@ -69,23 +69,25 @@ fn dot(a: &[V3], b: &[V3]) -> f64 {
 
 #[test]
 fn multigrid_cg_reaches_the_jacobi_cg_solution() {
-    let mut s = box_sim(20);
+    let s = box_sim(20);
     let n = s.n_owned();
     // a step of TR-BDF2 from a rough potential with sources on a few nodes
     let phi0 = pseudo_random(n, 7);
     let q: Vec<(u32, V3)> = (0..n as u32)
-        .filter(|&i| s.active[i as usize])
+        .filter(|&i| s.active()[i as usize])
         .step_by(37)
         .map(|i| (i, [1.0, -0.5, 0.25]))
         .collect();
     let mut results = vec![];
-    for pre in [Preconditioner::Jacobi, Preconditioner::Multigrid] {
-        let mut st = implicit(&s, pre, 1e-11);
+    let steppers = [Preconditioner::Jacobi, Preconditioner::Multigrid].map(|pre| implicit(&s, pre, 1e-11));
+    let active = s.active().to_vec();
+    let mut prop = s.into_propagation();
+    for mut st in steppers {
         for i in 0..n {
-            s.prop.phi[i] = if s.active[i] { phi0[i] } else { [0.0; 3] };
+            prop.phi[i] = if active[i] { phi0[i] } else { [0.0; 3] };
         }
-        st.advance(&mut s.prop, &q, &Serial).unwrap();
-        results.push((s.prop.phi.owned().to_vec(), st.last.iterations));
+        st.advance(&mut prop, &q, &Serial).unwrap();
+        results.push((prop.phi.owned().to_vec(), st.last.iterations));
     }
     let (a, b) = (&results[0].0, &results[1].0);
     let diff: Vec<V3> = a
@@ -104,10 +106,10 @@ fn multigrid_cg_reaches_the_jacobi_cg_solution() {
 fn multigrid_iterations_do_not_grow_with_the_resolution() {
     let mut its = vec![];
     for n in [10, 20, 30] {
-        let mut s = box_sim(n);
+        let s = box_sim(n);
         let mut st = implicit(&s, Preconditioner::Multigrid, 1e-8);
-        let gid = s.gid.clone();
-        its.push(st.trial(&mut s.prop, &gid, &Serial).unwrap());
+        let gid = s.gid().to_vec();
+        its.push(st.trial(&mut s.into_propagation(), &gid, &Serial).unwrap());
     }
     let (lo, hi) = (its.iter().min().unwrap(), its.iter().max().unwrap());
     assert!(
@@ -118,10 +120,11 @@ fn multigrid_iterations_do_not_grow_with_the_resolution() {
 
 #[test]
 fn the_v_cycle_is_symmetric_and_positive() {
-    let mut s = box_sim(16);
+    let s = box_sim(16);
     let n = s.n_owned();
     let vol = volumes(&s);
-    let mut mg = Multigrid::new(&s.prop, &vol, THETA * s.dt).unwrap();
+    let mut mg = Multigrid::new(s.prop(), &vol, THETA * s.dt()).unwrap();
+    let mut prop = s.into_propagation();
     assert!(mg.sizes().len() >= 2, "{:?}", mg.sizes());
     let mask = |v: Vec<V3>| -> Vec<V3> {
         v.into_iter()
@@ -132,32 +135,33 @@ fn the_v_cycle_is_symmetric_and_positive() {
     for seed in 1..4 {
         let (x, y) = (mask(pseudo_random(n, seed)), mask(pseudo_random(n, seed + 100)));
         let (mut mx, mut my) = (vec![[0.0; 3]; n], vec![[0.0; 3]; n]);
-        mg.apply(&mut s.prop, &x, &mut mx);
-        mg.apply(&mut s.prop, &y, &mut my);
+        mg.apply(&mut prop, &x, &mut mx);
+        mg.apply(&mut prop, &y, &mut my);
         let (a, b) = (dot(&x, &my), dot(&y, &mx));
         let scale = (dot(&x, &x) * dot(&my, &my)).sqrt();
         assert!((a - b).abs() <= 1e-12 * scale, "x.My {a:e} y.Mx {b:e}");
         assert!(dot(&x, &mx) > 0.0);
         // applying twice gives the same bits
         let mut again = vec![[0.0; 3]; n];
-        mg.apply(&mut s.prop, &x, &mut again);
+        mg.apply(&mut prop, &x, &mut again);
         assert_eq!(again, mx);
     }
 }
 
 #[test]
 fn a_new_coefficient_recombines_to_the_hierarchy_built_for_it() {
-    let mut s = box_sim(12);
+    let s = box_sim(12);
     let n = s.n_owned();
     let vol = volumes(&s);
-    let (c1, c2) = (THETA * s.dt, 0.3 * THETA * s.dt);
-    let mut a = Multigrid::new(&s.prop, &vol, c1).unwrap();
+    let (c1, c2) = (THETA * s.dt(), 0.3 * THETA * s.dt());
+    let mut a = Multigrid::new(s.prop(), &vol, c1).unwrap();
     a.set_coefficient(c2).unwrap();
-    let mut b = Multigrid::new(&s.prop, &vol, c2).unwrap();
+    let mut b = Multigrid::new(s.prop(), &vol, c2).unwrap();
+    let mut prop = s.into_propagation();
     assert_eq!(a.coefficient(), c2);
     let x = pseudo_random(n, 3);
     let (mut za, mut zb) = (vec![[0.0; 3]; n], vec![[0.0; 3]; n]);
-    a.apply(&mut s.prop, &x, &mut za);
-    b.apply(&mut s.prop, &x, &mut zb);
+    a.apply(&mut prop, &x, &mut za);
+    b.apply(&mut prop, &x, &mut zb);
     assert_eq!(za, zb);
 }

@@ -107,18 +107,19 @@ fn paper_scheme_annihilates_constants() {
     for model in [PAPER, PAPER_RAW] {
         for (mesh, base) in meshes() {
             let what = mesh.source.clone();
-            let mut s = sim(mesh, &format!("{model}{base}"));
-            let n = s.u.len();
+            let mut prop = sim(mesh.clone(), &format!("{model}{base}")).into_propagation();
+            let n = prop.phi.len();
             let c = vec![[1.5, -2.0, 0.25]; n];
             let mut y = vec![[9.0; 3]; n];
-            s.prop.apply(&c, &mut y);
+            prop.apply(&c, &mut y);
             let m = max_abs(&y);
             assert!(m < 1e-12, "{what}: paper scheme: L(constant) = {m:e}");
             // and it runs: the load deforms the mesh, nothing blows up
+            let mut s = sim(mesh, &format!("{model}{base}"));
             for _ in 0..5 {
                 s.advance().unwrap();
             }
-            let u = max_abs(&s.u);
+            let u = max_abs(s.u());
             assert!(u > 0.0 && u.is_finite(), "{what}: max |u| = {u}");
         }
     }
@@ -131,11 +132,13 @@ fn check_no_growth(model: &str) {
     for _ in 0..10 {
         s.advance().unwrap();
     }
-    let mut prev = max_abs(&s.prop.phi);
+    let h = s.step_plan().h;
+    let mut prop = s.into_propagation();
+    let mut prev = max_abs(&prop.phi);
     assert!(prev > 0.0);
     for k in 0..3000 {
-        s.prop.substep(s.step_plan().h, &[]);
-        let m = max_abs(&s.prop.phi);
+        prop.substep(h, &[]);
+        let m = max_abs(&prop.phi);
         assert!(
             m <= prev * (1.0 + 1e-12),
             "{model}: max |phi| grew at substep {k}: {prev:e} -> {m:e}"
@@ -155,21 +158,22 @@ fn no_scheme_grows_the_potential_without_source() {
 fn compact_keeps_a_maximum_principle_on_random_data() {
     // Kuhn-split boxes give non-negative couplings: max |phi| cannot grow from any start
     let mesh = box_mesh([1.0, 1.0, 1.0], [5, 5, 5], BoxCells::Tet).unwrap();
-    let mut s = sim(mesh, "[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n");
-    let n = s.u.len();
+    let s = sim(mesh, "[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n");
+    let (n, h, active) = (s.u().len(), s.step_plan().h, s.active().to_vec());
+    let mut prop = s.into_propagation();
     for i in 0..n {
-        if s.active[i] {
-            s.prop.phi[i] = [
+        if active[i] {
+            prop.phi[i] = [
                 hash_unit(i as u64),
                 hash_unit(7 * i as u64 + 1),
                 hash_unit(13 * i as u64 + 2),
             ];
         }
     }
-    let mut prev = max_abs(&s.prop.phi);
+    let mut prev = max_abs(&prop.phi);
     for _ in 0..500 {
-        s.prop.substep(s.step_plan().h, &[]);
-        let m = max_abs(&s.prop.phi);
+        prop.substep(h, &[]);
+        let m = max_abs(&prop.phi);
         assert!(m <= prev * (1.0 + 1e-14));
         prev = m;
     }
@@ -237,34 +241,34 @@ fn cg(apply: impl Fn(&[f64], &mut [f64]), b: &[f64]) -> Vec<f64> {
 fn steady_state_matches_a_direct_solve() {
     let mesh = box_mesh([1.0, 0.5, 0.5], [8, 4, 4], BoxCells::Tet).unwrap();
     let toml = "[material]\nconductivity = [1.0, 0.6, 0.8]\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [1.0, 0.25, 0.25]\nforce = [1.0, 0.5, -0.3]\n[time]\nsteps = 1\n";
-    let mut s = sim(mesh, toml);
-    let n = s.u.len();
-    let c = s.local(s.loads[0].nodes[0]).unwrap();
+    let s = sim(mesh, toml);
+    let n = s.u().len();
+    let c = s.local(s.loads()[0].nodes[0]).unwrap();
+    let (h, vol, active) = (s.step_plan().h, s.volumes().to_vec(), s.active().to_vec());
+    let mut prop = s.into_propagation();
     let qv = [0.7, -0.2, 0.4];
     let q = vec![(c as u32, qv)];
     // explicit Euler to steady state
     let mut steps = 0;
     loop {
-        let before = s.prop.phi.clone();
+        let before = prop.phi.clone();
         for _ in 0..200 {
-            s.prop.substep(s.step_plan().h, &q);
+            prop.substep(h, &q);
         }
         steps += 200;
-        let change = s
-            .prop
+        let change = prop
             .phi
             .iter()
             .zip(&before)
             .map(|(a, b)| (a[0] - b[0]).abs().max((a[1] - b[1]).abs()).max((a[2] - b[2]).abs()))
             .fold(0.0, f64::max);
-        if change < 1e-15 * max_abs(&s.prop.phi) || steps > 400_000 {
+        if change < 1e-15 * max_abs(&prop.phi) || steps > 400_000 {
             break;
         }
     }
     // direct: sum_j a_ij (phi_j - phi_i) = -V_i Q_i on free nodes, phi = 0 on the fixed face
-    let Operator::Compact(op) = &s.prop.op else { panic!() };
-    let vol = s.dual.vol.clone();
-    let free: Vec<usize> = (0..n).filter(|&i| s.active[i]).collect();
+    let Operator::Compact(op) = &prop.op else { panic!() };
+    let free: Vec<usize> = (0..n).filter(|&i| active[i]).collect();
     let mut pos = vec![usize::MAX; n];
     for (k, &i) in free.iter().enumerate() {
         pos[i] = k;
@@ -288,11 +292,11 @@ fn steady_state_matches_a_direct_solve() {
         let x = cg(apply, &b);
         let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         for (k, &i) in free.iter().enumerate() {
-            let diff = (s.prop.phi[i][d] - x[k]).abs();
+            let diff = (prop.phi[i][d] - x[k]).abs();
             assert!(
                 diff < 1e-8 * scale,
                 "component {d}, node {i}: explicit {} vs direct {} after {steps} substeps",
-                s.prop.phi[i][d],
+                prop.phi[i][d],
                 x[k]
             );
         }
@@ -311,20 +315,21 @@ fn vector_and_portable_kernels_agree() {
         common::skip("no AVX2+FMA on this CPU: there is no vector kernel to compare with the portable one");
         return;
     }
-    let mut s = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), BASE);
-    let n = s.prop.phi.len();
+    let s = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), BASE);
+    let h = s.step_plan().h;
+    let mut prop = s.into_propagation();
+    let n = prop.phi.len();
     let x: Vec<[f64; 3]> = (0..n)
         .map(|i| {
             let t = i as f64;
             [(0.37 * t).sin(), (0.11 * t).cos() + 2.0, 1e-3 * t]
         })
         .collect();
-    let h = s.step_plan().h;
-    let rows = s.prop.op.n_rows();
+    let rows = prop.op.n_rows();
     assert!(rows > 100, "rows to compare");
     // the reference: x_i + h sum_j c_ij (x_j - x_i), pair by pair in row order
     let want: Vec<[f64; 3]> = {
-        let Operator::Compact(c) = &s.prop.op else {
+        let Operator::Compact(c) = &prop.op else {
             panic!("the base scenario runs the compact scheme")
         };
         (0..rows)
@@ -342,11 +347,11 @@ fn vector_and_portable_kernels_agree() {
     };
     let mut out = vec![];
     for vector in [false, true] {
-        if let Operator::Compact(c) = &mut s.prop.op {
-            c.kernel = Kernel { vector };
+        if let Operator::Compact(c) = &mut prop.op {
+            c.set_kernel(Kernel { vector });
         }
         let mut y = vec![[0.0; 3]; n];
-        s.prop.op.step_rows(&x, &[], &mut y, h, 0..rows);
+        prop.op.step_rows(&x, &[], &mut y, h, 0..rows);
         for i in 0..rows {
             for d in 0..3 {
                 let (a, b) = (want[i][d], y[i][d]);

@@ -36,7 +36,7 @@ fn tool_feels_the_loads_force(dir: &Path, force: f64, kind: &str, settings: &str
         ),
     );
     to_the_end(&mut load);
-    assert!(load.step < 2000, "{kind}: the load reaches no equilibrium");
+    assert!(load.step() < 2000, "{kind}: the load reaches no equilibrium");
     let (f, u) = load.probes()[0];
     assert_eq!(f, [0.0, 0.0, -force]);
     // the propagated potential pushes too: the displacement is not f / k_e
@@ -54,7 +54,7 @@ fn tool_feels_the_loads_force(dir: &Path, force: f64, kind: &str, settings: &str
     );
     assert_eq!(tool.step_plan().integrator.name(), kind);
     to_the_end(&mut tool);
-    assert!(tool.step < 2000, "{kind}: the tool reaches no equilibrium");
+    assert!(tool.step() < 2000, "{kind}: the tool reaches no equilibrium");
     let t = tool.tool_states()[0];
     assert_eq!(t.contact_nodes, 1, "{kind}");
     assert!(
@@ -115,17 +115,17 @@ fn a_tool_lets_go_when_it_retreats() {
     while !sim.done() {
         sim.advance().unwrap();
         let t = sim.tool_states()[0];
-        if sim.time <= 40.0 && sim.time > 25.0 {
+        if sim.time() <= 40.0 && sim.time() > 25.0 {
             // held: nodes on the sphere, pushed inwards (-x)
-            assert!(t.contact_nodes >= 2, "t = {}: {t:?}", sim.time);
+            assert!(t.contact_nodes >= 2, "t = {}: {t:?}", sim.time());
             assert!(t.force[0] < 0.0 && t.contact_area > 0.0, "{t:?}");
         }
         pressed = pressed.max(t.contact_nodes);
         peak = peak.max(sim.max_displacement().0);
-        if sim.time > 60.0 {
-            assert_eq!(t.contact_nodes, 0, "t = {}", sim.time);
+        if sim.time() > 60.0 {
+            assert_eq!(t.contact_nodes, 0, "t = {}", sim.time());
             assert_eq!((t.force, t.contact_area), ([0.0; 3], 0.0));
-            released_at.get_or_insert(sim.step);
+            released_at.get_or_insert(sim.step());
         }
     }
     assert!(pressed >= 2 && released_at.is_some());
@@ -155,20 +155,20 @@ fn a_tool_lets_go_of_a_node_the_organ_pulls_away() {
         sim.advance().unwrap();
         let t = sim.tool_states()[0];
         let (_, u) = sim.probes()[0];
-        if (14.0..20.0).contains(&sim.time) {
+        if (14.0..20.0).contains(&sim.time()) {
             assert_eq!(t.contact_nodes, 1);
             assert!(t.force[2] < 0.0);
             phases.0 = true;
         }
-        if (45.0..60.0).contains(&sim.time) {
+        if (45.0..60.0).contains(&sim.time()) {
             // pulled deeper than the punch: free, and no force on the punch
-            assert_eq!((t.contact_nodes, t.force), (0, [0.0; 3]), "t = {}", sim.time);
+            assert_eq!((t.contact_nodes, t.force), (0, [0.0; 3]), "t = {}", sim.time());
             assert!(u[2] < -0.05, "{u:?}");
             phases.1 = true;
         }
-        if sim.time > 100.0 {
+        if sim.time() > 100.0 {
             // the pull is gone: the node comes back up to the punch, which holds it again
-            assert_eq!(t.contact_nodes, 1, "t = {}", sim.time);
+            assert_eq!(t.contact_nodes, 1, "t = {}", sim.time());
             assert!((u[2] + 0.05).abs() < 1e-14, "{u:?}");
             phases.2 = true;
         }
@@ -187,7 +187,7 @@ fn a_table_of_a_constant_force_is_that_force() {
             &format!("{BOX_FIXED}[[load]]\n{CENTRE_PATCH}\n{load}\n[time]\nsteps = 15\n"),
         );
         to_the_end(&mut s);
-        (s.u.to_vec(), s.probes())
+        (s.u().to_vec(), s.probes())
     };
     let a = run("force = [0.1, -0.2, -0.3]");
     let b = run("table = \"f.csv\"");

@@ -129,45 +129,48 @@ pub fn measure(
     run(&mut sim, 1, 2);
     let t = Instant::now();
     run(&mut sim, fuse, 4 * sweep);
-    let t1 = sim.comm.max(t.elapsed().as_secs_f64()) / (4 * sweep) as f64;
+    let t1 = sim.comm().max(t.elapsed().as_secs_f64()) / (4 * sweep) as f64;
     let k = ((2.0 / t1.max(1e-9)) as usize).clamp(10 * sweep, 20_000);
     let chunk = (k / 10).div_ceil(sweep).max(1) * sweep;
     let (mut times, mut single) = (Vec::new(), Vec::new());
     let mut waited = 0.0;
     for _ in 0..10 {
-        sim.comm.max(0.0); // line the processes up
+        sim.comm().max(0.0); // line the processes up
         let w0 = sim.prop.halo.wait_seconds();
         let t = Instant::now();
         run(&mut sim, fuse, chunk);
-        times.push(sim.comm.max(t.elapsed().as_secs_f64()) / chunk as f64);
+        times.push(sim.comm().max(t.elapsed().as_secs_f64()) / chunk as f64);
         waited += sim.prop.halo.wait_seconds() - w0;
-        sim.comm.max(0.0);
+        sim.comm().max(0.0);
         let t = Instant::now();
         run(&mut sim, 1, chunk);
-        single.push(sim.comm.max(t.elapsed().as_secs_f64()) / chunk as f64);
+        single.push(sim.comm().max(t.elapsed().as_secs_f64()) / chunk as f64);
     }
     sim.prop.set_fuse(fuse);
     let per_substep = median(&times);
     let per_single = median(&single);
-    let waited = sim.comm.max(waited) / (10 * chunk) as f64;
-    let bytes = sim.comm.sum_i128(sim.prop.op.stream_bytes_rows(sim.n_owned()) as i128) as f64 / n as f64;
+    let waited = sim.comm().max(waited) / (10 * chunk) as f64;
+    let bytes = sim
+        .comm()
+        .sum_i128(sim.prop.op.stream_bytes_rows(sim.n_owned()) as i128) as f64
+        / n as f64;
     // full steps with one substep each (dt = h)
-    sim.set_dt(sim.dt.min(h))?;
+    sim.set_dt(sim.dt().min(h))?;
     let mut steps = Vec::new();
     for _ in 0..5 {
-        sim.comm.max(0.0);
+        sim.comm().max(0.0);
         let t = Instant::now();
         let m = (chunk / 2).max(1);
         for _ in 0..m {
             sim.advance()?;
         }
-        steps.push(sim.comm.max(t.elapsed().as_secs_f64()) / m as f64);
+        steps.push(sim.comm().max(t.elapsed().as_secs_f64()) / m as f64);
     }
     let per_step = median(&steps);
     // output: a few appends of every field
     // one name for every process (rank 0's pid)
     let mut id = [std::process::id() as f64];
-    sim.comm.broadcast(0, &mut id);
+    sim.comm().broadcast(0, &mut id);
     let file = tmp.join(format!("eprop-bench-{}.h5", id[0] as u64));
     let spec = SeriesSpec {
         fields: Field::ALL.iter().map(|f| (f.name(), f.components())).collect(),
@@ -175,40 +178,40 @@ pub fn measure(
         load_nodes: vec![0],
         scenario: "",
         version: VERSION,
-        block_start: sim.blocks.start,
-        block_len: sim.blocks.len,
-        control_volumes: &sim.vol_block,
+        block_start: sim.blocks().start,
+        block_len: sim.blocks().len,
+        control_volumes: sim.vol_block(),
         attrs: vec![],
         ids: vec![],
         float32: false,
         compression: 0,
     };
-    let mut out = SeriesWriter::create(&file, layout(&sizes), sim.global.as_ref(), &spec, io)?;
+    let mut out = SeriesWriter::create(&file, layout(&sizes), sim.global_mesh(), &spec, io)?;
     let mut writes = Vec::new();
     for _ in 0..5 {
         let t = Instant::now();
         let data = field_blocks(&sim, &Field::ALL);
         let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
-        out.append(sim.time, sim.step, &refs, &sim.probes())?;
-        writes.push(sim.comm.max(t.elapsed().as_secs_f64()));
+        out.append(sim.time(), sim.step(), &refs, &sim.probes())?;
+        writes.push(sim.comm().max(t.elapsed().as_secs_f64()));
     }
     drop(out);
-    if sim.comm.rank() == 0 {
+    if sim.comm().rank() == 0 {
         let _ = std::fs::remove_file(&file);
     }
     let rss = peak_rss() as f64;
-    let peak = sim.comm.max(rss);
-    let total_rss = crate::distribute::comm::exact_sum(sim.comm.as_ref(), [rss].into_iter());
+    let peak = sim.comm().max(rss);
+    let total_rss = crate::distribute::comm::exact_sum(sim.comm(), [rss].into_iter());
     let rate = n as f64 / per_substep;
     Ok(Case {
-        mesh: sim.global.as_ref().map(|m| m.source.clone()).unwrap_or_default(),
+        mesh: sim.global_mesh().map(|m| m.source.clone()).unwrap_or_default(),
         nodes: n,
         cells: sizes.cells,
         scheme: match &sim.prop.op {
             crate::discretize::operator::Operator::Compact(c) if !c.coef32.is_empty() => "compact32".to_string(),
-            _ => crate::simulate::scheme_name(sim.setup.model.scheme()).to_string(),
+            _ => crate::simulate::scheme_name(sim.setup().model.scheme()).to_string(),
         },
-        processes: sim.comm.size(),
+        processes: sim.comm().size(),
         threads: rayon::current_num_threads(),
         substeps_timed: 10 * chunk,
         seconds_per_substep: per_substep,

@@ -76,8 +76,8 @@ pub struct Settings<'a> {
 /// Rank 0's verdict, made every process's: an `Agreed` error on every process when rank 0's
 /// `r` is one (rank 0 prints its message).
 fn from_root(sim: &Simulation, r: Result<()>, status: u8) -> Result<()> {
-    let root = sim.comm.rank() == 0;
-    let failed = sim.comm.max(f64::from(u8::from(root && r.is_err())));
+    let root = sim.comm().rank() == 0;
+    let failed = sim.comm().max(f64::from(u8::from(root && r.is_err())));
     match (failed > 0.0, r) {
         (false, _) => Ok(()),
         (true, Err(e)) => Err(Agreed::error(status, format!("{e:#}"))),
@@ -132,7 +132,7 @@ fn cause(e: &anyhow::Error) -> String {
 
 /// Refuses an output that would not fit on its disk (rank 0 looks; every process ends alike).
 fn space(sim: &Simulation, budget: &Budget, s: &Settings) -> Result<()> {
-    let file = &sim.setup.output.file;
+    let file = &sim.setup().output.file;
     let reclaimed = if s.restart {
         0
     } else {
@@ -142,7 +142,7 @@ fn space(sim: &Simulation, budget: &Budget, s: &Settings) -> Result<()> {
         "{} output steps of {}{}",
         budget.output_steps,
         human_bytes(budget.step_bytes),
-        if matches!(sim.setup.time.stop, Stop::Equilibrium { .. }) {
+        if matches!(sim.setup().time.stop, Stop::Equilibrium { .. }) {
             format!(
                 ", at most: if equilibrium is not reached before the cap of {} steps",
                 budget.steps
@@ -151,7 +151,7 @@ fn space(sim: &Simulation, budget: &Budget, s: &Settings) -> Result<()> {
             String::new()
         }
     );
-    let r = if sim.comm.rank() == 0 {
+    let r = if sim.comm().rank() == 0 {
         safety::check_space(file, budget, reclaimed, &what, s.force)
     } else {
         Ok(())
@@ -175,17 +175,17 @@ pub fn check(sim: &Simulation, s: &Settings) -> Result<Checked> {
         plan.integrator.name(),
         plan.h,
         plan.h_bound,
-        sim.dt,
+        sim.dt(),
         plan.per_step_phrase(),
-        sim.setup.output.file.display()
+        sim.setup().output.file.display()
     );
     // every process computes the same verdicts from the same numbers
     let budget = Budget::of(sim, &s.sizes, s.steps_from_cli, !s.restart).map_err(|e| Agreed::error(EXIT_ERROR, e))?;
     if !s.restart {
         space(sim, &budget, s)?;
     }
-    let root = sim.comm.rank() == 0;
-    let warnings = match &sim.global {
+    let root = sim.comm().rank() == 0;
+    let warnings = match &sim.global_mesh() {
         Some(mesh) if root => plausible::load_warnings(sim, mesh),
         _ => vec![],
     };
@@ -242,18 +242,18 @@ impl Output {
     /// passes its limit) and, unless forced, the disk must hold it with room to spare
     /// (stopping before a write that cannot finish leaves the file closed cleanly).
     fn write(&mut self, sim: &Simulation, s: &Settings, progress: &Progress) -> Result<(), Failure> {
-        let root = sim.comm.rank() == 0;
+        let root = sim.comm().rank() == 0;
         match self.watch.look(sim) {
             Look::NonFinite => {
                 return Err(Failure {
-                    why: format!("the state is no longer finite (NaN or inf) at step {}", sim.step),
+                    why: format!("the state is no longer finite (NaN or inf) at step {}", sim.step()),
                     error: Agreed::error(
                         EXIT_ERROR,
                         format!(
                             "{}: at step {} (t = {:.6e}) the displacement, velocity or potential is no longer finite (NaN or inf), so the run stopped; {}. Likely cause: {}",
-                            sim.setup.scenario.path.display(),
-                            sim.step,
-                            sim.time,
+                            sim.setup().scenario.path.display(),
+                            sim.step(),
+                            sim.time(),
                             holds(&self.series, self.last_written),
                             plausible::nonfinite_cause(sim)
                         ),
@@ -268,13 +268,13 @@ impl Output {
             }
             Look::Finite(None) => {}
         }
-        let file = &sim.setup.output.file;
+        let file = &sim.setup().output.file;
         if !s.force {
             let step_bytes = self.budget.step_bytes;
             let full = root
                 && free_bytes(&dir_of(file))
                     .is_some_and(|free| (free as f64) < crate::guard::limits::reserve(step_bytes));
-            if sim.comm.max(f64::from(u8::from(full))) > 0.0 {
+            if sim.comm().max(f64::from(u8::from(full))) > 0.0 {
                 let free = free_bytes(&dir_of(file)).unwrap_or(0);
                 return Err(Failure {
                     why: format!(
@@ -304,7 +304,7 @@ impl Output {
                 error: write_failed(e, &holds(&self.series, self.last_written), &s.next),
             });
         }
-        self.last_written = sim.step;
+        self.last_written = sim.step();
         Ok(())
     }
 }
@@ -317,14 +317,14 @@ fn steps(
     progress: &mut Option<Progress>,
 ) -> Result<Option<Summary>, Failure> {
     let fresh = !s.restart;
-    let show = sim.comm.rank() == 0 && !s.quiet;
+    let show = sim.comm().rank() == 0 && !s.quiet;
     if let Some(h) = feed.start(sim)? {
         return Err(halted(h, None));
     }
     let series = Series::start(sim, &s.sizes, s.restart, s.io).map_err(|e| Failure {
         why: format!("the series could not be created: {}", cause(&e)),
         error: match fresh {
-            true if sim.setup.output.file.exists() => {
+            true if sim.setup().output.file.exists() => {
                 open_failed(e, "nothing was written; the file is left as it is", s.again, false)
             }
             true => open_failed(
@@ -347,14 +347,14 @@ fn steps(
         }
     };
     feed.after_step(sim);
-    let restarted_at = sim.step;
+    let restarted_at = sim.step();
     let setup_seconds = s.t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let every = sim.setup.output.every;
+    let every = sim.setup().output.every;
     let bar = progress.insert(Progress::new(show, restarted_at, sim.max_steps(), s.progress_every));
     let mut out = Output {
         series,
-        last_written: sim.step,
+        last_written: sim.step(),
         watch: Watch::new(sim),
         warnings: checked.warnings,
         budget,
@@ -362,28 +362,28 @@ fn steps(
     while !sim.done() {
         if let Some(h) = feed.before_step(sim)? {
             // the series ends with the last step computed
-            if out.last_written != sim.step {
+            if out.last_written != sim.step() {
                 out.write(sim, s, bar)?;
             }
             return Err(halted(h, Some(holds(&out.series, out.last_written))));
         }
         sim.advance()?;
         // a stop signal rides on the step's reduction: every process stops after this step
-        let stop = sim.stop_signal;
-        if sim.step.is_multiple_of(every) || sim.done() || stop != 0 {
+        let stop = sim.stop_signal();
+        if sim.step().is_multiple_of(every) || sim.done() || stop != 0 {
             out.write(sim, s, bar)?;
         }
         feed.after_step(sim);
-        bar.update(sim.step, sim.max_speed);
+        bar.update(sim.step(), sim.max_speed());
         if stop != 0 {
             let name = crate::guard::signals::name(stop);
             return Err(Failure {
-                why: format!("stopped by {name} after step {}", sim.step),
+                why: format!("stopped by {name} after step {}", sim.step()),
                 error: Agreed::error(
                     EXIT_STOPPED,
                     format!(
                         "stopped by {name} after step {} of {}: {}; {}",
-                        sim.step,
+                        sim.step(),
                         sim.max_steps(),
                         holds(&out.series, out.last_written),
                         s.next

@@ -281,7 +281,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     let sizes = crate::distribute::parts::GlobalSizes::of(&setup.mesh);
     let mut sim = Simulation::new(setup)?;
     let budget = Budget::of(&sim, &sizes, opts.steps.is_some(), true).map_err(|e| anyhow::anyhow!(e))?;
-    let n = sim.n_global;
+    let n = sim.n_global();
     let q: Vec<(u32, [f64; 3])> = vec![];
     let t = Instant::now();
     let reps = 5;
@@ -290,7 +290,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     }
     let per_substep = t.elapsed().as_secs_f64() / reps as f64;
     let steps = budget.steps;
-    let mesh = sim.global.as_ref().unwrap_or(&sim.setup.mesh);
+    let mesh = sim.global_mesh().unwrap_or(&sim.setup().mesh);
     let mut warnings = crate::output::summary::warnings(&sim, mesh);
     warnings.extend(crate::guard::plausible::load_warnings(&sim, mesh));
     if sim.loads.iter().any(|l| l.nodes.len() == 1) {
@@ -300,19 +300,19 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         );
     }
     // a scenario with a live input is one for `eprop serve`: its refusals too
-    let live = sim.setup.tools.iter().any(|t| t.live) || sim.setup.loads.iter().any(|l| l.live);
+    let live = sim.setup().tools.iter().any(|t| t.live) || sim.setup().loads.iter().any(|l| l.live);
     if live {
-        if let Err(e) = crate::cli::serve::check_live(&sim.setup) {
+        if let Err(e) = crate::cli::serve::check_live(sim.setup()) {
             warnings.push(format!("`eprop serve` will refuse: {e:#}"));
         }
     }
-    let file = &sim.setup.output.file;
-    let inputs = sim.setup.scenario.inputs();
+    let file = &sim.setup().output.file;
+    let inputs = sim.setup().scenario.inputs();
     if let Err(e) = crate::guard::safety::refuse_inputs(file, "the output file", &inputs) {
         warnings.push(format!("`eprop run` will refuse: {e:#}"));
     } else if file.exists() {
-        let overwrite = sim.setup.output.overwrite;
-        let again = match sim.setup.tools.is_empty() {
+        let overwrite = sim.setup().output.overwrite;
+        let again = match sim.setup().tools.is_empty() {
             true => crate::guard::safety::restart_command(path, file, 1, &[]),
             false => String::new(),
         };
@@ -330,7 +330,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         mesh: mesh.source.clone(),
         nodes: n,
         cells: mesh.n_cells(),
-        fixed_nodes: sim.fixed_nodes,
+        fixed_nodes: sim.fixed_nodes(),
         loads: sim.loads.iter().map(|l| (l.nodes.len(), l.area)).collect(),
         tools: sim
             .tools
@@ -349,15 +349,15 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
                 )
             })
             .collect(),
-        scheme: scheme_name(sim.setup.model.scheme()).to_string(),
+        scheme: scheme_name(sim.setup().model.scheme()).to_string(),
         integrator: sim.step_plan().integrator.name().to_string(),
         integrator_why: sim.step_plan().why.clone(),
         per_step: sim.step_plan().per_step_phrase(),
         stiffness: sim.stiffness(),
         h: sim.step_plan().h,
         h_bound: sim.step_plan().h_bound,
-        dt: sim.dt,
-        dt_bound: sim.dt_bound,
+        dt: sim.dt(),
+        dt_bound: sim.dt_bound(),
         substeps: sim.step_plan().per_step,
         steps,
         output: file.display().to_string(),
@@ -435,7 +435,7 @@ pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<
     let n = sim.n_owned();
     let mut rows: Vec<Vec<(i64, f64)>> = vec![vec![]; n];
     for i in 0..n {
-        let g = sim.gid[i] as usize;
+        let g = sim.gid()[i] as usize;
         let r = op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize;
         if r.is_empty() {
             continue;
@@ -444,7 +444,7 @@ pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<
         let mut row: Vec<(i64, f64)> = r
             .map(|p| {
                 diag -= op.c(p);
-                (sim.gid[op.col[p] as usize] as i64, op.c(p))
+                (sim.gid()[op.col[p] as usize] as i64, op.c(p))
             })
             .collect();
         row.push((g as i64, diag));
@@ -493,7 +493,7 @@ pub fn export_operator(scenario: &Path, output: &Path, overwrite: bool) -> Resul
         &[
             ("h", h),
             ("nodes", n as f64),
-            ("dt", sim.dt),
+            ("dt", sim.dt()),
             ("theta", crate::propagate::integrate::implicit::THETA),
         ],
     )?;
@@ -501,8 +501,8 @@ pub fn export_operator(scenario: &Path, output: &Path, overwrite: bool) -> Resul
     // make the implicit integrator's matrix A = V - theta dt V L
     let mut vol = vec![0.0; n];
     for i in 0..n {
-        if sim.active[i] {
-            vol[sim.gid[i] as usize] = sim.dual.vol[i];
+        if sim.active()[i] {
+            vol[sim.gid()[i] as usize] = sim.volumes()[i];
         }
     }
     eprop_series::vtkhdf::add_dataset(output, "vol", &vol)?;
@@ -533,9 +533,9 @@ mod tests {
             unreachable!()
         };
         let (row_ptr, col, val) = operator_csr(&s, op);
-        let n = s.n_global;
+        let n = s.n_global();
         assert_eq!(row_ptr.len(), n + 1);
-        let fixed = |g: usize| s.setup.fixed[s.local(g as u32).unwrap()];
+        let fixed = |g: usize| s.setup().fixed[s.local(g as u32).unwrap()];
         for g in 0..n {
             let (a, b) = (row_ptr[g] as usize, row_ptr[g + 1] as usize);
             // fixed rows are empty; every other row sums to zero with a negative diagonal
@@ -550,7 +550,7 @@ mod tests {
             assert!(sum.abs() <= 1e-12 * val[a + d].abs(), "row {g}: {sum}");
         }
         // V_i L_ij = V_j L_ji between free nodes (a_ij is symmetric)
-        let vol = |g: usize| s.dual.vol[s.local(g as u32).unwrap()];
+        let vol = |g: usize| s.volumes()[s.local(g as u32).unwrap()];
         let at = |i: usize, j: i64| {
             (row_ptr[i]..row_ptr[i + 1])
                 .find(|&p| col[p as usize] == j)

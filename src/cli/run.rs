@@ -197,7 +197,12 @@ fn run_simulation(
     io: Option<&SimpleCommunicator>,
     rank0_scatter_peak: u64,
 ) -> Result<Option<Summary>> {
-    let again = again(&sim.setup.scenario.path, &sim.setup.output.file, sim.comm.size(), opts);
+    let again = again(
+        &sim.setup().scenario.path,
+        &sim.setup().output.file,
+        sim.comm().size(),
+        opts,
+    );
     let settings = Settings {
         sizes,
         io,

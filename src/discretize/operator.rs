@@ -27,8 +27,9 @@ pub struct Compact {
     pub coef32: Vec<f32>,
     /// One more than the largest neighbour index: the potential must be at least this long.
     pub n_cols: usize,
-    /// Which kernel the step runs (`Kernel::default()`: the fastest this CPU has).
-    pub kernel: Kernel,
+    /// Which kernel the step runs (`Kernel::default()`: the fastest this CPU has; `kernel`,
+    /// `set_kernel`).
+    pub(crate) kernel: Kernel,
 }
 
 /// The kernel of the `compact` step.
@@ -90,6 +91,17 @@ impl Compact {
         let pairs = dual.row_ptr[dual.n_rows];
         let rows = &dual.row_ptr[..=dual.n_rows];
         Self::from_pairs(rows, dual.col[..pairs].to_vec(), a[..pairs].to_vec(), &dual.vol, update)
+    }
+
+    /// The kernel the step runs.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+
+    /// Runs the step with `kernel` (the vector kernel only where this CPU has it, whatever
+    /// `kernel` says).
+    pub fn set_kernel(&mut self, kernel: Kernel) {
+        self.kernel = kernel;
     }
 
     /// Stores the coefficients in float32 (a third fewer bytes per substep; the rounded

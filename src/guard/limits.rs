@@ -197,9 +197,9 @@ fn speed_scale(sim: &Simulation) -> f64 {
         .fold(0.0f64, f64::max);
     let n = sim.n_owned();
     let m = sim
-        .comm
-        .min(sim.setup.mass[..n].iter().copied().fold(f64::INFINITY, f64::min));
-    f * sim.dt / m
+        .comm()
+        .min(sim.setup().mass[..n].iter().copied().fold(f64::INFINITY, f64::min));
+    f * sim.dt() / m
 }
 
 /// What a run will do, checked against the limits: its steps and output.
@@ -228,14 +228,14 @@ impl Budget {
     /// The checks of a built simulation (the same on every process); `from_cli`: the step
     /// count came from `--steps`; `fresh`: a new series (not a restart from `sim.step`).
     pub fn of(sim: &Simulation, sizes: &GlobalSizes, from_cli: bool, fresh: bool) -> Result<Budget, String> {
-        let path = sim.setup.scenario.path.display().to_string();
-        let time = &sim.setup.time;
+        let path = sim.setup().scenario.path.display().to_string();
+        let time = &sim.setup().time;
         step_sizes(sim.step_plan(), time.dt.is_some(), time.h, &path)?;
-        let steps = steps(&time.stop, sim.dt, &path, from_cli)?;
+        let steps = steps(&time.stop, sim.dt(), &path, from_cli)?;
         equilibrium(&time.stop, speed_scale(sim), &path)?;
-        let out = &sim.setup.output;
-        let output_steps = output_steps(sim.step, steps, out.every, fresh);
-        let (fixed, step) = output_bytes(sizes, out, sim.loads.len(), sim.setup.scenario.text.len());
+        let out = &sim.setup().output;
+        let output_steps = output_steps(sim.step(), steps, out.every, fresh);
+        let (fixed, step) = output_bytes(sizes, out, sim.loads.len(), sim.setup().scenario.text.len());
         let new = if fresh { fixed } else { 0.0 };
         Ok(Budget {
             steps,

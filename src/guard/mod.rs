@@ -2,7 +2,7 @@
 //! checked counts and the output budget (`limits`), plausibility warnings and the non-finite
 //! watch (`plausible`), and signals as a flag the step's reduction carries (`signals`).
 
-pub mod limits;
-pub mod plausible;
+pub(crate) mod limits;
+pub(crate) mod plausible;
 pub mod safety;
-pub mod signals;
+pub(crate) mod signals;

@@ -44,14 +44,14 @@ fn peak_scale(ramp: &Option<Vec<[f64; 2]>>) -> f64 {
 pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
     let mut out = Vec::new();
     let diag = diagonal(mesh);
-    let young = sim.setup.law.young;
-    let scale = sim.setup.scenario.file.mesh.scale;
+    let young = sim.setup().law.young;
+    let scale = sim.setup().scenario.file.mesh.scale;
     let metres = if diag < 2.0 && scale == 1.0 {
         format!("; the mesh spans {diag:.3} units: if it is in metres, `[mesh] scale = 1000` reads it in millimetres")
     } else {
         String::new()
     };
-    let entries = &sim.setup.scenario.file.load;
+    let entries = &sim.setup().scenario.file.load;
     for (k, l) in sim.loads.iter().enumerate() {
         let f = norm(l.force) * peak_scale(&l.ramp);
         let sigma = f / l.area;
@@ -97,18 +97,18 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
 
 /// The likely cause of a state that is no longer finite, for the message that stops the run.
 pub fn nonfinite_cause(sim: &Simulation) -> String {
-    for (k, (l, a)) in sim.loads.iter().zip(sim.applied(sim.time)).enumerate() {
+    for (k, (l, a)) in sim.loads.iter().zip(sim.applied(sim.time())).enumerate() {
         let peak = sim
-            .setup
+            .setup()
             .law
             .energy_density(norm(l.force) * peak_scale(&l.ramp) / l.area);
-        if !a.q.is_finite() || !peak.is_finite() || a.sigma / sim.setup.law.young > STRESS_RATIO {
+        if !a.q.is_finite() || !peak.is_finite() || a.sigma / sim.setup().law.young > STRESS_RATIO {
             return format!(
                 "load {}'s contact stress sigma = {:.4e} gives the energy density q = {:.4e} (sigma/young = {:.3e}): the source is far outside the tissue law's range; fix: check the force, [tissue] young and the mesh's units ([mesh] scale)",
                 k + 1,
                 a.sigma,
                 a.q,
-                a.sigma / sim.setup.law.young
+                a.sigma / sim.setup().law.young
             );
         }
     }
@@ -133,7 +133,7 @@ impl Watch {
     /// Every process calls (the bounding box is reduced).
     pub fn new(sim: &Simulation) -> Watch {
         let (lo, hi) = sim.mesh().bounds();
-        let m = sim.comm.max_each(&[hi[0], hi[1], hi[2], -lo[0], -lo[1], -lo[2]]);
+        let m = sim.comm().max_each(&[hi[0], hi[1], hi[2], -lo[0], -lo[1], -lo[2]]);
         let diag = norm([m[0] + m[3], m[1] + m[4], m[2] + m[5]]);
         Watch { diag, warned: false }
     }
@@ -149,9 +149,9 @@ impl Watch {
             .probes()
             .iter()
             .all(|(f, d)| norm(*f).is_finite() && norm(*d).is_finite());
-        let bad = !(finite(&sim.u[..n]) && finite(&sim.v[..n]) && finite(&sim.prop.phi[..n]) && probes);
-        let umax = sim.u[..n].iter().map(|p| norm(*p)).fold(0.0f64, f64::max);
-        let all = sim.comm.max_each(&[f64::from(u8::from(bad)), umax]);
+        let bad = !(finite(&sim.u()[..n]) && finite(&sim.v()[..n]) && finite(&sim.prop.phi[..n]) && probes);
+        let umax = sim.u()[..n].iter().map(|p| norm(*p)).fold(0.0f64, f64::max);
+        let all = sim.comm().max_each(&[f64::from(u8::from(bad)), umax]);
         if all[0] > 0.0 {
             return Look::NonFinite;
         }
@@ -162,8 +162,8 @@ impl Watch {
         self.warned = true;
         Look::Finite(Some(format!(
             "max |u| = {umax:.4e} at step {} (t = {:.6e}) passed {} % of the mesh's diagonal {:.4e}: the small-deformation model is no longer valid there; fix: a smaller force, or check [tissue] young and the units",
-            sim.step,
-            sim.time,
+            sim.step(),
+            sim.time(),
             100.0 * U_FRACTION,
             self.diag
         )))

@@ -30,16 +30,16 @@ pub fn layout(sizes: &GlobalSizes) -> Layout {
 /// owned nodes of every process (one all-to-all per field; every process calls).
 pub fn field_blocks(sim: &Simulation, fields: &[Field]) -> Vec<Vec<f64>> {
     let no = sim.n_owned();
-    let c = sim.comm.as_ref();
+    let c = sim.comm();
     fields
         .iter()
         .map(|f| match f {
-            Field::Displacement => sim.blocks.collect(sim.u[..no].as_flattened(), 3, c),
-            Field::Velocity => sim.blocks.collect(sim.v[..no].as_flattened(), 3, c),
-            Field::Potential => sim.blocks.collect(sim.prop.phi[..no].as_flattened(), 3, c),
+            Field::Displacement => sim.blocks().collect(sim.u()[..no].as_flattened(), 3, c),
+            Field::Velocity => sim.blocks().collect(sim.v()[..no].as_flattened(), 3, c),
+            Field::Potential => sim.blocks().collect(sim.prop.phi[..no].as_flattened(), 3, c),
             Field::Energy => {
                 let energy: Vec<f64> = sim.prop.phi[..no].iter().map(|p| norm(*p)).collect();
-                sim.blocks.collect(&energy, 1, c)
+                sim.blocks().collect(&energy, 1, c)
             }
         })
         .collect()
@@ -94,18 +94,18 @@ impl Series {
         restart: bool,
         io: Option<&mpi::topology::SimpleCommunicator>,
     ) -> Result<Series> {
-        let output = &sim.setup.output;
+        let output = &sim.setup().output;
         let fields = output.fields();
         let mut text_hash = Fnv::default();
-        text_hash.bytes(sim.setup.scenario.text.as_bytes());
+        text_hash.bytes(sim.setup().scenario.text.as_bytes());
         // every table the scenario names is an input too: a restart refuses a changed one
         // (rank 0 reads them, as it read the scenario; an unreadable one hashes to 0)
-        let named = sim.setup.scenario.tables();
+        let named = sim.setup().scenario.tables();
         let mut hashes: Vec<f64> = named
             .iter()
             .map(|(_, input)| {
                 let mut h = Fnv::default();
-                match sim.comm.rank() == 0 {
+                match sim.comm().rank() == 0 {
                     true => std::fs::read(&input.path).map_or(0.0, |bytes| {
                         h.bytes(&bytes);
                         f64::from_bits(h.finish())
@@ -114,7 +114,7 @@ impl Series {
                 }
             })
             .collect();
-        sim.comm.broadcast(0, &mut hashes);
+        sim.comm().broadcast(0, &mut hashes);
         let tables: Vec<(String, u64)> = named
             .iter()
             .zip(&hashes)
@@ -130,16 +130,16 @@ impl Series {
             compression: output.compression,
             n_loads: sim.loads.len(),
             load_nodes: sim.loads.iter().map(|l| l.nodes[0] as u64).collect(),
-            scenario: &sim.setup.scenario.text,
+            scenario: &sim.setup().scenario.text,
             version: VERSION,
-            block_start: sim.blocks.start,
-            block_len: sim.blocks.len,
-            control_volumes: &sim.vol_block,
+            block_start: sim.blocks().start,
+            block_len: sim.blocks().len,
+            control_volumes: sim.vol_block(),
             attrs: vec![
-                ("dt", sim.dt),
+                ("dt", sim.dt()),
                 ("h", plan.h),
                 ("substeps", plan.per_step as f64),
-                ("processes", sim.comm.size() as f64),
+                ("processes", sim.comm().size() as f64),
             ],
         };
         let file = output.file.clone();
@@ -164,7 +164,7 @@ impl Series {
             // a step off the output grid (a run stopped by a signal, or a shorter run's last
             // step) is a restart point only: continuing drops it, so the series is the one an
             // uninterrupted run writes
-            let every = sim.setup.output.every;
+            let every = sim.setup().output.every;
             if !resume.step.is_multiple_of(every) && resume.step < sim.max_steps() && writer.steps_written() > 1 {
                 writer.forget_last()?;
             }
@@ -175,7 +175,7 @@ impl Series {
             });
         }
         let created =
-            SeriesWriter::create(&file, layout(sizes), sim.global.as_ref(), &spec, io).and_then(|mut writer| {
+            SeriesWriter::create(&file, layout(sizes), sim.global_mesh(), &spec, io).and_then(|mut writer| {
                 // a new file is a new inode: the writer lock covers its hard links from now on
                 crate::guard::safety::hold_output(&file);
                 if !sim.tools.is_empty() {
@@ -195,7 +195,7 @@ impl Series {
             // a file this run began holds no complete step: it goes (once every process has
             // closed it), so that running again needs no --overwrite
             Err(e) if e.downcast_ref::<WriteFailed>().is_some_and(|w| w.what != CREATING) => {
-                if sim.comm.rank() == 0 {
+                if sim.comm().rank() == 0 {
                     let _ = std::fs::remove_file(&file);
                 }
                 Err(e)
@@ -203,7 +203,8 @@ impl Series {
             // the creation itself failed (a full disk at the superblock): an empty file it
             // left holds nothing of anyone's and goes too; any other file stays as it is
             Err(e) if e.downcast_ref::<WriteFailed>().is_some() => {
-                if sim.comm.rank() == 0 && std::fs::symlink_metadata(&file).is_ok_and(|m| m.is_file() && m.len() == 0) {
+                if sim.comm().rank() == 0 && std::fs::symlink_metadata(&file).is_ok_and(|m| m.is_file() && m.len() == 0)
+                {
                     let _ = std::fs::remove_file(&file);
                 }
                 Err(e)
@@ -218,9 +219,9 @@ impl Series {
         let data = field_blocks(sim, &self.fields);
         let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
         if !sim.tools.is_empty() {
-            self.writer.append_tools(sim.time, sim.step, &tool_rows(sim))?;
+            self.writer.append_tools(sim.time(), sim.step(), &tool_rows(sim))?;
         }
-        self.writer.append(sim.time, sim.step, &refs, &sim.probes())?;
+        self.writer.append(sim.time(), sim.step(), &refs, &sim.probes())?;
         self.appends.push(t.elapsed().as_secs_f64());
         Ok(())
     }

@@ -203,10 +203,10 @@ pub struct Timing {
 /// The reader's warnings about the mesh and the simulation's about its nodes.
 pub fn warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
     let mut warnings = mesh.warnings.clone();
-    if sim.inactive_nodes > 0 {
+    if sim.inactive_nodes() > 0 {
         warnings.push(format!(
             "{} node(s) belong to no cell and stay at rest",
-            sim.inactive_nodes
+            sim.inactive_nodes()
         ));
     }
     warnings
@@ -224,16 +224,17 @@ pub fn summarize(
     let (umax, imax) = sim.max_displacement();
     let total = sim.total_energy();
     let probes = sim.probes();
-    let halo_wait = sim.comm.max(sim.prop.halo.wait_seconds());
-    let peak = sim.comm.max(peak_rss() as f64);
-    let mesh = sim.global.as_ref()?;
+    let halo_wait = sim.comm().max(sim.prop.halo.wait_seconds());
+    let peak = sim.comm().max(peak_rss() as f64);
+    let mesh = sim.global_mesh()?;
     let mut warnings = warnings(sim, mesh);
     warnings.extend(run_warnings);
-    if let Stop::Equilibrium { tol, .. } = sim.setup.time.stop {
-        if sim.max_speed >= tol {
+    if let Stop::Equilibrium { tol, .. } = sim.setup().time.stop {
+        if sim.max_speed() >= tol {
             warnings.push(format!(
                 "equilibrium not reached after {} steps (max |v| = {:.3e} > {tol:e})",
-                sim.step, sim.max_speed
+                sim.step(),
+                sim.max_speed()
             ));
         }
     }
@@ -242,30 +243,30 @@ pub fn summarize(
     let (append_first, append_last) = series.append_medians();
     let n = sizes.nodes;
     Some(Summary {
-        scenario: sim.setup.scenario.path.display().to_string(),
+        scenario: sim.setup().scenario.path.display().to_string(),
         mesh: mesh.source.clone(),
         nodes: n,
         cells: mesh.n_cells(),
-        processes: sim.comm.size(),
-        fixed_nodes: sim.fixed_nodes,
-        scheme: scheme_name(sim.setup.model.scheme()).to_string(),
+        processes: sim.comm().size(),
+        fixed_nodes: sim.fixed_nodes(),
+        scheme: scheme_name(sim.setup().model.scheme()).to_string(),
         integrator: plan.integrator.name().to_string(),
         integrator_why: plan.why.clone(),
         per_step: plan.per_step_phrase(),
         h: plan.h,
         h_bound: plan.h_bound,
         substeps: plan.per_step,
-        applications_per_step: spread(&sim.applications),
-        dt: sim.dt,
-        steps: sim.step,
-        time: sim.time,
+        applications_per_step: spread(sim.applications()),
+        dt: sim.dt(),
+        steps: sim.step(),
+        time: sim.time(),
         wall_seconds: t.wall_seconds,
         setup_seconds: t.setup_seconds,
         output_seconds: series.seconds(),
         output_append_first100_median_s: append_first,
         output_append_last100_median_s: append_last,
         halo_wait_seconds: halo_wait,
-        node_substeps_per_second: (n as f64 * sim.applications.iter().map(|&a| a as f64).sum::<f64>())
+        node_substeps_per_second: (n as f64 * sim.applications().iter().map(|&a| a as f64).sum::<f64>())
             / t.wall_seconds.max(1e-12),
         restarted_from_step: t.restarted_from_step,
         peak_memory_mib: peak / 1048576.0,
@@ -274,7 +275,7 @@ pub fn summarize(
         max_displacement_node: mesh.node_ids[imax],
         max_displacement_at: mesh.points[imax],
         total_energy: total,
-        max_speed: sim.max_speed,
+        max_speed: sim.max_speed(),
         loads: sim
             .loads
             .iter()

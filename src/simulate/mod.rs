@@ -2,6 +2,7 @@
 //! (MODEL.md 3-6). `Simulation::advance` is one mechanics step: the loads at t_n give the
 //! sources Q and the forces f; the stepper advances the potential over dt; the nodes move.
 
+mod access;
 pub mod contact;
 pub mod distributed;
 #[cfg(test)]
@@ -59,46 +60,46 @@ pub struct Applied {
 pub struct Simulation {
     /// This process's view of the scenario: its local mesh and per-node arrays in local
     /// numbering (loads keep global node indices).
-    pub setup: Setup,
-    pub comm: Box<dyn Comm>,
+    setup: Setup,
+    comm: Box<dyn Comm>,
     /// The whole mesh, on the process that writes the static part of the output (rank 0).
-    pub global: Option<Mesh>,
-    pub n_global: usize,
+    global: Option<Mesh>,
+    n_global: usize,
     numbering: LocalNumbering,
     /// Global node index of each local node.
-    pub gid: Vec<u64>,
+    gid: Vec<u64>,
     /// Output blocks of the global node order.
-    pub blocks: BlockScatter,
-    pub dual: Dual,
-    pub prop: Propagation,
+    blocks: BlockScatter,
+    dual: Dual,
+    pub(crate) prop: Propagation,
     /// The integrator of the propagation.
-    pub stepper: Box<dyn Stepper>,
+    stepper: Box<dyn Stepper>,
     /// nodes that move: not fixed and with a control volume
-    pub active: Vec<bool>,
-    pub u: NodeField<V3>,
-    pub v: NodeField<V3>,
+    active: Vec<bool>,
+    u: NodeField<V3>,
+    v: NodeField<V3>,
     force: NodeField<V3>,
-    pub loads: Vec<Load>,
+    pub(crate) loads: Vec<Load>,
     /// owned contact nodes of each load (local index, probe weight, force weight, source weight)
-    pub load_local: Vec<Vec<(u32, f64, f64, f64)>>,
+    load_local: Vec<Vec<(u32, f64, f64, f64)>>,
     /// control volumes of this process's output block
-    pub(crate) vol_block: Vec<f64>,
+    vol_block: Vec<f64>,
     /// fixed nodes of the whole mesh
-    pub(crate) fixed_nodes: usize,
-    pub dt: f64,
-    pub(crate) dt_bound: f64,
-    pub step: u64,
-    pub time: f64,
-    pub max_speed: f64,
+    fixed_nodes: usize,
+    dt: f64,
+    dt_bound: f64,
+    step: u64,
+    time: f64,
+    max_speed: f64,
     /// nodes of the whole mesh that belong to no cell
-    pub(crate) inactive_nodes: usize,
+    inactive_nodes: usize,
     /// Operator applications of every step this process advanced.
-    pub(crate) applications: Vec<u32>,
+    applications: Vec<u32>,
     /// The stop signal some process received before the last step (0: none), agreed by every
     /// process in the step's reduction (`crate::guard::signals`).
-    pub stop_signal: i32,
+    stop_signal: i32,
     /// The scenario's tools (docs/tools.md).
-    pub tools: Vec<ToolRun>,
+    pub(crate) tools: Vec<ToolRun>,
     /// Owned surface nodes that move (the tools' contact candidates; empty without tools)
     /// and a flag per owned node for them.
     surface: Vec<u32>,

@@ -82,8 +82,15 @@ pub fn tool(name: &str) -> bool {
 
 /// A scenario from text, resolved against a mesh already in memory.
 pub fn setup(mesh: Mesh, toml: &str, dir: &Path) -> Setup {
+    setup_with(mesh, toml, dir, &[])
+}
+
+/// A scenario from text with `--set KEY=VALUE` overrides, resolved against a mesh already in
+/// memory.
+pub fn setup_with(mesh: Mesh, toml: &str, dir: &Path, sets: &[String]) -> Setup {
     let path = dir.join("test.toml");
     let full = format!("[mesh]\nfile = \"unused.msh\"\n{toml}");
+    let full = eprop::config::set::apply(&full, sets).expect("overrides apply");
     let sc = Scenario::parse(&path, full).expect("scenario parses");
     Setup::with_mesh(sc, mesh).expect("scenario resolves")
 }

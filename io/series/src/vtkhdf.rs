@@ -302,6 +302,129 @@ fn access(comm: Option<&mpi::topology::SimpleCommunicator>) -> hdf5::FileBuilder
     b
 }
 
+/// The static mesh of a new series under `/VTKHDF` (every process calls; rank 0, which holds
+/// `mesh`, gives the values): the counts, the connectivity in VTK's node order, the offsets,
+/// the cell types and the points.
+fn write_mesh(t: &Team, top: &hdf5::Group, layout: Layout, mesh: Option<&Mesh>) -> Result<()> {
+    let root = mesh.is_some();
+    let n = layout.nodes;
+    let (mut conn, mut offs, mut types, mut pts) = (vec![], vec![], vec![], vec![]);
+    if let Some(mesh) = mesh {
+        conn.reserve(mesh.conn.len());
+        offs.push(0i64);
+        for c in 0..mesh.n_cells() {
+            conn.extend(vtk_order(mesh.kinds[c], mesh.cell(c)).iter().map(|&x| x as i64));
+            offs.push(conn.len() as i64);
+            types.push(mesh.kinds[c].vtk_type());
+        }
+        pts = mesh.points.iter().flatten().copied().collect::<Vec<f64>>();
+    }
+    let on_root = |v: &[i64]| Some(v.to_vec()).filter(|_| root);
+    let counts = [n as i64, layout.cells as i64, layout.conn as i64];
+    fixed(t, top, "NumberOfPoints", &[1], on_root(&counts[0..1]).as_deref())?;
+    fixed(t, top, "NumberOfCells", &[1], on_root(&counts[1..2]).as_deref())?;
+    fixed(
+        t,
+        top,
+        "NumberOfConnectivityIds",
+        &[1],
+        on_root(&counts[2..3]).as_deref(),
+    )?;
+    fixed(t, top, "Connectivity", &[layout.conn], Some(&conn[..]).filter(|_| root))?;
+    fixed(t, top, "Offsets", &[layout.cells + 1], Some(&offs[..]).filter(|_| root))?;
+    fixed(t, top, "Types", &[layout.cells], Some(&types[..]).filter(|_| root))?;
+    fixed(t, top, "Points", &[n, 3], Some(&pts[..]).filter(|_| root))?;
+    Ok(())
+}
+
+/// `/eprop` of a new series (every process calls; rank 0 holds `mesh`): the version, the
+/// count of complete steps, the identity and extra attributes, the scenario text, the control
+/// volumes, node ids and cell tags, and the growing probe datasets, returned as time, step,
+/// force, displacement.
+fn create_eprop(
+    t: &Team,
+    file: &File,
+    layout: Layout,
+    mesh: Option<&Mesh>,
+    spec: &SeriesSpec,
+    parallel: bool,
+) -> Result<[Dataset; 4]> {
+    let root = mesh.is_some();
+    let n = layout.nodes;
+    let mk = |what: &str| at(format!("creating the output ({what})"));
+    let ep = t.settle(mk("/eprop"), file.create_group("eprop"))?;
+    let vs = VarLenUnicode::from_str(spec.version).unwrap();
+    scalar_attr(t, &ep, "version", &vs)?;
+    scalar_attr(t, &ep, "steps_complete", &0i64)?;
+    for (name, v) in &spec.attrs {
+        scalar_attr(t, &ep, name, v)?;
+    }
+    for (name, v) in &spec.ids {
+        scalar_attr(t, &ep, name, v)?;
+    }
+    scalar_attr(t, &ep, "float32", &(spec.float32 as u8))?;
+    let text = spec.scenario.as_bytes();
+    fixed(t, &ep, "scenario", &[text.len()], Some(text).filter(|_| root))?;
+    let cv = t.settle(
+        mk("control_volumes"),
+        ep.new_dataset::<f64>().shape([n]).create("control_volumes"),
+    )?;
+    t.settle(
+        at("writing the output (control_volumes)"),
+        write_rows(&cv, spec.block_start, spec.block_len, 1, spec.control_volumes, parallel),
+    )?;
+    let ids: Option<Vec<i64>> = mesh.map(|m| m.node_ids.iter().map(|&x| x as i64).collect());
+    fixed(t, &ep, "node_ids", &[n], ids.as_deref())?;
+    fixed(t, &ep, "cell_tags", &[layout.cells], mesh.map(|m| &m.cell_tags[..]))?;
+    let pr = t.settle(mk("probes"), ep.create_group("probes"))?;
+    let ln: Vec<i64> = spec.load_nodes.iter().map(|&x| x as i64).collect();
+    fixed(t, &pr, "node", &[ln.len()], Some(&ln[..]).filter(|_| root))?;
+    let nl = spec.n_loads;
+    let probe_time = t.settle(mk("probes/time"), growing(&pr, "time", &[], 1024))?;
+    let probe_step = t.settle(mk("probes/step"), growing_i64(&pr, "step"))?;
+    let probe_force = t.settle(mk("probes/force"), growing(&pr, "force", &[nl, 3], 256))?;
+    let probe_disp = t.settle(mk("probes/displacement"), growing(&pr, "displacement", &[nl, 3], 256))?;
+    Ok([probe_time, probe_step, probe_force, probe_disp])
+}
+
+/// Refuses to continue a series whose identity attributes (`spec.ids`: the scenario, the mesh,
+/// every table) differ from `spec`'s, or one in float32 (every process calls).
+fn check_identity(t: &Team, ep: &hdf5::Group, spec: &SeriesSpec, path: &Path) -> Result<()> {
+    let bad = |what: String| cannot_restart(path, what);
+    let read = |what: &str| at(format!("reading the file to restart ({what})"));
+    for (name, v) in &spec.ids {
+        let got: u64 = t
+            .settle_opt(read(name), ep.attr(name).and_then(|a| a.read_scalar()))?
+            .ok_or_else(|| bad(format!("no {name} attribute")))?;
+        if got != *v {
+            return Err(match name.strip_prefix(TABLE_HASH) {
+                Some(table) => anyhow!(
+                    "{}: cannot restart: the table {table} changed since this file was written (its contents differ), so the continued series would mix two input histories; fix: restore {table} as it was, or start a new run (--overwrite)",
+                    path.display()
+                ),
+                None => bad(format!("it was written for a different {}", name.trim_end_matches("_hash"))),
+            });
+        }
+    }
+    let f32_file: u8 = t
+        .settle_opt(read("float32"), ep.attr("float32").and_then(|a| a.read_scalar()))?
+        .unwrap_or(0);
+    if f32_file != 0 || spec.float32 {
+        return Err(bad(
+            "float32 output cannot restart exactly (precision = \"float64\" is)".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The refusal of a restart for `what`.
+fn cannot_restart(path: &Path, what: String) -> anyhow::Error {
+    anyhow!(
+        "{}: cannot restart: {what}; fix: restart with the scenario and mesh that wrote the file, or start a new run",
+        path.display()
+    )
+}
+
 impl SeriesWriter {
     /// Creates (truncates) the file and writes the static mesh. `mesh` is given on exactly one
     /// process (rank 0), `comm` under MPI (then every process of it must call). A failure is a
@@ -331,45 +454,7 @@ impl SeriesWriter {
         let ty = FixedAscii::<16>::from_ascii(b"UnstructuredGrid").unwrap();
         scalar_attr(t, &top, "Type", &ty)?;
 
-        let (mut conn, mut offs, mut types, mut pts) = (vec![], vec![], vec![], vec![]);
-        if let Some(mesh) = mesh {
-            conn.reserve(mesh.conn.len());
-            offs.push(0i64);
-            for c in 0..mesh.n_cells() {
-                conn.extend(vtk_order(mesh.kinds[c], mesh.cell(c)).iter().map(|&x| x as i64));
-                offs.push(conn.len() as i64);
-                types.push(mesh.kinds[c].vtk_type());
-            }
-            pts = mesh.points.iter().flatten().copied().collect::<Vec<f64>>();
-        }
-        let on_root = |v: &[i64]| Some(v.to_vec()).filter(|_| root);
-        let counts = [n as i64, layout.cells as i64, layout.conn as i64];
-        fixed(t, &top, "NumberOfPoints", &[1], on_root(&counts[0..1]).as_deref())?;
-        fixed(t, &top, "NumberOfCells", &[1], on_root(&counts[1..2]).as_deref())?;
-        fixed(
-            t,
-            &top,
-            "NumberOfConnectivityIds",
-            &[1],
-            on_root(&counts[2..3]).as_deref(),
-        )?;
-        fixed(
-            t,
-            &top,
-            "Connectivity",
-            &[layout.conn],
-            Some(&conn[..]).filter(|_| root),
-        )?;
-        fixed(
-            t,
-            &top,
-            "Offsets",
-            &[layout.cells + 1],
-            Some(&offs[..]).filter(|_| root),
-        )?;
-        fixed(t, &top, "Types", &[layout.cells], Some(&types[..]).filter(|_| root))?;
-        fixed(t, &top, "Points", &[n, 3], Some(&pts[..]).filter(|_| root))?;
-        drop((conn, offs, types, pts));
+        write_mesh(t, &top, layout, mesh)?;
 
         let mk = |what: &str| at(format!("creating the output ({what})"));
         let pd = t.settle(mk("PointData"), top.create_group("PointData"))?;
@@ -397,38 +482,8 @@ impl SeriesWriter {
             });
         }
 
-        let ep = t.settle(mk("/eprop"), file.create_group("eprop"))?;
-        let vs = VarLenUnicode::from_str(spec.version).unwrap();
-        scalar_attr(t, &ep, "version", &vs)?;
-        scalar_attr(t, &ep, "steps_complete", &0i64)?;
-        for (name, v) in &spec.attrs {
-            scalar_attr(t, &ep, name, v)?;
-        }
-        for (name, v) in &spec.ids {
-            scalar_attr(t, &ep, name, v)?;
-        }
-        scalar_attr(t, &ep, "float32", &(spec.float32 as u8))?;
-        let text = spec.scenario.as_bytes();
-        fixed(t, &ep, "scenario", &[text.len()], Some(text).filter(|_| root))?;
-        let cv = t.settle(
-            mk("control_volumes"),
-            ep.new_dataset::<f64>().shape([n]).create("control_volumes"),
-        )?;
-        t.settle(
-            at("writing the output (control_volumes)"),
-            write_rows(&cv, spec.block_start, spec.block_len, 1, spec.control_volumes, parallel),
-        )?;
-        let ids: Option<Vec<i64>> = mesh.map(|m| m.node_ids.iter().map(|&x| x as i64).collect());
-        fixed(t, &ep, "node_ids", &[n], ids.as_deref())?;
-        fixed(t, &ep, "cell_tags", &[layout.cells], mesh.map(|m| &m.cell_tags[..]))?;
-        let pr = t.settle(mk("probes"), ep.create_group("probes"))?;
-        let ln: Vec<i64> = spec.load_nodes.iter().map(|&x| x as i64).collect();
-        fixed(t, &pr, "node", &[ln.len()], Some(&ln[..]).filter(|_| root))?;
+        let [probe_time, probe_step, probe_force, probe_disp] = create_eprop(t, &file, layout, mesh, spec, parallel)?;
         let nl = spec.n_loads;
-        let probe_time = t.settle(mk("probes/time"), growing(&pr, "time", &[], 1024))?;
-        let probe_step = t.settle(mk("probes/step"), growing_i64(&pr, "step"))?;
-        let probe_force = t.settle(mk("probes/force"), growing(&pr, "force", &[nl, 3], 256))?;
-        let probe_disp = t.settle(mk("probes/displacement"), growing(&pr, "displacement", &[nl, 3], 256))?;
         t.settle(at("writing the output (flush)"), file.flush())?;
         Ok(SeriesWriter {
             path: path.to_path_buf(),
@@ -627,39 +682,13 @@ impl SeriesWriter {
         let t = &team;
         let file = t.settle_open(at("opening the file to restart"), access(comm).open_rw(path))?;
         t.hold(&file);
-        let bad = |what: String| {
-            anyhow!(
-                "{}: cannot restart: {what}; fix: restart with the scenario and mesh that wrote the file, or start a new run",
-                path.display()
-            )
-        };
+        let bad = |what: String| cannot_restart(path, what);
         let read = |what: &str| at(format!("reading the file to restart ({what})"));
         // what a file may lack (then it is refused alike on every process)
         let ep = t
             .settle_opt(read("/eprop"), file.group("eprop"))?
             .ok_or_else(|| bad("no /eprop group (not an eprop series)".into()))?;
-        for (name, v) in &spec.ids {
-            let got: u64 = t
-                .settle_opt(read(name), ep.attr(name).and_then(|a| a.read_scalar()))?
-                .ok_or_else(|| bad(format!("no {name} attribute")))?;
-            if got != *v {
-                return Err(match name.strip_prefix(TABLE_HASH) {
-                    Some(table) => anyhow!(
-                        "{}: cannot restart: the table {table} changed since this file was written (its contents differ), so the continued series would mix two input histories; fix: restore {table} as it was, or start a new run (--overwrite)",
-                        path.display()
-                    ),
-                    None => bad(format!("it was written for a different {}", name.trim_end_matches("_hash"))),
-                });
-            }
-        }
-        let f32_file: u8 = t
-            .settle_opt(read("float32"), ep.attr("float32").and_then(|a| a.read_scalar()))?
-            .unwrap_or(0);
-        if f32_file != 0 || spec.float32 {
-            return Err(bad(
-                "float32 output cannot restart exactly (precision = \"float64\" is)".into(),
-            ));
-        }
+        check_identity(t, &ep, spec, path)?;
         let n: i64 = t.settle(
             read("NumberOfPoints"),
             file.dataset("VTKHDF/NumberOfPoints").and_then(|d| d.read_raw::<i64>()),

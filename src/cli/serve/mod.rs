@@ -200,7 +200,7 @@ fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64) -> Result
         Some(s) => s.wait(t),
         None => Ok(Vec::new()),
     };
-    let c = sim.comm.as_ref();
+    let c = sim.comm();
     // head: [0 or 1 (the session ended), samples, the stop signal rank 0 has seen]
     let mut head = match &got {
         Ok(samples) => [0.0, samples.len() as f64, 0.0],
@@ -240,8 +240,8 @@ fn outcomes(sim: &Simulation, any_live_load: bool) -> Vec<Outcome> {
         .tool_states()
         .iter()
         .map(|t| Outcome {
-            step: sim.step,
-            t: sim.time,
+            step: sim.step(),
+            t: sim.time(),
             force: t.force,
             displacement: t.displacement,
         })
@@ -252,8 +252,8 @@ fn outcomes(sim: &Simulation, any_live_load: bool) -> Vec<Outcome> {
         vec![([0.0; 3], [0.0; 3]); sim.loads.len()]
     };
     out.extend(probes.iter().map(|&(f, d)| Outcome {
-        step: sim.step,
-        t: sim.time,
+        step: sim.step(),
+        t: sim.time(),
         force: f,
         displacement: d,
     }));
@@ -269,7 +269,7 @@ struct Live {
 
 impl Feed for Live {
     fn start(&mut self, sim: &mut Simulation) -> Result<Option<Halt>> {
-        let start = sim.time;
+        let start = sim.time();
         let halt = inputs(sim, self.session.as_mut(), start)?;
         if halt.is_none() {
             sim.tools_at_rest();
@@ -278,11 +278,11 @@ impl Feed for Live {
     }
 
     fn before_step(&mut self, sim: &mut Simulation) -> Result<Option<Halt>> {
-        let t_next = (sim.step + 1) as f64 * sim.dt;
+        let t_next = (sim.step() + 1) as f64 * sim.dt();
         if let Some(h) = inputs(sim, self.session.as_mut(), t_next)? {
             return Ok(Some(h));
         }
-        let now = sim.time;
+        let now = sim.time();
         forget_before(sim, now);
         Ok(None)
     }
@@ -330,8 +330,8 @@ fn serve_simulation(
         loads: (ents.live.len() - ents.tools) as u32,
         live_tools: mask(0, ents.tools),
         live_loads: mask(ents.tools, ents.live.len()),
-        dt: sim.dt,
-        t0: sim.time,
+        dt: sim.dt(),
+        t0: sim.time(),
         timeout: opts.timeout,
         max_steps: sim.max_steps(),
     };
