@@ -328,7 +328,7 @@ fn the_python_module_reads_load_tool_and_bare_runs() {
 }
 
 #[test]
-fn vtk_reads_every_step_as_h5py_does() {
+fn vtk_reads_every_step_and_the_cell_tags_as_h5py_does() {
     let d = tempfile::tempdir().unwrap();
     for ranks in [1, 2] {
         let h5 = run(d.path(), ranks);
@@ -346,6 +346,8 @@ for k in (0, done - 1):
     ref = f["VTKHDF/PointData/displacement"][k * n:(k + 1) * n]
     assert np.array_equal(u, ref), k
     assert r.GetOutput().GetNumberOfCells() == int(f["VTKHDF/NumberOfCells"][0])
+    tag = ns.vtk_to_numpy(r.GetOutput().GetCellData().GetArray("tag"))
+    assert np.array_equal(tag, f["VTKHDF/CellData/tag"][:]), k
 print("steps", done, "vtk", vtk.vtkVersion.GetVTKVersion())
 "#;
         let out = py(&["-c", code, h5.to_str().unwrap()]);

@@ -361,3 +361,27 @@ fn probes_have_one_row_per_load_and_none_without_loads() {
         }
     }
 }
+
+/// The mesh's cell tags are cell data of the series (a viewer colours by tissue), the same
+/// rows at every step, also after a restart.
+#[test]
+fn cell_tags_are_cell_data_at_every_step() {
+    let d = tempfile::tempdir().unwrap();
+    let sc = scenario(d.path(), "", 4);
+    let h5 = d.path().join("t.h5");
+    let (sc, h) = (sc.to_str().unwrap(), h5.to_str().unwrap());
+    ok(&mpirun(2, &["run", sc, "-q", "-o", h, "--steps", "2"]));
+    ok(&serial(&["run", sc, "-q", "--restart", h], 1));
+    let f = hdf5::File::open(&h5).unwrap();
+    let tags = f.dataset("VTKHDF/CellData/tag").unwrap().read_raw::<i64>().unwrap();
+    let cells = f.dataset("VTKHDF/NumberOfCells").unwrap().read_raw::<i64>().unwrap()[0];
+    assert_eq!(tags.len() as i64, cells);
+    let stored = f.dataset("eprop/cell_tags").unwrap().read_raw::<i64>().unwrap();
+    assert_eq!(tags, stored);
+    let offsets = f
+        .dataset("VTKHDF/Steps/CellDataOffsets/tag")
+        .unwrap()
+        .read_raw::<i64>()
+        .unwrap();
+    assert_eq!(offsets, vec![0i64; 5], "one offset per output step (steps 0-4), all 0");
+}

@@ -121,6 +121,9 @@ pub struct SeriesWriter {
     /// The writing processes; every call's outcome is agreed through it.
     team: Team,
     tools: Option<ToolSets>,
+    /// `/VTKHDF/Steps/CellDataOffsets/tag`: the cell tags are static (offset 0 at every
+    /// step); absent in series written before they were stored.
+    cell_offsets: Option<Dataset>,
 }
 
 /// `what` as a message maker for `Team::settle`.
@@ -461,8 +464,14 @@ impl SeriesWriter {
         let steps = t.settle(mk("Steps"), top.create_group("Steps"))?;
         scalar_attr(t, &steps, "NSteps", &0i64)?;
         let pdo = t.settle(mk("PointDataOffsets"), steps.create_group("PointDataOffsets"))?;
-        t.settle(mk("CellDataOffsets"), steps.create_group("CellDataOffsets"))?;
+        let cdo = t.settle(mk("CellDataOffsets"), steps.create_group("CellDataOffsets"))?;
         t.settle(mk("FieldDataOffsets"), steps.create_group("FieldDataOffsets"))?;
+        // the mesh's cell tags (physical groups: the tissues) as cell data, so that a viewer
+        // colours by them; written once, every step points at the same rows
+        let cd = t.settle(mk("CellData"), top.create_group("CellData"))?;
+        let tags: Option<Vec<i64>> = mesh.map(|m| m.cell_tags.iter().map(|&x| x as i64).collect());
+        fixed(t, &cd, "tag", &[layout.cells], tags.as_deref())?;
+        let cell_offsets = Some(t.settle(mk("CellDataOffsets/tag"), growing_i64(&cdo, "tag"))?);
         let values = t.settle(mk("Values"), growing(&steps, "Values", &[], 1024))?;
         let mut step_sets = Vec::new();
         for name in STEP_SETS {
@@ -504,6 +513,7 @@ impl SeriesWriter {
             n_steps: 0,
             team,
             tools: None,
+            cell_offsets,
         })
     }
 
@@ -606,7 +616,7 @@ impl SeriesWriter {
             keep(&mut resized, resize(&f.data, (k + 1) * n));
             keep(&mut resized, resize(&f.offsets, k + 1));
         }
-        for ds in self.step_sets.iter().chain([
+        for ds in self.step_sets.iter().chain(&self.cell_offsets).chain([
             &self.values,
             &self.probe_time,
             &self.probe_step,
@@ -634,6 +644,9 @@ impl SeriesWriter {
             }
             for (i, set) in self.step_sets.iter().enumerate() {
                 set.write_slice(&[if i == 1 { 1i64 } else { 0 }], s![k..k + 1])?;
+            }
+            if let Some(c) = &self.cell_offsets {
+                c.write_slice(&[0i64], s![k..k + 1])?;
             }
             self.values.write_slice(&[time], s![k..k + 1])?;
             self.probe_time.write_slice(&[time], s![k..k + 1])?;
@@ -761,6 +774,25 @@ impl SeriesWriter {
         let probe_disp = t.settle(read("probes/displacement"), pr.dataset("displacement"))?;
         // the file's own count: a series written before (steps, 0, 3) keeps its one row of zeros
         let n_loads = probe_force.shape().get(1).copied().unwrap_or(0);
+        let cell_offsets = match t.settle_opt(read("CellDataOffsets"), steps.group("CellDataOffsets"))? {
+            Some(cdo) => t.settle_opt(read("CellDataOffsets/tag"), cdo.dataset("tag"))?,
+            None => None,
+        };
+        let tools = match t.settle_opt(read("/eprop/tools"), ep.group("tools"))? {
+            Some(g) => {
+                let open = |name: &str| t.settle(read(name), g.dataset(name));
+                let position = open("position")?;
+                Some(ToolSets {
+                    n: position.shape().get(1).copied().unwrap_or(0),
+                    time: open("time")?,
+                    step: open("step")?,
+                    vectors: [position, open("force")?, open("displacement")?],
+                    scalars: [open("contact_area")?, open("indentation")?],
+                    contact_nodes: open("contact_nodes")?,
+                })
+            }
+            None => None,
+        };
         let w = SeriesWriter {
             path: path.to_path_buf(),
             n_points: nd,
@@ -779,7 +811,8 @@ impl SeriesWriter {
             steps,
             file,
             team,
-            tools: None,
+            tools,
+            cell_offsets,
         };
         // drop the rows of a step that was being written when the run ended
         w.truncate()?;
@@ -822,7 +855,7 @@ impl SeriesWriter {
             t.settle(what, resize(&f.data, k * n))?;
             t.settle(what, resize(&f.offsets, k))?;
         }
-        for ds in self.step_sets.iter().chain([
+        for ds in self.step_sets.iter().chain(&self.cell_offsets).chain([
             &self.values,
             &self.probe_time,
             &self.probe_step,
@@ -830,6 +863,16 @@ impl SeriesWriter {
             &self.probe_disp,
         ]) {
             t.settle(what, resize(ds, k))?;
+        }
+        if let Some(tt) = &self.tools {
+            for d in [&tt.time, &tt.step]
+                .into_iter()
+                .chain(&tt.vectors)
+                .chain(&tt.scalars)
+                .chain([&tt.contact_nodes])
+            {
+                t.settle(what, resize(d, k))?;
+            }
         }
         t.settle(what, self.file.flush())
     }
