@@ -972,6 +972,17 @@ pub fn fit_on(world: Option<SimpleCommunicator>, scenario: &Path, opts: &FitOpti
             );
         }
         let sc = Scenario::load_with(scenario, &opts.sets)?;
+        // the automatic dt follows mass, damping and stiffness, and the discretisation with it
+        let moves_dt = ["material.mass", "material.damping", "model.stiffness"];
+        if sc.file.time.get_ref().dt.is_none() && !opts.quiet {
+            for p in params.iter().filter(|p| moves_dt.contains(&p.key.as_str())) {
+                eprintln!(
+                    "warning: {}: [time] dt is automatic, and it follows the fitted {}: the step count and the discretisation change with it, so the residual jumps and the search may stop in a local minimum; fix: set [time] dt (or --set time.dt=VALUE) below the stability bound over the bounds",
+                    scenario.display(),
+                    p.name
+                );
+            }
+        }
         let mut inputs = sc.inputs();
         inputs.push(Input {
             role: format!("the measured curve (--data {})", opts.data.display()),
