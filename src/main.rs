@@ -195,10 +195,7 @@ of each (RMS of value * dy/dvalue over the points), the RMS residual (absolute a
 the data range); printed, and written to PREFIX.json, PREFIX.csv (x, measured, fitted, \
 residual) and PREFIX.png (measured against fitted, drawn by scripts/plot_fit.py when python3 \
 has matplotlib).\n\n\
-Example (a sphere pressed into the cylinder; the force measured against the indentation):\n\
-  printf 'indentation,force\\n0.05,0.010\\n0.10,0.026\\n0.20,0.071\\n' > press.csv\n\
-  eprop fit scenarios/cylinder_indent.toml --data press.csv --param young=20:500 \\\n\
-      --param coupling=0.1:10 -o press_fit\n\n\
+Example (a sphere pressed into the cylinder; the force measured against the indentation):\n  printf 'indentation,force\\n0.05,0.11\\n0.10,0.19\\n0.15,0.33\\n0.20,0.55\\n0.25,0.79\\n' > press.csv\n  eprop fit scenarios/cylinder_indent.toml --data press.csv --param young=20:500 -o press_fit\n\n\
 Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a signal."
     )]
     Fit {

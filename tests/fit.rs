@@ -284,6 +284,27 @@ fn fit_draws_the_png_or_says_why_not() {
             common::skip(&format!("no matplotlib: {note}"));
         }
     }
+    // the script teaches and fails cleanly
+    let python = repo().join(".venv/bin/python");
+    if python.is_file() {
+        let script = repo().join("scripts/plot_fit.py");
+        let out = std::process::Command::new(&python)
+            .arg(&script)
+            .arg("--help")
+            .output()
+            .unwrap();
+        assert!(out.status.success() && String::from_utf8_lossy(&out.stdout).contains("example"));
+        let out = std::process::Command::new(&python)
+            .arg(&script)
+            .arg("/nonexistent_fit")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains("no such file") && !err.contains("Traceback"),
+            "{err}"
+        );
+    }
     // the report files are not replaced without --overwrite
     let again = serial(&["fit", s, "--data", c, "--param", "young=20:500", "-o", p, "-q"], 1);
     assert_eq!(again.status.code(), Some(1), "{}", text(&again));

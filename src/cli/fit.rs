@@ -847,12 +847,12 @@ impl std::fmt::Display for FitReport {
             };
             writeln!(
                 f,
-                "  {:<14} {:.6e} {se}; bounds {}:{} {}; sensitivity {:.3e} ({:.2e} of the data range)",
+                "  {:<14} {:.6e} {se}; bounds {}:{}{}; sensitivity {:.3e} ({:.2e} of the data range)",
                 p.name,
                 p.value,
                 p.lower,
                 p.upper,
-                if p.at_bound { "(AT A BOUND)" } else { "" },
+                if p.at_bound { " (AT A BOUND)" } else { "" },
                 p.sensitivity,
                 p.sensitivity_relative
             )?;
