@@ -49,6 +49,12 @@ fn patch_scenario(dir: &Path) -> PathBuf {
 /// the load probe's |u| over time, or the tool's |F| against its indentation on the loading
 /// branch (indentation above 0 and deeper than every step before).
 fn make_curve(scenario: &Path, sets: &[&str], csv: &Path, header: &str, every: usize) {
+    make_curve_at(scenario, sets, csv, header, every, None)
+}
+
+/// `make_curve`, with |u| of the node at 0-based index `node` (output order) for the
+/// displacement.
+fn make_curve_at(scenario: &Path, sets: &[&str], csv: &Path, header: &str, every: usize, node: Option<usize>) {
     let h5 = csv.with_extension("h5");
     let mut args = vec!["run", scenario.to_str().unwrap(), "-q", "-o", h5.to_str().unwrap()];
     for s in sets {
@@ -60,9 +66,16 @@ fn make_curve(scenario: &Path, sets: &[&str], csv: &Path, header: &str, every: u
     let mut rows = vec![header.to_string()];
     if header.starts_with("time") {
         let t = read(&f, "eprop/probes/time");
-        let u = read(&f, "eprop/probes/displacement");
+        let (u, at, stride) = match node {
+            None => (read(&f, "eprop/probes/displacement"), 0, 3),
+            // every step is written: step k's rows follow step k-1's
+            Some(i) => {
+                let n = f.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
+                (read(&f, "VTKHDF/PointData/displacement"), 3 * i, 3 * n)
+            }
+        };
         for k in (2..t.len()).step_by(every) {
-            let d = &u[3 * k..3 * k + 3];
+            let d = &u[stride * k + at..stride * k + at + 3];
             let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             if t[k] <= 60.0 {
                 rows.push(format!("{:?},{n:?}", t[k]));
@@ -178,6 +191,46 @@ fn fit_recovers_young_and_damping_from_a_patch_load_displacement_over_time() {
 }
 
 #[test]
+fn fit_recovers_young_and_damping_from_a_node_displacement() {
+    let d = tempfile::tempdir().unwrap();
+    let sc = patch_scenario(d.path());
+    let csv = d.path().join("node.csv");
+    // node 230 of the cylinder mesh (index 229, at (0.67, 0, 2.18), beside the patch)
+    make_curve_at(
+        &sc,
+        &["tissue.young=150.0", "material.damping=1.5"],
+        &csv,
+        "time,displacement",
+        12,
+        Some(229),
+    );
+    let prefix = d.path().join("node_fit");
+    let mut args = fit_args(
+        sc.to_str().unwrap(),
+        csv.to_str().unwrap(),
+        prefix.to_str().unwrap(),
+        true,
+    );
+    args.extend(["--node", "230"]);
+    let out = serial(&args, 1);
+    assert!(out.status.success(), "{}", text(&out));
+    let r = report(&prefix);
+    assert_recovered(&r, "young", 150.0);
+    assert_recovered(&r, "damping", 1.5);
+    // a node the mesh does not have
+    let mut args = fit_args(
+        sc.to_str().unwrap(),
+        csv.to_str().unwrap(),
+        prefix.to_str().unwrap(),
+        true,
+    );
+    args.extend(["--node", "99999", "--overwrite"]);
+    let out = serial(&args, 1);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--node 99999: the mesh has no node with that id; fix:"));
+}
+
+#[test]
 fn fit_recovers_young_from_a_tool_force_against_indentation() {
     let d = tempfile::tempdir().unwrap();
     let sc = repo().join("scenarios/cylinder_indent.toml");
@@ -213,22 +266,38 @@ fn fit_under_mpirun_2_gives_the_one_process_result() {
         (
             patch.clone(),
             "patch",
-            "time,displacement",
             vec!["tissue.young=150.0", "material.damping=1.5"],
             true,
             12,
+            None,
         ),
-        (press, "press", "indentation,force", vec!["tissue.young=70.0"], false, 3),
+        (
+            patch.clone(),
+            "node",
+            vec!["tissue.young=150.0", "material.damping=1.5"],
+            true,
+            12,
+            Some(229),
+        ),
+        (press, "press", vec!["tissue.young=70.0"], false, 3, None),
     ];
-    for (sc, name, header, sets, two, every) in cases {
+    for (sc, name, sets, two, every, node) in cases {
+        let header = if two { "time,displacement" } else { "indentation,force" };
         let csv = d.path().join(format!("{name}.csv"));
-        make_curve(&sc, &sets, &csv, header, every);
+        make_curve_at(&sc, &sets, &csv, header, every, node);
         let one = d.path().join(format!("{name}_one"));
         let two_ranks = d.path().join(format!("{name}_two"));
         let (s, c) = (sc.to_str().unwrap(), csv.to_str().unwrap());
-        let out = serial(&fit_args(s, c, one.to_str().unwrap(), two), 1);
+        let id = node.map(|i: usize| (i + 1).to_string());
+        let mut a1 = fit_args(s, c, one.to_str().unwrap(), two);
+        let mut a2 = fit_args(s, c, two_ranks.to_str().unwrap(), two);
+        if let Some(id) = &id {
+            a1.extend(["--node", id.as_str()]);
+            a2.extend(["--node", id.as_str()]);
+        }
+        let out = serial(&a1, 1);
         assert!(out.status.success(), "{}", text(&out));
-        let out = mpirun(2, &fit_args(s, c, two_ranks.to_str().unwrap(), two));
+        let out = mpirun(2, &a2);
         assert!(out.status.success(), "{name} on 2 ranks: {}", text(&out));
         let (a, b) = (report(&one), report(&two_ranks));
         assert_eq!(b["processes"], 2);

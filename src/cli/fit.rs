@@ -486,9 +486,13 @@ fn evaluate(
             }),
     };
     // the curve is rank 0's (it is the same on every process: the simulation is rank independent)
-    if let (Some(w), Ok(v)) = (world, out.as_mut()) {
-        let _ = w;
-        sim.comm.broadcast(0, v);
+    if world.is_some() {
+        let failed = sim.comm.max(f64::from(u8::from(out.is_err())));
+        match out.as_mut() {
+            Ok(_) if failed > 0.0 => out = Err("another process had no curve".into()),
+            Ok(v) => sim.comm.broadcast(0, v),
+            Err(_) => {}
+        }
     }
     Ok(out)
 }
@@ -971,7 +975,10 @@ pub fn fit_on(world: Option<SimpleCommunicator>, scenario: &Path, opts: &FitOpti
                 curve.x.len()
             );
         }
-        let sc = Scenario::load_with(scenario, &opts.sets)?;
+        // the scenario with the parameters at their starting values: the keys are checked here
+        let mut sets = opts.sets.clone();
+        sets.extend(params.iter().map(|q| format!("{}={:?}", q.key, q.start)));
+        let sc = Scenario::load_with(scenario, &sets)?;
         // the automatic dt follows mass, damping and stiffness, and the discretisation with it
         let moves_dt = ["material.mass", "material.damping", "model.stiffness"];
         if sc.file.time.get_ref().dt.is_none() && !opts.quiet {
@@ -1071,16 +1078,21 @@ pub fn fit_on(world: Option<SimpleCommunicator>, scenario: &Path, opts: &FitOpti
         tolerance: opts.tolerance,
     };
     let z0: Vec<f64> = params.iter().map(|p| p.z(p.start)).collect();
-    let sol = lm::minimize(&mut problem, z0, &names).map_err(|e| match e.downcast_ref::<Agreed>() {
-        Some(_) => e,
-        None => refused(format!("{}: {e:#}", scenario.display())),
-    })?;
+    // the scenario named once
+    let named = |e: anyhow::Error| -> anyhow::Error {
+        let name = scenario.display().to_string();
+        match e.downcast_ref::<Agreed>() {
+            Some(_) => e,
+            None if format!("{e:#}").starts_with(&name) => refused(format!("{e:#}")),
+            None => refused(format!("{name}: {e:#}")),
+        }
+    };
+    let sol = lm::minimize(&mut problem, z0, &names).map_err(named)?;
     let mut evaluations = sol.evaluations;
     // the sensitivities at the end point
     let jac = match sol.jacobian {
         Some(j) => j,
-        None => lm::jacobian(&mut problem, &sol.z, &sol.r, &names, &mut evaluations)
-            .map_err(|e| refused(format!("{}: {e:#}", scenario.display())))?,
+        None => lm::jacobian(&mut problem, &sol.z, &sol.r, &names, &mut evaluations).map_err(named)?,
     };
     drop(problem);
     let value = values(&sol.z);
