@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Measured against fitted curve of an `eprop fit` report (PREFIX.csv and PREFIX.json).
 
-PREFIX.csv holds x, measured, fitted, residual per point; PREFIX.json the fitted parameters and
+PREFIX.csv holds x, measured, fitted, residual (and each parameter's sensitivity) per point; PREFIX.json the fitted parameters and
 the RMS residual (docs/fit.md). The left panel draws the measured points and the fitted curve,
 the right one the residuals. `eprop fit` calls this script itself when python3 has matplotlib.
 
@@ -32,11 +32,11 @@ def read_report(prefix):
         with open(path, newline="") as f:
             r = csv.reader(f)
             header = next(r, None)
-            if header != ["x", "measured", "fitted", "residual"]:
+            if header is None or header[:4] != ["x", "measured", "fitted", "residual"]:
                 raise Fail(f"{path}: not an eprop fit curve (header {header}); fix: give the PREFIX of `eprop fit -o PREFIX`")
             for k, row in enumerate(r, start=2):
                 try:
-                    rows.append([float(v) for v in row])
+                    rows.append([float(v) for v in row[:4]])
                 except ValueError:
                     raise Fail(f"{path}:{k}: not four numbers; fix: write the report again with eprop fit")
     except FileNotFoundError:

@@ -192,8 +192,8 @@ every parameter by less than it, or after --max-evaluations; one progress line p
 evaluation (on stderr).\n\n\
 Report: the fitted values with approximate standard errors (s^2 (J^T J)^-1), the sensitivity \
 of each (RMS of value * dy/dvalue over the points), the RMS residual (absolute and relative to \
-the data range); printed, and written to PREFIX.json, PREFIX.csv (x, measured, fitted, \
-residual) and PREFIX.png (measured against fitted, drawn by scripts/plot_fit.py when python3 \
+the data range); printed, and written to PREFIX.json, PREFIX.csv (x, measured, fitted, residual, \
+sensitivities) and PREFIX.png (measured against fitted, drawn by scripts/plot_fit.py when python3 \
 has matplotlib).\n\n\
 Example (a sphere pressed into the cylinder; the force measured against the indentation):\n  printf 'indentation,force\\n0.05,0.11\\n0.10,0.19\\n0.15,0.33\\n0.20,0.55\\n0.25,0.79\\n' > press.csv\n  eprop fit scenarios/cylinder_indent.toml --data press.csv --param young=20:500 -o press_fit\n\n\
 Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a signal."

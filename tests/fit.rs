@@ -175,7 +175,10 @@ fn fit_recovers_young_and_damping_from_a_patch_load_displacement_over_time() {
     // the CSV: a row per point, the fitted column within the rms of the measured one
     let rows = std::fs::read_to_string(prefix.with_extension("csv")).unwrap();
     let data = std::fs::read_to_string(&csv).unwrap();
-    assert!(rows.starts_with("x,measured,fitted,residual\n"), "{rows}");
+    assert!(
+        rows.starts_with("x,measured,fitted,residual,sensitivity_young,sensitivity_damping\n"),
+        "{rows}"
+    );
     assert_eq!(rows.lines().count(), data.lines().count());
     for (a, b) in rows.lines().skip(1).zip(data.lines().skip(1)) {
         let v: Vec<f64> = a.split(',').map(|s| s.parse().unwrap()).collect();

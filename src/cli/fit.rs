@@ -831,6 +831,10 @@ pub struct FitReport {
     pub fitted_y: Vec<f64>,
     #[serde(skip)]
     pub measured: Vec<(f64, f64)>,
+    /// Per point, value * dy/d(value) of each parameter (the Jacobian's columns scaled by
+    /// the parameters).
+    #[serde(skip)]
+    pub scaled_jacobian: Vec<Vec<f64>>,
 }
 
 impl std::fmt::Display for FitReport {
@@ -1163,15 +1167,33 @@ pub fn fit_on(world: Option<SimpleCommunicator>, scenario: &Path, opts: &FitOpti
         plot_note: None,
         fitted_y,
         measured: curve.x.iter().copied().zip(curve.y.iter().copied()).collect(),
+        scaled_jacobian: jp
+            .iter()
+            .map(|row| row.iter().zip(&value).map(|(d, v)| d * v).collect())
+            .collect(),
     };
     let written = crate::distribute::launch::on_root(w, || {
         report.files = vec![json_file.display().to_string(), csv_file.display().to_string()];
         if opts.plot {
             report.files.push(png_file.display().to_string());
         }
-        let mut csv = String::from("x,measured,fitted,residual\n");
-        for ((x, y), f) in report.measured.iter().zip(&report.fitted_y) {
-            csv.push_str(&format!("{x:?},{y:?},{f:?},{:?}\n", f - y));
+        // x, measured, fitted, residual, then value * dy/d(value) of each parameter
+        let mut csv = String::from("x,measured,fitted,residual");
+        for p in &report.parameters {
+            csv.push_str(&format!(",sensitivity_{}", p.name));
+        }
+        csv.push('\n');
+        for (((x, y), f), s) in report
+            .measured
+            .iter()
+            .zip(&report.fitted_y)
+            .zip(&report.scaled_jacobian)
+        {
+            csv.push_str(&format!("{x:?},{y:?},{f:?},{:?}", f - y));
+            for v in s {
+                csv.push_str(&format!(",{v:?}"));
+            }
+            csv.push('\n');
         }
         std::fs::write(&csv_file, csv).map_err(|e| anyhow!("{}: cannot write: {e}", csv_file.display()))?;
         let write_json = |r: &FitReport| {
