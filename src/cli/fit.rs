@@ -337,20 +337,22 @@ fn broadcast(world: Option<&SimpleCommunicator>, v: &mut Vec<f64>) {
     }
 }
 
-/// What is measured in a simulation: its x and y at the current step. The only place that
-/// reads a simulation's state.
+/// What is measured in a simulation: its x and y at the current step. With `evaluate` (which
+/// steps the simulation) the only code here that reads a simulation: its public methods, and
+/// the fields `global` (the node ids), `comm`, `u`, `time`, `step` and `stop_signal`.
 struct Probe {
     x: XKind,
     y: YKind,
     tool: usize,
     load: usize,
-    /// (global index, local index if owned here) of the measured node.
+    /// The measured node's local index where this process owns it (None elsewhere); None for
+    /// a load's probe.
     node: Option<Option<usize>>,
 }
 
 impl Probe {
-    fn new(sim: &Simulation, c: &Curve, o: &FitOptions) -> Result<Probe> {
-        let path = sim.setup.scenario.path.display();
+    fn new(sim: &Simulation, scenario: &Path, c: &Curve, o: &FitOptions) -> Result<Probe> {
+        let path = scenario.display();
         let tools = sim.tool_states().len();
         let loads = sim.probes().len();
         let needs_tool = c.x_kind == XKind::Indentation || c.y_kind == YKind::Force;
@@ -431,7 +433,7 @@ fn evaluate(
         None => Simulation::new(make()?)?,
         Some(w) => build_mpi(w.duplicate(), make)?.sim,
     };
-    let probe = Probe::new(&sim, curve, opts)?;
+    let probe = Probe::new(&sim, scenario, curve, opts)?;
     let mut xs = vec![];
     let mut ys = vec![];
     // indentation: the loading branch, the steps where the tool passes its deepest so far
