@@ -171,6 +171,85 @@ ends before the `listening on` line. Under mpirun rank 0 holds the socket."
         #[arg(long)]
         force: bool,
     },
+    /// Fit scenario parameters (young, coupling, ...) to a measured curve by least squares.
+    #[command(
+        long_about = "Fit scenario parameters to a measured curve by least squares (bounded \
+Levenberg-Marquardt; docs/fit.md).\n\n\
+The curve (--data) is a CSV file: a header row naming two columns, x then y, and one row per \
+point with x increasing (blank lines and lines starting with # are skipped; a unit in brackets \
+may follow a name: `force (N)`). x is `time` (or `t`) or `indentation` (the depth of tool \
+--tool in the undeformed organ, the loading branch: the steps where the tool is deeper than \
+ever before); y is `force` (|F| of tool --tool) or `displacement` (|u| of the probe of load \
+--load, or of node --node ID). Any other name is refused.\n\n\
+Each evaluation is a full simulation of the scenario with the parameter values applied as \
+--set would apply them (nothing is written); the quantity is sampled at every step and \
+interpolated linearly at the curve's x. A curve x outside the simulated range is an error at \
+the start and a rejected step later. Under mpirun every process runs every evaluation; the \
+fit is the same on any number of processes.\n\n\
+Parameters: --param NAME=LO:HI, NAME one of young, beta, conductivity, mass, damping, \
+stiffness, coupling, exponent, or a scenario key path (load.1.normal); both bounds positive: \
+fitted in log space, from the geometric mean of the bounds (or --start NAME=VALUE). The search \
+stops when a step reduces the sum of squares by less than --tolerance (relative), changes \
+every parameter by less than it, or after --max-evaluations; one progress line per \
+evaluation (on stderr).\n\n\
+Report: the fitted values with approximate standard errors (s^2 (J^T J)^-1), the sensitivity \
+of each (RMS of value * dy/dvalue over the points), the RMS residual (absolute and relative to \
+the data range); printed, and written to PREFIX.json, PREFIX.csv (x, measured, fitted, residual, \
+sensitivities) and PREFIX.png (measured against fitted, drawn by scripts/plot_fit.py when python3 \
+has matplotlib).\n\n\
+Example (a sphere pressed into the cylinder; the force measured against the indentation):\n  printf 'indentation,force\\n0.05,0.11\\n0.10,0.19\\n0.15,0.33\\n0.20,0.55\\n0.25,0.79\\n' > press.csv\n  eprop fit scenarios/cylinder_indent.toml --data press.csv --param young=20:500 -o press_fit\n\n\
+Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a signal."
+    )]
+    Fit {
+        /// Scenario file (TOML)
+        scenario: PathBuf,
+        /// The measured curve: CSV with a header `x,y`, x one of time, t, indentation; y one of
+        /// force, displacement
+        #[arg(long, value_name = "CURVE.csv")]
+        data: PathBuf,
+        /// A fitted parameter and its bounds (repeatable): young=20:500, coupling=0.1:10,
+        /// load.1.normal=0.1:2
+        #[arg(long = "param", value_name = "NAME=LO:HI", required = true)]
+        param: Vec<String>,
+        /// A starting value (default: the geometric mean of positive bounds, else the middle)
+        #[arg(long = "start", value_name = "NAME=VALUE")]
+        start: Vec<String>,
+        /// The tool (1-based) whose force or indentation the curve holds
+        #[arg(long, default_value_t = 1)]
+        tool: usize,
+        /// The load (1-based) whose probe displacement the curve holds
+        #[arg(long, default_value_t = 1)]
+        load: usize,
+        /// The node (its id in the mesh file) whose displacement |u| the curve holds
+        #[arg(long, value_name = "ID")]
+        node: Option<u64>,
+        /// Override another scenario key in every evaluation (as eprop run --set)
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Report prefix: PREFIX.json, PREFIX.csv, PREFIX.png (default <curve stem>_fit beside
+        /// the curve)
+        #[arg(short, long, value_name = "PREFIX")]
+        output: Option<PathBuf>,
+        /// Most simulations of the search (the final sensitivities may add one per parameter)
+        #[arg(long, default_value_t = 100)]
+        max_evaluations: usize,
+        /// Relative reduction of the sum of squares, and relative parameter change, that end
+        /// the search
+        #[arg(long, default_value_t = 1e-6)]
+        tolerance: f64,
+        /// No PNG (no python3 called)
+        #[arg(long)]
+        no_plot: bool,
+        /// Replace report files that exist (refused otherwise)
+        #[arg(long)]
+        overwrite: bool,
+        /// Print the report as JSON
+        #[arg(long)]
+        json: bool,
+        /// No progress lines
+        #[arg(long, short)]
+        quiet: bool,
+    },
     /// Validate a scenario without running it and print what it derives: counts, fixed and
     /// loaded nodes, h, dt, substeps, estimated run time, memory and output size.
     Check {
@@ -475,6 +554,42 @@ fn real_main(cli: Cli) -> Result<()> {
                 },
             };
             serve(&scenario, &opts, json)?;
+        }
+        Cmd::Fit {
+            scenario,
+            data,
+            param,
+            start,
+            tool,
+            load,
+            node,
+            set,
+            output,
+            max_evaluations,
+            tolerance,
+            no_plot,
+            overwrite,
+            json,
+            quiet,
+        } => {
+            let opts = eprop::cli::fit::FitOptions {
+                data,
+                params: param,
+                starts: start,
+                tool,
+                load,
+                node,
+                sets: set,
+                prefix: output,
+                max_evaluations,
+                tolerance,
+                quiet: quiet || json,
+                plot: !no_plot,
+                overwrite,
+            };
+            if let Some(r) = launch(|world| eprop::cli::fit::fit_on(world, &scenario, &opts))? {
+                print(&r, json)?;
+            }
         }
         Cmd::Check {
             scenario,

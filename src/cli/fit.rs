@@ -1,0 +1,1280 @@
+//! `eprop fit`: chosen scenario parameters fitted to a measured curve by least squares
+//! (docs/fit.md).
+//!
+//! The curve is a CSV file of two named columns: x (the time, or the indentation of a tool) and
+//! y (the force of a tool, or the displacement of a load's probe or of a node). Each evaluation
+//! is a full simulation of the scenario with the parameters applied through the same overrides
+//! as `--set` (`config::set`), in this process or on every process of the MPI job (rank 0
+//! decides the parameters and broadcasts them and the curve; the simulations are rank
+//! independent, so the fit is the same on any number of processes). Nothing is written for an
+//! evaluation: the measured quantity is sampled at every step and interpolated linearly at the
+//! curve's x.
+//!
+//! The minimiser is a small bounded Levenberg-Marquardt of our own (`lm`) rather than a crate's:
+//! each residual vector costs a full simulation, so the Jacobian is by forward differences in the
+//! bounded (log for positive bounds) parameter space with steps that stay inside the bounds; the
+//! bounds are honoured by projection with the parameters held at a bound where the gradient
+//! pushes out; and every evaluation prints a progress line. The `levenberg-marquardt` crate
+//! drives its own evaluations and Jacobian without bounds, and argmin has no bounded
+//! Levenberg-Marquardt.
+
+use crate::config::{Scenario, Setup};
+use crate::distribute::launch::is_root;
+use crate::guard::safety::{self, Agreed, Input, EXIT_ERROR, EXIT_STOPPED};
+use crate::simulate::distributed::build_mpi;
+use crate::simulate::Simulation;
+use anyhow::{anyhow, bail, Result};
+use mpi::topology::SimpleCommunicator;
+use mpi::traits::*;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The parameters `--param` knows by a short name, and the scenario key each one sets. Any
+/// other scenario key is named by its TOML path (`load.1.normal`).
+pub const NAMES: &[(&str, &str)] = &[
+    ("young", "tissue.young"),
+    ("beta", "tissue.beta"),
+    ("conductivity", "material.conductivity"),
+    ("mass", "material.mass"),
+    ("damping", "material.damping"),
+    ("stiffness", "model.stiffness"),
+    ("coupling", "model.coupling"),
+    ("exponent", "model.exponent"),
+];
+
+/// What `eprop fit` was asked.
+#[derive(Clone, Debug)]
+pub struct FitOptions {
+    /// The measured curve (CSV).
+    pub data: PathBuf,
+    /// `NAME=LO:HI`, one per fitted parameter.
+    pub params: Vec<String>,
+    /// `NAME=VALUE`: starting values (default: the middle of the bounds).
+    pub starts: Vec<String>,
+    /// The tool (1-based) whose force or indentation is measured.
+    pub tool: usize,
+    /// The load (1-based) whose probe displacement is measured.
+    pub load: usize,
+    /// A node (the mesh file's id) whose displacement is measured instead of a load's probe.
+    pub node: Option<u64>,
+    /// Overrides of other scenario keys, applied to every evaluation before the parameters.
+    pub sets: Vec<String>,
+    /// Report prefix: PREFIX.json, PREFIX.csv, PREFIX.png.
+    pub prefix: Option<PathBuf>,
+    pub max_evaluations: usize,
+    pub tolerance: f64,
+    pub quiet: bool,
+    pub plot: bool,
+    pub overwrite: bool,
+}
+
+/// One fitted parameter.
+#[derive(Clone, Debug)]
+struct Param {
+    name: String,
+    key: String,
+    lo: f64,
+    hi: f64,
+    start: f64,
+    /// Fitted as ln(value) (both bounds positive).
+    log: bool,
+}
+
+impl Param {
+    fn z(&self, p: f64) -> f64 {
+        if self.log {
+            p.ln()
+        } else {
+            p
+        }
+    }
+    fn p(&self, z: f64) -> f64 {
+        let p = if self.log { z.exp() } else { z };
+        p.clamp(self.lo, self.hi)
+    }
+}
+
+fn refused(msg: String) -> anyhow::Error {
+    Agreed::error(EXIT_ERROR, msg)
+}
+
+fn number(s: &str) -> Option<f64> {
+    s.trim().parse::<f64>().ok().filter(|v| v.is_finite())
+}
+
+/// `NAME=LO:HI` (and its `--start NAME=VALUE`) as a parameter.
+fn parse_params(params: &[String], starts: &[String]) -> Result<Vec<Param>> {
+    let known = NAMES.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ");
+    if params.is_empty() {
+        return Err(refused(format!(
+            "no parameter to fit; fix: name one with its bounds, e.g. --param young=20:500 (known names: {known}; or a scenario key path such as load.1.normal)"
+        )));
+    }
+    let mut out: Vec<Param> = vec![];
+    for s in params {
+        let (name, range) = s.split_once('=').ok_or_else(|| {
+            refused(format!(
+                "--param {s}: not NAME=LO:HI; fix: give the parameter and its bounds, e.g. --param young=20:500"
+            ))
+        })?;
+        let name = name.trim();
+        let key = match NAMES.iter().find(|(n, _)| *n == name) {
+            Some((_, k)) => k.to_string(),
+            None if name.contains('.') => name.to_string(),
+            None => {
+                return Err(refused(format!(
+                    "--param {s}: unknown parameter `{name}`; fix: one of {known}, or a scenario key by its TOML path (as --set takes it), e.g. load.1.normal"
+                )))
+            }
+        };
+        let (lo, hi) = match range.split_once(':').map(|(a, b)| (number(a), number(b))) {
+            Some((Some(lo), Some(hi))) => (lo, hi),
+            _ => {
+                return Err(refused(format!(
+                    "--param {s}: `{range}` is not LO:HI; fix: two finite numbers, the lower bound first, e.g. --param {name}=20:500"
+                )))
+            }
+        };
+        if lo >= hi {
+            return Err(refused(format!(
+                "--param {s}: the lower bound {lo} is not below the upper bound {hi}; fix: LO < HI, e.g. --param {name}={}:{}",
+                lo.min(hi),
+                if lo == hi { 2.0 * hi.abs().max(1.0) } else { lo.max(hi) }
+            )));
+        }
+        if out.iter().any(|p| p.key == key) {
+            return Err(refused(format!(
+                "--param {s}: `{name}` ({key}) is fitted twice; fix: give each parameter once"
+            )));
+        }
+        let log = lo > 0.0;
+        let start = if log { (lo * hi).sqrt() } else { 0.5 * (lo + hi) };
+        out.push(Param {
+            name: name.to_string(),
+            key,
+            lo,
+            hi,
+            start,
+            log,
+        });
+    }
+    for s in starts {
+        let (name, v) = s.split_once('=').ok_or_else(|| {
+            refused(format!(
+                "--start {s}: not NAME=VALUE; fix: a fitted parameter and its starting value, e.g. --start young=80"
+            ))
+        })?;
+        let name = name.trim();
+        let Some(p) = out.iter_mut().find(|p| p.name == name) else {
+            return Err(refused(format!(
+                "--start {s}: `{name}` is not a fitted parameter; fix: give it a --param {name}=LO:HI, or start one of {}",
+                params.iter().filter_map(|p| p.split_once('=').map(|(n, _)| n.trim())).collect::<Vec<_>>().join(", ")
+            )));
+        };
+        match number(v) {
+            Some(v) if (p.lo..=p.hi).contains(&v) => p.start = v,
+            _ => {
+                return Err(refused(format!(
+                    "--start {s}: `{}` is not a number within the bounds {}:{}; fix: a start inside the bounds of --param {name}",
+                    v.trim(),
+                    p.lo,
+                    p.hi
+                )))
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// What the curve's x column is.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum XKind {
+    Time,
+    Indentation,
+}
+
+/// What the curve's y column is.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum YKind {
+    Force,
+    Displacement,
+}
+
+impl XKind {
+    pub fn name(&self) -> &'static str {
+        match self {
+            XKind::Time => "time",
+            XKind::Indentation => "indentation",
+        }
+    }
+}
+
+impl YKind {
+    pub fn name(&self) -> &'static str {
+        match self {
+            YKind::Force => "force",
+            YKind::Displacement => "displacement",
+        }
+    }
+}
+
+/// The measured curve.
+#[derive(Clone, Debug)]
+struct Curve {
+    x_kind: XKind,
+    y_kind: YKind,
+    x: Vec<f64>,
+    y: Vec<f64>,
+}
+
+/// The accepted column names, for messages and --help.
+pub const X_NAMES: &str = "`time` (or `t`) or `indentation`";
+pub const Y_NAMES: &str = "`force` or `displacement`";
+
+/// A header name without case, spaces or a unit in brackets: "Force (N)" is `force`.
+fn column_name(s: &str) -> String {
+    let s = s.trim().to_ascii_lowercase();
+    let s = match s.find(['(', '[']) {
+        Some(k) => s[..k].trim().to_string(),
+        None => s,
+    };
+    s
+}
+
+fn fields(line: &str) -> Vec<&str> {
+    if line.contains(',') {
+        line.split(',').map(str::trim).collect()
+    } else {
+        line.split_whitespace().collect()
+    }
+}
+
+/// Reads a curve: a header row naming x and y, then rows of two numbers with x increasing;
+/// blank lines and lines starting with `#` are skipped.
+fn read_curve(path: &Path) -> Result<Curve> {
+    let name = path.display();
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        anyhow!("{name}: cannot read the measured curve: {e}; fix: give a CSV file with a header row, e.g. `indentation,force`")
+    })?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(k, l)| (k + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+    let Some((hl, header)) = lines.next() else {
+        bail!("{name}: the file is empty; fix: a header row (e.g. `time,displacement`), then one row per point");
+    };
+    let cols = fields(header);
+    if cols.len() != 2 {
+        bail!(
+            "{name}:{hl}: the header has {} column(s), `{header}`; fix: two columns, x then y, e.g. `indentation,force` or `time,displacement`",
+            cols.len()
+        );
+    }
+    let (xn, yn) = (column_name(cols[0]), column_name(cols[1]));
+    let x_kind = match xn.as_str() {
+        "time" | "t" => XKind::Time,
+        "indentation" => XKind::Indentation,
+        _ if number(cols[0]).is_some() => bail!(
+            "{name}:{hl}: the first row is numbers, not a header; fix: add a header row naming the columns, x ({X_NAMES}) then y ({Y_NAMES}), e.g. `time,displacement`"
+        ),
+        _ => bail!(
+            "{name}:{hl}: the x column is named `{}`; fix: name it {X_NAMES} (a unit in brackets may follow: `indentation (mm)`)",
+            cols[0]
+        ),
+    };
+    let y_kind = match yn.as_str() {
+        "force" => YKind::Force,
+        "displacement" => YKind::Displacement,
+        _ => bail!(
+            "{name}:{hl}: the y column is named `{}`; fix: name it {Y_NAMES} (a unit in brackets may follow: `force (N)`)",
+            cols[1]
+        ),
+    };
+    let (mut x, mut y) = (vec![], vec![]);
+    for (k, line) in lines {
+        let f = fields(line);
+        if f.len() != 2 {
+            bail!(
+                "{name}:{k}: {} value(s) in `{line}`; fix: two numbers per row, x then y",
+                f.len()
+            );
+        }
+        let (Some(a), Some(b)) = (number(f[0]), number(f[1])) else {
+            let bad = if number(f[0]).is_none() { f[0] } else { f[1] };
+            bail!("{name}:{k}: `{bad}` is not a finite number; fix: two finite numbers per row, x then y");
+        };
+        if let Some(&last) = x.last() {
+            if a <= last {
+                bail!(
+                    "{name}:{k}: x = {a} does not increase (the row before has {last}); fix: sort the rows by x and keep one row per x"
+                );
+            }
+        }
+        x.push(a);
+        y.push(b);
+    }
+    if x.len() < 2 {
+        bail!(
+            "{name}: {} data point(s); fix: give at least 2 points (and more points than fitted parameters)",
+            x.len()
+        );
+    }
+    Ok(Curve { x_kind, y_kind, x, y })
+}
+
+/// Rank 0's values, made every process's (the same length everywhere after).
+fn broadcast(world: Option<&SimpleCommunicator>, v: &mut Vec<f64>) {
+    if let Some(w) = world {
+        let root = w.process_at_rank(0);
+        let mut n = v.len() as u64;
+        root.broadcast_into(&mut n);
+        v.resize(n as usize, 0.0);
+        root.broadcast_into(&mut v[..]);
+    }
+}
+
+/// What is measured in a simulation: its x and y at the current step. With `evaluate` (which
+/// steps the simulation) the only code here that reads a simulation: its public methods, and
+/// the fields `global` (the node ids), `comm`, `u`, `time`, `step` and `stop_signal`.
+struct Probe {
+    x: XKind,
+    y: YKind,
+    tool: usize,
+    load: usize,
+    /// The measured node's local index where this process owns it (None elsewhere); None for
+    /// a load's probe.
+    node: Option<Option<usize>>,
+}
+
+impl Probe {
+    fn new(sim: &Simulation, scenario: &Path, c: &Curve, o: &FitOptions) -> Result<Probe> {
+        let path = scenario.display();
+        let tools = sim.tool_states().len();
+        let loads = sim.probes().len();
+        let needs_tool = c.x_kind == XKind::Indentation || c.y_kind == YKind::Force;
+        if needs_tool && !(1..=tools).contains(&o.tool) {
+            bail!(
+                "{path}: the curve's {} is a tool's, and the scenario has {tools} [[tool]] table(s) (--tool {}); fix: a scenario with a [[tool]], or --tool 1..={tools}",
+                if c.y_kind == YKind::Force { "force" } else { "indentation" },
+                o.tool
+            );
+        }
+        let mut node = None;
+        if c.y_kind == YKind::Displacement {
+            match o.node {
+                Some(id) => {
+                    // rank 0 has the whole mesh and its node ids
+                    let g = match &sim.global {
+                        Some(m) => m.node_ids.iter().position(|&x| x == id).map_or(-1.0, |g| g as f64),
+                        None => -1.0,
+                    };
+                    let g = sim.comm.max(g);
+                    if g < 0.0 {
+                        bail!("{path}: --node {id}: the mesh has no node with that id; fix: a node id of the mesh file (as [[load]] node = ID takes it)");
+                    }
+                    node = Some(sim.local(g as u32));
+                }
+                None if !(1..=loads).contains(&o.load) => bail!(
+                    "{path}: the curve's displacement is a load's probe, and the scenario has {loads} [[load]] table(s) (--load {}); fix: a scenario with a [[load]], --load 1..={loads}, or --node ID for a node's displacement",
+                    o.load
+                ),
+                None => {}
+            }
+        }
+        Ok(Probe {
+            x: c.x_kind,
+            y: c.y_kind,
+            tool: o.tool.saturating_sub(1),
+            load: o.load.saturating_sub(1),
+            node,
+        })
+    }
+
+    /// (x, y) now; the same on every process.
+    fn sample(&self, sim: &Simulation) -> (f64, f64) {
+        let norm = eprop_io::geom::norm;
+        let tool = || sim.tool_states()[self.tool];
+        let x = match self.x {
+            XKind::Time => sim.time,
+            XKind::Indentation => tool().indentation,
+        };
+        let y = match (self.y, self.node) {
+            (YKind::Force, _) => norm(tool().force),
+            (YKind::Displacement, None) => norm(sim.probes()[self.load].1),
+            (YKind::Displacement, Some(local)) => sim.comm.max(local.map_or(0.0, |i| norm(sim.u[i]))),
+        };
+        (x, y)
+    }
+}
+
+/// An evaluation that gave no curve: why, in a few words.
+type Outcome = std::result::Result<Vec<f64>, String>;
+
+/// One full simulation with the parameter values `p` applied; the measured y at the curve's x,
+/// or why there is none (a state that is no longer finite, x beyond the simulated range).
+fn evaluate(
+    world: Option<&SimpleCommunicator>,
+    scenario: &Path,
+    opts: &FitOptions,
+    params: &[Param],
+    p: &[f64],
+    curve: &Curve,
+) -> Result<Outcome> {
+    let mut p = p.to_vec();
+    broadcast(world, &mut p); // rank 0 decides
+    let mut sets = opts.sets.clone();
+    sets.extend(params.iter().zip(&p).map(|(q, v)| format!("{}={v:?}", q.key)));
+    let make = || Setup::new(Scenario::load_with(scenario, &sets)?);
+    let mut sim = match world {
+        None => Simulation::new(make()?)?,
+        Some(w) => build_mpi(w.duplicate(), make)?.sim,
+    };
+    let probe = Probe::new(&sim, scenario, curve, opts)?;
+    let mut xs = vec![];
+    let mut ys = vec![];
+    // indentation: the loading branch, the steps where the tool passes its deepest so far
+    let mut push = |(x, y): (f64, f64)| {
+        if probe.x == XKind::Time || xs.last().is_none_or(|&l| x > l) {
+            xs.push(x);
+            ys.push(y);
+        }
+        x.is_finite() && y.is_finite()
+    };
+    let mut finite = push(probe.sample(&sim));
+    while finite && !sim.done() {
+        sim.advance()?;
+        if sim.stop_signal != 0 {
+            return Err(Agreed::error(
+                EXIT_STOPPED,
+                format!(
+                    "stopped by {} during an evaluation (step {} of {}); nothing was written",
+                    crate::guard::signals::name(sim.stop_signal),
+                    sim.step,
+                    sim.max_steps()
+                ),
+            ));
+        }
+        finite = push(probe.sample(&sim));
+        if !finite {
+            break;
+        }
+    }
+    let what = match curve.x_kind {
+        XKind::Time => "time",
+        XKind::Indentation => "indentation (loading branch)",
+    };
+    let mut out = match finite {
+        false => Err(format!(
+            "the state is no longer finite at step {} (t = {:.6e})",
+            sim.step, sim.time
+        )),
+        true => curve
+            .x
+            .iter()
+            .map(|&x| interpolate(&xs, &ys, x))
+            .collect::<Option<Vec<f64>>>()
+            .ok_or_else(|| {
+                format!(
+                    "the curve's x {} .. {} is beyond the simulated {what} {:.6e} .. {:.6e}",
+                    curve.x[0],
+                    curve.x[curve.x.len() - 1],
+                    xs.first().copied().unwrap_or(f64::NAN),
+                    xs.last().copied().unwrap_or(f64::NAN)
+                )
+            }),
+    };
+    // the curve is rank 0's (it is the same on every process: the simulation is rank independent)
+    if world.is_some() {
+        let failed = sim.comm.max(f64::from(u8::from(out.is_err())));
+        match out.as_mut() {
+            Ok(_) if failed > 0.0 => out = Err("another process had no curve".into()),
+            Ok(v) => sim.comm.broadcast(0, v),
+            Err(_) => {}
+        }
+    }
+    Ok(out)
+}
+
+/// y at x on the polyline (xs increasing); None outside [xs_0, xs_last].
+fn interpolate(xs: &[f64], ys: &[f64], x: f64) -> Option<f64> {
+    let (first, last) = (*xs.first()?, *xs.last()?);
+    if !(x >= first && x <= last) {
+        return None;
+    }
+    let k = xs.partition_point(|&v| v <= x);
+    if k == xs.len() {
+        return Some(ys[xs.len() - 1]);
+    }
+    let (x0, x1, y0, y1) = (xs[k - 1], xs[k], ys[k - 1], ys[k]);
+    Some(y0 + (y1 - y0) * (x - x0) / (x1 - x0))
+}
+
+/// A bounded Levenberg-Marquardt on residual vectors that each cost a full simulation.
+pub mod lm {
+    /// Why the search stopped.
+    #[derive(Clone, Debug, PartialEq)]
+    pub enum Stop {
+        /// An accepted step reduced the sum of squares by less than the tolerance (relative).
+        Reduction,
+        /// The step changed every parameter by less than the tolerance.
+        Step,
+        /// The residual is zero.
+        Exact,
+        /// The evaluation budget is spent.
+        Evaluations,
+        /// No step reduced the sum of squares, however short.
+        NoDecrease,
+        /// Every parameter is at a bound that the gradient pushes against.
+        Bounds,
+    }
+
+    impl Stop {
+        pub fn text(&self) -> &'static str {
+            match self {
+                Stop::Reduction => "the sum of squares decreased by less than the tolerance",
+                Stop::Step => "the step changed every parameter by less than the tolerance",
+                Stop::Exact => "the residual is zero",
+                Stop::Evaluations => "the evaluation budget (--max-evaluations) is spent",
+                Stop::NoDecrease => "no step reduced the sum of squares",
+                Stop::Bounds => "every parameter is held at a bound",
+            }
+        }
+    }
+
+    /// The problem in the fitting coordinates z (each within [lo, hi]).
+    pub struct Problem<'a> {
+        pub lo: Vec<f64>,
+        pub hi: Vec<f64>,
+        /// The residuals at z, or why there are none (a rejected point).
+        pub residuals: &'a mut dyn FnMut(&[f64], &str) -> anyhow::Result<Result<Vec<f64>, String>>,
+        /// Maximum evaluations of the search (the start counts).
+        pub max_evaluations: usize,
+        /// Relative reduction of the sum of squares, and step in z relative to |z| (>= 1) ...
+        pub tolerance: f64,
+    }
+
+    /// The search's end point.
+    pub struct Solution {
+        pub z: Vec<f64>,
+        pub r: Vec<f64>,
+        /// dr/dz at `z` (rows: residuals), or None when it was never computed there.
+        pub jacobian: Option<Vec<Vec<f64>>>,
+        pub evaluations: usize,
+        pub iterations: usize,
+        pub stop: Stop,
+    }
+
+    fn ss(r: &[f64]) -> f64 {
+        r.iter().map(|v| v * v).sum()
+    }
+
+    /// Forward-difference step of coordinate j: 1e-6 of its range, pointing into the bounds.
+    fn fd_step(lo: f64, hi: f64, z: f64) -> f64 {
+        let h = 1e-6 * (hi - lo);
+        if z + h <= hi {
+            h
+        } else {
+            -h
+        }
+    }
+
+    /// Solves A x = b (n small) by Gaussian elimination with partial pivoting; None when A is
+    /// singular.
+    pub fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+        let n = b.len();
+        let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+        if !(scale > 0.0) || !scale.is_finite() {
+            return None;
+        }
+        for c in 0..n {
+            let p = (c..n).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
+            if !(a[p][c].abs() > 1e-14 * scale) {
+                return None;
+            }
+            a.swap(c, p);
+            b.swap(c, p);
+            for r in c + 1..n {
+                let f = a[r][c] / a[c][c];
+                for k in c..n {
+                    a[r][k] -= f * a[c][k];
+                }
+                b[r] -= f * b[c];
+            }
+        }
+        let mut x = vec![0.0; n];
+        for c in (0..n).rev() {
+            let s: f64 = (c + 1..n).map(|k| a[c][k] * x[k]).sum();
+            x[c] = (b[c] - s) / a[c][c];
+        }
+        Some(x)
+    }
+
+    /// The inverse of a small symmetric positive definite matrix (None when singular).
+    pub fn inverse(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
+        let n = a.len();
+        let mut cols = vec![];
+        for j in 0..n {
+            let mut e = vec![0.0; n];
+            e[j] = 1.0;
+            cols.push(solve(a.to_vec(), e)?);
+        }
+        Some((0..n).map(|i| (0..n).map(|j| cols[j][i]).collect()).collect())
+    }
+
+    /// The Jacobian dr/dz at z (r0 = r(z)) by forward differences, one evaluation per column
+    /// (the other side of z when the first is rejected).
+    pub fn jacobian(
+        p: &mut Problem,
+        z: &[f64],
+        r0: &[f64],
+        names: &[String],
+        evals: &mut usize,
+    ) -> anyhow::Result<Vec<Vec<f64>>> {
+        let (m, n) = (r0.len(), z.len());
+        let mut jac = vec![vec![0.0; n]; m];
+        for j in 0..n {
+            let mut h = fd_step(p.lo[j], p.hi[j], z[j]);
+            let mut tried = 0;
+            let rj = loop {
+                let mut zz = z.to_vec();
+                zz[j] += h;
+                *evals += 1;
+                match (p.residuals)(&zz, &format!("derivative {}", names[j]))? {
+                    Ok(r) => break r,
+                    Err(why) if tried == 0 && z[j] - h >= p.lo[j] && z[j] - h <= p.hi[j] => {
+                        tracing::info!("derivative {}: {why}; the other side", names[j]);
+                        h = -h;
+                        tried += 1;
+                    }
+                    Err(why) => anyhow::bail!(
+                        "the derivative by {} could not be computed: {why}; fix: narrow its bounds away from where the simulation fails",
+                        names[j]
+                    ),
+                }
+            };
+            for i in 0..m {
+                jac[i][j] = (rj[i] - r0[i]) / h;
+            }
+        }
+        Ok(jac)
+    }
+
+    /// Minimises |r(z)|^2 from z0 within [lo, hi]: Levenberg-Marquardt with Marquardt's
+    /// scaling diag(J^T J), steps projected onto the bounds, and the coordinates at a bound
+    /// held there while the gradient pushes out of it.
+    pub fn minimize(p: &mut Problem, z0: Vec<f64>, names: &[String]) -> anyhow::Result<Solution> {
+        let n = z0.len();
+        let mut evals = 1;
+        let mut r = match (p.residuals)(&z0, "start")? {
+            Ok(r) => r,
+            Err(why) => anyhow::bail!(
+                "at the starting values {why}; fix: a scenario whose run covers the curve (a later [time] end, a deeper tool path) and stays finite, or other starting values"
+            ),
+        };
+        let mut z = z0;
+        let mut cost = ss(&r);
+        let mut lambda = 1e-3;
+        let mut iterations = 0;
+        let done = |z: Vec<f64>, r, jacobian, evaluations, iterations, stop| Solution {
+            z,
+            r,
+            jacobian,
+            evaluations,
+            iterations,
+            stop,
+        };
+        loop {
+            if cost == 0.0 {
+                return Ok(done(z, r, None, evals, iterations, Stop::Exact));
+            }
+            if evals + n + 1 > p.max_evaluations {
+                return Ok(done(z, r, None, evals, iterations, Stop::Evaluations));
+            }
+            iterations += 1;
+            let jac = jacobian(p, &z, &r, names, &mut evals)?;
+            let m = r.len();
+            let mut a = vec![vec![0.0; n]; n];
+            let mut g = vec![0.0; n];
+            for i in 0..m {
+                for j in 0..n {
+                    g[j] += jac[i][j] * r[i];
+                    for k in 0..n {
+                        a[j][k] += jac[i][j] * jac[i][k];
+                    }
+                }
+            }
+            // held: at a bound with the descent direction -g pointing out of it
+            let free: Vec<usize> = (0..n)
+                .filter(|&j| !((z[j] <= p.lo[j] && g[j] > 0.0) || (z[j] >= p.hi[j] && g[j] < 0.0)))
+                .collect();
+            if free.is_empty() {
+                return Ok(done(z, r, Some(jac), evals, iterations, Stop::Bounds));
+            }
+            let dmax = free.iter().map(|&j| a[j][j]).fold(0.0f64, f64::max);
+            loop {
+                if evals >= p.max_evaluations {
+                    return Ok(done(z, r, Some(jac), evals, iterations, Stop::Evaluations));
+                }
+                if lambda > 1e16 {
+                    return Ok(done(z, r, Some(jac), evals, iterations, Stop::NoDecrease));
+                }
+                let sub: Vec<Vec<f64>> = free
+                    .iter()
+                    .map(|&j| {
+                        free.iter()
+                            .map(|&k| {
+                                a[j][k]
+                                    + if j == k {
+                                        lambda * a[j][j].max(1e-12 * dmax)
+                                    } else {
+                                        0.0
+                                    }
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let rhs: Vec<f64> = free.iter().map(|&j| -g[j]).collect();
+                let Some(d) = solve(sub, rhs) else {
+                    lambda *= 10.0;
+                    continue;
+                };
+                let mut zt = z.clone();
+                for (&j, dj) in free.iter().zip(&d) {
+                    zt[j] = (z[j] + dj).clamp(p.lo[j], p.hi[j]);
+                }
+                let small = (0..n).all(|j| (zt[j] - z[j]).abs() <= p.tolerance * z[j].abs().max(1.0));
+                if zt == z {
+                    return Ok(done(z, r, Some(jac), evals, iterations, Stop::Step));
+                }
+                evals += 1;
+                let trial = (p.residuals)(&zt, &format!("step (lambda {lambda:.0e})"))?;
+                match trial {
+                    Ok(rt) if ss(&rt) < cost => {
+                        let ct = ss(&rt);
+                        let reduction = (cost - ct) / cost;
+                        z = zt;
+                        r = rt;
+                        cost = ct;
+                        lambda = (lambda / 10.0).max(1e-12);
+                        if cost == 0.0 {
+                            return Ok(done(z, r, None, evals, iterations, Stop::Exact));
+                        }
+                        if reduction <= p.tolerance {
+                            return Ok(done(z, r, None, evals, iterations, Stop::Reduction));
+                        }
+                        if small {
+                            return Ok(done(z, r, None, evals, iterations, Stop::Step));
+                        }
+                        break;
+                    }
+                    _ => {
+                        if small {
+                            return Ok(done(z, r, Some(jac), evals, iterations, Stop::Step));
+                        }
+                        lambda *= 10.0;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A fitted parameter in the report.
+#[derive(Serialize, Debug, Clone)]
+pub struct Fitted {
+    pub name: String,
+    /// The scenario key it sets.
+    pub key: String,
+    pub lower: f64,
+    pub upper: f64,
+    pub start: f64,
+    pub value: f64,
+    /// Fitted as ln(value) (positive bounds).
+    pub log: bool,
+    /// Whether the value is at one of its bounds (within 1e-9 relative).
+    pub at_bound: bool,
+    /// Approximate standard error: sqrt of the diagonal of s^2 (J^T J)^-1 (None when J^T J
+    /// is singular: the parameter is not determined by the curve).
+    pub standard_error: Option<f64>,
+    /// The RMS over the curve's points of value * dy/d(value): how much y moves for a
+    /// relative change of the parameter.
+    pub sensitivity: f64,
+    /// `sensitivity` over the data range.
+    pub sensitivity_relative: f64,
+}
+
+/// The report of `eprop fit`.
+#[derive(Serialize, Debug, Clone)]
+pub struct FitReport {
+    pub scenario: String,
+    pub data: String,
+    pub x: XKind,
+    pub y: YKind,
+    pub points: usize,
+    pub parameters: Vec<Fitted>,
+    /// sqrt(mean of the squared residuals).
+    pub rms: f64,
+    /// `rms` over the data range (max y - min y).
+    pub rms_relative: f64,
+    pub evaluations: usize,
+    pub iterations: usize,
+    pub stop: String,
+    pub processes: usize,
+    pub seconds: f64,
+    /// The files written: PREFIX.json, PREFIX.csv and PREFIX.png (when it was drawn).
+    pub files: Vec<String>,
+    /// Why there is no PNG, when there is none.
+    pub plot_note: Option<String>,
+    #[serde(skip)]
+    pub fitted_y: Vec<f64>,
+    #[serde(skip)]
+    pub measured: Vec<(f64, f64)>,
+    /// Per point, value * dy/d(value) of each parameter (the Jacobian's columns scaled by
+    /// the parameters).
+    #[serde(skip)]
+    pub scaled_jacobian: Vec<Vec<f64>>,
+}
+
+impl std::fmt::Display for FitReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "eprop fit {} to {} ({} points, {} against {})",
+            self.scenario,
+            self.data,
+            self.points,
+            self.y.name(),
+            self.x.name()
+        )?;
+        for p in &self.parameters {
+            let se = match p.standard_error {
+                Some(s) => format!("+- {s:.3e} ({:.2e} relative)", s / p.value.abs().max(f64::MIN_POSITIVE)),
+                None => "+- undetermined (the curve does not fix it)".to_string(),
+            };
+            writeln!(
+                f,
+                "  {:<14} {:.6e} {se}; bounds {}:{}{}; sensitivity {:.3e} ({:.2e} of the data range)",
+                p.name,
+                p.value,
+                p.lower,
+                p.upper,
+                if p.at_bound { " (AT A BOUND)" } else { "" },
+                p.sensitivity,
+                p.sensitivity_relative
+            )?;
+        }
+        writeln!(
+            f,
+            "  rms residual   {:.6e} ({:.3e} of the data range)",
+            self.rms, self.rms_relative
+        )?;
+        writeln!(
+            f,
+            "  search         {} evaluations, {} iterations, {:.2} s on {} process(es); stopped: {}",
+            self.evaluations, self.iterations, self.seconds, self.processes, self.stop
+        )?;
+        write!(f, "  files          {}", self.files.join(", "))?;
+        if let Some(n) = &self.plot_note {
+            write!(f, "\n  note           {n}")?;
+        }
+        Ok(())
+    }
+}
+
+/// The report files of a prefix.
+fn files_of(prefix: &Path) -> [PathBuf; 3] {
+    let with = |ext: &str| {
+        let mut s = prefix.as_os_str().to_os_string();
+        s.push(ext);
+        PathBuf::from(s)
+    };
+    [with(".json"), with(".csv"), with(".png")]
+}
+
+/// The default prefix: `<data stem>_fit` beside the data.
+fn default_prefix(data: &Path) -> PathBuf {
+    let stem = data
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "curve".into());
+    data.with_file_name(format!("{stem}_fit"))
+}
+
+/// scripts/plot_fit.py of the checkout the executable was built in (target/release/eprop), or
+/// of the source tree it was built from.
+fn plot_script() -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok();
+    let from_exe = exe
+        .iter()
+        .flat_map(|e| e.ancestors().skip(1))
+        .map(|d| d.join("scripts/plot_fit.py"));
+    let built = std::iter::once(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/plot_fit.py"));
+    from_exe.chain(built).find(|p| p.is_file())
+}
+
+/// Draws PREFIX.png with scripts/plot_fit.py; Err: why not.
+fn plot(prefix: &Path, png: &Path) -> std::result::Result<(), String> {
+    let script = plot_script().ok_or("scripts/plot_fit.py was not found beside the eprop executable")?;
+    // the checkout's environment (scripts/setup.sh makes .venv) where there is one
+    let venv = script
+        .parent()
+        .and_then(Path::parent)
+        .map(|d| d.join(".venv/bin/python"));
+    let python = venv.filter(|p| p.is_file()).unwrap_or_else(|| PathBuf::from("python3"));
+    let out = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(prefix)
+        .arg("-o")
+        .arg(png)
+        .output()
+        .map_err(|e| format!("{} could not be started ({e})", python.display()))?;
+    if out.status.success() {
+        return Ok(());
+    }
+    let err = String::from_utf8_lossy(&out.stderr);
+    if err.contains("No module named") {
+        return Err(format!(
+            "{} has no matplotlib ({})",
+            python.display(),
+            err.lines().last().unwrap_or("").trim()
+        ));
+    }
+    Err(format!("{} failed: {}", script.display(), err.trim()))
+}
+
+/// Fits the parameters on this process alone (`world` None) or on every process of `world`;
+/// returns the report on rank 0.
+pub fn fit_on(world: Option<SimpleCommunicator>, scenario: &Path, opts: &FitOptions) -> Result<Option<FitReport>> {
+    crate::guard::signals::install();
+    let t0 = Instant::now();
+    let w = world.as_ref();
+    let root = is_root(w);
+    let processes = w.map_or(1, |w| w.size() as usize);
+    if !(opts.tolerance > 0.0 && opts.tolerance < 1.0) {
+        return Err(refused(format!(
+            "--tolerance {}: must be between 0 and 1 (relative); fix: e.g. --tolerance 1e-6",
+            opts.tolerance
+        )));
+    }
+    let params = parse_params(&opts.params, &opts.starts)?;
+    let n = params.len();
+    if opts.max_evaluations < 2 * n + 2 {
+        return Err(refused(format!(
+            "--max-evaluations {}: too few for {n} parameter(s) (the start, a derivative per parameter and a step); fix: at least {}",
+            opts.max_evaluations,
+            2 * n + 2
+        )));
+    }
+    let prefix = opts.prefix.clone().unwrap_or_else(|| default_prefix(&opts.data));
+    let [json_file, csv_file, png_file] = files_of(&prefix);
+    // rank 0 reads the curve and claims the report files; every process gets the curve
+    let claimed = crate::distribute::launch::on_root(w, || {
+        let curve = read_curve(&opts.data)?;
+        if curve.x.len() <= n {
+            bail!(
+                "{}: {} points for {n} fitted parameter(s); fix: give more points than parameters",
+                opts.data.display(),
+                curve.x.len()
+            );
+        }
+        // the scenario with the parameters at their starting values: the keys are checked here
+        let mut sets = opts.sets.clone();
+        sets.extend(params.iter().map(|q| format!("{}={:?}", q.key, q.start)));
+        let sc = Scenario::load_with(scenario, &sets)?;
+        // the automatic dt follows mass, damping and stiffness, and the discretisation with it
+        let moves_dt = ["material.mass", "material.damping", "model.stiffness"];
+        if sc.file.time.get_ref().dt.is_none() && !opts.quiet {
+            for p in params.iter().filter(|p| moves_dt.contains(&p.key.as_str())) {
+                eprintln!(
+                    "warning: {}: [time] dt is automatic, and it follows the fitted {}: the step count and the discretisation change with it, so the residual jumps and the search may stop in a local minimum; fix: set [time] dt (or --set time.dt=VALUE) below the stability bound over the bounds",
+                    scenario.display(),
+                    p.name
+                );
+            }
+        }
+        let mut inputs = sc.inputs();
+        inputs.push(Input {
+            role: format!("the measured curve (--data {})", opts.data.display()),
+            path: opts.data.clone(),
+        });
+        let mut locks = vec![];
+        for (f, role) in [
+            (&json_file, "the report (PREFIX.json)"),
+            (&csv_file, "the fitted curve (PREFIX.csv)"),
+        ] {
+            locks.push(safety::claim_file(f, role, &inputs, opts.overwrite)?);
+        }
+        if opts.plot {
+            locks.push(safety::claim_file(
+                &png_file,
+                "the plot (PREFIX.png)",
+                &inputs,
+                opts.overwrite,
+            )?);
+        }
+        Ok((curve, locks))
+    })?;
+    let (mut x, mut y, mut kinds) = (vec![], vec![], vec![]);
+    let mut locks = None;
+    if let Some((c, l)) = claimed {
+        x = c.x.clone();
+        y = c.y.clone();
+        kinds = vec![
+            f64::from(u8::from(c.x_kind == XKind::Indentation)),
+            f64::from(u8::from(c.y_kind == YKind::Displacement)),
+        ];
+        locks = Some(l);
+    }
+    broadcast(w, &mut x);
+    broadcast(w, &mut y);
+    broadcast(w, &mut kinds);
+    let curve = Curve {
+        x_kind: if kinds[0] > 0.0 {
+            XKind::Indentation
+        } else {
+            XKind::Time
+        },
+        y_kind: if kinds[1] > 0.0 {
+            YKind::Displacement
+        } else {
+            YKind::Force
+        },
+        x,
+        y,
+    };
+    let range = {
+        let (lo, hi) = curve
+            .y
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+        hi - lo
+    };
+    let rel = |v: f64| if range > 0.0 { v / range } else { f64::NAN };
+    let names: Vec<String> = params.iter().map(|p| p.name.clone()).collect();
+    let values = |z: &[f64]| -> Vec<f64> { params.iter().zip(z).map(|(p, &z)| p.p(z)).collect() };
+    let show = root && !opts.quiet;
+    let mut count = 0usize;
+    let mut residuals = |z: &[f64], what: &str| -> Result<Outcome> {
+        count += 1;
+        let p = values(z);
+        let out = evaluate(w, scenario, opts, &params, &p, &curve)?;
+        let r = out.map(|f| f.iter().zip(&curve.y).map(|(a, b)| a - b).collect::<Vec<f64>>());
+        if show {
+            let ps: Vec<String> = names.iter().zip(&p).map(|(n, v)| format!("{n} = {v:.6e}")).collect();
+            let how = match &r {
+                Ok(r) => {
+                    let rms = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
+                    format!("rms {rms:.4e} ({:.3e} of the range)", rel(rms))
+                }
+                Err(why) => format!("rejected: {why}"),
+            };
+            eprintln!("fit {count:>3} {what}: {}; {how}", ps.join(", "));
+        }
+        Ok(r)
+    };
+    let mut problem = lm::Problem {
+        lo: params.iter().map(|p| p.z(p.lo)).collect(),
+        hi: params.iter().map(|p| p.z(p.hi)).collect(),
+        residuals: &mut residuals,
+        max_evaluations: opts.max_evaluations,
+        tolerance: opts.tolerance,
+    };
+    let z0: Vec<f64> = params.iter().map(|p| p.z(p.start)).collect();
+    // the scenario named once
+    let named = |e: anyhow::Error| -> anyhow::Error {
+        let name = scenario.display().to_string();
+        match e.downcast_ref::<Agreed>() {
+            Some(_) => e,
+            None if format!("{e:#}").starts_with(&name) => refused(format!("{e:#}")),
+            None => refused(format!("{name}: {e:#}")),
+        }
+    };
+    let sol = lm::minimize(&mut problem, z0, &names).map_err(named)?;
+    let mut evaluations = sol.evaluations;
+    // the sensitivities at the end point
+    let jac = match sol.jacobian {
+        Some(j) => j,
+        None => lm::jacobian(&mut problem, &sol.z, &sol.r, &names, &mut evaluations).map_err(named)?,
+    };
+    drop(problem);
+    let value = values(&sol.z);
+    let m = sol.r.len();
+    let ssr: f64 = sol.r.iter().map(|v| v * v).sum();
+    let rms = (ssr / m as f64).sqrt();
+    // dy/dp = dy/dz dz/dp; p dy/dp = dy/dz for log coordinates
+    let jp: Vec<Vec<f64>> = jac
+        .iter()
+        .map(|row| {
+            row.iter()
+                .zip(&params)
+                .zip(&value)
+                .map(|((d, q), v)| if q.log { d / v } else { *d })
+                .collect()
+        })
+        .collect();
+    let mut a = vec![vec![0.0; n]; n];
+    for row in &jp {
+        for j in 0..n {
+            for k in 0..n {
+                a[j][k] += row[j] * row[k];
+            }
+        }
+    }
+    let s2 = ssr / (m - n) as f64;
+    let cov = lm::inverse(&a);
+    let parameters = params
+        .iter()
+        .enumerate()
+        .map(|(j, q)| {
+            let v = value[j];
+            let sens = (jp.iter().map(|row| (row[j] * v).powi(2)).sum::<f64>() / m as f64).sqrt();
+            Fitted {
+                name: q.name.clone(),
+                key: q.key.clone(),
+                lower: q.lo,
+                upper: q.hi,
+                start: q.start,
+                value: v,
+                log: q.log,
+                at_bound: (v - q.lo).abs() <= 1e-9 * (q.hi - q.lo) || (q.hi - v).abs() <= 1e-9 * (q.hi - q.lo),
+                standard_error: cov
+                    .as_ref()
+                    .map(|c| (s2 * c[j][j]).max(0.0).sqrt())
+                    .filter(|s| s.is_finite()),
+                sensitivity: sens,
+                sensitivity_relative: rel(sens),
+            }
+        })
+        .collect();
+    let fitted_y: Vec<f64> = sol.r.iter().zip(&curve.y).map(|(r, y)| y + r).collect();
+    let mut report = FitReport {
+        scenario: scenario.display().to_string(),
+        data: opts.data.display().to_string(),
+        x: curve.x_kind,
+        y: curve.y_kind,
+        points: m,
+        parameters,
+        rms,
+        rms_relative: rel(rms),
+        evaluations,
+        iterations: sol.iterations,
+        stop: sol.stop.text().to_string(),
+        processes,
+        seconds: t0.elapsed().as_secs_f64(),
+        files: vec![],
+        plot_note: None,
+        fitted_y,
+        measured: curve.x.iter().copied().zip(curve.y.iter().copied()).collect(),
+        scaled_jacobian: jp
+            .iter()
+            .map(|row| row.iter().zip(&value).map(|(d, v)| d * v).collect())
+            .collect(),
+    };
+    let written = crate::distribute::launch::on_root(w, || {
+        report.files = vec![json_file.display().to_string(), csv_file.display().to_string()];
+        if opts.plot {
+            report.files.push(png_file.display().to_string());
+        }
+        // x, measured, fitted, residual, then value * dy/d(value) of each parameter
+        let mut csv = String::from("x,measured,fitted,residual");
+        for p in &report.parameters {
+            csv.push_str(&format!(",sensitivity_{}", p.name));
+        }
+        csv.push('\n');
+        for (((x, y), f), s) in report
+            .measured
+            .iter()
+            .zip(&report.fitted_y)
+            .zip(&report.scaled_jacobian)
+        {
+            csv.push_str(&format!("{x:?},{y:?},{f:?},{:?}", f - y));
+            for v in s {
+                csv.push_str(&format!(",{v:?}"));
+            }
+            csv.push('\n');
+        }
+        std::fs::write(&csv_file, csv).map_err(|e| anyhow!("{}: cannot write: {e}", csv_file.display()))?;
+        let write_json = |r: &FitReport| {
+            std::fs::write(&json_file, serde_json::to_string_pretty(r)? + "\n")
+                .map_err(|e| anyhow!("{}: cannot write: {e}", json_file.display()))
+        };
+        write_json(&report)?;
+        if opts.plot {
+            if let Err(why) = plot(&prefix, &png_file) {
+                report.files.pop();
+                report.plot_note = Some(format!(
+                    "no PNG: {why}; fix: install matplotlib (pip install -r scripts/requirements.txt), then `python3 scripts/plot_fit.py {}`",
+                    prefix.display()
+                ));
+                write_json(&report)?;
+            }
+        }
+        Ok(report.clone())
+    })?;
+    drop(locks);
+    Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interpolation_is_linear_and_bounded() {
+        let (xs, ys) = ([0.0, 1.0, 3.0], [0.0, 2.0, 6.0]);
+        assert_eq!(interpolate(&xs, &ys, 0.5), Some(1.0));
+        assert_eq!(interpolate(&xs, &ys, 2.0), Some(4.0));
+        assert_eq!(interpolate(&xs, &ys, 3.0), Some(6.0));
+        assert_eq!(interpolate(&xs, &ys, 0.0), Some(0.0));
+        assert_eq!(interpolate(&xs, &ys, 3.0001), None);
+        assert_eq!(interpolate(&xs, &ys, -1e-12), None);
+    }
+
+    #[test]
+    fn lm_recovers_an_exponential_within_bounds() {
+        // y = a exp(-b t) from (a, b) = (2, 0.5), fitted in (ln a, ln b)
+        let t: Vec<f64> = (0..20).map(|k| k as f64 * 0.25).collect();
+        let y: Vec<f64> = t.iter().map(|t| 2.0 * (-0.5 * t).exp()).collect();
+        let mut f = |z: &[f64], _: &str| -> anyhow::Result<Outcome> {
+            let (a, b) = (z[0].exp(), z[1].exp());
+            Ok(Ok(t.iter().zip(&y).map(|(t, y)| a * (-b * t).exp() - y).collect()))
+        };
+        let mut p = lm::Problem {
+            lo: vec![0.1f64.ln(), 0.01f64.ln()],
+            hi: vec![10f64.ln(), 5f64.ln()],
+            residuals: &mut f,
+            max_evaluations: 200,
+            tolerance: 1e-10,
+        };
+        let s = lm::minimize(&mut p, vec![0.5f64.ln(), 2f64.ln()], &["a".into(), "b".into()]).unwrap();
+        assert!((s.z[0].exp() - 2.0).abs() < 1e-6, "{:?}", s.z);
+        assert!((s.z[1].exp() - 0.5).abs() < 1e-6, "{:?}", s.z);
+        // a bound below the truth: held at the bound
+        let mut p2 = lm::Problem {
+            lo: vec![0.1f64.ln(), 0.01f64.ln()],
+            hi: vec![1.5f64.ln(), 5f64.ln()],
+            residuals: &mut f,
+            max_evaluations: 200,
+            tolerance: 1e-10,
+        };
+        let s = lm::minimize(&mut p2, vec![0.5f64.ln(), 2f64.ln()], &["a".into(), "b".into()]).unwrap();
+        assert!((s.z[0].exp() - 1.5).abs() < 1e-12, "{:?}", s.z);
+    }
+
+    #[test]
+    fn parameters_and_curves_are_checked() {
+        let p = |s: &[&str]| parse_params(&s.iter().map(|s| s.to_string()).collect::<Vec<_>>(), &[]);
+        let e = format!("{:#}", p(&["yung=1:2"]).unwrap_err());
+        assert!(e.contains("unknown parameter `yung`; fix: one of young"), "{e}");
+        let e = format!("{:#}", p(&["young=2:1"]).unwrap_err());
+        assert!(e.contains("lower bound 2 is not below the upper bound 1; fix"), "{e}");
+        let ok = p(&["young=20:500", "load.1.normal=-1:1"]).unwrap();
+        assert!(ok[0].log && (ok[0].start - 100.0).abs() < 1e-12);
+        assert!(!ok[1].log && ok[1].start == 0.0 && ok[1].key == "load.1.normal");
+        assert_eq!(column_name(" Force (N)"), "force");
+    }
+}
