@@ -368,11 +368,11 @@ impl Probe {
             match o.node {
                 Some(id) => {
                     // rank 0 has the whole mesh and its node ids
-                    let g = match &sim.global {
+                    let g = match sim.global_mesh() {
                         Some(m) => m.node_ids.iter().position(|&x| x == id).map_or(-1.0, |g| g as f64),
                         None => -1.0,
                     };
-                    let g = sim.comm.max(g);
+                    let g = sim.comm().max(g);
                     if g < 0.0 {
                         bail!("{path}: --node {id}: the mesh has no node with that id; fix: a node id of the mesh file (as [[load]] node = ID takes it)");
                     }
@@ -399,13 +399,13 @@ impl Probe {
         let norm = eprop_io::geom::norm;
         let tool = || sim.tool_states()[self.tool];
         let x = match self.x {
-            XKind::Time => sim.time,
+            XKind::Time => sim.time(),
             XKind::Indentation => tool().indentation,
         };
         let y = match (self.y, self.node) {
             (YKind::Force, _) => norm(tool().force),
             (YKind::Displacement, None) => norm(sim.probes()[self.load].1),
-            (YKind::Displacement, Some(local)) => sim.comm.max(local.map_or(0.0, |i| norm(sim.u[i]))),
+            (YKind::Displacement, Some(local)) => sim.comm().max(local.map_or(0.0, |i| norm(sim.u()[i]))),
         };
         (x, y)
     }
@@ -447,13 +447,13 @@ fn evaluate(
     let mut finite = push(probe.sample(&sim));
     while finite && !sim.done() {
         sim.advance()?;
-        if sim.stop_signal != 0 {
+        if sim.stop_signal() != 0 {
             return Err(Agreed::error(
                 EXIT_STOPPED,
                 format!(
                     "stopped by {} during an evaluation (step {} of {}); nothing was written",
-                    crate::guard::signals::name(sim.stop_signal),
-                    sim.step,
+                    crate::guard::signals::name(sim.stop_signal()),
+                    sim.step(),
                     sim.max_steps()
                 ),
             ));
@@ -470,7 +470,7 @@ fn evaluate(
     let mut out = match finite {
         false => Err(format!(
             "the state is no longer finite at step {} (t = {:.6e})",
-            sim.step, sim.time
+            sim.step(), sim.time()
         )),
         true => curve
             .x
@@ -489,10 +489,10 @@ fn evaluate(
     };
     // the curve is rank 0's (it is the same on every process: the simulation is rank independent)
     if world.is_some() {
-        let failed = sim.comm.max(f64::from(u8::from(out.is_err())));
+        let failed = sim.comm().max(f64::from(u8::from(out.is_err())));
         match out.as_mut() {
             Ok(_) if failed > 0.0 => out = Err("another process had no curve".into()),
-            Ok(v) => sim.comm.broadcast(0, v),
+            Ok(v) => sim.comm().broadcast(0, v),
             Err(_) => {}
         }
     }
