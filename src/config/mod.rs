@@ -39,8 +39,8 @@ mod values;
 pub use fixed::FixedSet;
 pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
-pub use mesh::MeshSec;
-pub use model::{IntegratorSec, Model, Reading, Scheme, SchemeName, TissueSec};
+pub use mesh::{MeshSec, Unit};
+pub use model::{Defaults, IntegratorSec, Model, Reading, Scheme, SchemeName, TissueSec, CONTINUUM, PAPER};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
 pub use select::{distance, Entry, Keys, Selector};
@@ -376,7 +376,7 @@ impl Setup {
         let (sc, f) = (&scenario, &scenario.file);
         let time = time::resolve(sc, &f.time)?;
         let output = output::resolve(sc);
-        let material::Materials { r, mass, damping } = material::resolve(sc, &f.material, &mesh)?;
+        let material::Materials { r, mass, damping } = material::resolve(sc, &f.material, f.model.reading, &mesh)?;
         let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         let tools = tools::resolve(sc, &f.tool)?;
@@ -384,7 +384,7 @@ impl Setup {
             tools,
             model: f.model.clone(),
             integrator: f.integrator.settings(f.model.integrator),
-            law: f.tissue.law(),
+            law: f.tissue.law(f.model.reading),
             time,
             output,
             performance: f.performance.resolve(),
