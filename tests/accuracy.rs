@@ -25,7 +25,7 @@ fn run(dir: &Path, mesh: &eprop_io::Mesh, toml: &str, kind: &str) -> (Vec<Vec<V3
         extra.insert_str(0, "[integrator]\n");
     }
     let base = if kind == "euler/2" { "euler" } else { kind_only };
-    let text = format!("[model]\nintegrator = \"{base}\"\n{toml}{extra}");
+    let text = format!("[model]\nreading = \"paper\"\nintegrator = \"{base}\"\n{toml}{extra}");
     let mut s = Simulation::new(common::setup(mesh.clone(), &text, dir)).expect("simulation builds");
     if kind == "euler/2" {
         // euler at half its substep: how far the reference is from its own limit

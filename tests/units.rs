@@ -59,7 +59,12 @@ fn assert_close(a: &Path, b: &Path, rel: f64) -> f64 {
         let big = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let diff = x.iter().zip(&y).fold(0.0f64, |m, (p, q)| m.max((p - q).abs()));
         let r = if big > 0.0 { diff / big } else { diff };
-        assert!(r <= rel, "{name}: relative difference {r:e} between {} and {}", a.display(), b.display());
+        assert!(
+            r <= rel,
+            "{name}: relative difference {r:e} between {} and {}",
+            a.display(),
+            b.display()
+        );
         worst = worst.max(r);
         compared += 1;
     }
@@ -93,7 +98,11 @@ fn a_mesh_in_metres_and_in_millimetres_gives_the_same_result_on_1_and_2_ranks() 
     println!("m against mm: largest relative difference {w1:e} (1 rank), {w2:e} (2 ranks)");
     // it moved: the comparison is not of zeros
     let f = hdf5::File::open(&outs[0].0).unwrap();
-    let u = f.dataset("/eprop/probes/displacement").unwrap().read_raw::<f64>().unwrap();
+    let u = f
+        .dataset("/eprop/probes/displacement")
+        .unwrap()
+        .read_raw::<f64>()
+        .unwrap();
     assert!(u.iter().any(|x| x.abs() > 1e-6), "{u:?}");
 }
 
@@ -120,7 +129,11 @@ fn run(mesh: Mesh, mesh_keys: &str, body: &str) -> (Vec<Vec<V3>>, Vec<Vec<(V3, V
 
 fn rel_diff(a: &[V3], b: &[V3]) -> f64 {
     let big = b.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
-    let d = a.iter().flatten().zip(b.iter().flatten()).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    let d = a
+        .iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
     d / big
 }
 
@@ -156,18 +169,28 @@ fn a_continuum_mesh_without_a_unit_is_an_error_that_names_the_fix() {
         .unwrap()
     };
     let e = format!("{:#}", Setup::new(sc("")).err().unwrap());
-    assert!(e.contains("[mesh] unit is missing") && e.contains("unit = \"mm\""), "{e}");
+    assert!(
+        e.contains("[mesh] unit is missing") && e.contains("unit = \"mm\""),
+        "{e}"
+    );
     let e = format!("{:#}", Setup::new(sc("unit = \"mm\"\nscale = 2.0\n")).err().unwrap());
     assert!(e.contains("unit and scale both given; fix:"), "{e}");
     assert!(Setup::new(sc("unit = \"mm\"\n")).is_ok());
-    let bad = Scenario::parse(&d.path().join("s.toml"), "[mesh]\nfile = \"x.msh\"\nunit = \"inch\"\n[time]\nsteps = 1\n".into())
-        .err()
-        .unwrap();
-    assert!(format!("{bad:#}").contains("\"m\", \"cm\", \"mm\" or \"um\""), "{bad:#}");
+    let bad = Scenario::parse(
+        &d.path().join("s.toml"),
+        "[mesh]\nfile = \"x.msh\"\nunit = \"inch\"\n[time]\nsteps = 1\n".into(),
+    )
+    .err()
+    .unwrap();
+    assert!(
+        format!("{bad:#}").contains("\"m\", \"cm\", \"mm\" or \"um\""),
+        "{bad:#}"
+    );
     // the paper reading takes the coordinates as they are
     let paper = Scenario::parse(
         &d.path().join("s.toml"),
-        "[mesh]\nfile = \"x.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[time]\nsteps = 1\n".into(),
+        "[mesh]\nfile = \"x.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[time]\nsteps = 1\n"
+            .into(),
     )
     .unwrap();
     assert_eq!(Setup::new(paper).unwrap().mesh.points, cube(2).points);
@@ -190,7 +213,8 @@ fn probe_history(n: usize, at: [f64; 3], body: &str) -> Vec<f64> {
 /// 1st and 2nd, at a probe below the patch, during the transient and at equilibrium.
 #[test]
 fn a_patch_load_converges_with_refinement() {
-    let body = "[[fixed]]\ngroup = \"zmin\"\n[[load]]\npatch = { center = [0.05, 0.05, 0.1], radius = 0.02 }\nnormal = 0.5\n\
+    let body =
+        "[[fixed]]\ngroup = \"zmin\"\n[[load]]\npatch = { center = [0.05, 0.05, 0.1], radius = 0.02 }\nnormal = 0.5\n\
 [time]\nend = 0.6\ndt = 0.005\n";
     let (transient, end) = (9, 119); // t = 0.05 s and 0.6 s (steps 10 and 120)
     for at in [[0.05, 0.05, 0.1], [0.05, 0.05, 0.075]] {
@@ -203,4 +227,3 @@ fn a_patch_load_converges_with_refinement() {
         }
     }
 }
-

@@ -25,7 +25,6 @@ pub struct MaterialSec {
     pub region: Vec<Entry<Region>>,
 }
 
-
 /// A conductivity tensor R, checked symmetric positive definite. The scenario writes a
 /// scalar, three diagonal values, a full symmetric 3x3 table, or diagonal values along the
 /// axes of an orthonormal frame (`{ diagonal = [...], axes = [[...], [...], [...]] }`).

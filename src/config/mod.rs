@@ -525,7 +525,7 @@ mod tests {
     #[test]
     fn a_setup_holds_every_section_resolved() {
         let s = setup(&format!(
-            "{BASE}[material]\nmass = 2.0\n[[material.region]]\nhalfspace = {{ point = [0, 0, 2], normal = [0, 0, 1] }}\nconductivity = [0.08, 0.05, 0.05]\ndamping = 3.0\n[model]\nscheme = \"paper\"\n[tissue]\nbeta = 1.5\n[output]\nevery = 2\n"
+            "{BASE}[material]\nmass = 2.0\n[[material.region]]\nhalfspace = {{ point = [0, 0, 2], normal = [0, 0, 1] }}\nconductivity = [0.08, 0.05, 0.05]\ndamping = 3.0\n[model]\nreading = \"paper\"\nscheme = \"paper\"\n[tissue]\nbeta = 1.5\n[output]\nevery = 2\n"
         ))
         .unwrap();
         let n = s.mesh.n_nodes();
