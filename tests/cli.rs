@@ -160,8 +160,14 @@ fn every_kind_of_bad_scenario_is_named() {
         (SCENARIO.replace("every = 2", "every = 2\nprecision = \"float16\""), vec!["precision"]),
         (SCENARIO.replace("every = 2", "every = 2\ncompression = 12"), vec!["compression"]),
         (SCENARIO.replace("every = 2", "every = 0"), vec!["every", "at least 1"]),
-        (with("[model]\nreading = \"paper\"\nscheme = \"magic\"\n"), vec!["scheme", "compact"]),
-        (with("[model]\nreading = \"paper\"\noperator_precision = \"half\"\n"), vec!["operator_precision"]),
+        (
+            SCENARIO.replace("[model]\n", "[model]\nscheme = \"magic\"\n"),
+            vec!["scheme", "compact"],
+        ),
+        (
+            SCENARIO.replace("[model]\n", "[model]\noperator_precision = \"half\"\n"),
+            vec!["operator_precision"],
+        ),
         (with("[tissue]\nyoung = 0.0\n"), vec!["young"]),
         (SCENARIO.replace("[[fixed]]\ngroup = \"bottom\"\n", ""), vec!["no [[fixed]] set"]),
         (SCENARIO.replace("steps = 6", "end = -1.0"), vec!["end", "positive"]),

@@ -475,10 +475,7 @@ fn scenario_keys_are_checked() {
     let p = dir.path().join("s.toml");
     let mesh = cylinder_mesh(1.0, 4.0, 3, 6).unwrap();
     for (text, want) in [
-        (
-            "[model]\nreading = \"paper\"\nintegrator = \"rk4\"\n",
-            "\"rkl2\" or \"implicit\"",
-        ),
+        ("integrator = \"rk4\"\n", "\"rkl2\" or \"implicit\""),
         ("[integrator]\ntolerance = 2.0\n", "between 0 and 1"),
         ("[integrator]\naccuracy = 0.0\n", "inf for no error control"),
         ("[integrator]\npreconditioner = \"ilu\"\n", "\"jacobi\""),

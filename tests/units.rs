@@ -227,3 +227,51 @@ fn a_patch_load_converges_with_refinement() {
         }
     }
 }
+
+#[test]
+fn check_warns_of_scales_far_from_the_defaults() {
+    let d = tempfile::tempdir().unwrap();
+    // a 0.1 m cube written in mm but declared in metres: it spans 173 m
+    eprop_io::write_mesh(&in_mm(&cube(3)), &d.path().join("mm.msh")).unwrap();
+    let check = |mesh: &str, extra: &str| {
+        let sc = d.path().join("s.toml");
+        std::fs::write(
+            &sc,
+            format!("[mesh]\nfile = \"mm.msh\"\n{mesh}[[fixed]]\ngroup = \"zmin\"\n{extra}[time]\nsteps = 2\n"),
+        )
+        .unwrap();
+        let o = serial(&["check", sc.to_str().unwrap()], 1);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        )
+    };
+    let load = "[[load]]\npatch = { center = [0.05, 0.05, 0.1], radius = 0.02 }\nnormal = 0.5\n";
+    let good = check("unit = \"mm\"\n", load);
+    assert!(!good.contains("far from"), "{good}");
+    let wrong = check(
+        "unit = \"m\"\n",
+        &load.replace("[0.05, 0.05, 0.1]", "[50.0, 50.0, 100.0]"),
+    );
+    assert!(
+        wrong.contains("the mesh spans 1.7321e2 m")
+            && wrong.contains("read with [mesh] unit = \"m\"")
+            && wrong.contains("fix: check [mesh] unit"),
+        "{wrong}"
+    );
+    // a stress of a million times young, a conductivity, a relaxation time and a young far off
+    let off = check(
+        "unit = \"mm\"\n",
+        &format!("[material]\nconductivity = 1e-5\nmass = 1e8\n[tissue]\nyoung = 1e-3\n{load}"),
+    );
+    for want in [
+        "times [tissue] young",
+        "the energy crosses the mesh in",
+        "the mechanics relax in",
+        "[tissue] young = 1e-3 Pa is far",
+    ] {
+        assert!(off.contains(want), "{want}: {off}");
+    }
+}
