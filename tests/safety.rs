@@ -356,7 +356,7 @@ fn implausible_loads_and_displacements_are_warned_about() {
         mesh,
         &std::fs::read_to_string(&sc)
             .unwrap()
-            .replace("[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\n", ""),
+            .replace("[mesh]\nfile = \"cyl.msh\"\n", ""),
     );
     while !sim.done() {
         sim.advance().unwrap();

@@ -211,13 +211,12 @@ fn scenario(dir: &Path, extra: &str) -> (PathBuf, Vec<[f64; 4]>, Vec<[f64; 4]>) 
     let sc = dir.join("s.toml");
     std::fs::write(
         &sc,
-        format!(
+        common::paper(&format!(
             "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n\
              [[load]]\npatch = {{ center = [0.0, 1.0, 3.0], radius = 0.4 }}\ntable = \"force.csv\"\nlive = true\n\
              [[tool]]\nshape = \"sphere\"\nradius = 0.5\ntable = \"path.csv\"\nlive = true\n{extra}\
              [time]\nend = 70\n[output]\nevery = 3\n"
-        )
-        .replace("[output]", "[model]\nreading = \"paper\"\n[output]"),
+        )),
     )
     .unwrap();
     (sc, path, force)

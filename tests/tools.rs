@@ -302,7 +302,7 @@ fn bad_tables_and_tools_are_named_with_their_fix() {
     for (extra, want) in [
         (
             "[[load]]\nnearest = [0.5, 0.5, 1.0]\ntable = \"back.csv\"\n",
-            vec!["s.toml:9: [load] table:", "back.csv:4: row 3 of the force table of [[load]] 1: time 1 does not come after the previous row's time 2; fix:"],
+            vec!["s.toml:11: [load] table:", "back.csv:4: row 3 of the force table of [[load]] 1: time 1 does not come after the previous row's time 2; fix:"],
         ),
         (
             "[[tool]]\nshape = \"sphere\"\nradius = 0.2\ntable = \"nan.csv\"\n",
@@ -310,7 +310,7 @@ fn bad_tables_and_tools_are_named_with_their_fix() {
         ),
         (
             "[[tool]]\nshape = \"sphere\"\nradius = 0.2\ntable = \"dir.csv\"\n",
-            vec!["s.toml:10: [tool] table:", "dir.csv: is a directory, not a regular file", "fix:"],
+            vec!["s.toml:12: [tool] table:", "dir.csv: is a directory, not a regular file", "fix:"],
         ),
         (
             "[[load]]\nnearest = [0.5, 0.5, 1.0]\ntable = \"missing.csv\"\n",

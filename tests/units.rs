@@ -232,7 +232,7 @@ fn a_patch_load_converges_with_refinement() {
 fn check_warns_of_scales_far_from_the_defaults() {
     let d = tempfile::tempdir().unwrap();
     // a 0.1 m cube written in mm but declared in metres: it spans 173 m
-    eprop_io::write_mesh(&in_mm(&cube(3)), &d.path().join("mm.msh")).unwrap();
+    eprop_io::write_mesh(&in_mm(&cube(4)), &d.path().join("mm.msh")).unwrap();
     let check = |mesh: &str, extra: &str| {
         let sc = d.path().join("s.toml");
         std::fs::write(
@@ -270,7 +270,7 @@ fn check_warns_of_scales_far_from_the_defaults() {
         "times [tissue] young",
         "the energy crosses the mesh in",
         "the mechanics relax in",
-        "[tissue] young = 1e-3 Pa is far",
+        "[tissue] young = 0.001 Pa is far",
     ] {
         assert!(off.contains(want), "{want}: {off}");
     }

@@ -213,7 +213,9 @@ fn weighted(set: &[bool], w: impl Fn(usize) -> f64) -> (Vec<u32>, Vec<f64>) {
 /// by sub-sampling (each triangle split into n^2 sub-triangles of equal area, n such that a
 /// sub-triangle is at most 1/16 of the radius across) and shared to the face's corners by
 /// their linear shape functions. Returns the nodes with a share (increasing index), their
-/// shares a_i (summing to the patch area) and the patch's outward area vector.
+/// shares a_i (summing to the patch area) and the patch's outward area vector. A disc that no
+/// sample falls in (far smaller than its faces) takes the surface nodes within it with their
+/// boundary dual areas; none is an error.
 pub fn patch_shares(mesh: &Mesh, ball: &Ball) -> Result<(Vec<u32>, Vec<f64>, [f64; 3]), String> {
     let mut share = vec![0.0; mesh.n_nodes()];
     let mut vector = [0.0; 3];
@@ -260,12 +262,30 @@ pub fn patch_shares(mesh: &Mesh, ball: &Ball) -> Result<(Vec<u32>, Vec<f64>, [f6
             }
         }
     }
-    let nodes: Vec<u32> = (0..share.len()).filter(|&i| share[i] > 0.0).map(|i| i as u32).collect();
+    let mut nodes: Vec<u32> = (0..share.len()).filter(|&i| share[i] > 0.0).map(|i| i as u32).collect();
     if nodes.is_empty() {
-        return Err(format!(
-            "the patch of radius {} around {:?} meets no boundary face; fix: move the center onto the surface or widen the radius (eprop info MESH gives the bounds)",
-            r, c
-        ));
+        // a disc far smaller than the faces it lies on (no sample inside it): the surface
+        // nodes within it, with their boundary dual areas, as the paper reading's patch
+        let area = surface_node_areas(mesh);
+        let mut set = vec![false; mesh.n_nodes()];
+        patch(mesh, ball, &area, &mut set)?;
+        for (cell, f) in eprop_io::mesh::boundary_faces(mesh) {
+            let cn = mesh.cell(cell as usize);
+            let face = mesh.kinds[cell as usize].faces()[f as usize];
+            let pts: Vec<[f64; 3]> = face.iter().map(|&l| mesh.points[cn[l] as usize]).collect();
+            let av = eprop_io::geom::loop_area(&pts);
+            for &l in face {
+                if set[cn[l] as usize] {
+                    for d in 0..3 {
+                        vector[d] += av[d] / face.len() as f64;
+                    }
+                }
+            }
+        }
+        nodes = (0..set.len()).filter(|&i| set[i]).map(|i| i as u32).collect();
+        for &i in &nodes {
+            share[i as usize] = area[i as usize];
+        }
     }
     let shares = nodes.iter().map(|&i| share[i as usize]).collect();
     Ok((nodes, shares, vector))
