@@ -122,7 +122,7 @@ pub fn read(sc: &Scenario) -> Result<Mesh> {
             "the mesh spans".to_string()
         };
         return Err(anyhow!(
-            "{}: {key} {extent:.4e} units (its bounding-box diagonal), outside {:e} to {:e}, where volumes and contact stresses overflow or underflow; fix: a [mesh] scale that makes it a few units to a few thousand across (1000 turns metres into mm, 0.001 mm into metres)",
+            "{}: {key} {extent:.4e} units (its bounding-box diagonal), outside {:e} to {:e}, where volumes and contact stresses overflow or underflow; fix: a [mesh] unit that names the unit of the file's coordinates (\"m\", \"cm\", \"mm\", \"um\"), or a [mesh] scale that makes it a few units to a few thousand across (1000 turns metres into mm, 0.001 mm into metres)",
             sc.path.display(),
             EXTENT.0,
             EXTENT.1
