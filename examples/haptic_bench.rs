@@ -43,7 +43,7 @@ fn scenario(dir: &Path, cells: usize) -> PathBuf {
     eprop_io::write_mesh(&mesh, &dir.join("box.msh")).unwrap();
     let body = |dt: &str| {
         format!(
-            "[mesh]\nfile = \"box.msh\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.2\nstart = [0.5, 0.5, 1.15]\nlive = true\n\
+            "[mesh]\nfile = \"box.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.2\nstart = [0.5, 0.5, 1.15]\nlive = true\n\
              [time]\nsteps = 1000000000\n{dt}[output]\nevery = 1000000000\nfields = [\"displacement\"]\n"
         )
     };

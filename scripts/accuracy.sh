@@ -31,6 +31,8 @@ patch = { center = [1.0, 0.5, 0.5], radius = 0.2 }'
 cat >"$out/box_patch.toml" <<TOML
 [mesh]
 file = "box30.msh"
+[model]
+reading = "paper"
 [material]
 conductivity = 0.05
 $patch
@@ -43,6 +45,8 @@ sed 's/box30.msh/box50.msh/' "$out/box_patch.toml" >"$out/box50_patch.toml"
 cat >"$out/box_table.toml" <<TOML
 [mesh]
 file = "box30.msh"
+[model]
+reading = "paper"
 [material]
 conductivity = 0.1
 $patch
@@ -54,6 +58,8 @@ TOML
 cat >"$out/liver.toml" <<TOML
 [mesh]
 file = "liver.vtu"
+[model]
+reading = "paper"
 [material]
 conductivity = 0.3
 [[fixed]]
@@ -69,6 +75,8 @@ TOML
 cat >"$out/cylinder_indent.toml" <<TOML
 [mesh]
 file = "cylinder.msh"
+[model]
+reading = "paper"
 [material]
 conductivity = 0.5
 [[fixed]]

@@ -64,6 +64,7 @@ file = "box{n}.msh"
 [material]
 conductivity = 0.05
 [model]
+reading = "paper"
 integrator = "implicit"
 [integrator]
 preconditioner = "{pre}"

@@ -26,6 +26,8 @@ cat > "$sc" <<TOML
 # 271k-node tetgen liver (mm), held at its left lobe, pressed on the top by a tool
 [mesh]
 file = "liver.1.ele"
+[model]
+reading = "paper"
 [material]
 conductivity = $conductivity
 [[fixed]]

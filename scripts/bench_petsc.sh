@@ -38,6 +38,8 @@ trap 'rm -rf "$work"' EXIT
 cat > "$work/box.toml" <<TOML
 [mesh]
 file = "box.msh"
+[model]
+reading = "paper"
 [[fixed]]
 group = "xmin"
 [[load]]

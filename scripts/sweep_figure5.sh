@@ -25,6 +25,7 @@ mass = 1.0
 damping = $g
 conductivity = 0.05
 [model]
+reading = "paper"
 stiffness = 0.0
 [[fixed]]
 group = "bottom"

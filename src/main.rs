@@ -35,27 +35,32 @@ struct Cli {
 enum Cmd {
     /// Run a scenario to its stop condition and write the HDF5 series.
     #[command(long_about = "Run a scenario to its stop condition and write the HDF5 series.\n\n\
-Scenario keys (all but [mesh] file and [time] have defaults):\n\
+Scenario keys (all but [mesh] file and [time] have defaults). Units: [model] reading = \"continuum\"\n\
+(the default) reads SI units (m, s, N, Pa, kg/m^3) and converts the mesh to metres; \"paper\" is the\n\
+paper's per-node, unit-free reading (its defaults in parentheses). docs/model.md has the table.\n\
   [mesh]      file = \"organ.msh\"             (relative to the scenario file; .msh .vtk .vtu .ele .mesh)\n\
-              scale = 1.0 (coordinates multiplied on reading), strict = false (refuse inverted cells)\n\
-  [material]  mass = 1.0, damping = 2.0, conductivity = 0.05 | [rx, ry, rz] | 3x3 table\n\
+              unit = \"m\" | \"cm\" | \"mm\" | \"um\" (the file's coordinates; continuum: unit or scale required),\n\
+              scale = F (metres per file unit, instead of unit), strict = false (refuse inverted cells)\n\
+  [material]  mass = 1060 kg/m^3 (1, per node), damping = 4.118e4 kg/(m^3 s) (2, per node),\n\
+              conductivity = 0.1 m^2/s (0.05) | [rx, ry, rz] | 3x3 table\n\
   [[material.region]]  box | sphere | halfspace | tag | group, and conductivity / mass / damping\n\
-  [model]     scheme = \"compact\" | \"paper\", paper_correction = true, operator_precision = \"float64\" | \"float32\",\n\
-              stiffness = 1.0 (k_e), coupling = 1.0 (kappa), exponent = 1.0 (p),\n\
+  [model]     reading = \"continuum\" | \"paper\", scheme = \"compact\" | \"paper\", paper_correction = true,\n\
+              operator_precision = \"float64\" | \"float32\", stiffness = 4e5 N/m^4 (k_e = 1, per node),\n\
+              coupling = 15 1/m (kappa = 1), exponent = 1.0 (p),\n\
               integrator = \"auto\" | \"euler\" | \"rkl2\" | \"implicit\" (docs/integrators.md)\n\
   [integrator] accuracy = 1e-3 (rkl2, implicit: relative error per step; inf: no error control),\n\
               tolerance = 1e-2 of accuracy, preconditioner = \"jacobi\" | \"multigrid\" | \"amg\", max_iterations = 2000 (implicit);\n\
               max_stages = 4096 (rkl2)\n\
-  [tissue]    young = 100.0, beta = 0.0 (exponential law when > 0)\n\
+  [tissue]    young = 4000 Pa (100), beta = 0.0 (exponential law when > 0)\n\
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\
               halfspace = {point, normal} | nodes = [ids] | tag = N | group = \"name\"\n\
-  [[load]]    node = ID | nearest = [x,y,z] | patch = {center, radius};\n\
-              force = [fx,fy,fz] | normal = magnitude | table = \"forces.csv\" (columns t, fx, fy, fz);\n\
+  [[load]]    node = ID | nearest = [x,y,z] m | patch = {center, radius} m;\n\
+              force = [fx,fy,fz] N | normal = magnitude N | table = \"forces.csv\" (columns t s, fx, fy, fz N);\n\
               ramp = [[t0, s0], [t1, s1], ...] (optional scale in time); live = false (eprop serve)\n\
   [[tool]]    shape = \"sphere\" | \"punch\", radius = R, normal = [nx,ny,nz] (punch: pressing direction);\n\
               start = [x,y,z] and velocity = [vx,vy,vz] | table = \"path.csv\" (columns t, x, y, z);\n\
               live = false (eprop serve: the client moves it). See docs/tools.md\n\
-  [time]      steps = N | end = T | equilibrium = tol;  dt, h optional (automatic)\n\
+  [time]      steps = N | end = T s | equilibrium = tol m/s;  dt, h s optional (automatic)\n\
   [output]    file = \"out.h5\" (default: <scenario stem>.h5 beside the scenario), every = 1,\n\
               fields = [\"displacement\", ...], precision = \"float64\" | \"float32\",\n\
               compression = 0..9 (gzip), overwrite = false (replace an existing series)\n\

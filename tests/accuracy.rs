@@ -25,6 +25,7 @@ fn run(dir: &Path, mesh: &eprop_io::Mesh, toml: &str, kind: &str) -> (Vec<Vec<V3
         extra.insert_str(0, "[integrator]\n");
     }
     let base = if kind == "euler/2" { "euler" } else { kind_only };
+    // the paper reading (`common::setup`) unless toml starts with a `reading = ...` of [model]
     let text = format!("[model]\nintegrator = \"{base}\"\n{toml}{extra}");
     let build = |sets: &[String]| {
         Simulation::new(common::setup_with(mesh.clone(), &text, dir, sets)).expect("simulation builds")
@@ -135,6 +136,18 @@ fn a_box_with_a_patch_load() {
         &format!("[material]\nconductivity = 0.05\n{PATCH}normal = 1.0\n[time]\nsteps = 10\n"),
         &[],
         &["rkl2", "implicit", "implicit+multigrid", "auto"],
+    );
+}
+
+#[test]
+fn a_box_in_metres_with_a_continuum_patch_load() {
+    // the continuum reading: a 0.1 m cube, a 0.5 N patch of 0.02 m, the liver-like defaults
+    let mesh = box_mesh([0.1; 3], [20, 20, 20], BoxCells::Tet).unwrap();
+    against_euler(
+        mesh,
+        "reading = \"continuum\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = { center = [0.1, 0.05, 0.05], radius = 0.02 }\nnormal = 0.5\n[time]\nsteps = 10\ndt = 0.005\n",
+        &[],
+        &["rkl2", "implicit", "auto"],
     );
 }
 

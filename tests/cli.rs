@@ -15,7 +15,7 @@ fn eprop(args: &[&str]) -> (bool, String, String) {
     )
 }
 
-const SCENARIO: &str = "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 1.0\n[time]\nsteps = 6\n[output]\nfile = \"out.h5\"\nevery = 2\n";
+const SCENARIO: &str = "[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 1.0\n[time]\nsteps = 6\n[output]\nfile = \"out.h5\"\nevery = 2\n";
 
 fn workdir(name: &str) -> tempfile::TempDir {
     let d = tempfile::Builder::new().prefix(name).tempdir().unwrap();
@@ -160,8 +160,14 @@ fn every_kind_of_bad_scenario_is_named() {
         (SCENARIO.replace("every = 2", "every = 2\nprecision = \"float16\""), vec!["precision"]),
         (SCENARIO.replace("every = 2", "every = 2\ncompression = 12"), vec!["compression"]),
         (SCENARIO.replace("every = 2", "every = 0"), vec!["every", "at least 1"]),
-        (with("[model]\nscheme = \"magic\"\n"), vec!["scheme", "compact"]),
-        (with("[model]\noperator_precision = \"half\"\n"), vec!["operator_precision"]),
+        (
+            SCENARIO.replace("[model]\n", "[model]\nscheme = \"magic\"\n"),
+            vec!["scheme", "compact"],
+        ),
+        (
+            SCENARIO.replace("[model]\n", "[model]\noperator_precision = \"half\"\n"),
+            vec!["operator_precision"],
+        ),
         (with("[tissue]\nyoung = 0.0\n"), vec!["young"]),
         (SCENARIO.replace("[[fixed]]\ngroup = \"bottom\"\n", ""), vec!["no [[fixed]] set"]),
         (SCENARIO.replace("steps = 6", "end = -1.0"), vec!["end", "positive"]),

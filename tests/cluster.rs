@@ -47,7 +47,7 @@ fn scenario(dir: &Path, steps: u64, every: u64) -> PathBuf {
     let sc = dir.join("s.toml");
     std::fs::write(
         &sc,
-        format!("[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 0.3\n[time]\nsteps = {steps}\n[output]\nevery = {every}\n"),
+        format!("[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 0.3\n[time]\nsteps = {steps}\n[output]\nevery = {every}\n"),
     )
     .unwrap();
     sc

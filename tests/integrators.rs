@@ -344,7 +344,10 @@ fn every_integrator_reaches_the_same_equilibrium() {
     let base = "[material]\nconductivity = [1.0, 0.6, 0.8]\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = { center = [1.0, 0.25, 0.25], radius = 0.2 }\nforce = [1.0, 0.5, -0.3]\n[time]\nequilibrium = 1e-13\nsteps = 20000\n[integrator]\ntolerance = 1e-14\n";
     let mut results = vec![];
     for kind in ["euler", "rkl2", "implicit"] {
-        let mut s = sim(mesh.clone(), &format!("[model]\nintegrator = \"{kind}\"\n{base}"));
+        let mut s = sim(
+            mesh.clone(),
+            &format!("[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n{base}"),
+        );
         assert_eq!(s.step_plan().integrator.name(), kind);
         while !s.done() {
             s.advance().unwrap();
@@ -392,7 +395,7 @@ fn a_solve_that_does_not_converge_is_an_error_that_names_the_fix() {
     // at setup: the trial solve that estimates the work
     let e = build_err(
         mesh.clone(),
-        &format!("[model]\nintegrator = \"implicit\"\n[integrator]\nmax_iterations = 1\ntolerance = 1e-14\n{STIFF}"),
+        &format!("[model]\nreading = \"paper\"\nintegrator = \"implicit\"\n[integrator]\nmax_iterations = 1\ntolerance = 1e-14\n{STIFF}"),
     );
     assert!(
         e.contains("did not converge in 1 iterations") && e.contains("fix:") && e.contains("max_iterations"),
@@ -434,7 +437,7 @@ fn refusals_name_what_works() {
     let mesh = cylinder_mesh(1.0, 4.0, 4, 14).unwrap();
     let e = build_err(
         mesh.clone(),
-        &format!("[model]\nintegrator = \"rkl2\"\n[integrator]\nmax_stages = 3\n{STIFF}"),
+        &format!("[model]\nreading = \"paper\"\nintegrator = \"rkl2\"\n[integrator]\nmax_stages = 3\n{STIFF}"),
     );
     assert!(
         e.contains("max_stages = 3") && e.contains("fix:") && e.contains("implicit"),
@@ -443,7 +446,7 @@ fn refusals_name_what_works() {
     for kind in ["rkl2", "implicit"] {
         let e = build_err(
             mesh.clone(),
-            &format!("[model]\nscheme = \"paper\"\nintegrator = \"{kind}\"\n{STIFF}"),
+            &format!("[model]\nreading = \"paper\"\nscheme = \"paper\"\nintegrator = \"{kind}\"\n{STIFF}"),
         );
         assert!(
             e.contains("compact") && e.contains("\"euler\"") && e.contains("fix:"),
@@ -451,12 +454,16 @@ fn refusals_name_what_works() {
         );
         let e = build_err(
             mesh.clone(),
-            &format!("[model]\nintegrator = \"{kind}\"\n{STIFF}").replace("steps = 2", "steps = 2\nh = 0.001"),
+            &format!("[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n{STIFF}")
+                .replace("steps = 2", "steps = 2\nh = 0.001"),
         );
         assert!(e.contains("[time] h") && e.contains("fix:"), "{e}");
     }
     // auto on the paper scheme: euler
-    let s = sim(mesh.clone(), &format!("[model]\nscheme = \"paper\"\n{STIFF}"));
+    let s = sim(
+        mesh.clone(),
+        &format!("[model]\nreading = \"paper\"\nscheme = \"paper\"\n{STIFF}"),
+    );
     assert_eq!(s.step_plan().integrator.name(), "euler");
     assert!(s.step_plan().why.contains("paper"), "{}", s.step_plan().why);
     // auto on a stiff compact case: not euler, and it says why
@@ -475,14 +482,14 @@ fn scenario_keys_are_checked() {
     let p = dir.path().join("s.toml");
     let mesh = cylinder_mesh(1.0, 4.0, 3, 6).unwrap();
     for (text, want) in [
-        ("[model]\nintegrator = \"rk4\"\n", "\"rkl2\" or \"implicit\""),
+        ("integrator = \"rk4\"\n", "\"rkl2\" or \"implicit\""),
         ("[integrator]\ntolerance = 2.0\n", "between 0 and 1"),
         ("[integrator]\naccuracy = 0.0\n", "inf for no error control"),
         ("[integrator]\npreconditioner = \"ilu\"\n", "\"jacobi\""),
         ("[integrator]\nmax_iterations = 0\n", "at least 1"),
         ("[integrator]\nmax_stages = 1\n", "at least 2"),
     ] {
-        let full = format!("[mesh]\nfile = \"x.msh\"\n{text}[[fixed]]\ngroup = \"bottom\"\n[time]\nsteps = 1\n");
+        let full = format!("[mesh]\nfile = \"x.msh\"\n[model]\nreading = \"paper\"\n{text}[[fixed]]\ngroup = \"bottom\"\n[time]\nsteps = 1\n");
         // a bad value fails the parse, at its line
         let e = eprop::config::Scenario::parse(&p, full)
             .and_then(|sc| eprop::config::Setup::with_mesh(sc, mesh.clone()))
@@ -503,7 +510,7 @@ fn a_restarted_run_continues_bit_for_bit_with_rkl2_and_implicit() {
         std::fs::write(
             &sc,
             format!(
-                "[mesh]\nfile = \"cyl.msh\"\n[model]\nintegrator = \"{kind}\"\n{}[output]\nevery = 2\n",
+                "[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n{}[output]\nevery = 2\n",
                 STIFF
                     .replace("steps = 2", "steps = 12")
                     .replace("normal = 1.0", "normal = 1.0\nramp = [[0.0, 0.0], [5.0, 1.0]]")
@@ -556,7 +563,7 @@ fn info_check_and_the_summary_say_what_sets_the_substep_and_which_integrator_run
     let sc = d.path().join("s.toml");
     std::fs::write(
         &sc,
-        "[mesh]\nfile = \"sliver.msh\"\n[material]\nconductivity = 1.0\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = { center = [1.0, 0.5, 0.5], radius = 0.3 }\nnormal = 1.0\n[time]\nsteps = 3\n",
+        "[mesh]\nfile = \"sliver.msh\"\n[model]\nreading = \"paper\"\n[material]\nconductivity = 1.0\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = { center = [1.0, 0.5, 0.5], radius = 0.3 }\nnormal = 1.0\n[time]\nsteps = 3\n",
     )
     .unwrap();
     let out = common::serial(&["check", sc.to_str().unwrap()], 1);

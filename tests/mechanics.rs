@@ -10,7 +10,7 @@ use eprop_io::geom::norm;
 fn equilibrium_is_force_plus_pushed_potential_over_stiffness() {
     for (k, kappa, p) in [(1.0, 1.0, 1.0), (2.0, 0.5, 2.0), (0.5, 3.0, 0.5)] {
         let toml = format!(
-            "[model]\nstiffness = {k}\ncoupling = {kappa}\nexponent = {p}\n[[fixed]]\ngroup = \"bottom\"\n\
+            "[model]\nreading = \"paper\"\nstiffness = {k}\ncoupling = {kappa}\nexponent = {p}\n[[fixed]]\ngroup = \"bottom\"\n\
              [[load]]\nnearest = [1.0, 0.0, 2.0]\nforce = [-0.5, 0.2, 0.1]\n[time]\nequilibrium = 1e-12\nsteps = 200000\n"
         );
         let mut s = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &toml);
@@ -44,7 +44,7 @@ fn equilibrium_is_force_plus_pushed_potential_over_stiffness() {
 /// Contact displacement after 20 steps with the paper's literal reading (k_e = 0).
 fn contact_after_20(force: f64, damping: f64) -> f64 {
     let toml = format!(
-        "[material]\ndamping = {damping}\n[model]\nstiffness = 0.0\nexponent = 1.0\n[tissue]\nbeta = 0.0\n\
+        "[material]\ndamping = {damping}\n[model]\nreading = \"paper\"\nstiffness = 0.0\nexponent = 1.0\n[tissue]\nbeta = 0.0\n\
          [[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = {force}\n[time]\nsteps = 20\ndt = 0.1\n"
     );
     let mut s = sim(cylinder_mesh(1.0, 4.0, 3, 11).unwrap(), &toml);

@@ -14,10 +14,10 @@ fn check_ranks(mesh: &Path, extra: &str, tag: &str) {
     let sc = d.path().join("s.toml");
     std::fs::write(
         &sc,
-        format!(
+        common::paper(&format!(
             "[mesh]\nfile = \"{}\"\n{extra}[time]\nsteps = 8\n[output]\nevery = 2\n",
             mesh.display()
-        ),
+        )),
     )
     .unwrap();
     let sc = sc.to_str().unwrap();
@@ -49,10 +49,14 @@ fn bitwise_identical_on_1_to_4_ranks_generated_mesh() {
     let mesh = d.path().join("cyl.msh");
     eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
     check_ranks(&mesh, CYL, "compact");
-    check_ranks(&mesh, &format!("[model]\nscheme = \"paper\"\n{CYL}"), "paper");
     check_ranks(
         &mesh,
-        &format!("[model]\nscheme = \"paper\"\npaper_correction = false\n{CYL}"),
+        &format!("[model]\nreading = \"paper\"\nscheme = \"paper\"\n{CYL}"),
+        "paper",
+    );
+    check_ranks(
+        &mesh,
+        &format!("[model]\nreading = \"paper\"\nscheme = \"paper\"\npaper_correction = false\n{CYL}"),
         "paper-raw",
     );
 }
@@ -70,7 +74,7 @@ fn float32_deflated_output_on_1_and_2_ranks() {
         std::fs::write(
             &sc,
             format!(
-                "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 6\n[output]\nevery = 2\n{output}",
+                "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\n{CYL}[time]\nsteps = 6\n[output]\nevery = 2\n{output}",
                 mesh.display()
             ),
         )
@@ -123,7 +127,7 @@ fn bitwise_identical_on_1_to_4_ranks_mixed_elements() {
         check_ranks(&mesh, box_case, file);
         check_ranks(
             &mesh,
-            &format!("[model]\nscheme = \"paper\"\n{box_case}"),
+            &format!("[model]\nreading = \"paper\"\nscheme = \"paper\"\n{box_case}"),
             &format!("{file}-paper"),
         );
     }
@@ -152,7 +156,13 @@ fn fused_sweeps_are_bitwise_one_sweep_per_substep_on_1_to_4_ranks() {
     let d = tempfile::Builder::new().prefix("fused").tempdir().unwrap();
     let mesh = d.path().join("cyl.msh");
     eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
-    let (sc, plain, stdout) = unfused(d.path(), &format!("[mesh]\nfile = \"{}\"\n{CYL}", mesh.display()));
+    let (sc, plain, stdout) = unfused(
+        d.path(),
+        &format!(
+            "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\n{CYL}",
+            mesh.display()
+        ),
+    );
     let sc = sc.as_str();
     assert!(stdout.contains("7 substeps"), "{stdout}");
     for fuse in ["2", "3", "8"] {
@@ -227,7 +237,7 @@ fn organ(name: &str, setting: &str, tag: &str) {
     check_ranks(&mesh, setting, tag);
     check_ranks(
         &mesh,
-        &format!("[model]\nscheme = \"paper\"\n{setting}"),
+        &format!("[model]\nreading = \"paper\"\nscheme = \"paper\"\n{setting}"),
         &format!("{tag}-paper"),
     );
 }
@@ -260,11 +270,15 @@ fn bitwise_identical_on_1_to_4_ranks_every_deterministic_integrator() {
     // stiff enough for tens of stages and iterations; a tolerance that is not the default
     // (it travels in the part sent to every rank)
     let stiff = format!("[material]\nconductivity = 2.0\n{CYL}");
-    check_ranks(&mesh, &format!("[model]\nintegrator = \"rkl2\"\n{stiff}"), "rkl2");
+    check_ranks(
+        &mesh,
+        &format!("[model]\nreading = \"paper\"\nintegrator = \"rkl2\"\n{stiff}"),
+        "rkl2",
+    );
     check_ranks(
         &mesh,
         &format!(
-            "[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\npreconditioner = \"jacobi\"\n{stiff}"
+            "[model]\nreading = \"paper\"\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\npreconditioner = \"jacobi\"\n{stiff}"
         ),
         "implicit",
     );
@@ -284,7 +298,7 @@ fn bitwise_identical_on_1_to_4_ranks_every_integrator_organ_mesh() {
     for kind in ["rkl2", "implicit"] {
         check_ranks(
             &mesh,
-            &format!("[model]\nintegrator = \"{kind}\"\n[integrator]\npreconditioner = \"jacobi\"\n{case}"),
+            &format!("[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n[integrator]\npreconditioner = \"jacobi\"\n{case}"),
             kind,
         );
     }
@@ -302,7 +316,7 @@ fn preconditioned_runs_agree(pre: &str, max_ranks: usize) {
         std::fs::write(
             &sc,
             format!(
-                "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\npreconditioner = \"{pre}\"\n[material]\nconductivity = 2.0\n{CYL}[time]\nsteps = 8\n",
+                "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\nintegrator = \"implicit\"\n[integrator]\ntolerance = 1e-10\npreconditioner = \"{pre}\"\n[material]\nconductivity = 2.0\n{CYL}[time]\nsteps = 8\n",
                 mesh.display()
             ),
         )
@@ -375,7 +389,10 @@ fn cylinder_scenario(dir: &Path, rings: usize, layers: usize, steps: u64) -> std
     let sc = dir.join("s.toml");
     std::fs::write(
         &sc,
-        format!("[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = {steps}\n", mesh.display()),
+        format!(
+            "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\n{CYL}[time]\nsteps = {steps}\n",
+            mesh.display()
+        ),
     )
     .unwrap();
     sc
@@ -393,7 +410,7 @@ fn tiny_box_scenario(dir: &Path) -> std::path::PathBuf {
     std::fs::write(
         &sc,
         format!(
-            "[mesh]\nfile = \"{}\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+            "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
             tiny.display()
         ),
     )

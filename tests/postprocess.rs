@@ -36,7 +36,7 @@ fn run(dir: &Path, ranks: usize) -> PathBuf {
     let sc = dir.join("s.toml");
     std::fs::write(
         &sc,
-        "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 0.3\n[time]\nsteps = 12\n[output]\nevery = 3\n",
+        "[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 0.3\n[time]\nsteps = 12\n[output]\nevery = 3\n",
     )
     .unwrap();
     let h5 = dir.join(format!("run{ranks}.h5"));
@@ -303,7 +303,7 @@ fn the_python_module_reads_load_tool_and_bare_runs() {
     let sc = d.path().join("bare.toml");
     std::fs::write(
         &sc,
-        "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n[time]\nsteps = 4\n",
+        "[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"bottom\"\n[time]\nsteps = 4\n",
     )
     .unwrap();
     let bare = d.path().join("bare.h5");

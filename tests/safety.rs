@@ -95,7 +95,9 @@ fn cylinder(dir: &Path, name: &str, extra: &str, steps: u64) -> PathBuf {
     let sc = dir.join(name);
     std::fs::write(
         &sc,
-        format!("[mesh]\nfile = \"cyl.msh\"\n{CYL}{extra}[time]\nsteps = {steps}\n"),
+        common::paper(&format!(
+            "[mesh]\nfile = \"cyl.msh\"\n{CYL}{extra}[time]\nsteps = {steps}\n"
+        )),
     )
     .unwrap();
     sc
@@ -209,7 +211,7 @@ fn an_output_that_is_an_input_is_refused_and_the_inputs_stay_unchanged() {
     }
     std::fs::write(
         dir.join("t.toml"),
-        "[mesh]\nfile = \"b.ele\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+        "[mesh]\nfile = \"b.ele\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
     )
     .unwrap();
     let tet_before = contents(&[&dir.join("b.node"), &dir.join("b.face")]);
@@ -374,7 +376,7 @@ fn implausible_loads_and_displacements_are_warned_about() {
     eprop_io::write_mesh(&small, &dir.join("m.msh")).unwrap();
     std::fs::write(
         dir.join("metres.toml"),
-        "[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [0.1, 0.05, 0.05]\nforce = [-1.0, 0.0, 0.0]\n[time]\nsteps = 2\n",
+        "[mesh]\nfile = \"m.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [0.1, 0.05, 0.05]\nforce = [-1.0, 0.0, 0.0]\n[time]\nsteps = 2\n",
     )
     .unwrap();
     for cmd in ["check", "run"] {
@@ -405,7 +407,7 @@ fn implausible_loads_and_displacements_are_warned_about() {
     eprop_io::write_mesh(&needle, &dir.join("plate.msh")).unwrap();
     std::fs::write(
         dir.join("plate.toml"),
-        "[mesh]\nfile = \"plate.msh\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [1e4, 0.01, 0.01]\nforce = [0.0, 0.0, -1e-9]\n[time]\nsteps = 1\n",
+        "[mesh]\nfile = \"plate.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [1e4, 0.01, 0.01]\nforce = [0.0, 0.0, -1e-9]\n[time]\nsteps = 1\n",
     )
     .unwrap();
     let ws = warnings(&summary(&["check", s(&dir.join("plate.toml")), "--json"]));
@@ -444,7 +446,7 @@ fn counts_and_step_sizes_past_their_limits_are_refused_by_check_and_run() {
         ),
         ("", "steps = 5\ndt = 1e-300", &["[time] dt = 1e-300 is below 1e-30"]),
         (
-            "[model]\nstiffness = 1e300\n",
+            "[model]\nreading = \"paper\"\nstiffness = 1e300\n",
             "steps = 5",
             &["is below 1e-30", "stiffness"],
         ),
@@ -701,7 +703,7 @@ fn a_full_disk_at_creation_and_mid_run_on_2_ranks_stops_every_rank_cleanly() {
     .unwrap();
     std::fs::write(
         dir.join("big.toml"),
-        format!("[mesh]\nfile = \"big.msh\"\n{CYL}[time]\nsteps = 20\n"),
+        format!("[mesh]\nfile = \"big.msh\"\n[model]\nreading = \"paper\"\n{CYL}[time]\nsteps = 20\n"),
     )
     .unwrap();
     let out = small.path().join("big.h5");
@@ -809,7 +811,7 @@ fn an_output_that_is_a_load_or_tool_table_is_refused() {
     std::fs::write(
         &with_load,
         format!(
-            "[mesh]\nfile = \"cylinder.msh\"\n{}\n[[load]]\nnearest = [1.0, 0.0, 2.0]\ntable = \"forces.csv\"\n[time]\nsteps = 3\n[output]\nfile = \"forces.csv\"\n",
+            "[mesh]\nfile = \"cylinder.msh\"\n[model]\nreading = \"paper\"\n{}\n[[load]]\nnearest = [1.0, 0.0, 2.0]\ntable = \"forces.csv\"\n[time]\nsteps = 3\n[output]\nfile = \"forces.csv\"\n",
             "[[fixed]]\ngroup = \"bottom\""
         ),
     )
@@ -1168,7 +1170,7 @@ fn a_state_near_overflow_stops_the_run_and_is_not_restarted_from() {
     // products that overflow: the energy |phi| and max |u| would be written as inf
     for (name, extra) in [
         ("young", "[tissue]\nyoung = 1e-300\n"),
-        ("coupling", "[model]\ncoupling = 1e300\n"),
+        ("coupling", "[model]\nreading = \"paper\"\ncoupling = 1e300\n"),
     ] {
         let sc = cylinder(dir, &format!("{name}.toml"), extra, 10);
         for ranks in [1, 2] {

@@ -180,7 +180,7 @@ fn every_shared_tet_mesh_runs_twenty_steps() {
         std::fs::write(
             &s,
             format!(
-                "[mesh]\nfile = {:?}\n[[fixed]]\nhalfspace = {{ point = [{x:?}, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }}\n\
+                "[mesh]\nfile = {:?}\n[model]\nreading = \"paper\"\n[[fixed]]\nhalfspace = {{ point = [{x:?}, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }}\n\
                  [[load]]\nnearest = [{cx:?}, {:?}, {cz:?}]\nnormal = 1.0\n[time]\nsteps = 20\n[output]\nevery = 10\n",
                 p.to_str().unwrap(),
                 hi[1]

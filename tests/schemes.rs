@@ -87,8 +87,8 @@ fn compact_is_symmetric_on_tetrahedra() {
     }
 }
 
-const PAPER: &str = "[model]\nscheme = \"paper\"\n";
-const PAPER_RAW: &str = "[model]\nscheme = \"paper\"\npaper_correction = false\n";
+const PAPER: &str = "[model]\nreading = \"paper\"\nscheme = \"paper\"\n";
+const PAPER_RAW: &str = "[model]\nreading = \"paper\"\nscheme = \"paper\"\npaper_correction = false\n";
 const BASE: &str =
     "[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 1.0\n[time]\nsteps = 5\n";
 

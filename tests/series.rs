@@ -20,7 +20,9 @@ fn scenario(dir: &Path, extra: &str, steps: u64) -> PathBuf {
     let sc = dir.join("s.toml");
     std::fs::write(
         &sc,
-        format!("[mesh]\nfile = \"cyl.msh\"\n{CYL}{extra}[time]\nsteps = {steps}\n"),
+        common::paper(&format!(
+            "[mesh]\nfile = \"cyl.msh\"\n{CYL}{extra}[time]\nsteps = {steps}\n"
+        )),
     )
     .unwrap();
     sc
@@ -321,7 +323,9 @@ fn probes_have_one_row_per_load_and_none_without_loads() {
         let sc = d.path().join(format!("l{loads}.toml"));
         std::fs::write(
             &sc,
-            format!("[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n{body}[time]\nsteps = 6\n"),
+            common::paper(&format!(
+                "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n{body}[time]\nsteps = 6\n"
+            )),
         )
         .unwrap();
         let sc = sc.to_str().unwrap();

@@ -211,12 +211,12 @@ fn scenario(dir: &Path, extra: &str) -> (PathBuf, Vec<[f64; 4]>, Vec<[f64; 4]>) 
     let sc = dir.join("s.toml");
     std::fs::write(
         &sc,
-        format!(
+        common::paper(&format!(
             "[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n\
              [[load]]\npatch = {{ center = [0.0, 1.0, 3.0], radius = 0.4 }}\ntable = \"force.csv\"\nlive = true\n\
              [[tool]]\nshape = \"sphere\"\nradius = 0.5\ntable = \"path.csv\"\nlive = true\n{extra}\
              [time]\nend = 70\n[output]\nevery = 3\n"
-        ),
+        )),
     )
     .unwrap();
     (sc, path, force)
@@ -294,8 +294,8 @@ fn a_live_session_under_mpirun_writes_the_batch_series_bit_for_bit() {
 
 #[test]
 fn a_live_session_writes_the_batch_series_with_rkl2_and_implicit() {
-    live_equals_batch(1, "[model]\nintegrator = \"implicit\"\n");
-    live_equals_batch(2, "[model]\nintegrator = \"rkl2\"\n");
+    live_equals_batch(1, "[model]\nreading = \"paper\"\nintegrator = \"implicit\"\n");
+    live_equals_batch(2, "[model]\nreading = \"paper\"\nintegrator = \"rkl2\"\n");
 }
 
 /// A server on the scenario of `scenario` (with `extra` keys and options) and a client that
@@ -748,7 +748,7 @@ fn a_served_run_is_refused_before_it_listens_and_respects_the_limits() {
         .collect();
     std::fs::write(
         dir.join("many.toml"),
-        format!("[mesh]\nfile = \"cyl.msh\"\n[[fixed]]\ngroup = \"bottom\"\n{loads}[time]\nend = 5\n"),
+        format!("[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"bottom\"\n{loads}[time]\nend = 5\n"),
     )
     .unwrap();
     refused_before_listening(

@@ -26,7 +26,7 @@ const CENTRE_PATCH: &str = "patch = { center = [0.5, 0.5, 1.0], radius = 0.05 }"
 /// force, with the integrator `[model] integrator = kind` (and `[integrator]` settings).
 fn tool_feels_the_loads_force(dir: &Path, force: f64, kind: &str, settings: &str) {
     let mesh = || box_mesh([1.0; 3], [8; 3], BoxCells::Tet).unwrap();
-    let model = format!("[model]\nintegrator = \"{kind}\"\n{settings}");
+    let model = format!("[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n{settings}");
     // the load: a compressive force on the centre node of the top face, to equilibrium
     let mut load = sim_in(
         dir,
@@ -216,7 +216,7 @@ fn tools_are_bitwise_identical_on_1_to_4_ranks() {
     std::fs::write(
         &sc,
         format!(
-            "[mesh]\nfile = \"{}\"\n[integrator]\npreconditioner = \"jacobi\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\npatch = {{ center = [0.0, 1.0, 2.0], radius = 0.4 }}\ntable = \"f.csv\"\n\
+            "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\n[integrator]\npreconditioner = \"jacobi\"\n[[fixed]]\ngroup = \"bottom\"\n[[load]]\npatch = {{ center = [0.0, 1.0, 2.0], radius = 0.4 }}\ntable = \"f.csv\"\n\
              [[tool]]\nshape = \"sphere\"\nradius = 0.5\nstart = [1.5, 0.0, 2.0]\nvelocity = [-0.03, 0.0, 0.0]\n\
              [[tool]]\nshape = \"punch\"\nradius = 0.6\nnormal = [0, 0, -1]\ntable = \"p.csv\"\n[time]\nsteps = 10\n[output]\nevery = 2\n",
             mesh.display()
@@ -261,7 +261,7 @@ fn tools_are_bitwise_identical_on_1_and_2_ranks_with_rkl2_and_implicit() {
         std::fs::write(
             &sc,
             format!(
-                "[mesh]\nfile = \"{}\"\n[model]\nintegrator = \"{kind}\"\n[integrator]\npreconditioner = \"jacobi\"\n[[fixed]]\ngroup = \"bottom\"\n\
+                "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n[integrator]\npreconditioner = \"jacobi\"\n[[fixed]]\ngroup = \"bottom\"\n\
                  [[load]]\npatch = {{ center = [0.0, 1.0, 2.0], radius = 0.4 }}\nnormal = 0.2\n\
                  [[tool]]\nshape = \"sphere\"\nradius = 0.5\ntable = \"p.csv\"\n[time]\ndt = 0.5\nsteps = 12\n[output]\nevery = 3\n",
                 mesh.display()
@@ -297,11 +297,12 @@ fn bad_tables_and_tools_are_named_with_their_fix() {
     std::fs::write(d.path().join("back.csv"), "t,fx,fy,fz\n0,0,0,0\n2,0,0,1\n1,0,0,2\n").unwrap();
     std::fs::write(d.path().join("nan.csv"), "t,x,y,z\n0,0,0,1\n1,0,nan,1\n").unwrap();
     std::fs::create_dir(d.path().join("dir.csv")).unwrap();
-    let base = "[mesh]\nfile = \"b.msh\"\n[[fixed]]\ngroup = \"zmin\"\n[time]\nsteps = 2\n";
+    let base =
+        "[mesh]\nfile = \"b.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[time]\nsteps = 2\n";
     for (extra, want) in [
         (
             "[[load]]\nnearest = [0.5, 0.5, 1.0]\ntable = \"back.csv\"\n",
-            vec!["s.toml:9: [load] table:", "back.csv:4: row 3 of the force table of [[load]] 1: time 1 does not come after the previous row's time 2; fix:"],
+            vec!["s.toml:11: [load] table:", "back.csv:4: row 3 of the force table of [[load]] 1: time 1 does not come after the previous row's time 2; fix:"],
         ),
         (
             "[[tool]]\nshape = \"sphere\"\nradius = 0.2\ntable = \"nan.csv\"\n",
@@ -309,7 +310,7 @@ fn bad_tables_and_tools_are_named_with_their_fix() {
         ),
         (
             "[[tool]]\nshape = \"sphere\"\nradius = 0.2\ntable = \"dir.csv\"\n",
-            vec!["s.toml:10: [tool] table:", "dir.csv: is a directory, not a regular file", "fix:"],
+            vec!["s.toml:12: [tool] table:", "dir.csv: is a directory, not a regular file", "fix:"],
         ),
         (
             "[[load]]\nnearest = [0.5, 0.5, 1.0]\ntable = \"missing.csv\"\n",
@@ -342,7 +343,7 @@ fn a_run_with_tools_is_not_restarted() {
     let sc = d.path().join("s.toml");
     std::fs::write(
         &sc,
-        "[mesh]\nfile = \"b.msh\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.3\nstart = [0.5, 0.5, 1.25]\nvelocity = [0, 0, -0.01]\n[time]\nsteps = 3\n",
+        "[mesh]\nfile = \"b.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.3\nstart = [0.5, 0.5, 1.25]\nvelocity = [0, 0, -0.01]\n[time]\nsteps = 3\n",
     )
     .unwrap();
     let out = common::serial(&["run", sc.to_str().unwrap(), "-q"], 1);

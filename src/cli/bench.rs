@@ -90,7 +90,7 @@ pub fn box_setup(cells: usize, scheme: &str) -> Result<Setup> {
         s => (s, "float64"),
     };
     let text = format!(
-        "[mesh]\nfile = \"generated\"\n[model]\nscheme = \"{scheme}\"\noperator_precision = \"{prec}\"\n[[fixed]]\ngroup = \"xmin\"\n\
+        "[mesh]\nfile = \"generated\"\n[model]\nreading = \"paper\"\nscheme = \"{scheme}\"\noperator_precision = \"{prec}\"\n[[fixed]]\ngroup = \"xmin\"\n\
          [[load]]\nnearest = [1.0, 0.5, 0.5]\nnormal = 1.0\n[time]\nsteps = 1\n"
     );
     let sc = Scenario::parse(Path::new("bench.toml"), text)?;

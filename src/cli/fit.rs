@@ -470,7 +470,8 @@ fn evaluate(
     let mut out = match finite {
         false => Err(format!(
             "the state is no longer finite at step {} (t = {:.6e})",
-            sim.step(), sim.time()
+            sim.step(),
+            sim.time()
         )),
         true => curve
             .x

@@ -578,7 +578,7 @@ mod tests {
         let sc = d.path().join("s.toml");
         std::fs::write(
             &sc,
-            "[mesh]\nfile = \"m.msh\"\n[model]\nscheme = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+            "[mesh]\nfile = \"m.msh\"\nunit = \"m\"\n[model]\nscheme = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
         )
         .unwrap();
         let e = export_operator(&sc, &d.path().join("op.h5"), false)
@@ -587,7 +587,7 @@ mod tests {
         assert!(e.contains("needs [model] scheme = \"compact\""), "{e}");
         std::fs::write(
             &sc,
-            "[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
+            "[mesh]\nfile = \"m.msh\"\nunit = \"m\"\n[[fixed]]\ngroup = \"xmin\"\n[time]\nsteps = 1\n",
         )
         .unwrap();
         let r = export_operator(&sc, &d.path().join("op.h5"), false).unwrap();

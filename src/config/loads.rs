@@ -2,7 +2,7 @@
 
 use super::select::{Entry, Keys, Selector};
 use super::values::{Finite, Point, Ramp};
-use super::Scenario;
+use super::{Reading, Scenario};
 use crate::config::tables::{read_table, History};
 use anyhow::Result;
 use eprop_io::Mesh;
@@ -65,7 +65,8 @@ pub struct Load {
     pub weights: Vec<f64>,
     /// Force at ramp scale 1.
     pub force: [f64; 3],
-    /// |sum of the contact nodes' boundary dual areas|, filled in by the solver.
+    /// |sum of the contact nodes' boundary dual areas|, filled in by the solver (a continuum
+    /// patch: the sum of its shares, the patch area).
     pub area: f64,
     pub ramp: Option<Vec<[f64; 2]>>,
     /// Normal load magnitude (force direction is set from the boundary normal).
@@ -76,6 +77,11 @@ pub struct Load {
     pub depth: Option<f64>,
     /// The force in time from a table (or, in `eprop serve`, from the client's samples).
     pub history: Option<History>,
+    /// The continuum reading's patch (docs/model.md section 4): each contact node's share a_i
+    /// of the patch area (`select::patch_shares`), and the patch's outward area vector; empty
+    /// and zero otherwise.
+    pub shares: Vec<f64>,
+    pub area_vector: [f64; 3],
     /// Driven by the client of `eprop serve` (in `eprop run`, the load is as written).
     pub live: bool,
 }
@@ -107,13 +113,28 @@ impl Load {
 }
 
 /// Every load's contact nodes and weights on the mesh; none may be fixed.
+///
+/// In the continuum reading a patch's nodes are those its disc reaches on the boundary faces,
+/// weighted by their shares of its area (`select::patch_shares`).
 pub fn resolve(sc: &Scenario, loads: &[Entry<Push>], mesh: &Mesh, fixed: &[bool]) -> Result<Vec<Load>> {
+    let continuum = sc.file.model.reading == Reading::Continuum;
     let mut out = Vec::with_capacity(loads.len());
     for l in loads {
         let sel = l.selector.get_ref();
-        let (nodes, weights) = sel
-            .contacts(mesh)
-            .map_err(|e| sc.error_at(l.selector.span(), Push::TABLE, sel.key(), e))?;
+        let mut patch = (Vec::new(), [0.0; 3]);
+        let (nodes, weights) = match sel {
+            Selector::Patch(ball) if continuum => {
+                let (nodes, shares, vector) = super::select::patch_shares(mesh, ball)
+                    .map_err(|e| sc.error_at(l.selector.span(), Push::TABLE, sel.key(), e))?;
+                let total: f64 = shares.iter().sum();
+                let weights = shares.iter().map(|a| a / total).collect();
+                patch = (shares, vector);
+                (nodes, weights)
+            }
+            _ => sel
+                .contacts(mesh)
+                .map_err(|e| sc.error_at(l.selector.span(), Push::TABLE, sel.key(), e))?,
+        };
         if let Some(&bad) = nodes.iter().find(|&&n| fixed[n as usize]) {
             return Err(sc.error_at(
                 l.selector.span(),
@@ -136,7 +157,10 @@ pub fn resolve(sc: &Scenario, loads: &[Entry<Push>], mesh: &Mesh, fixed: &[bool]
             }
             None => None,
         };
+        let area = if continuum { patch.0.iter().sum() } else { 0.0 };
         out.push(Load {
+            shares: patch.0,
+            area_vector: patch.1,
             history,
             live: p.live,
             depth: match sel {
@@ -147,7 +171,7 @@ pub fn resolve(sc: &Scenario, loads: &[Entry<Push>], mesh: &Mesh, fixed: &[bool]
             nodes,
             weights,
             force: p.force.unwrap_or([0.0; 3]),
-            area: 0.0,
+            area,
             ramp: p.ramp.clone(),
             normal: p.normal,
         });
@@ -172,6 +196,8 @@ mod tests {
             depth: None,
             history: None,
             live: false,
+            shares: vec![],
+            area_vector: [0.0; 3],
         };
         assert_eq!(l.scale(5.0), 1.0);
         l.ramp = Some(vec![[1.0, 0.0], [2.0, 1.0], [4.0, 0.5]]);

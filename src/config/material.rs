@@ -1,7 +1,8 @@
 //! `[material]` and its `[[material.region]]`s: per-node conductivity tensor, mass and damping.
 
 use super::select::{Entry, Keys};
-use super::values::{non_negative, positive, NonNegative, Positive};
+use super::values::{opt_non_negative, opt_positive, NonNegative, Positive};
+use super::Reading;
 use super::Scenario;
 use crate::discretize::material::{check_spd, Tensor};
 use anyhow::Result;
@@ -12,25 +13,16 @@ use serde::Deserialize;
 #[derive(Deserialize, Debug, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialSec {
-    #[serde(default = "default_mass", deserialize_with = "positive")]
-    pub mass: f64,
-    #[serde(default = "default_damping", deserialize_with = "non_negative")]
-    pub damping: f64,
-    #[serde(default = "default_conductivity")]
-    pub conductivity: Conductivity,
+    /// None: the reading's default (`[model] reading`), as for damping and conductivity.
+    #[serde(default, deserialize_with = "opt_positive")]
+    pub mass: Option<f64>,
+    #[serde(default, deserialize_with = "opt_non_negative")]
+    pub damping: Option<f64>,
+    #[serde(default)]
+    pub conductivity: Option<Conductivity>,
     /// Heterogeneous parts, applied in order (a later region wins where they overlap).
     #[serde(default)]
     pub region: Vec<Entry<Region>>,
-}
-
-fn default_mass() -> f64 {
-    1.0
-}
-fn default_damping() -> f64 {
-    2.0
-}
-fn default_conductivity() -> Conductivity {
-    Conductivity(Tensor::identity() * 0.05)
 }
 
 /// A conductivity tensor R, checked symmetric positive definite. The scenario writes a
@@ -158,12 +150,15 @@ pub struct Materials {
     pub damping: Vec<f64>,
 }
 
-/// The `[material]` values on every node, then each region's on its nodes, in order.
-pub fn resolve(sc: &Scenario, m: &MaterialSec, mesh: &Mesh) -> Result<Materials> {
+/// The `[material]` values on every node (the reading's defaults where a key is not
+/// written), then each region's on its nodes, in order.
+pub fn resolve(sc: &Scenario, m: &MaterialSec, reading: Reading, mesh: &Mesh) -> Result<Materials> {
     let n = mesh.n_nodes();
-    let mut r = vec![m.conductivity.0; n];
-    let mut mass = vec![m.mass; n];
-    let mut damping = vec![m.damping; n];
+    let d = reading.defaults();
+    let conductivity = m.conductivity.map_or(Tensor::identity() * d.conductivity, |c| c.0);
+    let mut r = vec![conductivity; n];
+    let mut mass = vec![m.mass.unwrap_or(d.mass); n];
+    let mut damping = vec![m.damping.unwrap_or(d.damping); n];
     for reg in &m.region {
         let none = "the region holds no node; fix: check its bounds against the mesh (eprop info MESH)";
         let set = sc.select(&reg.selector, Region::TABLE, mesh, none)?;

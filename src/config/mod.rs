@@ -39,8 +39,8 @@ mod values;
 pub use fixed::FixedSet;
 pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
-pub use mesh::MeshSec;
-pub use model::{IntegratorSec, Model, Reading, Scheme, SchemeName, TissueSec};
+pub use mesh::{MeshSec, Unit};
+pub use model::{Defaults, IntegratorSec, Model, Reading, Scheme, SchemeName, TissueSec, CONTINUUM, PAPER};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
 pub use select::{distance, Entry, Keys, Selector};
@@ -376,7 +376,7 @@ impl Setup {
         let (sc, f) = (&scenario, &scenario.file);
         let time = time::resolve(sc, &f.time)?;
         let output = output::resolve(sc);
-        let material::Materials { r, mass, damping } = material::resolve(sc, &f.material, &mesh)?;
+        let material::Materials { r, mass, damping } = material::resolve(sc, &f.material, f.model.reading, &mesh)?;
         let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         let tools = tools::resolve(sc, &f.tool)?;
@@ -384,7 +384,7 @@ impl Setup {
             tools,
             model: f.model.clone(),
             integrator: f.integrator.settings(f.model.integrator),
-            law: f.tissue.law(),
+            law: f.tissue.law(f.model.reading),
             time,
             output,
             performance: f.performance.resolve(),
@@ -525,7 +525,7 @@ mod tests {
     #[test]
     fn a_setup_holds_every_section_resolved() {
         let s = setup(&format!(
-            "{BASE}[material]\nmass = 2.0\n[[material.region]]\nhalfspace = {{ point = [0, 0, 2], normal = [0, 0, 1] }}\nconductivity = [0.08, 0.05, 0.05]\ndamping = 3.0\n[model]\nscheme = \"paper\"\n[tissue]\nbeta = 1.5\n[output]\nevery = 2\n"
+            "{BASE}[material]\nmass = 2.0\n[[material.region]]\nhalfspace = {{ point = [0, 0, 2], normal = [0, 0, 1] }}\nconductivity = [0.08, 0.05, 0.05]\ndamping = 3.0\n[model]\nreading = \"paper\"\nscheme = \"paper\"\n[tissue]\nbeta = 1.5\n[output]\nevery = 2\n"
         ))
         .unwrap();
         let n = s.mesh.n_nodes();

@@ -208,6 +208,89 @@ fn weighted(set: &[bool], w: impl Fn(usize) -> f64) -> (Vec<u32>, Vec<f64>) {
     (picked, weights)
 }
 
+/// A contact patch's share of the boundary surface, smooth in the mesh (docs/model.md
+/// section 4): the disc `ball` cuts out of the surface, integrated over every boundary face
+/// by sub-sampling (each triangle split into n^2 sub-triangles of equal area, n such that a
+/// sub-triangle is at most 1/16 of the radius across) and shared to the face's corners by
+/// their linear shape functions. Returns the nodes with a share (increasing index), their
+/// shares a_i (summing to the patch area) and the patch's outward area vector. A disc that no
+/// sample falls in (far smaller than its faces) takes the surface nodes within it with their
+/// boundary dual areas; none is an error.
+pub fn patch_shares(mesh: &Mesh, ball: &Ball) -> Result<(Vec<u32>, Vec<f64>, [f64; 3]), String> {
+    let mut share = vec![0.0; mesh.n_nodes()];
+    let mut vector = [0.0; 3];
+    let (c, r) = (ball.center, ball.radius);
+    for (cell, f) in eprop_io::mesh::boundary_faces(mesh) {
+        let nodes = mesh.cell(cell as usize);
+        let face = mesh.kinds[cell as usize].faces()[f as usize];
+        let ids: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
+        // triangles (0, k, k+1): a quadrilateral in two
+        for k in 1..ids.len() - 1 {
+            let tri = [ids[0], ids[k], ids[k + 1]];
+            let p = tri.map(|i| mesh.points[i as usize]);
+            let mid = [0, 1, 2].map(|d| (p[0][d] + p[1][d] + p[2][d]) / 3.0);
+            let reach = p.iter().map(|q| norm(sub(*q, mid))).fold(0.0f64, f64::max);
+            if norm(sub(mid, c)) > r + reach {
+                continue;
+            }
+            let av = eprop_io::geom::loop_area(&p);
+            let a = norm(av);
+            let n = ((16.0 * 2.0 * reach / r).ceil() as usize).clamp(4, 256);
+            let w = 1.0 / (n * n) as f64;
+            let e1 = sub(p[1], p[0]);
+            let e2 = sub(p[2], p[0]);
+            let nf = n as f64;
+            let mut sample = |s: f64, t: f64| {
+                let x = [0, 1, 2].map(|d| p[0][d] + s * e1[d] + t * e2[d]);
+                if norm(sub(x, c)) <= r {
+                    for (v, nv) in tri.iter().zip([1.0 - s - t, s, t]) {
+                        share[*v as usize] += a * w * nv;
+                    }
+                    for d in 0..3 {
+                        vector[d] += av[d] * w;
+                    }
+                }
+            };
+            for i in 0..n {
+                for j in 0..n - i {
+                    let (fi, fj) = (i as f64, j as f64);
+                    sample((fi + 1.0 / 3.0) / nf, (fj + 1.0 / 3.0) / nf);
+                    if i + j + 2 <= n {
+                        sample((fi + 2.0 / 3.0) / nf, (fj + 2.0 / 3.0) / nf);
+                    }
+                }
+            }
+        }
+    }
+    let mut nodes: Vec<u32> = (0..share.len()).filter(|&i| share[i] > 0.0).map(|i| i as u32).collect();
+    if nodes.is_empty() {
+        // a disc far smaller than the faces it lies on (no sample inside it): the surface
+        // nodes within it, with their boundary dual areas, as the paper reading's patch
+        let area = surface_node_areas(mesh);
+        let mut set = vec![false; mesh.n_nodes()];
+        patch(mesh, ball, &area, &mut set)?;
+        for (cell, f) in eprop_io::mesh::boundary_faces(mesh) {
+            let cn = mesh.cell(cell as usize);
+            let face = mesh.kinds[cell as usize].faces()[f as usize];
+            let pts: Vec<[f64; 3]> = face.iter().map(|&l| mesh.points[cn[l] as usize]).collect();
+            let av = eprop_io::geom::loop_area(&pts);
+            for &l in face {
+                if set[cn[l] as usize] {
+                    for d in 0..3 {
+                        vector[d] += av[d] / face.len() as f64;
+                    }
+                }
+            }
+        }
+        nodes = (0..set.len()).filter(|&i| set[i]).map(|i| i as u32).collect();
+        for &i in &nodes {
+            share[i as usize] = area[i as usize];
+        }
+    }
+    let shares = nodes.iter().map(|&i| share[i as usize]).collect();
+    Ok((nodes, shares, vector))
+}
+
 /// Flags the surface nodes within `ball` (surface: a positive boundary dual area).
 fn patch(mesh: &Mesh, ball: &Ball, area: &[f64], set: &mut [bool]) -> Result<(), String> {
     let mut any = false;

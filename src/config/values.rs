@@ -59,11 +59,16 @@ pub fn positive<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
 pub fn non_negative<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     NonNegative::deserialize(d).map(|x| x.0)
 }
-pub fn finite<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Finite::deserialize(d).map(|x| x.0)
-}
 pub fn opt_positive<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
     positive(d).map(Some)
+}
+// optional checked numbers of a section that is also sent to other processes (an Option
+// on the wire, a present key in TOML)
+pub fn opt_non_negative<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+    Option::<NonNegative>::deserialize(d).map(|o| o.map(|x| x.0))
+}
+pub fn opt_finite<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+    Option::<Finite>::deserialize(d).map(|o| o.map(|x| x.0))
 }
 
 /// A point (or vector) with finite coordinates.

@@ -4,6 +4,7 @@
 //! validity. None of them changes a number. And the check that stops a run whose state is no
 //! longer finite.
 
+use crate::config::{Reading, CONTINUUM};
 use crate::simulate::Simulation;
 use eprop_io::geom::{norm, sub};
 use eprop_io::Mesh;
@@ -45,8 +46,11 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
     let mut out = Vec::new();
     let diag = diagonal(mesh);
     let young = sim.setup().law.young;
-    let scale = sim.setup().scenario.file.mesh.scale;
-    let metres = if diag < 2.0 && scale == 1.0 {
+    let ms = &sim.setup().scenario.file.mesh;
+    let paper = sim.setup().model.reading == Reading::Paper;
+    // the paper reading takes coordinates as they are: a small organ may be in metres (the
+    // continuum reading knows its unit, and `scale_warnings` judges its size)
+    let metres = if paper && diag < 2.0 && ms.scale.is_none() && ms.unit.is_none() {
         format!("; the mesh spans {diag:.3} units: if it is in metres, `[mesh] scale = 1000` reads it in millimetres")
     } else {
         String::new()
@@ -91,6 +95,92 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
                 ));
             }
         }
+    }
+    out.extend(scale_warnings(sim, mesh));
+    out
+}
+
+/// The continuum reading's length, time and stress scales are warned about when they lie
+/// more than this factor from the defaults' (a liver-like organ, docs/model.md).
+pub const SCALE_FACTOR: f64 = 1e3;
+/// The organ sizes (bounding-box diagonal, m) the continuum defaults are meant for, within
+/// the warning's range is ten times wider on either side.
+pub const ORGAN_DIAGONAL: (f64, f64) = (0.02, 0.5);
+
+/// The slowest decay time of m u'' + g u' + k u = 0 (infinite when k = 0 or g = 0).
+pub fn relaxation_time(m: f64, g: f64, k: f64) -> f64 {
+    if !(k > 0.0) || !(g > 0.0) {
+        return f64::INFINITY;
+    }
+    let disc = g * g - 4.0 * m * k;
+    let rate = if disc <= 0.0 {
+        g / (2.0 * m)
+    } else {
+        // the slow root, in the form that does not cancel: 2k / (g + sqrt(disc))
+        2.0 * k / (g + disc.sqrt())
+    };
+    1.0 / rate
+}
+
+/// Warnings of the continuum reading about scales far from its defaults' (docs/model.md,
+/// "Defaults"): the mesh's extent (a unit mistake: a mesh in mm read as metres spans 180 m),
+/// the mechanics' relaxation time, the time the energy takes to cross the mesh, and the
+/// stiffness of the tissue law. None in the paper reading (no units).
+pub fn scale_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
+    let mut out = Vec::new();
+    let st = sim.setup();
+    if st.model.reading != Reading::Continuum {
+        return out;
+    }
+    let d = CONTINUUM;
+    let far = |x: f64, reference: f64| !(x / reference <= SCALE_FACTOR && reference / x <= SCALE_FACTOR);
+    let diag = diagonal(mesh);
+    let ms = &st.scenario.file.mesh;
+    let read_as = match (ms.unit, ms.scale) {
+        (Some(u), _) => format!("[mesh] unit = \"{}\"", u.name()),
+        (None, Some(s)) => format!("[mesh] scale = {}", short(s)),
+        _ => "[mesh]".into(),
+    };
+    if !(ORGAN_DIAGONAL.0 / 10.0..=ORGAN_DIAGONAL.1 * 10.0).contains(&diag) {
+        out.push(format!(
+            "the mesh spans {diag:.4e} m (its bounding-box diagonal, read with {read_as}), far from the organs of 2 to 50 cm the continuum defaults are made for; fix: check [mesh] unit (the unit of the file's coordinates: \"mm\" when a 20 cm organ's coordinates run to 200)"
+        ));
+    }
+    let mat = &st.scenario.file.material;
+    let (m, g, k) = (
+        mat.mass.unwrap_or(d.mass),
+        mat.damping.unwrap_or(d.damping),
+        st.model.stiffness(),
+    );
+    let tau = relaxation_time(m, g, k);
+    let tau0 = relaxation_time(d.mass, d.damping, d.stiffness);
+    if tau.is_finite() && far(tau, tau0) {
+        out.push(format!(
+            "the mechanics relax in {tau:.4e} s (density {}, damping {}, stiffness {}), far from the {tau0:.3} s of the liver-like defaults (kg/m^3, kg/(m^3 s), N/m^4); fix: check the units of [material] mass and damping and [model] stiffness (docs/model.md), or leave them out",
+            short(m),
+            short(g),
+            short(k)
+        ));
+    }
+    if let Some(r) = st.r.first() {
+        let cond = r.trace() / 3.0;
+        let (t, t0) = (diag * diag / cond, diag * diag / d.conductivity);
+        if far(t, t0) {
+            out.push(format!(
+                "the energy crosses the mesh in {t:.4e} s (diagonal^2 / conductivity = {:.4e}^2 / {}), {:.1e} times the {t0:.4e} s of the default conductivity {} m^2/s; fix: check the units of [material] conductivity (m^2/s), or leave it out",
+                diag,
+                short(cond),
+                t / t0,
+                short(d.conductivity)
+            ));
+        }
+    }
+    if far(st.law.young, d.young) {
+        out.push(format!(
+            "[tissue] young = {} Pa is far from soft tissue's kPa (the default {} Pa); fix: young in Pa (4 kPa is 4000), or leave it out",
+            short(st.law.young),
+            short(d.young)
+        ));
     }
     out
 }

@@ -8,7 +8,7 @@ pub mod distributed;
 #[cfg(test)]
 mod tests;
 
-use crate::config::{Fuse, Load, Precision, Scheme, Setup, Stop};
+use crate::config::{Fuse, Load, Precision, Reading, Scheme, Setup, Stop};
 use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
 use crate::discretize::operator::{Compact, Operator, Paper, V3};
 use crate::distribute::comm::{exact_sum, Comm, Serial};
@@ -132,7 +132,7 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
     let dt_bound = comm.min(
         (0..n_owned)
             .filter(|&i| active[i])
-            .map(|i| dt_bound_node(setup.mass[i], setup.damping[i], setup.model.stiffness))
+            .map(|i| dt_bound_node(setup.mass[i], setup.damping[i], setup.model.stiffness()))
             .fold(f64::INFINITY, f64::min),
     );
     let path = setup.scenario.path.display();
@@ -179,8 +179,37 @@ fn build_stepper(
     })
 }
 
+/// The source density of a flux through a contact area (docs/model.md section 4): a contact
+/// node with share `area` of the contact area and control volume `vol` takes the energy density
+/// `q` in at the rate of a flux D q / l through its share, Q = (D / l) q a / V, with D the
+/// conductivity along the force (`d_cond`) and l the contact's length (`length`: a patch's
+/// radius). The steady potential then does not depend on D, and the total flux sum V_i Q_i
+/// = (D / l) q A not on the mesh.
+pub fn flux_source(d_cond: f64, length: f64, q: f64, area: f64, vol: f64) -> f64 {
+    d_cond / length * q * area / vol
+}
+
+/// What the continuum reading's sources need besides the loads: this process's conductivity
+/// tensors and control volumes (local numbering).
+#[derive(Clone, Copy)]
+struct Flux<'a> {
+    r: &'a [crate::discretize::material::Tensor],
+    vol: &'a [f64],
+}
+
+impl<'a> Flux<'a> {
+    /// Some in the continuum reading.
+    fn of(setup: &'a Setup, vol: &'a [f64]) -> Option<Flux<'a>> {
+        (setup.model.reading == Reading::Continuum).then_some(Flux { r: &setup.r, vol })
+    }
+}
+
 /// Per load: its contact area and force direction (summed over the owners of its contact
-/// nodes) and the owned contact nodes with their probe, force and source weights.
+/// nodes) and the owned contact nodes with their probe, force and source weights. In the
+/// continuum reading the force weight is 0 (loads push only through their source) and the
+/// source weight is the node's share a_i of the contact area; a load without a patch gets the
+/// length l = sqrt(A_c / pi) of its node's boundary dual area A_c (MODEL.md section 8: a
+/// singular source).
 #[allow(clippy::type_complexity)]
 fn resolve_loads(
     setup: &Setup,
@@ -192,9 +221,26 @@ fn resolve_loads(
     for i in 0..numbering.n_owned {
         local_of.insert(numbering.global[i], i as u32);
     }
+    let continuum = setup.model.reading == Reading::Continuum;
     let mut loads = setup.loads.clone();
     let mut load_local = Vec::new();
     for (k, l) in loads.iter_mut().enumerate() {
+        if continuum && !l.shares.is_empty() {
+            // a patch: its area and direction from its shares (the same on every process)
+            let an = norm(l.area_vector);
+            if let Some(mag) = l.normal {
+                l.force = scale(l.area_vector, -mag / an);
+            }
+            let mine = l
+                .nodes
+                .iter()
+                .zip(&l.weights)
+                .zip(&l.shares)
+                .filter_map(|((gn, &w), &a)| local_of.get(gn).map(|&li| (li, w, 0.0, a)))
+                .collect();
+            load_local.push(mine);
+            continue;
+        }
         let mine: Vec<(u32, f64)> = l
             .nodes
             .iter()
@@ -218,6 +264,17 @@ fn resolve_loads(
         if let Some(mag) = l.normal {
             l.force = scale(a, -mag / an);
         }
+        if continuum {
+            // one node (or a few): the flux enters through their boundary dual areas over
+            // the length of a disc of the same area
+            l.depth = Some((an / std::f64::consts::PI).sqrt());
+            let mine = mine
+                .iter()
+                .map(|&(li, w)| (li, w, 0.0, norm(dual.area[li as usize])))
+                .collect();
+            load_local.push(mine);
+            continue;
+        }
         // a patch: every contact node is pressed by F (the mechanics are nodal) and the source
         // enters through the patch surface as a flux
         let source = |li: u32, w: f64| match l.depth {
@@ -233,13 +290,32 @@ fn resolve_loads(
     Ok((loads, load_local))
 }
 
-/// The sources of loads as applied, on the owned contact nodes.
-fn load_sources(load_local: &[Vec<(u32, f64, f64, f64)>], applied: &[Applied]) -> Vec<(u32, V3)> {
+/// The sources of loads as applied, on the owned contact nodes: the paper's q times the
+/// source weight along F/|F|, or in the continuum reading the flux of `flux_source`.
+fn load_sources(
+    loads: &[Load],
+    load_local: &[Vec<(u32, f64, f64, f64)>],
+    applied: &[Applied],
+    flux: Option<Flux>,
+) -> Vec<(u32, V3)> {
     let mut q = Vec::new();
-    for (mine, a) in load_local.iter().zip(applied) {
+    for ((mine, a), l) in load_local.iter().zip(applied).zip(loads) {
         let fn_ = norm(a.force);
-        if fn_ > 0.0 {
-            q.extend(mine.iter().map(|&(i, _, _, sw)| (i, scale(a.force, sw * a.q / fn_))));
+        if !(fn_ > 0.0) {
+            continue;
+        }
+        match (flux, l.depth) {
+            (Some(fx), Some(length)) => {
+                let d = scale(a.force, 1.0 / fn_);
+                q.extend(mine.iter().map(|&(i, _, _, area)| {
+                    let r = &fx.r[i as usize];
+                    let rd = r * nalgebra::Vector3::from(d);
+                    let d_cond = d[0] * rd[0] + d[1] * rd[1] + d[2] * rd[2];
+                    let s = flux_source(d_cond, length, a.q, area, fx.vol[i as usize]);
+                    (i, scale(d, s))
+                }));
+            }
+            _ => q.extend(mine.iter().map(|&(i, _, _, sw)| (i, scale(a.force, sw * a.q / fn_)))),
         }
     }
     q
@@ -253,6 +329,7 @@ fn trial_sources(
     setup: &Setup,
     loads: &[Load],
     load_local: &[Vec<(u32, f64, f64, f64)>],
+    vol: &[f64],
     dt: f64,
 ) -> Option<[crate::propagate::integrate::choose::Trial; 2]> {
     const TRIAL_SEARCH: u64 = 1000;
@@ -272,7 +349,8 @@ fn trial_sources(
             .collect()
     };
     let first = (0..TRIAL_SEARCH).find(|&k| applied(k).iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0))?;
-    Some([first, first + 1].map(|k| load_sources(load_local, &applied(k))))
+    let flux = Flux::of(setup, vol);
+    Some([first, first + 1].map(|k| load_sources(loads, load_local, &applied(k), flux)))
 }
 
 /// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):
@@ -288,7 +366,7 @@ fn mechanics_step(
     u: &mut [V3],
     v: &mut [V3],
 ) -> f64 {
-    let (k, kappa, p) = (setup.model.stiffness, setup.model.coupling, setup.model.exponent);
+    let (k, kappa, p) = (setup.model.stiffness(), setup.model.coupling(), setup.model.exponent);
     let (mass, damp) = (&setup.mass, &setup.damping);
     const CH: usize = 4096;
     u.par_chunks_mut(CH)
@@ -418,7 +496,7 @@ impl Simulation {
         let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
         let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
         let (loads, load_local) = resolve_loads(&setup, &dual, &numbering, c)?;
-        let trial = trial_sources(&setup, &loads, &load_local, dt);
+        let trial = trial_sources(&setup, &loads, &load_local, &dual.vol, dt);
         let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, trial, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
@@ -484,7 +562,7 @@ impl Simulation {
 
     /// Replaces the mechanics step (and re-plans the propagation for it).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
-        let trial = trial_sources(&self.setup, &self.loads, &self.load_local, dt);
+        let trial = trial_sources(&self.setup, &self.loads, &self.load_local, &self.dual.vol, dt);
         self.stepper = build_stepper(
             &self.setup,
             &mut self.prop,
@@ -524,7 +602,8 @@ impl Simulation {
                 self.force[i as usize] = scale(a.force, fw);
             }
         }
-        load_sources(&self.load_local, &applied)
+        let flux = Flux::of(&self.setup, &self.dual.vol);
+        load_sources(&self.loads, &self.load_local, &applied, flux)
     }
 
     /// One mechanics step: the loads at t_n (and the tools' forces of the last step) give the

@@ -5,8 +5,15 @@ use crate::config::Scenario;
 use eprop_io::generate::{box_mesh, BoxCells};
 
 /// A setup on the unit box of 2 x 2 x 2 hexahedra (27 nodes, spacing 0.5), its left face
-/// fixed, with extra scenario keys.
+/// fixed, with extra scenario keys, in the paper's reading unless they name one.
 fn setup(keys: &str) -> Setup {
+    let keys = if keys.contains("reading =") {
+        keys.to_string()
+    } else if keys.contains("[model]\n") {
+        keys.replacen("[model]\n", "[model]\nreading = \"paper\"\n", 1)
+    } else {
+        format!("{keys}[model]\nreading = \"paper\"\n")
+    };
     let text = format!("[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"xmin\"\n{keys}");
     let sc = Scenario::parse(std::path::Path::new("s.toml"), text).unwrap();
     Setup::with_mesh(sc, box_mesh([1.0; 3], [2; 3], BoxCells::Hex).unwrap()).unwrap()
@@ -54,8 +61,8 @@ fn the_mechanics_bound_separates_decay_from_growth() {
         let active: Vec<bool> = (0..n).map(|i| !s.fixed[i]).collect();
         let (dt, bound) = mechanics_dt(&s, &active, n, &Serial).unwrap();
         assert_eq!(dt, SAFETY * bound);
-        assert_eq!(bound, dt_bound_node(2.0, s.damping[0], s.model.stiffness));
-        if s.model.stiffness > 0.0 {
+        assert_eq!(bound, dt_bound_node(2.0, s.damping[0], s.model.stiffness()));
+        if s.model.stiffness() > 0.0 {
             // bounded below it (undamped: on an ellipse at most 1 / sqrt(1 - 0.9^2) wide)
             assert!(free_swing(&s, 0.9 * bound) < 2.5, "{model}");
             assert!(free_swing(&s, 1.01 * bound) > 1e3, "{model}");
@@ -113,4 +120,36 @@ fn a_load_takes_the_area_and_inward_normal_of_its_contact() {
         e.contains("load 1 on node 14: the node is inside the volume") && e.contains("fix:"),
         "{e}"
     );
+}
+
+#[test]
+fn a_continuum_load_pushes_only_through_its_flux() {
+    // Q = (D / l) q a / V
+    assert_eq!(
+        flux_source(0.2, 0.5, 3.0, 0.25, 0.0625),
+        0.2 / 0.5 * 3.0 * 0.25 / 0.0625
+    );
+    // one node: no nodal force, the flux through its boundary dual area A over l = sqrt(A / pi)
+    let top = "[model]\nreading = \"continuum\"\n[material]\nconductivity = [0.1, 0.1, 0.3]\n[time]\nsteps = 1\n[[load]]\nnearest = [0.5, 0.5, 1.0]\nnormal = 2.0\n";
+    let mut sim = Simulation::new(setup(top)).unwrap();
+    let l = sim.loads[0].clone();
+    assert_eq!(
+        (l.area, l.force, l.depth),
+        (0.25, [0.0, 0.0, -2.0], Some((0.25 / std::f64::consts::PI).sqrt()))
+    );
+    let local = sim.local(l.nodes[0]).unwrap() as u32;
+    assert_eq!(sim.load_local[0], [(local, 1.0, 0.0, 0.25)]);
+    let q = sim.sources(0.0);
+    assert!(sim
+        .force
+        .iter()
+        .all(|f| *f == [0.0; 3] || *f == [-0.0; 3] || f.iter().all(|x| *x == 0.0)));
+    let want = flux_source(
+        0.3,
+        l.depth.unwrap(),
+        sim.setup.law.energy_density(8.0),
+        0.25,
+        sim.dual.vol[local as usize],
+    );
+    assert_eq!(q, vec![(local, [0.0, 0.0, -want])]);
 }

@@ -80,7 +80,20 @@ pub fn tool(name: &str) -> bool {
     ok
 }
 
-/// A scenario from text, resolved against a mesh already in memory.
+/// A scenario text in the paper's reading (`[model] reading = "paper"`) unless it names a
+/// reading: the cases written before the continuum reading.
+pub fn paper(toml: &str) -> String {
+    if toml.contains("reading =") {
+        toml.to_string()
+    } else if toml.contains("[model]\n") {
+        toml.replacen("[model]\n", "[model]\nreading = \"paper\"\n", 1)
+    } else {
+        format!("{toml}[model]\nreading = \"paper\"\n")
+    }
+}
+
+/// A scenario from text (in the paper's reading unless it names one, `paper`), resolved
+/// against a mesh already in memory.
 pub fn setup(mesh: Mesh, toml: &str, dir: &Path) -> Setup {
     setup_with(mesh, toml, dir, &[])
 }
@@ -89,7 +102,7 @@ pub fn setup(mesh: Mesh, toml: &str, dir: &Path) -> Setup {
 /// memory.
 pub fn setup_with(mesh: Mesh, toml: &str, dir: &Path, sets: &[String]) -> Setup {
     let path = dir.join("test.toml");
-    let full = format!("[mesh]\nfile = \"unused.msh\"\n{toml}");
+    let full = paper(&format!("[mesh]\nfile = \"unused.msh\"\n{toml}"));
     let full = eprop::config::set::apply(&full, sets).expect("overrides apply");
     let sc = Scenario::parse(&path, full).expect("scenario parses");
     Setup::with_mesh(sc, mesh).expect("scenario resolves")
