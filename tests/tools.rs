@@ -536,3 +536,52 @@ fn a_run_with_tools_is_not_restarted() {
         "{err}"
     );
 }
+
+#[test]
+fn check_warns_of_a_tool_as_of_a_load_in_metres() {
+    // a 0.18 x 0.1 x 0.1 box (an organ in metres read as mm) pressed by a 10 mm sphere moving
+    // 1 unit per time; one never reaching it; one too small to press more than a speck
+    let d = tempfile::tempdir().unwrap();
+    eprop_io::write_mesh(
+        &box_mesh([0.18, 0.1, 0.1], [9, 5, 5], BoxCells::Tet).unwrap(),
+        &d.path().join("m.msh"),
+    )
+    .unwrap();
+    for (tool, want) in [
+        (
+            "radius = 0.01\nstart = [0.1, 0.06, 0.12]\nvelocity = [0, 0, -0.05]",
+            "times [tissue] young = 100, far outside the tissue law's range",
+        ),
+        (
+            "radius = 0.01\nstart = [0.1, 0.06, 0.5]\nvelocity = [0, 0, -0.0001]",
+            "it never reaches the organ's surface by t = ",
+        ),
+        ("radius = 1e-6\nstart = [0.09, 0.05, 0.1]", "it presses a speck"),
+    ] {
+        let sc = d.path().join("s.toml");
+        std::fs::write(
+            &sc,
+            format!("[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\n{tool}\n[time]\nsteps = 100\n"),
+        )
+        .unwrap();
+        let out = common::serial(&["check", sc.to_str().unwrap()], 1);
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            text.contains("warning") && text.contains("tool 1: ") && text.contains(want),
+            "{tool}: {text}"
+        );
+        assert!(
+            text.contains("if it is in metres, `[mesh] scale = 1000` reads it in millimetres"),
+            "{text}"
+        );
+    }
+    // the demo gets none
+    let demo = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/cylinder_indent.toml");
+    let out = common::serial(&["check", demo.to_str().unwrap()], 1);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && !text.contains("tool 1: "), "{text}");
+}
