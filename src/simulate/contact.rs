@@ -392,4 +392,92 @@ mod tests {
         assert_eq!(depth(&s, c, [0.6, 0.0, 1.25]), f64::NEG_INFINITY);
         assert_eq!(project(&s, c, [0.3, 0.2, 1.25]), [0.3, 0.2, 1.0]);
     }
+
+    #[test]
+    fn the_overlap_is_along_the_path_and_passes_the_radius() {
+        // a sphere of radius 1 moving down (-z) onto the plane z = 0, centre at height 1 - D
+        let s = Shape::Sphere { radius: 1.0 };
+        let d = Some([0.0, 0.0, -1.0]);
+        for depth in [-0.5, 0.0, 0.3, 1.0, 1.7, 2.5] {
+            let c = [0.0, 0.0, 1.0 - depth];
+            // the node under the centre: the depth itself, past the radius and the diameter
+            assert!((overlap(&s, c, d, [0.0; 3]) - depth).abs() < 1e-15, "{depth}");
+            // a node at r = 0.6: sqrt(1 - 0.36) - (1 - D)
+            let o = overlap(&s, c, d, [0.6, 0.0, 0.0]);
+            assert!((o - (0.8 - 1.0 + depth)).abs() < 1e-15, "{depth}: {o}");
+            // beside the path: never touched
+            assert_eq!(overlap(&s, c, d, [1.2, 0.0, 0.0]), f64::NEG_INFINITY);
+        }
+        // without a direction: the radial depth
+        assert!((overlap(&s, [0.0, 0.0, 0.5], None, [0.6, 0.0, 0.0]) - (1.0 - 0.61f64.sqrt())).abs() < 1e-15);
+        // a punch: the face's offset along its normal, whatever the direction given
+        let p = Shape::Punch {
+            radius: 0.5,
+            normal: [0.0, 0.0, -1.0],
+        };
+        assert_eq!(
+            overlap(&p, [0.0, 0.0, -0.25], Some([1.0, 0.0, 0.0]), [0.3, 0.0, 0.0]),
+            0.25
+        );
+    }
+
+    #[test]
+    fn the_law_is_zero_without_overlap_and_smooth_at_first_touch() {
+        let law = TissueLaw { young: 10.0, beta: 2.0 };
+        let e0 = SMOOTH_STRAIN;
+        assert_eq!(contact_strain(0.0), 0.0);
+        assert_eq!(contact_strain(-1.0), 0.0);
+        assert_eq!(contact_strain(f64::NEG_INFINITY), 0.0);
+        assert!((contact_strain(e0) - e0 / 2.0).abs() < 1e-18);
+        assert!((contact_strain(0.3) - (0.3 - e0 / 2.0)).abs() < 1e-16);
+        // the exponential law's stress at the strain of the overlap
+        let p = pressure(&law, 0.6, 2.0);
+        assert!(
+            (p - 10.0 / 2.0 * ((2.0 * (0.3 - e0 / 2.0)).exp() - 1.0)).abs() < 1e-13,
+            "{p}"
+        );
+        // stress and strain are inverse
+        for sigma in [1e-6, 0.5, 3.0, 40.0] {
+            assert!((law.stress(law.strain(sigma)) - sigma).abs() < 1e-12 * sigma.max(1.0));
+        }
+    }
+
+    #[test]
+    fn a_path_keeps_its_pressing_direction_through_hold_and_withdrawal() {
+        use crate::config::tables::History;
+        let mut h = History::empty();
+        for row in [
+            [0.0, 0.0, 0.0, 1.0],
+            [1.0, 0.0, 0.0, 0.5],
+            [2.0, 0.0, 0.0, 0.5],
+            [3.0, 0.0, 0.0, 0.9],
+        ] {
+            h.push(row).unwrap();
+        }
+        let mut run = ToolRun::new(Tool {
+            shape: Shape::Sphere { radius: 0.2 },
+            path: Trajectory::Table(h),
+            live: false,
+            foundation: 0.2,
+        });
+        run.start_at(run.tool.path.at(0.0));
+        assert_eq!(run.direction(), None, "not moved yet");
+        for k in 1..=30 {
+            let t = 0.1 * k as f64;
+            run.observe(run.tool.path.at(t));
+            assert_eq!(run.direction(), Some([0.0, 0.0, -1.0]), "t = {t}");
+        }
+        // a straight path: its velocity's direction from the start, even before it moves
+        let run = ToolRun::new(Tool {
+            shape: Shape::Sphere { radius: 0.2 },
+            path: Trajectory::Linear {
+                start: [0.0; 3],
+                velocity: [0.0, 3e300, 4e300],
+            },
+            live: false,
+            foundation: 0.2,
+        });
+        let d = run.direction().unwrap();
+        assert!((d[1] - 0.6).abs() < 1e-15 && (d[2] - 0.8).abs() < 1e-15, "{d:?}");
+    }
 }
