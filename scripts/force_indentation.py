@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """Force against indentation of the tools of eprop runs (an indentation test).
 
-The indentation is how deep the tool is in the undeformed organ (/eprop/tools/indentation:
-its largest overlap with the rest surface; negative while it approaches); the force is |F|,
-the force the tool exerts on the organ (the sum of the reactions of its contact nodes). A
+The indentation is how deep the tool is below the undeformed organ along its path
+(/eprop/tools/indentation: how far it must move back along its direction of motion to leave
+the rest surface; negative while it approaches); the force is |F|, the force the tool exerts
+on the organ (the elastic foundation's pressures on the rest surface, docs/tools.md). A
 press, hold and retreat draws the loading and the unloading branch.
 
 examples:
@@ -43,7 +44,7 @@ def main():
         line = at.plot(t["time"], force, label=f"{label}: |F|")[0]
         ad.plot(t["time"], depth, "--", lw=1, color=line.get_color(), label=f"{label}: indentation")
         s.close()
-    ax.set_xlabel("indentation (depth of the tool in the undeformed organ)")
+    ax.set_xlabel("indentation (depth of the tool below the undeformed surface, along its path)")
     ax.set_ylabel("tool force |F|")
     ax.axvline(0.0, color="k", lw=0.5)
     ax.grid(alpha=0.3)

@@ -172,7 +172,7 @@ fn a_tool_pressing_the_cylinder() {
     let path = std::fs::read_to_string(root.join("cylinder_indent_path.csv")).unwrap();
     against_euler(
         mesh,
-        "[material]\nmass = 1.0\ndamping = 2.0\nconductivity = 0.5\n[[fixed]]\ngroup = \"bottom\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.8\ntable = \"path.csv\"\n[time]\nend = 100.0\n",
+        "[tissue]\nyoung = 1.0\n[material]\nmass = 1.0\ndamping = 2.0\nconductivity = 0.5\n[[fixed]]\ngroup = \"bottom\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.8\ntable = \"path.csv\"\n[time]\nend = 100.0\n",
         &[("path.csv", &path)],
         &["rkl2", "implicit", "auto"],
     );
@@ -187,7 +187,7 @@ fn a_sphere_pressing_the_sofa_liver() {
     let mesh = eprop_io::read_mesh(&path).unwrap();
     against_euler(
         mesh,
-        "[material]\nconductivity = 0.05\n[[fixed]]\nhalfspace = { point = [-3.8, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[tool]]\nshape = \"sphere\"\nradius = 0.8\nstart = [0.0, 5.9, 0.5]\nvelocity = [0.0, -0.004, 0.0]\n[time]\nsteps = 200\n",
+        "[tissue]\nyoung = 1.0\n[material]\nconductivity = 0.05\n[[fixed]]\nhalfspace = { point = [-3.8, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[tool]]\nshape = \"sphere\"\nradius = 0.8\nstart = [0.0, 5.9, 0.5]\nvelocity = [0.0, -0.004, 0.0]\n[time]\nsteps = 200\n",
         &[],
         &["rkl2", "implicit", "implicit+multigrid", "auto"],
     );

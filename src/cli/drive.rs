@@ -185,10 +185,15 @@ pub fn check(sim: &Simulation, s: &Settings) -> Result<Checked> {
         space(sim, &budget, s)?;
     }
     let root = sim.comm().rank() == 0;
-    let warnings = match &sim.global_mesh() {
+    let mut warnings = match &sim.global_mesh() {
         Some(mesh) if root => plausible::load_warnings(sim, mesh),
         _ => vec![],
     };
+    // every process takes part (reductions); rank 0 keeps them
+    let tools = plausible::tool_warnings(sim);
+    if root {
+        warnings.extend(tools);
+    }
     if root && !s.quiet {
         for w in &warnings {
             eprintln!("warning: {w}");

@@ -293,6 +293,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     let mesh = sim.global_mesh().unwrap_or(&sim.setup().mesh);
     let mut warnings = crate::output::summary::warnings(&sim, mesh);
     warnings.extend(crate::guard::plausible::load_warnings(&sim, mesh));
+    warnings.extend(crate::guard::plausible::tool_warnings(&sim));
     if sim.loads.iter().any(|l| l.nodes.len() == 1) {
         warnings.push(
             "a load on a single node is mesh-dependent (the source is singular); a `patch = { center, radius }` is not"

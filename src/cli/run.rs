@@ -74,7 +74,7 @@ fn resolve(scenario: Scenario, opts: &RunOptions) -> Result<Setup> {
     if let Some(r) = &opts.restart {
         if !setup.tools.is_empty() {
             bail!(
-                "{}: --restart cannot continue a run with [[tool]] tables (a tool's contact set and last reaction are not stored in the series); fix: run the scenario again from the start",
+                "{}: --restart cannot continue a run with [[tool]] tables (the direction of motion a tool's path has had so far, which its indentation and pressure are measured along, is not stored in the series); fix: run the scenario again from the start",
                 r.display()
             );
         }

@@ -3,7 +3,7 @@
 //! its path (`start` and `velocity`, or a CSV `table` of `t, x, y, z`) are checked while
 //! parsing; the table is read when the scenario is resolved.
 
-use super::values::{positive, Point};
+use super::values::{opt_positive, positive, Point};
 use super::Scenario;
 use crate::config::tables::{read_table, History};
 use anyhow::Result;
@@ -29,6 +29,10 @@ pub struct ToolSec {
     pub shape: ShapeName,
     #[serde(deserialize_with = "positive")]
     pub radius: f64,
+    /// The depth of the elastic foundation the contact pressure is measured against (a
+    /// length; default: the radius).
+    #[serde(default, deserialize_with = "opt_positive")]
+    pub foundation: Option<f64>,
     /// The punch's pressing direction (from its face into the organ).
     pub normal: Option<Point>,
     pub start: Option<Point>,
@@ -93,6 +97,8 @@ pub struct Tool {
     pub shape: Shape,
     pub path: Trajectory,
     pub live: bool,
+    /// The foundation depth h: a rest overlap delta gives the contact strain delta / h.
+    pub foundation: f64,
 }
 
 /// The combinations of keys a tool takes.
@@ -161,6 +167,7 @@ pub fn resolve(sc: &Scenario, tools: &[Spanned<ToolSec>]) -> Result<Vec<Tool>> {
             shape,
             path,
             live: sec.live,
+            foundation: sec.foundation.unwrap_or(sec.radius),
         });
     }
     Ok(out)
@@ -190,6 +197,7 @@ mod tests {
         assert_eq!(t[0].shape, Shape::Sphere { radius: 0.5 });
         assert_eq!(t[0].path.at(0.25), [0.0, 0.0, 1.75]);
         assert!(!t[0].live);
+        assert_eq!(t[0].foundation, 0.5, "the foundation defaults to the radius");
         let t = tools(
             "shape = \"punch\"\nradius = 0.2\nnormal = [0, 0, -2]\ntable = \"p.csv\"\nlive = true",
             &[("p.csv", "t,x,y,z\n0,0,0,1\n1,0,0,0\n")],
@@ -204,6 +212,12 @@ mod tests {
         );
         assert_eq!(t[0].path.at(0.5), [0.0, 0.0, 0.5]);
         assert!(t[0].live);
+        let t = tools(
+            "shape = \"sphere\"\nradius = 0.5\nfoundation = 2\nstart = [0, 0, 2]",
+            &[],
+        )
+        .unwrap();
+        assert_eq!(t[0].foundation, 2.0);
         // a normal whose length overflows is still a direction
         let t = tools(
             "shape = \"punch\"\nradius = 0.2\nnormal = [1e300, 1e300, 0]\nstart = [0, 0, 1]",
@@ -224,6 +238,7 @@ mod tests {
             ("shape = \"cube\"\nradius = 1\nstart = [0, 0, 0]", "s.toml:6:9: [tool] shape: `cube` is not one of the accepted values; fix: use \"sphere\" or \"punch\""),
             ("shape = \"sphere\"\nradius = 0\nstart = [0, 0, 0]", "[tool] radius: 0 must be a positive number"),
             ("shape = \"sphere\"\nstart = [0, 0, 0]", "missing field `radius`"),
+            ("shape = \"sphere\"\nradius = 1\nfoundation = -1\nstart = [0, 0, 0]", "[tool] foundation: -1 must be a positive number"),
             ("shape = \"sphere\"\nradius = 1\nstart = [0, 0, 0]\ncolour = 1", "unknown field `colour`"),
             ("shape = \"sphere\"\nradius = 1\nstart = [0, nan, 0]", "[tool] start: has a non-finite component"),
             ("shape = \"sphere\"\nradius = 1\nnormal = [0, 0, 1]\nstart = [0, 0, 0]", "s.toml:5: [tool]: a sphere has no `normal`; fix: drop `normal`"),

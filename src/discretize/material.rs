@@ -51,6 +51,15 @@ impl TissueLaw {
             e / (b * b) * d
         }
     }
+    /// Stress sigma(eps), the inverse of `strain`: E eps, or (E/beta)(exp(beta eps) - 1).
+    pub fn stress(&self, strain: f64) -> f64 {
+        let (e, b) = (self.young, self.beta);
+        if b == 0.0 {
+            e * strain
+        } else {
+            e / b * (b * strain).exp_m1()
+        }
+    }
     /// Strain eps(sigma).
     pub fn strain(&self, sigma: f64) -> f64 {
         if self.beta == 0.0 {

@@ -1,5 +1,6 @@
 //! Warnings about results that are computed correctly but mean little: a source far outside
-//! the tissue law's range (often a units mistake), a contact area too small for its mesh, a
+//! the tissue law's range (often a units mistake; for loads and tools), a contact area too
+//! small for its mesh, a tool that never reaches the organ, a
 //! `nearest` point far from the node it picks, and displacements past small-deformation
 //! validity. None of them changes a number. And the check that stops a run whose state is no
 //! longer finite.
@@ -41,20 +42,25 @@ fn peak_scale(ramp: &Option<Vec<[f64; 2]>>) -> f64 {
         .unwrap_or(1.0)
 }
 
+/// The hint added to a load's or tool's warning when a small mesh may be in metres: the paper
+/// reading takes coordinates as they are (the continuum reading knows its unit, and
+/// `scale_warnings` judges its size).
+fn metres_hint(sim: &Simulation, diag: f64) -> String {
+    let ms = &sim.setup().scenario.file.mesh;
+    let paper = sim.setup().model.reading == Reading::Paper;
+    if paper && diag < 2.0 && ms.scale.is_none() && ms.unit.is_none() {
+        format!("; the mesh spans {diag:.3} units: if it is in metres, `[mesh] scale = 1000` reads it in millimetres")
+    } else {
+        String::new()
+    }
+}
+
 /// Warnings about the loads of a simulation on its whole mesh (the process that holds it).
 pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
     let mut out = Vec::new();
     let diag = diagonal(mesh);
     let young = sim.setup().law.young;
-    let ms = &sim.setup().scenario.file.mesh;
-    let paper = sim.setup().model.reading == Reading::Paper;
-    // the paper reading takes coordinates as they are: a small organ may be in metres (the
-    // continuum reading knows its unit, and `scale_warnings` judges its size)
-    let metres = if paper && diag < 2.0 && ms.scale.is_none() && ms.unit.is_none() {
-        format!("; the mesh spans {diag:.3} units: if it is in metres, `[mesh] scale = 1000` reads it in millimetres")
-    } else {
-        String::new()
-    };
+    let metres = metres_hint(sim, diag);
     let entries = &sim.setup().scenario.file.load;
     for (k, l) in sim.loads.iter().enumerate() {
         let f = norm(l.force) * peak_scale(&l.ramp);
@@ -181,6 +187,81 @@ pub fn scale_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
             short(st.law.young),
             short(d.young)
         ));
+    }
+    out
+}
+
+/// At most this many instants of a tool's path are looked at by `tool_warnings`.
+const TOOL_SAMPLES: usize = 1000;
+
+/// Warnings about the tools of a simulation, as for loads (`load_warnings`): a contact
+/// pressure past the tissue law's range at the deepest point of the path, a tool too small for
+/// the mesh, a tool that never reaches the organ; each with the hint about a mesh in metres.
+/// Live tools (moved by a client) are not looked at. Every process calls (reductions).
+pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
+    let mut out = Vec::new();
+    if sim.tools.is_empty() {
+        return out;
+    }
+    let (lo, hi) = sim.mesh().bounds();
+    let m = sim.comm().max_each(&[hi[0], hi[1], hi[2], -lo[0], -lo[1], -lo[2]]);
+    let diag = norm([m[0] + m[3], m[1] + m[4], m[2] + m[5]]);
+    let young = sim.setup().law.young;
+    let metres = metres_hint(sim, diag);
+    let end = sim.max_steps() as f64 * sim.dt();
+    for (k, run) in sim.tools.iter().enumerate() {
+        let tool = &run.tool;
+        let radius = tool.shape.radius();
+        if std::f64::consts::PI * radius * radius < AREA_FRACTION * diag * diag {
+            out.push(format!(
+                "tool {}: its radius {} gives it an area below {AREA_FRACTION:e} of the squared extent of the mesh ({:.4e}): it presses a speck, between nodes; fix: check the radius and the units{metres}",
+                k + 1,
+                short(radius),
+                diag * diag
+            ));
+        }
+        if tool.live {
+            continue;
+        }
+        let mut times = vec![0.0];
+        if let crate::config::Trajectory::Table(h) = &tool.path {
+            let rows: Vec<f64> = h.rows().iter().map(|r| r[0]).filter(|&t| t > 0.0 && t < end).collect();
+            let stride = rows.len().div_ceil(TOOL_SAMPLES).max(1);
+            times.extend(rows.iter().step_by(stride));
+        }
+        if end > 0.0 {
+            times.push(end);
+        }
+        let states = sim.tool_survey(k, &times);
+        let (deepest, at) = states
+            .iter()
+            .zip(&times)
+            .map(|(s, &t)| (s.indentation, t))
+            .fold((f64::NEG_INFINITY, 0.0), |a, b| if b.0 > a.0 { b } else { a });
+        if !(deepest > 0.0) {
+            let gap = if deepest.is_finite() {
+                format!("it stays {:.4e} away from it", -deepest)
+            } else {
+                "its path misses it".into()
+            };
+            out.push(format!(
+                "tool {}: it never reaches the organ's surface by t = {end:.4e} ({gap}); fix: check its start, velocity or path table and the units{metres}",
+                k + 1,
+            ));
+            continue;
+        }
+        let h = tool.foundation;
+        let p = crate::simulate::contact::pressure(&sim.setup().law, deepest, h);
+        if p / young > STRESS_RATIO {
+            out.push(format!(
+                "tool {}: at t = {at:.4e} it is {deepest:.4e} deep in the rest surface, a contact strain of {:.3e} on its foundation {}: the contact pressure {p:.4e} is {:.3e} times [tissue] young = {}, far outside the tissue law's range (up to {STRESS_RATIO}): the source and the displacements will be far too large; fix: check the path, `foundation`, young and the units{metres}",
+                k + 1,
+                deepest / h,
+                short(h),
+                p / young,
+                short(young)
+            ));
+        }
     }
     out
 }

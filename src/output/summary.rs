@@ -25,7 +25,8 @@ pub struct ToolSummary {
     pub shape: String,
     pub radius: f64,
     pub position: [f64; 3],
-    /// The force the tool exerts on the organ (sum of the reactions of its contact nodes).
+    /// The force the tool exerts on the organ (the elastic foundation: -sum p_i A_i over the
+    /// surface nodes it overlaps at rest; docs/tools.md).
     pub force: [f64; 3],
     pub contact_nodes: u64,
     pub contact_area: f64,

@@ -1,32 +1,45 @@
-//! Tools at run time (docs/tools.md has the equations): each mechanics step the owned surface
-//! nodes a tool reaches are held on its surface, the reaction that holds them is summed over
-//! the contact set (exactly, so every process agrees), and that force feeds the energy
-//! source of the next step through the contact area, as a patch load of the tool's radius.
+//! Tools at run time (docs/tools.md has the equations): an elastic-foundation (Winkler)
+//! contact. The pressure on a surface node is the tissue law's stress at the strain of the
+//! tool's overlap with the node's REST position, p_i = sigma(delta_i / h); the tool's force is
+//! F = -sum_i p_i A_i over the surface nodes (A_i the outward boundary dual area vector), summed
+//! exactly so every process agrees, and each pressed node gets an energy source along its
+//! inward normal (`contact_source`). The force is a continuous function of the tool's position
+//! and does not depend on the displacement, so every integrator and process count gives the
+//! same bits. Nodes whose deformed position enters the tool are still moved onto its surface,
+//! so nothing penetrates; that projection does not feed the force or the source.
 //!
-//! Per node everything depends only on the node's own state and the tool's position, so the
-//! contact set, the reactions and their sums are the same on any number of processes.
+//! Per node everything depends only on the node's own rest geometry (and, for the projection,
+//! its own state) and the tool's position, so the contact set, the pressures and their sums
+//! are the same on any number of processes.
 
-use crate::config::{Shape, Tool};
+use crate::config::{Shape, Tool, Trajectory};
 use crate::discretize::material::TissueLaw;
 use crate::discretize::operator::V3;
 use crate::distribute::comm::{exact_sums, Comm};
 use eprop_io::geom::{dot, norm, scale, sub};
+
+/// Below this contact strain (delta / h) the pressure rises quadratically, so that a node's
+/// pressure, and the force, are continuously differentiable in the tool position when the node
+/// is first touched (`contact_strain`).
+pub const SMOOTH_STRAIN: f64 = 0.01;
 
 /// What a tool did at the end of a mechanics step (the same on every process).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ToolState {
     /// The tool position (sphere centre, punch face centre) at the step's time.
     pub position: V3,
-    /// The sum of the reactions over the contact set: the force the tool exerts on the organ
-    /// (the organ pushes back on the tool with its opposite).
+    /// The force the tool exerts on the organ, F = -sum_i p_i A_i over the pressed surface
+    /// nodes (the organ pushes back on the tool with its opposite).
     pub force: V3,
+    /// Surface nodes with a contact pressure p_i > 0.
     pub contact_nodes: u64,
-    /// |sum of the contact nodes' boundary dual area vectors| (the projected contact area).
+    /// sum of |A_i| over those nodes: the contact area.
     pub contact_area: f64,
-    /// How deep the tool is in the undeformed organ: the largest overlap of the tool with the
-    /// rest position of a surface node (negative: the smallest gap).
+    /// How deep the tool is below the undeformed surface along its path: the largest distance
+    /// it must move back along its direction of motion until it overlaps no rest surface node
+    /// (negative: the gap it must still travel; -inf when its path meets no surface node).
     pub indentation: f64,
-    /// The contact nodes' displacement, mean weighted by |A_i| (zero without contact).
+    /// The pressed nodes' displacement, mean weighted by |A_i| (zero without contact).
     pub displacement: V3,
 }
 
@@ -44,6 +57,29 @@ pub fn depth(shape: &Shape, c: V3, x: V3) -> f64 {
                 f64::NEG_INFINITY
             }
         }
+    }
+}
+
+/// The overlap of the tool at `c` with a rest point x, along the tool's direction of motion
+/// `dir` (unit): how far the tool must move back along `dir` until x is no longer inside it
+/// (> 0: x is inside or behind it; < 0: the distance the tool must still travel to reach x;
+/// -inf: its path misses x). For a sphere, the largest s with |x - (c - s dir)| = R; without
+/// a direction (a tool that has not moved yet), its radial depth R - |x - c|. For a punch, the
+/// face's offset past x along its normal (`depth`), whatever the path.
+pub fn overlap(shape: &Shape, c: V3, dir: Option<V3>, x: V3) -> f64 {
+    match (*shape, dir) {
+        (Shape::Sphere { radius }, Some(d)) => {
+            let w = sub(x, c);
+            let b = dot(w, d);
+            let perp = norm(sub(w, scale(d, b)));
+            if perp > radius {
+                f64::NEG_INFINITY
+            } else {
+                // (radius - perp)(radius + perp): no cancellation near the rim
+                ((radius - perp) * (radius + perp)).sqrt() - b
+            }
+        }
+        _ => depth(shape, c, x),
     }
 }
 
@@ -67,23 +103,70 @@ pub fn project(shape: &Shape, c: V3, x: V3) -> V3 {
     }
 }
 
+/// The contact strain of an overlap strain e = delta / h, regularised below SMOOTH_STRAIN = e0:
+/// e^2 / (2 e0) for 0 < e < e0, e - e0/2 above (value and slope continuous), 0 for e <= 0.
+pub fn contact_strain(e: f64) -> f64 {
+    const E0: f64 = SMOOTH_STRAIN;
+    if !(e > 0.0) {
+        0.0
+    } else if e < E0 {
+        e * e / (2.0 * E0)
+    } else {
+        e - 0.5 * E0
+    }
+}
+
+/// The elastic foundation: the contact pressure of a rest overlap delta on a foundation of
+/// depth h, the tissue law's stress at the regularised strain (0 without overlap).
+pub fn pressure(law: &TissueLaw, delta: f64, h: f64) -> f64 {
+    law.stress(contact_strain(delta / h))
+}
+
+/// The magnitude of a pressed node's energy source, |Q_i|, from the energy density q = q(p_i)
+/// of its pressure, its boundary dual area |A_i|, its control volume V_i and the tool's length
+/// scale (its radius): in the paper's per-node reading q |A_i| length / V_i, as a patch load of
+/// that radius puts it in; in the continuum reading (`d_cond`: the node's conductivity along
+/// the pressing direction) the flux of a patch load, (D / length) q |A_i| / V_i
+/// (`super::flux_source`).
+pub fn contact_source(q: f64, area: f64, vol: f64, length: f64, d_cond: Option<f64>) -> f64 {
+    match d_cond {
+        Some(d) => super::flux_source(d, length, q, area, vol),
+        None => q * area * length / vol,
+    }
+}
+
+/// A unit vector along v, None for a zero vector (scaled by its largest component first, so
+/// a vector of 1e300 is a direction, not inf).
+fn unit(v: V3) -> Option<V3> {
+    let m = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if !(m > 0.0 && m.is_finite()) {
+        return None;
+    }
+    let d = scale(v, 1.0 / m);
+    Some(scale(d, 1.0 / norm(d)))
+}
+
 /// One tool of a running simulation.
+#[derive(Clone)]
 pub struct ToolRun {
     pub tool: Tool,
     /// The state at the end of the last step.
     pub state: ToolState,
-    /// Owned contact nodes of the last step with their source weights |A_i| rho / V_i.
-    contact: Vec<(u32, f64)>,
+    /// Where the tool was when the run started (`at_rest`), and the position farthest from it
+    /// it has been at, at a step's time: they give a path's direction of motion.
+    origin: V3,
+    reach: V3,
+    reach_distance: f64,
 }
 
-/// The per-node geometry and material the tools need (this process's local arrays).
+/// The per-node geometry the tools need (this process's local arrays).
 pub struct Nodes<'a> {
     /// Owned surface nodes that move (local indices): the candidates for contact.
     pub surface: &'a [u32],
     pub points: &'a [V3],
+    /// Outward boundary dual area vectors A_i.
     pub area: &'a [V3],
     pub vol: &'a [f64],
-    pub mass: &'a [f64],
 }
 
 impl ToolRun {
@@ -91,22 +174,119 @@ impl ToolRun {
         ToolRun {
             tool,
             state: ToolState::default(),
-            contact: Vec::new(),
+            origin: [0.0; 3],
+            reach: [0.0; 3],
+            reach_distance: 0.0,
         }
     }
 
-    /// Adds the tool's energy source for the next step to `q`: the last step's force F over
-    /// its contact set C, sigma = |F| / |sum_C A_i|, Q_i = q(sigma) F/|F| |A_i| rho / V_i with rho
-    /// the tool radius (a patch load of force F and radius rho on C).
-    pub fn sources(&self, law: &TissueLaw, q: &mut Vec<(u32, V3)>) {
-        let f = self.state.force;
-        let fnorm = norm(f);
-        if !(fnorm > 0.0 && self.state.contact_area > 0.0) {
-            return;
+    /// Restarts the record of the path at the tool's position `c`.
+    fn start_at(&mut self, c: V3) {
+        (self.origin, self.reach, self.reach_distance) = (c, c, 0.0);
+    }
+
+    /// Records the tool at position `c` (a step's time).
+    fn observe(&mut self, c: V3) {
+        let d = norm(sub(c, self.origin));
+        if d > self.reach_distance {
+            (self.reach, self.reach_distance) = (c, d);
         }
-        let qd = law.energy_density(fnorm / self.state.contact_area);
-        for &(i, w) in &self.contact {
-            q.push((i, scale(f, w * qd / fnorm)));
+    }
+
+    /// The tool's direction of motion: a straight path's velocity; for a path table or a live
+    /// tool, from where it was at the start of the run to the farthest point from there it has
+    /// reached at a step's time (so a press, a hold and a withdrawal along one line keep the
+    /// pressing direction); None while it has not moved.
+    pub fn direction(&self) -> Option<V3> {
+        if let Trajectory::Linear { velocity, .. } = self.tool.path {
+            if let Some(d) = unit(velocity) {
+                return Some(d);
+            }
+        }
+        if self.reach_distance > 0.0 {
+            unit(sub(self.reach, self.origin))
+        } else {
+            None
+        }
+    }
+
+    /// The pressures p_i > 0 of this process's surface nodes with the tool at `c`, and the
+    /// largest overlap of a surface node (this process's part of the indentation).
+    fn pressures(&self, c: V3, n: &Nodes, law: &TissueLaw) -> (Vec<(u32, f64)>, f64) {
+        let (shape, h) = (self.tool.shape, self.tool.foundation);
+        let dir = self.direction();
+        let mut most = f64::NEG_INFINITY;
+        let mut pressed = Vec::new();
+        for &i in n.surface {
+            let d = overlap(&shape, c, dir, n.points[i as usize]);
+            most = most.max(d);
+            let p = pressure(law, d, h);
+            if p > 0.0 {
+                pressed.push((i, p));
+            }
+        }
+        (pressed, most)
+    }
+
+    /// Adds the tool's energy source at time t (the start of the step) to `q`: each pressed
+    /// node gets contact_source(q(p_i), |A_i|, V_i, R) along its inward normal -A_i / |A_i|.
+    /// `conductivity`: the nodes' tensors in the continuum reading (None: the paper's).
+    pub fn sources(
+        &mut self,
+        t: f64,
+        n: &Nodes,
+        law: &TissueLaw,
+        conductivity: Option<&[crate::discretize::material::Tensor]>,
+        q: &mut Vec<(u32, V3)>,
+    ) {
+        let c = self.tool.path.at(t);
+        self.observe(c);
+        let rho = self.tool.shape.radius();
+        for (i, p) in self.pressures(c, n, law).0 {
+            let ar = n.area[i as usize];
+            let a = norm(ar);
+            let d_cond = conductivity.map(|r| {
+                let d = nalgebra::Vector3::new(ar[0] / a, ar[1] / a, ar[2] / a);
+                (d.transpose() * r[i as usize] * d)[(0, 0)]
+            });
+            let m = contact_source(law.energy_density(p), a, n.vol[i as usize], rho, d_cond);
+            q.push((i, scale(ar, -m / a)));
+        }
+    }
+
+    /// The tool's state at `c` over every process (exact sums; every process calls), its
+    /// indentation this process's part (reduce with max).
+    fn measure(&self, c: V3, n: &Nodes, law: &TissueLaw, u: &[V3], comm: &dyn Comm) -> ToolState {
+        let (pressed, most) = self.pressures(c, n, law);
+        let s = exact_sums(
+            comm,
+            pressed.iter().map(|&(i, p)| {
+                let (ar, ui) = (n.area[i as usize], u[i as usize]);
+                let a = norm(ar);
+                [
+                    -p * ar[0],
+                    -p * ar[1],
+                    -p * ar[2],
+                    a,
+                    1.0,
+                    a * ui[0],
+                    a * ui[1],
+                    a * ui[2],
+                ]
+            }),
+        );
+        let area = s[3];
+        ToolState {
+            position: c,
+            force: [s[0], s[1], s[2]],
+            contact_nodes: s[4] as u64,
+            contact_area: area,
+            indentation: most,
+            displacement: if area > 0.0 {
+                [s[5] / area, s[6] / area, s[7] / area]
+            } else {
+                [0.0; 3]
+            },
         }
     }
 }
@@ -121,16 +301,18 @@ pub fn surface_nodes(n_owned: usize, active: &[bool], area: &[V3]) -> Vec<u32> {
 }
 
 /// The tools at time t (the end of the mechanics step of size dt): after the free update
-/// (u*, v*) of every node, each owned surface node inside a tool is moved onto its surface,
-/// u = P(X + u*) - X, v = v* + (u - u*) / dt, and its reaction R_i = m_i (u - u*) / dt^2 is added
-/// to the tool's force; then each tool's sums are reduced exactly over every process.
+/// (u*, v*) of every node, each owned surface node whose deformed position is inside a tool is
+/// moved onto its surface, u = P(X + u*) - X, v = v* + (u - u*) / dt; then each tool's state
+/// at t (`measure`: the foundation's pressures on the rest surface, summed exactly).
 /// Returns the largest |v|^2 of the surface nodes (after the tools) and each tool's local
 /// largest overlap with the rest surface (reduce with max).
+#[allow(clippy::too_many_arguments)]
 pub fn constrain(
     tools: &mut [ToolRun],
     t: f64,
     dt: f64,
     n: &Nodes,
+    law: &TissueLaw,
     u: &mut [V3],
     v: &mut [V3],
     comm: &dyn Comm,
@@ -139,68 +321,26 @@ pub fn constrain(
     for run in tools.iter_mut() {
         let shape = run.tool.shape;
         let c = run.tool.path.at(t);
-        let rho = shape.radius();
-        run.contact.clear();
-        let mut overlap = f64::NEG_INFINITY;
-        // (i, R_i, |A_i|)
-        let mut held: Vec<(u32, V3, f64)> = Vec::new();
+        run.observe(c);
         for &i in n.surface {
             let i = i as usize;
             let x0 = n.points[i];
-            overlap = overlap.max(depth(&shape, c, x0));
             let ui = u[i];
             let x = [x0[0] + ui[0], x0[1] + ui[1], x0[2] + ui[2]];
             if !(depth(&shape, c, x) > 0.0) {
                 continue;
             }
-            let p = project(&shape, c, x);
-            let unew = sub(p, x0);
+            let unew = sub(project(&shape, c, x), x0);
             if !unew.iter().all(|z| z.is_finite()) {
                 continue; // a sphere's own centre: no direction to push along
             }
             let du = sub(unew, ui);
-            let m = n.mass[i];
-            let r = [m * du[0] / (dt * dt), m * du[1] / (dt * dt), m * du[2] / (dt * dt)];
             u[i] = unew;
             let vi = v[i];
             v[i] = [vi[0] + du[0] / dt, vi[1] + du[1] / dt, vi[2] + du[2] / dt];
-            let a = norm(n.area[i]);
-            run.contact.push((i as u32, a * rho / n.vol[i]));
-            held.push((i as u32, r, a));
         }
-        let s = exact_sums(
-            comm,
-            held.iter().map(|&(i, r, a)| {
-                let (ar, ui) = (n.area[i as usize], u[i as usize]);
-                [
-                    r[0],
-                    r[1],
-                    r[2],
-                    ar[0],
-                    ar[1],
-                    ar[2],
-                    1.0,
-                    a * ui[0],
-                    a * ui[1],
-                    a * ui[2],
-                    a,
-                ]
-            }),
-        );
-        let weight = s[10];
-        run.state = ToolState {
-            position: c,
-            force: [s[0], s[1], s[2]],
-            contact_nodes: s[6] as u64,
-            contact_area: norm([s[3], s[4], s[5]]),
-            indentation: overlap,
-            displacement: if weight > 0.0 {
-                [s[7] / weight, s[8] / weight, s[9] / weight]
-            } else {
-                [0.0; 3]
-            },
-        };
-        overlaps.push(overlap);
+        run.state = run.measure(c, n, law, u, comm);
+        overlaps.push(run.state.indentation);
     }
     let m2 = n
         .surface
@@ -210,28 +350,39 @@ pub fn constrain(
     (m2, overlaps)
 }
 
-/// The tools' state at time t before any step (no contact yet): position and indentation
-/// (a reduction: every process calls).
-pub fn at_rest(tools: &mut [ToolRun], t: f64, n: &Nodes, comm: &dyn Comm) {
-    let local: Vec<f64> = tools
-        .iter()
-        .map(|run| {
-            let c = run.tool.path.at(t);
-            n.surface
-                .iter()
-                .map(|&i| depth(&run.tool.shape, c, n.points[i as usize]))
-                .fold(f64::NEG_INFINITY, f64::max)
-        })
-        .collect();
-    let all = comm.max_each(&local);
-    for (run, d) in tools.iter_mut().zip(all) {
-        run.contact.clear();
-        run.state = ToolState {
-            position: run.tool.path.at(t),
-            indentation: d,
-            ..ToolState::default()
-        };
+/// The tools' state at time t before any step: the record of each path starts there, and the
+/// state is measured with the displacement u (every process calls: reductions).
+pub fn at_rest(tools: &mut [ToolRun], t: f64, n: &Nodes, law: &TissueLaw, u: &[V3], comm: &dyn Comm) {
+    for run in tools.iter_mut() {
+        let c = run.tool.path.at(t);
+        run.start_at(c);
+        run.state = run.measure(c, n, law, u, comm);
     }
+    let local: Vec<f64> = tools.iter().map(|r| r.state.indentation).collect();
+    for (run, d) in tools.iter_mut().zip(comm.max_each(&local)) {
+        run.state.indentation = d;
+    }
+}
+
+/// A tool's state at each of the increasing `times` as a run that starts at times[0] and
+/// steps through them would measure it (the path's direction recorded along them), with
+/// the displacement u; the run's own record is untouched. Every process calls.
+pub fn survey(run: &ToolRun, times: &[f64], n: &Nodes, law: &TissueLaw, u: &[V3], comm: &dyn Comm) -> Vec<ToolState> {
+    let mut r = run.clone();
+    let mut out = Vec::with_capacity(times.len());
+    for (k, &t) in times.iter().enumerate() {
+        let c = r.tool.path.at(t);
+        if k == 0 {
+            r.start_at(c);
+        }
+        r.observe(c);
+        out.push(r.measure(c, n, law, u, comm));
+    }
+    let local: Vec<f64> = out.iter().map(|s| s.indentation).collect();
+    for (s, d) in out.iter_mut().zip(comm.max_each(&local)) {
+        s.indentation = d;
+    }
+    out
 }
 
 #[cfg(test)]
@@ -257,5 +408,93 @@ mod tests {
         assert_eq!(depth(&s, c, [0.3, 0.0, 0.5]), -0.5);
         assert_eq!(depth(&s, c, [0.6, 0.0, 1.25]), f64::NEG_INFINITY);
         assert_eq!(project(&s, c, [0.3, 0.2, 1.25]), [0.3, 0.2, 1.0]);
+    }
+
+    #[test]
+    fn the_overlap_is_along_the_path_and_passes_the_radius() {
+        // a sphere of radius 1 moving down (-z) onto the plane z = 0, centre at height 1 - D
+        let s = Shape::Sphere { radius: 1.0 };
+        let d = Some([0.0, 0.0, -1.0]);
+        for depth in [-0.5, 0.0, 0.3, 1.0, 1.7, 2.5] {
+            let c = [0.0, 0.0, 1.0 - depth];
+            // the node under the centre: the depth itself, past the radius and the diameter
+            assert!((overlap(&s, c, d, [0.0; 3]) - depth).abs() < 1e-15, "{depth}");
+            // a node at r = 0.6: sqrt(1 - 0.36) - (1 - D)
+            let o = overlap(&s, c, d, [0.6, 0.0, 0.0]);
+            assert!((o - (0.8 - 1.0 + depth)).abs() < 1e-15, "{depth}: {o}");
+            // beside the path: never touched
+            assert_eq!(overlap(&s, c, d, [1.2, 0.0, 0.0]), f64::NEG_INFINITY);
+        }
+        // without a direction: the radial depth
+        assert!((overlap(&s, [0.0, 0.0, 0.5], None, [0.6, 0.0, 0.0]) - (1.0 - 0.61f64.sqrt())).abs() < 1e-15);
+        // a punch: the face's offset along its normal, whatever the direction given
+        let p = Shape::Punch {
+            radius: 0.5,
+            normal: [0.0, 0.0, -1.0],
+        };
+        assert_eq!(
+            overlap(&p, [0.0, 0.0, -0.25], Some([1.0, 0.0, 0.0]), [0.3, 0.0, 0.0]),
+            0.25
+        );
+    }
+
+    #[test]
+    fn the_law_is_zero_without_overlap_and_smooth_at_first_touch() {
+        let law = TissueLaw { young: 10.0, beta: 2.0 };
+        let e0 = SMOOTH_STRAIN;
+        assert_eq!(contact_strain(0.0), 0.0);
+        assert_eq!(contact_strain(-1.0), 0.0);
+        assert_eq!(contact_strain(f64::NEG_INFINITY), 0.0);
+        assert!((contact_strain(e0) - e0 / 2.0).abs() < 1e-18);
+        assert!((contact_strain(0.3) - (0.3 - e0 / 2.0)).abs() < 1e-16);
+        // the exponential law's stress at the strain of the overlap
+        let p = pressure(&law, 0.6, 2.0);
+        assert!(
+            (p - 10.0 / 2.0 * ((2.0 * (0.3 - e0 / 2.0)).exp() - 1.0)).abs() < 1e-13,
+            "{p}"
+        );
+        // stress and strain are inverse
+        for sigma in [1e-6, 0.5, 3.0, 40.0] {
+            assert!((law.stress(law.strain(sigma)) - sigma).abs() < 1e-12 * sigma.max(1.0));
+        }
+    }
+
+    #[test]
+    fn a_path_keeps_its_pressing_direction_through_hold_and_withdrawal() {
+        use crate::config::tables::History;
+        let mut h = History::empty();
+        for row in [
+            [0.0, 0.0, 0.0, 1.0],
+            [1.0, 0.0, 0.0, 0.5],
+            [2.0, 0.0, 0.0, 0.5],
+            [3.0, 0.0, 0.0, 0.9],
+        ] {
+            h.push(row).unwrap();
+        }
+        let mut run = ToolRun::new(Tool {
+            shape: Shape::Sphere { radius: 0.2 },
+            path: Trajectory::Table(h),
+            live: false,
+            foundation: 0.2,
+        });
+        run.start_at(run.tool.path.at(0.0));
+        assert_eq!(run.direction(), None, "not moved yet");
+        for k in 1..=30 {
+            let t = 0.1 * k as f64;
+            run.observe(run.tool.path.at(t));
+            assert_eq!(run.direction(), Some([0.0, 0.0, -1.0]), "t = {t}");
+        }
+        // a straight path: its velocity's direction from the start, even before it moves
+        let run = ToolRun::new(Tool {
+            shape: Shape::Sphere { radius: 0.2 },
+            path: Trajectory::Linear {
+                start: [0.0; 3],
+                velocity: [0.0, 3e300, 4e300],
+            },
+            live: false,
+            foundation: 0.2,
+        });
+        let d = run.direction().unwrap();
+        assert!((d[1] - 0.6).abs() < 1e-15 && (d[2] - 0.8).abs() < 1e-15, "{d:?}");
     }
 }

@@ -513,9 +513,9 @@ impl Simulation {
                 points: &setup.mesh.points,
                 area: &dual.area,
                 vol: &dual.vol,
-                mass: &setup.mass,
             };
-            contact::at_rest(&mut tools, 0.0, &nodes, c);
+            let rest = vec![[0.0; 3]; n_owned];
+            contact::at_rest(&mut tools, 0.0, &nodes, &setup.law, &rest, c);
         }
         Ok(Simulation {
             tools,
@@ -606,14 +606,33 @@ impl Simulation {
         load_sources(&self.loads, &self.load_local, &applied, flux)
     }
 
-    /// One mechanics step: the loads at t_n (and the tools' forces of the last step) give the
-    /// sources and forces; the stepper advances the potential over dt; the owned nodes move
-    /// and the tools at t_{n+1} hold the nodes they reach; max |v| is reduced over every
+    /// The geometry the tools need.
+    fn tool_nodes(&self) -> contact::Nodes<'_> {
+        contact::Nodes {
+            surface: &self.surface,
+            points: &self.setup.mesh.points,
+            area: &self.dual.area,
+            vol: &self.dual.vol,
+        }
+    }
+
+    /// One mechanics step: the loads and the tools at t_n give the sources and forces; the
+    /// stepper advances the potential over dt; the owned nodes move, the tools at t_{n+1} keep
+    /// them out of their solids and measure their contact; max |v| is reduced over every
     /// process.
     pub fn advance(&mut self) -> Result<StepStats> {
         let mut q = self.sources(self.time);
-        for t in &self.tools {
-            t.sources(&self.setup.law, &mut q);
+        if !self.tools.is_empty() {
+            let nodes = contact::Nodes {
+                surface: &self.surface,
+                points: &self.setup.mesh.points,
+                area: &self.dual.area,
+                vol: &self.dual.vol,
+            };
+            for t in &mut self.tools {
+                let conductivity = (self.setup.model.reading == Reading::Continuum).then_some(&self.setup.r[..]);
+                t.sources(self.time, &nodes, &self.setup.law, conductivity, &mut q);
+            }
         }
         let stats = self.stepper.advance(&mut self.prop, &q, self.comm.as_ref())?;
         let n = self.numbering.n_owned;
@@ -640,7 +659,6 @@ impl Simulation {
                 points: &self.setup.mesh.points,
                 area: &self.dual.area,
                 vol: &self.dual.vol,
-                mass: &self.setup.mass,
             };
             let c = self.comm.as_ref();
             let (m2s, overlaps) = contact::constrain(
@@ -648,6 +666,7 @@ impl Simulation {
                 t_next,
                 self.dt,
                 &nodes,
+                &self.setup.law,
                 &mut self.u[..n],
                 &mut self.v[..n],
                 c,
@@ -720,9 +739,31 @@ impl Simulation {
             points: &self.setup.mesh.points,
             area: &self.dual.area,
             vol: &self.dual.vol,
-            mass: &self.setup.mass,
         };
-        contact::at_rest(&mut self.tools, self.time, &nodes, self.comm.as_ref());
+        let n = self.numbering.n_owned;
+        contact::at_rest(
+            &mut self.tools,
+            self.time,
+            &nodes,
+            &self.setup.law,
+            &self.u[..n],
+            self.comm.as_ref(),
+        );
+    }
+
+    /// Tool k's state at each of the increasing `times` (from the run's start) as a run
+    /// stepping through them would measure it, with the current displacement; nothing of the
+    /// run changes (`contact::survey`; every process calls).
+    pub fn tool_survey(&self, k: usize, times: &[f64]) -> Vec<ToolState> {
+        let n = self.numbering.n_owned;
+        contact::survey(
+            &self.tools[k],
+            times,
+            &self.tool_nodes(),
+            &self.setup.law,
+            &self.u[..n],
+            self.comm.as_ref(),
+        )
     }
 
     /// Sum of V_i |phi_i| over the mesh (exact sum).
