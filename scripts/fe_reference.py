@@ -22,8 +22,8 @@ Writes, into --out-dir (default scenarios/validation/reference):
   lines_offcentre.csv     vertical below the indenter, along x at the surface and at mid-depth
                           (depth_m, line, x, y, z, ux, uy, uz; positions undeformed, metres)
   reference.json          the parameters, the mesh, the penalty, the Newton counts, the runtime
-  convergence.csv         with --convergence: the centred force at three mesh levels and two
-                          penalties
+  convergence.csv         with --convergence: the centred force at three mesh levels, and at
+                          --level with ten times the penalty
 
 The indentation is the sphere's depth below the undeformed top face (its travel from first
 touch); the force is the vertical force the sphere exerts on the block, whole block.
@@ -335,9 +335,12 @@ def main():
                     help="cells along each edge of the modelled part (default 12)")
     ap.add_argument("--penalty", type=float, default=PENALTY, help="contact penalty k in Pa/m")
     ap.add_argument("--convergence", action="store_true",
-                    help="also the centred press at three mesh levels, and at --level with ten times the "
-                    "penalty (convergence.csv)")
+                    help="also the centred press to 4 mm at the --convergence-levels, and at --level with ten "
+                    "times the penalty (convergence.csv)")
     ap.add_argument("--convergence-levels", default="6,8,10", help="the levels of --convergence")
+    ap.add_argument("--cases", default="centre,offcentre",
+                    help="which presses to compute: centre, offcentre (comma-separated) or none")
+    ap.add_argument("--convergence-file", default="convergence.csv", help="where --convergence writes (in --out-dir)")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args()
     out = os.path.abspath(a.out_dir)
@@ -348,35 +351,50 @@ def main():
             print(s, flush=True)
 
     t0 = time.perf_counter()
-    meta = {
+    cases = [c for c in a.cases.split(",") if c and c != "none"]
+    for c in cases:
+        if c not in ("centre", "offcentre"):
+            sys.exit(f"fe_reference.py: --cases {a.cases}: {c!r} is not a case; fix: centre, offcentre or none")
+    meta_path = os.path.join(out, "reference.json")
+    meta = {}
+    if os.path.exists(meta_path):
+        with open(meta_path) as f:
+            meta = json.load(f)
+    meta.update({
         "block_m": [LX, LY, LZ], "young_Pa": YOUNG, "poisson": POISSON, "radius_m": RADIUS,
         "law": "compressible neo-Hookean: mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2",
         "element": "P2 tetrahedra", "level": a.level, "penalty_Pa_per_m": a.penalty,
-        "load_step_m": STEP, "centre": list(CENTRE), "offcentre": list(OFFCENTRE),
-        "dolfinx": __import__("dolfinx").__version__,
-    }
-    on_grid = lambda d: True  # noqa: E731  every load step is a row of the curve
-    log(f"centred press at level {a.level}")
-    with open(os.path.join(out, "lines_centre.csv"), "w", newline="") as fl:
-        b, rows = press(*CENTRE, a.level, a.penalty, FIT_DEPTHS + DEEP_DEPTHS, on_grid, fl, log)
-    centre = (b, rows, time.perf_counter() - t0)
-    meta["centre_dofs"] = b.dofs
-    meta["centre_h_min_m"] = b.h_min
-    meta["centre_newton_iterations"] = b.newton
-    write_force(os.path.join(out, "force_centre.csv"), [r for r in rows if r[0] <= FIT_DEPTHS[-1] + 1e-12])
-    write_force(os.path.join(out, "force_centre_deep.csv"), [r for r in rows if r[0] > FIT_DEPTHS[-1] + 1e-12])
-    meta["hertz_ratio_0.5mm"] = [r[1] for r in rows if abs(r[0] - 0.5e-3) < 1e-12][0] / hertz(0.5e-3)
-    t1 = time.perf_counter()
-    meta["centre_seconds"] = round(t1 - t0, 1)
-    log(f"off-centre press at level {a.level}")
-    with open(os.path.join(out, "lines_offcentre.csv"), "w", newline="") as fl:
-        b, rows = press(*OFFCENTRE, a.level, a.penalty, OFF_DEPTHS, on_grid, fl, log)
-    write_force(os.path.join(out, "force_offcentre.csv"), rows)
-    meta["offcentre_dofs"] = b.dofs
-    meta["offcentre_newton_iterations"] = b.newton
-    t2 = time.perf_counter()
-    meta["offcentre_seconds"] = round(t2 - t1, 1)
+        "penalty_smoothing_m": SMOOTH, "load_step_m": STEP, "centre": list(CENTRE),
+        "offcentre": list(OFFCENTRE), "dolfinx": __import__("dolfinx").__version__,
+    })
 
+    def save():
+        with open(meta_path, "w") as f:
+            json.dump(meta, f, indent=1)
+            f.write("\n")
+
+    on_grid = lambda d: True  # noqa: E731  every load step is a row of the curve
+    if "centre" in cases:
+        log(f"centred press at level {a.level}")
+        s = time.perf_counter()
+        with open(os.path.join(out, "lines_centre.csv"), "w", newline="") as fl:
+            b, rows = press(*CENTRE, a.level, a.penalty, FIT_DEPTHS + DEEP_DEPTHS, on_grid, fl, log)
+        write_force(os.path.join(out, "force_centre.csv"), [r for r in rows if r[0] <= FIT_DEPTHS[-1] + 1e-12])
+        write_force(os.path.join(out, "force_centre_deep.csv"), [r for r in rows if r[0] > FIT_DEPTHS[-1] + 1e-12])
+        meta["centre_run"] = {"unknowns": b.dofs, "smallest_edge_m": b.h_min, "newton_iterations": b.newton,
+                              "failed_steps": b.failures, "seconds": round(time.perf_counter() - s, 1),
+                              "force_over_hertz_0.5mm": [r[1] for r in rows if abs(r[0] - 0.5e-3) < 1e-12][0]
+                              / hertz(0.5e-3)}
+        save()
+    if "offcentre" in cases:
+        log(f"off-centre press at level {a.level}")
+        s = time.perf_counter()
+        with open(os.path.join(out, "lines_offcentre.csv"), "w", newline="") as fl:
+            b, rows = press(*OFFCENTRE, a.level, a.penalty, OFF_DEPTHS, on_grid, fl, log)
+        write_force(os.path.join(out, "force_offcentre.csv"), rows)
+        meta["offcentre_run"] = {"unknowns": b.dofs, "smallest_edge_m": b.h_min, "newton_iterations": b.newton,
+                                 "failed_steps": b.failures, "seconds": round(time.perf_counter() - s, 1)}
+        save()
     if a.convergence:
         conv = []
         depths = [1e-3, 2e-3, 4e-3]
@@ -384,25 +402,18 @@ def main():
         for level, k in [(lv, a.penalty) for lv in levels] + [(a.level, a.penalty * 10)]:
             log(f"convergence: level {level}, penalty {k:.3g}")
             s = time.perf_counter()
-            if level == a.level and k == a.penalty:  # the run above
-                b, rows, secs = centre
-            else:
-                b, rows = press(*CENTRE, level, k, depths, lambda d: False, None, log)
-                secs = time.perf_counter() - s
+            b, rows = press(*CENTRE, level, k, depths, lambda d: False, None, log)
             for d, F, r in rows:
                 if any(abs(d - t) < 1e-12 for t in depths):
-                    conv.append((level, b.dofs, b.h_min, k, d, F, r, secs))
-        with open(os.path.join(out, "convergence.csv"), "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["level", "dofs", "h_min_m", "penalty_Pa_per_m", "indentation_m", "force_N",
-                        "contact_radius_m", "seconds"])
-            for row in conv:
-                w.writerow([row[0], row[1], f"{row[2]:.4g}", f"{row[3]:.3g}", f"{row[4]:.6g}",
-                            f"{row[5]:.9g}", f"{row[6]:.6g}", f"{row[7]:.1f}"])
-        meta["convergence_seconds"] = round(time.perf_counter() - t2, 1)
-    with open(os.path.join(out, "reference.json"), "w") as f:
-        json.dump(meta, f, indent=1)
-        f.write("\n")
+                    conv.append((level, b.dofs, b.h_min, k, d, F, r, time.perf_counter() - s))
+            with open(os.path.join(out, a.convergence_file), "w", newline="") as f:
+                w = csv.writer(f)
+                w.writerow(["level", "unknowns", "smallest_edge_m", "penalty_Pa_per_m", "indentation_m", "force_N",
+                            "contact_radius_m", "seconds"])
+                for row in conv:
+                    w.writerow([row[0], row[1], f"{row[2]:.4g}", f"{row[3]:.3g}", f"{row[4]:.6g}",
+                                f"{row[5]:.9g}", f"{row[6]:.6g}", f"{row[7]:.1f}"])
+    save()
     log(f"wrote {out} in {time.perf_counter() - t0:.0f} s")
 
 
