@@ -11,8 +11,8 @@ force is in model units, so the force columns are not comparable until the conti
 and a fit give them a meaning).
 
 Writes into --out-dir:
-  force.csv   indentation_m, force_fe_N, force_eprop_N, ratio, set (fit: the part a fit may
-              use; deep: the deeper press, held out)
+  force.csv   indentation_m, force_fe_N, force_eprop_N, ratio, set (fit: the centred press to
+              4 mm, the part a fit may use; predict: the deeper and the off-centre press)
   lines.csv   depth_m, eprop_depth_m, line, x, y, z, ux_fe, uz_fe, ux_eprop, uz_eprop: the
               displacement along the reference's lines at the eprop nodes on them, at the eprop
               output step nearest each reference depth (metres)
@@ -39,7 +39,9 @@ def read_csv(path):
 
 def force_table(ref, case):
     out = []
-    names = [(f"force_{case}.csv", "fit"), (f"force_{case}_deep.csv", "deep")]
+    # the centred press to 4 mm is what a fit may use; the rest is predicted
+    names = [(f"force_{case}.csv", "fit" if case == "centre" else "predict"),
+             (f"force_{case}_deep.csv", "predict")]
     for name, tag in names:
         p = os.path.join(ref, name)
         if not os.path.exists(p):

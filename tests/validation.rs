@@ -199,6 +199,10 @@ fn validation_scenarios_run_and_compare() {
             let f: Vec<&str> = l.split(',').collect();
             // the press reaches every reference depth: eprop's force is a number at each
             assert!(f[2].parse::<f64>().unwrap().is_finite(), "{case}: {l}");
+            // only the centred press to 4 mm is for fitting; the rest is predicted
+            let depth: f64 = f[0].parse().unwrap();
+            let fit = case == "centre" && depth <= 4e-3 + 1e-12;
+            assert_eq!(f[4], if fit { "fit" } else { "predict" }, "{case}: {l}");
         }
         let summary = std::fs::read_to_string(cmp.join("summary.csv")).unwrap();
         assert!(summary.lines().count() > 3, "{case}: {summary}");
