@@ -26,7 +26,7 @@ Writes, into --out-dir (default scenarios/validation/reference):
                           --level with ten times the penalty
 
 The indentation is the sphere's depth below the undeformed top face (its travel from first
-touch); the force is the vertical force the sphere exerts on the block, whole block.
+touch); the force is the downward force the sphere exerts on the block, whole block.
 """
 
 import argparse
@@ -397,7 +397,7 @@ def main():
         save()
     if a.convergence:
         conv = []
-        depths = [1e-3, 2e-3, 4e-3]
+        depths = [0.5e-3, 1e-3, 2e-3, 4e-3]
         levels = [int(v) for v in a.convergence_levels.split(",")]
         for level, k in [(lv, a.penalty) for lv in levels] + [(a.level, a.penalty * 10)]:
             log(f"convergence: level {level}, penalty {k:.3g}")
