@@ -38,7 +38,11 @@ import time
 
 import logging
 
-import numpy as np
+try:
+    import numpy as np
+except ImportError:
+    sys.exit("fe_reference.py: numpy is missing from this Python; fix: run it with Debian's Python, "
+             "/usr/bin/python3 scripts/fe_reference.py (apt-get install python3-dolfinx)")
 
 # the block, the material and the indenter (SI)
 LX, LY, LZ = 0.04, 0.04, 0.02
@@ -330,9 +334,10 @@ def hertz(d):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out-dir", default=os.path.join(os.path.dirname(__file__), "..", "scenarios",
-                                                      "validation", "reference"))
+                                                      "validation", "reference"),
+                    help="where the CSV and JSON files go (default scenarios/validation/reference)")
     ap.add_argument("--level", type=int, default=8,
-                    help="cells along each edge of the modelled part (default 12)")
+                    help="mesh level: cells along each edge of the modelled quarter (default 8, the reference)")
     ap.add_argument("--penalty", type=float, default=PENALTY, help="contact penalty k in Pa/m")
     ap.add_argument("--convergence", action="store_true",
                     help="also the centred press to 4 mm at the --convergence-levels, and at --level with ten "
@@ -341,20 +346,28 @@ def main():
     ap.add_argument("--cases", default="centre,offcentre",
                     help="which presses to compute: centre, offcentre (comma-separated) or none")
     ap.add_argument("--convergence-file", default="convergence.csv", help="where --convergence writes (in --out-dir)")
-    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines")
     a = ap.parse_args()
+    try:
+        import dolfinx  # noqa: F401
+    except ImportError:
+        sys.exit("fe_reference.py: DOLFINx is not installed; fix: apt-get install python3-dolfinx "
+                 "(and run this script with /usr/bin/python3, Debian's Python)")
+    cases = [c for c in a.cases.split(",") if c and c != "none"]
+    for c in cases:
+        if c not in ("centre", "offcentre"):
+            sys.exit(f"fe_reference.py: --cases {a.cases}: {c!r} is not a case; fix: centre, offcentre or none")
     out = os.path.abspath(a.out_dir)
-    os.makedirs(out, exist_ok=True)
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as e:
+        sys.exit(f"fe_reference.py: --out-dir {a.out_dir}: {e.strerror}; fix: a directory (or a new path)")
 
     def log(s):
         if not a.quiet:
             print(s, flush=True)
 
     t0 = time.perf_counter()
-    cases = [c for c in a.cases.split(",") if c and c != "none"]
-    for c in cases:
-        if c not in ("centre", "offcentre"):
-            sys.exit(f"fe_reference.py: --cases {a.cases}: {c!r} is not a case; fix: centre, offcentre or none")
     meta_path = os.path.join(out, "reference.json")
     meta = {}
     if os.path.exists(meta_path):
@@ -418,9 +431,4 @@ def main():
 
 
 if __name__ == "__main__":
-    try:
-        import dolfinx  # noqa: F401
-    except ImportError:
-        sys.exit("fe_reference.py: DOLFINx is not installed; fix: apt-get install python3-dolfinx "
-                 "(run this script with /usr/bin/python3, Debian's Python)")
     main()
