@@ -1142,8 +1142,11 @@ fn a_sweep_of_small_disks_on_2_ranks_never_hangs_or_crashes() {
     eprintln!("statuses over the sweep: {seen:?}");
 }
 
+/// A run with a tool (a path table) stopped part-way, by its step count or by SIGTERM,
+/// continues with `--restart` on 1 or 2 ranks to the series of the uninterrupted run, bit for
+/// bit; the refusal of an existing series advises that restart.
 #[test]
-fn the_existing_series_refusal_advises_restart_only_where_restart_works() {
+fn a_tool_run_restarts_bit_for_bit_and_the_refusal_advises_it() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
@@ -1151,16 +1154,34 @@ fn the_existing_series_refusal_advises_restart_only_where_restart_works() {
         std::fs::copy(root.join(f), dir.join(f)).unwrap();
     }
     let sc = dir.join("cylinder_indent.toml");
-    let h5 = dir.join("tool.h5");
-    ok(&eprop(1, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "2"]));
-    let o = eprop(1, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "2"]);
-    refused(&o, 1, &["holds an eprop series", "--overwrite"]);
-    assert!(!stderr(&o).contains("--restart"), "{}", stderr(&o));
-    let plain = cylinder(dir, "s.toml", "", 2);
-    let h5 = dir.join("plain.h5");
-    ok(&eprop(1, &["run", s(&plain), "-q", "-o", s(&h5)]));
-    let o = eprop(1, &["run", s(&plain), "-q", "-o", s(&h5)]);
-    refused(&o, 1, &["continue it with `eprop run", "--restart"]);
+    let whole = dir.join("whole.h5");
+    ok(&eprop(1, &["run", s(&sc), "-q", "-o", s(&whole), "--steps", "60"]));
+    for (first, then) in [(1, 2), (2, 1)] {
+        let h5 = dir.join(format!("cut{first}{then}.h5"));
+        ok(&eprop(first, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "25"]));
+        let o = eprop(first, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "60"]);
+        refused(&o, 1, &["holds an eprop series", "continue it with `", "--restart"]);
+        ok(&eprop(
+            then,
+            &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "60"],
+        ));
+        assert_same(&whole, &h5);
+    }
+    // stopped by SIGTERM while it presses, then continued
+    let h5 = dir.join("term.h5");
+    let mut job = spawn(2, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "60"]);
+    wait_for_steps(&h5, 10, &mut job);
+    for pid in common::children(job.id()) {
+        Command::new("kill").args(["-TERM", &pid.to_string()]).status().unwrap();
+    }
+    let o = finish(job, 60, "the tool run stopped by SIGTERM");
+    if o.status.code() == Some(0) {
+        eprintln!("the tool run finished before SIGTERM came: nothing to continue");
+        return;
+    }
+    refused(&o, 3, &["--restart"]);
+    ok(&eprop(1, &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "60"]));
+    assert_same(&whole, &h5);
 }
 
 #[test]

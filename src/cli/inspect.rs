@@ -313,10 +313,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         warnings.push(format!("`eprop run` will refuse: {e:#}"));
     } else if file.exists() {
         let overwrite = sim.setup().output.overwrite;
-        let again = match sim.setup().tools.is_empty() {
-            true => crate::guard::safety::restart_command(path, file, 1, &[]),
-            false => String::new(),
-        };
+        let again = crate::guard::safety::restart_command(path, file, 1, &[]);
         if let Err(e) = crate::guard::safety::check_existing(file, "the output file", overwrite, &again) {
             warnings.push(format!("`eprop run` will refuse: {e:#}"));
         }

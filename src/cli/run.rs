@@ -71,14 +71,6 @@ fn resolve(scenario: Scenario, opts: &RunOptions) -> Result<Setup> {
     if let Some(f) = opts.fuse {
         setup.performance.fuse = f;
     }
-    if let Some(r) = &opts.restart {
-        if !setup.tools.is_empty() {
-            bail!(
-                "{}: --restart cannot continue a run with [[tool]] tables (the direction of motion a tool's path has had so far, which its indentation and pressure are measured along, is not stored in the series); fix: run the scenario again from the start",
-                r.display()
-            );
-        }
-    }
     Ok(setup)
 }
 
@@ -136,11 +128,7 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
         Some(_) => {}
         None => {
             let overwrite = opts.overwrite || scenario.file.output.overwrite;
-            // --restart cannot continue a scenario with tools: not advised then
-            let again = match scenario.file.tool.is_empty() {
-                true => again(path, &file, 1, opts),
-                false => String::new(),
-            };
+            let again = again(path, &file, 1, opts);
             safety::check_existing(&file, &role, overwrite, &again)?;
         }
     }

@@ -364,6 +364,26 @@ pub fn at_rest(tools: &mut [ToolRun], t: f64, n: &Nodes, law: &TissueLaw, u: &[V
     }
 }
 
+/// The tools of a run continued at `step` (a restart): each path's record is what the run
+/// made of it (its start at t = 0, then every step's time j dt up to `step`), and the state is
+/// measured there with the restored displacement u (every process calls: reductions). The
+/// contact pressures and sources depend only on the path and the rest surface, the held nodes
+/// only on u, so the continued run is the uninterrupted one bit for bit.
+pub fn resume(tools: &mut [ToolRun], step: u64, dt: f64, n: &Nodes, law: &TissueLaw, u: &[V3], comm: &dyn Comm) {
+    for run in tools.iter_mut() {
+        run.start_at(run.tool.path.at(0.0));
+        for j in 0..=step {
+            run.observe(run.tool.path.at(j as f64 * dt));
+        }
+        let c = run.tool.path.at(step as f64 * dt);
+        run.state = run.measure(c, n, law, u, comm);
+    }
+    let local: Vec<f64> = tools.iter().map(|r| r.state.indentation).collect();
+    for (run, d) in tools.iter_mut().zip(comm.max_each(&local)) {
+        run.state.indentation = d;
+    }
+}
+
 /// A tool's state at each of the increasing `times` as a run that starts at times[0] and
 /// steps through them would measure it (the path's direction recorded along them), with
 /// the displacement u; the run's own record is untouched. Every process calls.

@@ -816,6 +816,15 @@ impl Simulation {
             .map(|i| norm(self.v[i]))
             .fold(0.0, f64::max);
         self.max_speed = c.max(local);
+        if !self.tools.is_empty() {
+            let nodes = contact::Nodes {
+                surface: &self.surface,
+                points: &self.setup.mesh.points,
+                area: &self.dual.area,
+                vol: &self.dual.vol,
+            };
+            contact::resume(&mut self.tools, step, self.dt, &nodes, &self.setup.law, &self.u[..n], c);
+        }
     }
 
     /// Local index of a global node owned here.
