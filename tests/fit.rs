@@ -36,7 +36,7 @@ fn patch_scenario(dir: &Path) -> PathBuf {
     std::fs::write(
         &sc,
         format!(
-            "[mesh]\nfile = \"{}\"\n[material]\nmass = 1.0\ndamping = 2.0\nconductivity = 0.05\n[tissue]\nyoung = 100.0\n\
+            "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\n[material]\nmass = 1.0\ndamping = 2.0\nconductivity = 0.05\n[tissue]\nyoung = 100.0\n\
 [[fixed]]\ngroup = \"bottom\"\n[[load]]\npatch = {{ center = [1.0, 0.0, 2.0], radius = 0.4 }}\nnormal = 0.3\n[time]\nend = 60.0\ndt = 0.2\n",
             repo().join("scenarios/cylinder.msh").display()
         ),

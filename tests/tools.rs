@@ -509,8 +509,10 @@ fn bad_tables_and_tools_are_named_with_their_fix() {
     }
 }
 
+/// A straight-path tool: a run continued with `--restart` is the uninterrupted run, bit for bit
+/// (a path table is tested with SIGTERM in tests/safety.rs).
 #[test]
-fn a_run_with_tools_is_not_restarted() {
+fn a_run_with_a_moving_tool_restarts_bit_for_bit() {
     let d = tempfile::tempdir().unwrap();
     eprop_io::write_mesh(
         &box_mesh([1.0; 3], [3; 3], BoxCells::Tet).unwrap(),
@@ -520,22 +522,19 @@ fn a_run_with_tools_is_not_restarted() {
     let sc = d.path().join("s.toml");
     std::fs::write(
         &sc,
-        "[mesh]\nfile = \"b.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.3\nstart = [0.5, 0.5, 1.25]\nvelocity = [0, 0, -0.01]\n[time]\nsteps = 3\n",
+        "[mesh]\nfile = \"b.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.3\nstart = [0.5, 0.5, 1.25]\nvelocity = [0, 0, -0.01]\n[time]\nsteps = 40\n",
     )
     .unwrap();
-    let out = common::serial(&["run", sc.to_str().unwrap(), "-q"], 1);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let h5 = d.path().join("s.h5");
-    let out = common::serial(
-        &["run", sc.to_str().unwrap(), "-q", "--restart", h5.to_str().unwrap()],
-        1,
-    );
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("--restart cannot continue a run with [[tool]]") && err.contains("fix:"),
-        "{err}"
-    );
+    let (whole, cut) = (d.path().join("whole.h5"), d.path().join("cut.h5"));
+    let run = |args: &[&str]| {
+        let out = common::serial(args, 1);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    };
+    let s = sc.to_str().unwrap();
+    run(&["run", s, "-q", "-o", whole.to_str().unwrap()]);
+    run(&["run", s, "-q", "-o", cut.to_str().unwrap(), "--steps", "17"]);
+    run(&["run", s, "-q", "--restart", cut.to_str().unwrap()]);
+    common::assert_same(&whole, &cut);
 }
 
 #[test]
@@ -562,7 +561,7 @@ fn check_warns_of_a_tool_as_of_a_load_in_metres() {
         let sc = d.path().join("s.toml");
         std::fs::write(
             &sc,
-            format!("[mesh]\nfile = \"m.msh\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\n{tool}\n[time]\nsteps = 100\n"),
+            format!("[mesh]\nfile = \"m.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\n{tool}\n[time]\nsteps = 100\n"),
         )
         .unwrap();
         let out = common::serial(&["check", sc.to_str().unwrap()], 1);
