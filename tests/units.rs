@@ -106,6 +106,44 @@ fn a_mesh_in_metres_and_in_millimetres_gives_the_same_result_on_1_and_2_ranks() 
     assert!(u.iter().any(|x| x.abs() > 1e-6), "{u:?}");
 }
 
+/// A sphere of 20 mm radius pressing the top of the cube at 0.2 m/s, in a mesh file in metres and in
+/// millimetres: the same force, contact set, indentation and u, on one and two processes.
+#[test]
+fn a_tool_in_metres_and_in_millimetres_gives_the_same_result() {
+    let d = tempfile::tempdir().unwrap();
+    let m = cube(10);
+    eprop_io::write_mesh(&m, &d.path().join("m.msh")).unwrap();
+    eprop_io::write_mesh(&in_mm(&m), &d.path().join("mm.msh")).unwrap();
+    let body = "[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.02\n\
+start = [0.05, 0.05, 0.122]\nvelocity = [0.0, 0.0, -0.2]\n[time]\nsteps = 12\ndt = 0.005\n";
+    let mut outs = vec![];
+    for (file, unit) in [("m.msh", "m"), ("mm.msh", "mm")] {
+        let sc = d.path().join(format!("t{unit}.toml"));
+        std::fs::write(&sc, format!("[mesh]\nfile = \"{file}\"\nunit = \"{unit}\"\n{body}")).unwrap();
+        let sc = sc.to_str().unwrap().to_string();
+        for ranks in [1, 2] {
+            let out = d.path().join(format!("t{unit}{ranks}.h5"));
+            let args = ["run", &sc, "-q", "-o", out.to_str().unwrap()];
+            let o = if ranks == 1 { serial(&args, 1) } else { mpirun(2, &args) };
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            outs.push(out);
+        }
+        let n = outs.len();
+        common::assert_same(&outs[n - 2], &outs[n - 1]);
+    }
+    let w = assert_close(&outs[0], &outs[2], 1e-10);
+    println!("a tool in m against mm: largest relative difference {w:e}");
+    let f = hdf5::File::open(&outs[0]).unwrap();
+    let force = f.dataset("/eprop/tools/force").unwrap().read_raw::<f64>().unwrap();
+    let nodes = f
+        .dataset("/eprop/tools/contact_nodes")
+        .unwrap()
+        .read_raw::<i64>()
+        .unwrap();
+    assert!(force.iter().any(|x| x.abs() > 1e-4), "{force:?}");
+    assert!(nodes.iter().any(|&k| k > 1), "{nodes:?}");
+}
+
 /// u after every step of a scenario on a mesh file (read as `[mesh]` says), in the mesh's node
 /// order, and the probes.
 fn run(mesh: Mesh, mesh_keys: &str, body: &str) -> (Vec<Vec<V3>>, Vec<Vec<(V3, V3)>>) {
