@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{datasets, mpirun, serial};
+use common::{mpirun, serial};
 use eprop::config::{Scenario, Setup};
 use eprop::discretize::operator::V3;
 use eprop::simulate::Simulation;
@@ -38,14 +38,7 @@ const BODY: &str = "[[material.region]]\nbox = [[0.0, 0.0, 0.05], [0.1, 0.1, 0.1
 /// Every floating-point dataset of two series (but the scenario text) agrees to `rel` of the
 /// dataset's largest magnitude; returns the largest relative difference seen.
 fn assert_close(a: &Path, b: &Path, rel: f64) -> f64 {
-    let fa = hdf5::File::open(a).unwrap();
-    let fb = hdf5::File::open(b).unwrap();
-    let (mut na, mut nb) = (vec![], vec![]);
-    datasets(&fa, &mut na);
-    datasets(&fb, &mut nb);
-    na.sort();
-    nb.sort();
-    assert_eq!(na, nb, "different datasets");
+    let (fa, fb, na) = common::open_pair(a, b);
     let mut worst = 0.0f64;
     let mut compared = 0;
     for name in na.iter().filter(|n| !n.ends_with("/scenario")) {

@@ -406,6 +406,17 @@ fn mechanics_step(
         .reduce(|| 0.0, f64::max)
 }
 
+/// The geometry the tools need: the owned surface nodes and this process's rest positions,
+/// boundary dual areas and control volumes.
+fn nodes_of<'a>(surface: &'a [u32], setup: &'a Setup, dual: &'a Dual) -> contact::Nodes<'a> {
+    contact::Nodes {
+        surface,
+        points: &setup.mesh.points,
+        area: &dual.area,
+        vol: &dual.vol,
+    }
+}
+
 /// The order of a process's nodes (`Plan::new`): reverse Cuthill-McKee on the node graph, so
 /// that a row's neighbours lie within a narrow band of rows (the fused substeps of
 /// `Propagation::substeps` need it; the single substep gathers better too).
@@ -508,12 +519,7 @@ impl Simulation {
             for &i in &surface {
                 on_surface[i as usize] = true;
             }
-            let nodes = contact::Nodes {
-                surface: &surface,
-                points: &setup.mesh.points,
-                area: &dual.area,
-                vol: &dual.vol,
-            };
+            let nodes = nodes_of(&surface, &setup, &dual);
             let rest = vec![[0.0; 3]; n_owned];
             contact::at_rest(&mut tools, 0.0, &nodes, &setup.law, &rest, c);
         }
@@ -608,12 +614,7 @@ impl Simulation {
 
     /// The geometry the tools need.
     fn tool_nodes(&self) -> contact::Nodes<'_> {
-        contact::Nodes {
-            surface: &self.surface,
-            points: &self.setup.mesh.points,
-            area: &self.dual.area,
-            vol: &self.dual.vol,
-        }
+        nodes_of(&self.surface, &self.setup, &self.dual)
     }
 
     /// One mechanics step: the loads and the tools at t_n give the sources and forces; the
@@ -623,12 +624,7 @@ impl Simulation {
     pub fn advance(&mut self) -> Result<StepStats> {
         let mut q = self.sources(self.time);
         if !self.tools.is_empty() {
-            let nodes = contact::Nodes {
-                surface: &self.surface,
-                points: &self.setup.mesh.points,
-                area: &self.dual.area,
-                vol: &self.dual.vol,
-            };
+            let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
             for t in &mut self.tools {
                 let conductivity = (self.setup.model.reading == Reading::Continuum).then_some(&self.setup.r[..]);
                 t.sources(self.time, &nodes, &self.setup.law, conductivity, &mut q);
@@ -654,12 +650,7 @@ impl Simulation {
             self.stop_signal = all[1] as i32;
         } else {
             let t_next = (self.step + 1) as f64 * self.dt;
-            let nodes = contact::Nodes {
-                surface: &self.surface,
-                points: &self.setup.mesh.points,
-                area: &self.dual.area,
-                vol: &self.dual.vol,
-            };
+            let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
             let c = self.comm.as_ref();
             let (m2s, overlaps) = contact::constrain(
                 &mut self.tools,
@@ -734,12 +725,7 @@ impl Simulation {
     /// Recomputes the tools' state before the first step at the current time (after their
     /// paths changed, as `serve` does for live tools); every process calls.
     pub fn tools_at_rest(&mut self) {
-        let nodes = contact::Nodes {
-            surface: &self.surface,
-            points: &self.setup.mesh.points,
-            area: &self.dual.area,
-            vol: &self.dual.vol,
-        };
+        let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
         let n = self.numbering.n_owned;
         contact::at_rest(
             &mut self.tools,
@@ -817,12 +803,7 @@ impl Simulation {
             .fold(0.0, f64::max);
         self.max_speed = c.max(local);
         if !self.tools.is_empty() {
-            let nodes = contact::Nodes {
-                surface: &self.surface,
-                points: &self.setup.mesh.points,
-                area: &self.dual.area,
-                vol: &self.dual.vol,
-            };
+            let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
             contact::resume(&mut self.tools, step, self.dt, &nodes, &self.setup.law, &self.u[..n], c);
         }
     }

@@ -176,8 +176,8 @@ pub fn bits(f: &hdf5::File, name: &str) -> Vec<u64> {
     }
 }
 
-/// Every dataset of two files (the same set), compared bit for bit.
-pub fn assert_same(a: &Path, b: &Path) {
+/// Two series opened, and the names of their datasets, which must be the same set (sorted).
+pub fn open_pair(a: &Path, b: &Path) -> (hdf5::File, hdf5::File, Vec<String>) {
     let fa = hdf5::File::open(a).unwrap();
     let fb = hdf5::File::open(b).unwrap();
     let (mut na, mut nb) = (vec![], vec![]);
@@ -186,6 +186,12 @@ pub fn assert_same(a: &Path, b: &Path) {
     na.sort();
     nb.sort();
     assert_eq!(na, nb, "different datasets");
+    (fa, fb, na)
+}
+
+/// Every dataset of two files (the same set), compared bit for bit.
+pub fn assert_same(a: &Path, b: &Path) {
+    let (fa, fb, na) = open_pair(a, b);
     assert!(na.len() >= 20, "{na:?}");
     for name in &na {
         let (x, y) = (bits(&fa, name), bits(&fb, name));
