@@ -557,6 +557,10 @@ fn check_warns_of_a_tool_as_of_a_load_in_metres() {
             "it never reaches the organ's surface by t = ",
         ),
         ("radius = 1e-6\nstart = [0.09, 0.05, 0.1]", "it presses a speck"),
+        (
+            "radius = 0.005\nstart = [0.1, 0.06, 0.106]\nvelocity = [0, 0, -0.0001]",
+            "the tool can pass between them into the organ",
+        ),
     ] {
         let sc = d.path().join("s.toml");
         std::fs::write(

@@ -250,6 +250,21 @@ pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
             ));
             continue;
         }
+        // the contact is found at surface nodes: a tool narrower than their spacing can pass
+        // between them (into the organ, to press its far side from inside)
+        const PLACES: usize = 64;
+        let places: Vec<_> = (0..=PLACES)
+            .map(|j| tool.path.at(at * j as f64 / PLACES as f64))
+            .collect();
+        if let Some(spacing) = sim.surface_spacing_near(&places, 2.0 * radius) {
+            if radius < spacing {
+                out.push(format!(
+                    "tool {}: its radius {} is below the spacing of the surface nodes along its path (up to {spacing:.3e}, from their boundary dual areas): the contact is found at nodes, so the tool can pass between them into the organ and press its far side from inside; fix: a surface mesh finer than the radius there (tetgen -a, gmsh's mesh size) or a larger radius{metres}",
+                    k + 1,
+                    short(radius),
+                ));
+            }
+        }
         let h = tool.foundation;
         let p = crate::simulate::contact::pressure(&sim.setup().law, deepest, h);
         if p / young > STRESS_RATIO {

@@ -737,6 +737,23 @@ impl Simulation {
         );
     }
 
+    /// The largest spacing of the surface nodes within `reach` of any of `points` (rest
+    /// positions), estimated from their boundary dual areas (a node of a regular triangulation
+    /// of spacing h has a dual area of about 0.87 h^2), over every process; None when there are
+    /// none (every process calls: a reduction).
+    pub(crate) fn surface_spacing_near(&self, points: &[V3], reach: f64) -> Option<f64> {
+        let pts = &self.setup.mesh.points;
+        let largest = self
+            .surface
+            .iter()
+            .map(|&i| i as usize)
+            .filter(|&i| points.iter().any(|p| norm(eprop_io::geom::sub(pts[i], *p)) <= reach))
+            .map(|i| norm(self.dual.area[i]))
+            .fold(-1.0f64, f64::max);
+        let largest = self.comm.max(largest);
+        (largest >= 0.0).then(|| (largest / 0.87).sqrt())
+    }
+
     /// Tool k's state at each of the increasing `times` (from the run's start) as a run
     /// stepping through them would measure it, with the current displacement; nothing of the
     /// run changes (`contact::survey`; every process calls).
