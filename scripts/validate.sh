@@ -5,8 +5,9 @@
 # offcentre.toml on the mesh `eprop mesh box` makes), and the comparison tables
 # (scripts/validate_compare.py) in OUT (default out/validation):
 #   OUT/centre/force.csv, lines.csv, summary.csv; OUT/offcentre/...
-# usage: scripts/validate.sh [OUT]     (CELLS=20,20,10 sets eprop's mesh; LENGTH=1e-3 is the
-#                                       metres per eprop length unit: mm for the paper reading)
+# usage: scripts/validate.sh [OUT]     (CELLS=20,20,10 sets eprop's mesh; LENGTH=1 is the metres
+#                                       per eprop length unit: the scenarios are in SI, the
+#                                       continuum reading; 1e-3 for a scenario in mm)
 # The reference needs python3-dolfinx (apt-get install python3-dolfinx; scripts/setup.sh does
 # not install it: only this script needs it, and only to recompute the committed reference).
 set -euo pipefail
@@ -14,7 +15,7 @@ cd "$(dirname "$0")/.."
 out=${1:-out/validation}
 ref=scenarios/validation/reference
 cells=${CELLS:-20,20,10}
-length=${LENGTH:-1e-3}
+length=${LENGTH:-1}
 py=/usr/bin/python3
 if [ ! -s "$ref/force_centre.csv" ] || [ "${FE_REFRESH:-0}" = 1 ]; then
   if ! "$py" -c "import dolfinx" 2>/dev/null; then
