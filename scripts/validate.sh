@@ -4,7 +4,8 @@
 # FE_REFRESH=1), eprop's presses of the same block (scenarios/validation/centre.toml and
 # offcentre.toml on the mesh `eprop mesh box` makes), and the comparison tables
 # (scripts/validate_compare.py) in OUT (default out/validation):
-#   OUT/centre/force.csv, lines.csv, summary.csv; OUT/offcentre/...
+#   OUT/centre/force.csv, lines.csv, summary.csv; OUT/offcentre/...; OUT/validation.png
+#   (scripts/validate_plot.py, when python3 has matplotlib)
 # usage: scripts/validate.sh [OUT]     (CELLS=20,20,10 sets eprop's mesh; LENGTH=1 is the metres
 #                                       per eprop length unit: the scenarios are in SI, the
 #                                       continuum reading; 1e-3 for a scenario in mm)
@@ -36,3 +37,7 @@ for case in centre offcentre; do
   echo "validate.sh: $case: $out/$case/force.csv, lines.csv, summary.csv"
   column -s, -t < "$out/$case/force.csv" | sed 's/^/  /'
 done
+if "$py" -c "import matplotlib" 2>/dev/null; then
+  "$py" scripts/validate_plot.py "$out" -o "$out/validation.png" >/dev/null
+  echo "validate.sh: the figure: $out/validation.png (docs/validation_force.png is this figure)"
+fi
