@@ -4,9 +4,11 @@
 # FE_REFRESH=1), eprop's presses of the same block (scenarios/validation/centre.toml and
 # offcentre.toml on the mesh `eprop mesh box` makes), and the comparison tables
 # (scripts/validate_compare.py) in OUT (default out/validation):
-#   OUT/centre/force.csv, lines.csv, summary.csv; OUT/offcentre/...
-# usage: scripts/validate.sh [OUT]     (CELLS=20,20,10 sets eprop's mesh; LENGTH=1e-3 is the
-#                                       metres per eprop length unit: mm for the paper reading)
+#   OUT/centre/force.csv, lines.csv, summary.csv; OUT/offcentre/...; OUT/validation.png
+#   (scripts/validate_plot.py, when python3 has matplotlib)
+# usage: scripts/validate.sh [OUT]     (CELLS=20,20,10 sets eprop's mesh; LENGTH=1 is the metres
+#                                       per eprop length unit: the scenarios are in SI, the
+#                                       continuum reading; 1e-3 for a scenario in mm)
 # The reference needs python3-dolfinx (apt-get install python3-dolfinx; scripts/setup.sh does
 # not install it: only this script needs it, and only to recompute the committed reference).
 set -euo pipefail
@@ -14,7 +16,7 @@ cd "$(dirname "$0")/.."
 out=${1:-out/validation}
 ref=scenarios/validation/reference
 cells=${CELLS:-20,20,10}
-length=${LENGTH:-1e-3}
+length=${LENGTH:-1}
 py=/usr/bin/python3
 if [ ! -s "$ref/force_centre.csv" ] || [ "${FE_REFRESH:-0}" = 1 ]; then
   if ! "$py" -c "import dolfinx" 2>/dev/null; then
@@ -35,3 +37,7 @@ for case in centre offcentre; do
   echo "validate.sh: $case: $out/$case/force.csv, lines.csv, summary.csv"
   column -s, -t < "$out/$case/force.csv" | sed 's/^/  /'
 done
+if "$py" -c "import matplotlib" 2>/dev/null; then
+  "$py" scripts/validate_plot.py "$out" -o "$out/validation.png" >/dev/null
+  echo "validate.sh: the figure: $out/validation.png (docs/validation_force.png is this figure)"
+fi

@@ -6,9 +6,8 @@ The indentation of both is the sphere's travel below the undeformed top face: fo
 computed from the tool's position, (z_top + R) - p_z, with z_top the highest mesh point and R
 the tool's radius, so it does not depend on how eprop reports /eprop/tools/indentation.
 The force is the tool's vertical force on the block. --length and --force give eprop's units
-in metres and newtons (today's paper reading has no units: the mesh is read in mm, and its
-force is in model units, so the force columns are not comparable until the continuum reading
-and a fit give them a meaning).
+in metres and newtons: 1 and 1 for the validation scenarios (the continuum reading, SI units);
+a scenario of the paper reading read in mm needs --length 1e-3 and its force has no unit.
 
 Writes into --out-dir:
   force.csv   indentation_m, force_fe_N, force_eprop_N, ratio, set (fit: the centred press to
@@ -20,7 +19,7 @@ Writes into --out-dir:
 
 examples:
   validate_compare.py out/validation/centre.h5 --reference scenarios/validation/reference \\
-      --length 1e-3 -o out/validation"""
+      --length 1 -o out/validation"""
 import argparse
 import csv
 import os

@@ -148,7 +148,7 @@ fn reference_lines_are_well_formed() {
     }
 }
 
-/// The validation scenarios pass `eprop check` and run (shortened, on a coarse block) and
+/// The validation scenarios pass `eprop check` without a warning and run (on a coarse block) and
 /// scripts/validate_compare.py compares them with the reference: a row per reference depth.
 #[test]
 fn validation_scenarios_run_and_compare() {
@@ -178,8 +178,20 @@ fn validation_scenarios_run_and_compare() {
         let sc = d.path().join(format!("{case}.toml"));
         std::fs::copy(root.join(format!("scenarios/validation/{case}.toml")), &sc).unwrap();
         let s = sc.to_str().unwrap();
+        let toml = std::fs::read_to_string(&sc).unwrap();
+        assert!(
+            toml.contains("reading = \"continuum\"") && toml.contains("unit = \"m\""),
+            "{case}: the validation scenarios are in the continuum reading, in metres"
+        );
         let out = common::serial(&["check", s], 1);
         assert!(out.status.success(), "{case}: {}", String::from_utf8_lossy(&out.stderr));
+        // the continuum reading in SI: no warning about units, scales or the contact strain
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(!text.contains("warning"), "{case}: {text}");
         let h5 = d.path().join(format!("{case}.h5"));
         let out = common::serial(&["run", s, "-q", "-o", h5.to_str().unwrap()], 1);
         assert!(out.status.success(), "{case}: {}", String::from_utf8_lossy(&out.stderr));
@@ -187,7 +199,7 @@ fn validation_scenarios_run_and_compare() {
         let out = std::process::Command::new(&py)
             .arg(root.join("scripts/validate_compare.py"))
             .args([h5.to_str().unwrap(), "--reference", reference().to_str().unwrap()])
-            .args(["--case", case, "--length", "1e-3", "-o", cmp.to_str().unwrap()])
+            .args(["--case", case, "--length", "1", "-o", cmp.to_str().unwrap()])
             .output()
             .unwrap();
         assert!(out.status.success(), "{case}: {}", String::from_utf8_lossy(&out.stderr));
