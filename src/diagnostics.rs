@@ -70,3 +70,37 @@ mod tests {
         assert_eq!(status_kb("NoSuchKey:"), 0);
     }
 }
+
+/// `x` with `digits` decimals where that reads well (1e-3 <= |x| < 1e9, and zero), in exponent
+/// form otherwise (a time of 1e300 is not 300 digits, 1e-12 is not 0.000000); never `-0`.
+pub fn fixed(x: f64, digits: usize) -> String {
+    let a = x.abs();
+    if a == 0.0 || (1e-3..1e9).contains(&a) {
+        let s = format!("{x:.digits$}");
+        match s.strip_prefix('-') {
+            Some(rest) if rest.chars().all(|c| c == '0' || c == '.') => rest.to_string(),
+            _ => s,
+        }
+    } else if a.is_finite() {
+        format!("{x:.digits$e}")
+    } else {
+        format!("{x}")
+    }
+}
+
+#[cfg(test)]
+mod fixed_tests {
+    use super::fixed;
+
+    #[test]
+    fn fixed_where_it_reads_well_exponent_elsewhere_never_minus_zero() {
+        assert_eq!(fixed(100.0, 6), "100.000000");
+        assert_eq!(fixed(0.0, 3), "0.000");
+        assert_eq!(fixed(-0.0, 3), "0.000");
+        assert_eq!(fixed(-0.0002, 3), "-2.000e-4");
+        assert_eq!(fixed(-0.00201, 2), "0.00");
+        assert_eq!(fixed(1e300, 6), "1.000000e300");
+        assert_eq!(fixed(-1.5e-12, 4), "-1.5000e-12");
+        assert_eq!(fixed(f64::INFINITY, 4), "inf");
+    }
+}

@@ -4,7 +4,7 @@
 
 use crate::cli::run::{prepare, RunOptions};
 use crate::config::{Scenario, Setup};
-use crate::diagnostics::peak_rss;
+use crate::diagnostics::{fixed, peak_rss};
 use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
 use crate::discretize::material::Tensor;
 use crate::discretize::operator::{Compact, Operator};
@@ -115,13 +115,13 @@ impl std::fmt::Display for MeshInfo {
         }
         writeln!(
             f,
-            "  bounds           [{:.4}, {:.4}, {:.4}] .. [{:.4}, {:.4}, {:.4}]",
-            self.bounds[0][0],
-            self.bounds[0][1],
-            self.bounds[0][2],
-            self.bounds[1][0],
-            self.bounds[1][1],
-            self.bounds[1][2]
+            "  bounds           [{}, {}, {}] .. [{}, {}, {}]",
+            fixed(self.bounds[0][0], 4),
+            fixed(self.bounds[0][1], 4),
+            fixed(self.bounds[0][2], 4),
+            fixed(self.bounds[1][0], 4),
+            fixed(self.bounds[1][1], 4),
+            fixed(self.bounds[1][2], 4)
         )?;
         writeln!(f, "  volume           {:.12e}", self.volume)?;
         writeln!(

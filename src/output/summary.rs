@@ -109,10 +109,16 @@ impl std::fmt::Display for Summary {
         match self.restarted_from_step {
             Some(k) => writeln!(
                 f,
-                "  steps       {} to t = {:.6} (restarted at step {k})",
-                self.steps, self.time
+                "  steps       {} to t = {} (restarted at step {k})",
+                self.steps,
+                crate::diagnostics::fixed(self.time, 6)
             )?,
-            None => writeln!(f, "  steps       {} to t = {:.6}", self.steps, self.time)?,
+            None => writeln!(
+                f,
+                "  steps       {} to t = {}",
+                self.steps,
+                crate::diagnostics::fixed(self.time, 6)
+            )?,
         }
         writeln!(
             f,
