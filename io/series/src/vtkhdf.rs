@@ -91,6 +91,17 @@ struct ToolSets {
     contact_nodes: Dataset,
 }
 
+impl ToolSets {
+    /// Every dataset, each growing by one row per output step.
+    fn datasets(&self) -> impl Iterator<Item = &Dataset> {
+        [&self.time, &self.step]
+            .into_iter()
+            .chain(&self.vectors)
+            .chain(&self.scalars)
+            .chain([&self.contact_nodes])
+    }
+}
+
 struct Field {
     name: String,
     ncomp: usize,
@@ -565,12 +576,7 @@ impl SeriesWriter {
         let n = tt.n;
         // every table to k + 1 rows (made in full by every process, agreed once)
         let mut resized = Ok(());
-        for d in [&tt.time, &tt.step]
-            .into_iter()
-            .chain(&tt.vectors)
-            .chain(&tt.scalars)
-            .chain([&tt.contact_nodes])
-        {
+        for d in tt.datasets() {
             keep(&mut resized, resize(d, k + 1));
         }
         self.team.settle(what, resized)?;
@@ -865,12 +871,7 @@ impl SeriesWriter {
             t.settle(what, resize(ds, k))?;
         }
         if let Some(tt) = &self.tools {
-            for d in [&tt.time, &tt.step]
-                .into_iter()
-                .chain(&tt.vectors)
-                .chain(&tt.scalars)
-                .chain([&tt.contact_nodes])
-            {
+            for d in tt.datasets() {
                 t.settle(what, resize(d, k))?;
             }
         }
