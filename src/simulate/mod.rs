@@ -321,6 +321,23 @@ fn load_sources(
     q
 }
 
+/// The loads at time t: each one's force, contact stress sigma = |F| / A and energy density
+/// q(sigma).
+fn applied_at(loads: &[Load], law: &crate::discretize::material::TissueLaw, t: f64) -> Vec<Applied> {
+    loads
+        .iter()
+        .map(|l| {
+            let f = l.force_at(t);
+            let sigma = norm(f) / l.area;
+            Applied {
+                force: f,
+                q: law.energy_density(sigma),
+                sigma,
+            }
+        })
+        .collect()
+}
+
 /// The loads' sources at the first step whose loads push (within the first TRIAL_SEARCH
 /// steps) and at the step after it, for the automatic choice's trial steps; None when no load
 /// pushes by then. The same answer on every process (the loads' forces are global).
@@ -333,21 +350,7 @@ fn trial_sources(
     dt: f64,
 ) -> Option<[crate::propagate::integrate::choose::Trial; 2]> {
     const TRIAL_SEARCH: u64 = 1000;
-    let applied = |k: u64| -> Vec<Applied> {
-        let t = k as f64 * dt;
-        loads
-            .iter()
-            .map(|l| {
-                let f = l.force_at(t);
-                let sigma = norm(f) / l.area;
-                Applied {
-                    force: f,
-                    q: setup.law.energy_density(sigma),
-                    sigma,
-                }
-            })
-            .collect()
-    };
+    let applied = |k: u64| applied_at(loads, &setup.law, k as f64 * dt);
     let first = (0..TRIAL_SEARCH).find(|&k| applied(k).iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0))?;
     let flux = Flux::of(setup, vol);
     Some([first, first + 1].map(|k| load_sources(loads, load_local, &applied(k), flux)))
@@ -586,18 +589,7 @@ impl Simulation {
 
     /// The loads at time t.
     pub fn applied(&self, t: f64) -> Vec<Applied> {
-        self.loads
-            .iter()
-            .map(|l| {
-                let f = l.force_at(t);
-                let sigma = norm(f) / l.area;
-                Applied {
-                    force: f,
-                    q: self.setup.law.energy_density(sigma),
-                    sigma,
-                }
-            })
-            .collect()
+        applied_at(&self.loads, &self.setup.law, t)
     }
 
     /// Nodal sources Q on the owned nodes and forces f for the loads at time t.
