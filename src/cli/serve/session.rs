@@ -52,6 +52,21 @@ pub struct Outcome {
     pub displacement: V3,
 }
 
+impl Outcome {
+    /// The answer that ends a session (`kind`: end of run or bye) with this last result.
+    fn final_answer(&self, kind: u32) -> p::Answer {
+        p::Answer {
+            kind,
+            index: 0,
+            step: self.step,
+            t_step: self.t,
+            t: self.t,
+            force: self.force,
+            displacement: self.displacement,
+        }
+    }
+}
+
 /// Where the session is.
 #[derive(Clone, Debug, PartialEq)]
 enum Phase {
@@ -399,15 +414,7 @@ fn network(listener: TcpListener, shared: Shared, ents: Entities, hello: Hello, 
         End::RunOver => {
             g.ended.get_or_insert_with(|| "run over".into());
             let (_, last) = first_live(&g, &ents);
-            let a = p::Answer {
-                kind: p::answer::END,
-                index: 0,
-                step: last.step,
-                t_step: last.t,
-                t: last.t,
-                force: last.force,
-                displacement: last.displacement,
-            };
+            let a = last.final_answer(p::answer::END);
             drop(g);
             send(&mut stream, &p::answer(&a));
             g = lock(&shared);
@@ -566,15 +573,7 @@ fn serve_client(
                 g.answers += 1;
                 cv.notify_all();
                 drop(g);
-                let a = p::Answer {
-                    kind: p::answer::BYE,
-                    index: 0,
-                    step: last.step,
-                    t_step: last.t,
-                    t: last.t,
-                    force: last.force,
-                    displacement: last.displacement,
-                };
+                let a = last.final_answer(p::answer::BYE);
                 send(stream, &p::answer(&a));
                 return End::Bye;
             }
