@@ -794,17 +794,23 @@ fn restart_completes(dir: &Path, sc: &Path, h5: &Path, ranks: usize, filler: Pat
     std::fs::remove_file(h5).unwrap();
 }
 
+/// The shipped sphere press (scenarios/cylinder_indent.toml with its path table and mesh)
+/// copied into `dir`; returns the scenario's path there.
+fn indent_scenario(dir: &Path) -> PathBuf {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    for f in ["cylinder_indent.toml", "cylinder_indent_path.csv", "cylinder.msh"] {
+        std::fs::copy(root.join(f), dir.join(f)).unwrap();
+    }
+    dir.join("cylinder_indent.toml")
+}
+
 /// The tables a scenario reads (a tool's path, a load's forces) are inputs too: `-o`,
 /// `[output] file` and `serve -o` naming one are refused and the table stays as it was.
 #[test]
 fn an_output_that_is_a_load_or_tool_table_is_refused() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
-    for f in ["cylinder_indent.toml", "cylinder_indent_path.csv", "cylinder.msh"] {
-        std::fs::copy(root.join(f), dir.join(f)).unwrap();
-    }
-    let sc = dir.join("cylinder_indent.toml");
+    let sc = indent_scenario(dir);
     let path = dir.join("cylinder_indent_path.csv");
     std::fs::write(dir.join("forces.csv"), "0,0,0,0\n1,-0.1,0,0\n").unwrap();
     let with_load = dir.join("load.toml");
@@ -1149,11 +1155,7 @@ fn a_sweep_of_small_disks_on_2_ranks_never_hangs_or_crashes() {
 fn a_tool_run_restarts_bit_for_bit_and_the_refusal_advises_it() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
-    for f in ["cylinder_indent.toml", "cylinder_indent_path.csv", "cylinder.msh"] {
-        std::fs::copy(root.join(f), dir.join(f)).unwrap();
-    }
-    let sc = dir.join("cylinder_indent.toml");
+    let sc = indent_scenario(dir);
     let whole = dir.join("whole.h5");
     ok(&eprop(1, &["run", s(&sc), "-q", "-o", s(&whole), "--steps", "60"]));
     for (first, then) in [(1, 2), (2, 1)] {
