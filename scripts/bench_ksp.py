@@ -17,8 +17,12 @@ examples:
 scripts/bench_implicit.sh runs the whole comparison (eprop and PETSc on 1 and 2 ranks)."""
 import argparse
 import json
+import os
 import sys
 import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from petsc_operator import import_petsc, open_operator  # noqa: E402
 
 
 def main():
@@ -28,22 +32,12 @@ def main():
     ap.add_argument("--repeats", type=int, default=3, help="steps timed per preconditioner (default 3)")
     ap.add_argument("--rtol", type=float, default=1e-8, help="relative tolerance (default 1e-8)")
     a = ap.parse_args()
-    try:
-        import petsc4py
-        petsc4py.init([])
-        from petsc4py import PETSc
-    except ImportError:
-        sys.exit("bench_ksp.py: petsc4py is missing; fix: apt-get install python3-petsc4py")
-    import h5py
+    PETSc = import_petsc("bench_ksp.py")
     import numpy as np
 
     comm = PETSc.COMM_WORLD
     rank, size = comm.getRank(), comm.getSize()
-    try:
-        f = h5py.File(a.operator, "r")
-    except OSError as e:
-        sys.exit(f"bench_ksp.py: {a.operator}: cannot open: {e}")
-    with f:
+    with open_operator(a.operator, "bench_ksp.py") as f:
         if "vol" not in f:
             sys.exit(f"bench_ksp.py: {a.operator} has no vol; fix: write it again with this eprop's export-operator")
         row_ptr = f["row_ptr"][:]

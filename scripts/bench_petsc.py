@@ -17,8 +17,12 @@ examples:
 scripts/bench_petsc.sh runs the whole comparison (eprop and PETSc on 1 and 2 ranks)."""
 import argparse
 import json
+import os
 import sys
 import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from petsc_operator import import_petsc, open_operator  # noqa: E402
 
 
 def main():
@@ -30,22 +34,12 @@ def main():
                          "Cuthill-McKee (MatGetOrdering, one process only), as a careful PETSc user "
                          "reorders a mesh whose node order has poor locality (default file)")
     a = ap.parse_args()
-    try:
-        import petsc4py
-        petsc4py.init([])
-        from petsc4py import PETSc
-    except ImportError:
-        sys.exit("bench_petsc.py: petsc4py is missing; fix: apt-get install python3-petsc4py")
-    import h5py
+    PETSc = import_petsc("bench_petsc.py")
     import numpy as np
 
     comm = PETSc.COMM_WORLD
     rank, size = comm.getRank(), comm.getSize()
-    try:
-        f = h5py.File(a.operator, "r")
-    except OSError as e:
-        sys.exit(f"bench_petsc.py: {a.operator}: cannot open: {e}")
-    with f:
+    with open_operator(a.operator, "bench_petsc.py") as f:
         row_ptr = f["row_ptr"]
         n = len(row_ptr) - 1
         h = float(f.attrs["h"])
