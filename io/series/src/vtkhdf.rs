@@ -237,11 +237,13 @@ fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64]
     let nd = ds.ndim();
     let start = [row0 as u64, 0];
     let count = [rows as u64, ncomp as u64];
-    let mdims = [(rows * ncomp).max(1) as u64];
+    // the memory space has the shape of the file selection: with a flat memory space HDF5 maps
+    // every element to its chunk one at a time (most of an output step's time)
+    let mdims = [rows.max(1) as u64, ncomp as u64];
     // SAFETY: plain HDF5 C calls on ids owned here or by `ds`; buffers outlive the calls.
     let status = unsafe {
         let fs = hdf5_sys::h5d::H5Dget_space(ds.id());
-        let ms = H5Screate_simple(1, mdims.as_ptr(), std::ptr::null());
+        let ms = H5Screate_simple(nd as i32, mdims[..nd].as_ptr(), std::ptr::null());
         if rows == 0 {
             H5Sselect_none(fs);
             H5Sselect_none(ms);
