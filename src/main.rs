@@ -471,8 +471,8 @@ fn main() -> ExitCode {
             .with_timer(tracing_subscriber::fmt::time::uptime())
             .init();
     }
-    match real_main(cli) {
-        Ok(()) => ExitCode::SUCCESS,
+    let status = match real_main(cli) {
+        Ok(()) => 0,
         Err(e) => match e.downcast_ref::<eprop::guard::safety::Agreed>() {
             Some(a) => {
                 // a stop says so itself ("stopped by SIGTERM ...")
@@ -482,14 +482,24 @@ fn main() -> ExitCode {
                     "error: "
                 };
                 eprintln!("{word}{}", a.message);
-                ExitCode::from(a.status)
+                a.status
             }
             None => {
                 eprintln!("error: {e:#}");
-                ExitCode::FAILURE
+                1
             }
         },
+    };
+    if eprop_series::outcome::stranded() {
+        // a file whose write failed is still open (eprop_series::outcome): HDF5's exit handler
+        // would close it, writing the metadata of uncommitted steps
+        use std::io::Write;
+        let _ = std::io::stdout().flush();
+        let _ = std::io::stderr().flush();
+        // SAFETY: ends the process at once (no destructor or atexit handler)
+        unsafe { libc::_exit(status.into()) }
     }
+    ExitCode::from(status)
 }
 
 /// Prints a report as JSON or as text.

@@ -1,5 +1,5 @@
 //! The output file as a product: restart continues bit for bit, a killed run leaves every
-//! flushed step readable, readers see complete steps while the run goes on, appending does
+//! committed step readable, steps count only at a commit, readers see complete steps while the run goes on, appending does
 //! not get slower with the number of steps, output options are honoured.
 
 mod common;
@@ -179,6 +179,90 @@ fn readers_see_complete_steps_while_the_run_goes_on() {
     }
 }
 
+/// Rows in the file's displacement array, in steps.
+fn rows_in_steps(h5: &Path) -> Option<usize> {
+    let f = hdf5::File::open(h5).ok()?;
+    let n = f.dataset("VTKHDF/NumberOfPoints").ok()?.read_raw::<i64>().ok()?[0] as usize;
+    Some(f.dataset("VTKHDF/PointData/displacement").ok()?.shape()[0] / n)
+}
+
+#[test]
+fn written_steps_count_only_at_a_commit() {
+    // [output] flush = 3600: after the first step nothing is committed until the run ends
+    for ranks in [1, 2] {
+        let d = tempfile::tempdir().unwrap();
+        let sc = scenario(d.path(), "[output]\nflush = 3600\n", 100_000_000);
+        let h5 = d.path().join("c.h5");
+        let mut child = spawn(ranks, &sc, &h5);
+        let t = Instant::now();
+        // the first step is committed at once; the run then goes on for two seconds
+        while !(h5.exists() && read_live(&h5).is_some_and(|(k, _)| k >= 1)) {
+            assert!(
+                t.elapsed() < Duration::from_secs(60),
+                "{ranks} rank(s): no step committed"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        std::thread::sleep(Duration::from_secs(2));
+        let (k, first) = read_live(&h5).expect("the file opens while the run goes on");
+        assert_eq!(k, 1, "{ranks} rank(s): only the first step is counted before a commit");
+        assert!(first.iter().all(|x| *x == 0.0));
+        // a reader sees the file of the last commit: its arrays hold the counted steps
+        assert_eq!(rows_in_steps(&h5), Some(1));
+        if ranks == 1 {
+            // a stop commits every step written
+            assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+            let status = child.wait().unwrap();
+            assert_eq!(status.code(), Some(3));
+            let k = steps_complete(&h5);
+            assert!(k >= 2, "{k} steps counted after the stop");
+            assert_eq!(rows_in_steps(&h5), Some(k as usize));
+        } else {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+    // a crash loses the uncommitted steps, and --restart continues from the commit bit for bit
+    let d = tempfile::tempdir().unwrap();
+    let sc = scenario(d.path(), "[output]\nflush = 3600\n", 100_000_000);
+    let h5 = d.path().join("k.h5");
+    let mut child = spawn(1, &sc, &h5);
+    let t = Instant::now();
+    while !(h5.exists() && read_live(&h5).is_some_and(|(k, _)| k >= 1)) {
+        assert!(t.elapsed() < Duration::from_secs(60));
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_secs(1));
+    Command::new("kill")
+        .args(["-9", &child.id().to_string()])
+        .status()
+        .unwrap();
+    let _ = child.wait();
+    assert_eq!(steps_complete(&h5), 1);
+    let args = |o: &Path| {
+        vec![
+            "run".to_string(),
+            sc.to_str().unwrap().to_string(),
+            "-q".to_string(),
+            "--steps".to_string(),
+            "8".to_string(),
+            "-o".to_string(),
+            o.to_str().unwrap().to_string(),
+        ]
+    };
+    let mut again: Vec<String> = args(&h5);
+    again.truncate(5);
+    again.extend(["--restart".to_string(), h5.to_str().unwrap().to_string()]);
+    let again: Vec<&str> = again.iter().map(|s| s.as_str()).collect();
+    ok(&serial(&again, 1));
+    let whole = d.path().join("whole.h5");
+    let whole_args = args(&whole);
+    let whole_args: Vec<&str> = whole_args.iter().map(|s| s.as_str()).collect();
+    ok(&serial(&whole_args, 1));
+    assert_same(&whole, &h5);
+    assert_eq!(steps_complete(&h5), 9);
+}
+
 #[test]
 fn a_killed_run_leaves_every_flushed_step_and_restarts() {
     let d = tempfile::tempdir().unwrap();
@@ -186,7 +270,8 @@ fn a_killed_run_leaves_every_flushed_step_and_restarts() {
     let h5 = d.path().join("k.h5");
     let mut child = spawn(1, &sc, &h5);
     let t = Instant::now();
-    while !(h5.exists() && t.elapsed() > Duration::from_millis(1500)) {
+    // until a commit after the first step (at least a second later, [output] flush)
+    while !(h5.exists() && read_live(&h5).is_some_and(|(k, _)| k >= 2)) {
         assert!(t.elapsed() < Duration::from_secs(60));
         std::thread::sleep(Duration::from_millis(50));
     }

@@ -48,7 +48,8 @@ pub struct Case {
     pub full_steps_per_second: f64,
     /// Share of the substep time spent waiting for halos (largest process).
     pub halo_wait_share: f64,
-    /// Seconds to append one output step (all fields, float64).
+    /// Seconds to append one output step (all fields, float64) and commit it (flushed and
+    /// synced to the disk, as `[output] flush = 0` does).
     pub output_seconds_per_step: f64,
     /// Peak resident memory (largest process) and per node (sum over processes / nodes).
     pub peak_mib: f64,
@@ -192,7 +193,7 @@ pub fn measure(
         let t = Instant::now();
         let data = field_blocks(&sim, &Field::ALL);
         let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
-        out.append(sim.time(), sim.step(), &refs, &sim.probes())?;
+        out.append(sim.time(), sim.step(), &refs, &sim.probes(), true)?;
         writes.push(sim.comm().max(t.elapsed().as_secs_f64()));
     }
     drop(out);

@@ -86,11 +86,12 @@ fn from_root(sim: &Simulation, r: Result<()>, status: u8) -> Result<()> {
 }
 
 /// The complete steps of a series, for messages.
-fn holds(series: &Series, last: u64) -> String {
+fn holds(series: &Series) -> String {
     format!(
-        "{} keeps its {} complete output steps (to step {last})",
+        "{} keeps its {} complete output steps (to step {})",
         series.path().display(),
-        series.steps_written()
+        series.steps_complete(),
+        series.complete_step()
     )
 }
 
@@ -246,10 +247,14 @@ impl Output {
     /// Writes the current step: its state must be finite (a warning the first time max |u|
     /// passes its limit) and, unless forced, the disk must hold it with room to spare
     /// (stopping before a write that cannot finish leaves the file closed cleanly).
-    fn write(&mut self, sim: &Simulation, s: &Settings, progress: &Progress) -> Result<(), Failure> {
+    /// With `commit` the step is complete in the file when this returns, else at the next
+    /// commit (`[output] flush`).
+    fn write(&mut self, sim: &Simulation, s: &Settings, progress: &Progress, commit: bool) -> Result<(), Failure> {
         let root = sim.comm().rank() == 0;
         match self.watch.look(sim) {
             Look::NonFinite => {
+                // the finite steps written before are kept
+                self.complete(s)?;
                 return Err(Failure {
                     why: format!("the state is no longer finite (NaN or inf) at step {}", sim.step()),
                     error: Agreed::error(
@@ -259,7 +264,7 @@ impl Output {
                             sim.setup().scenario.path.display(),
                             sim.step(),
                             sim.time(),
-                            holds(&self.series, self.last_written),
+                            holds(&self.series),
                             plausible::nonfinite_cause(sim)
                         ),
                     ),
@@ -280,6 +285,8 @@ impl Output {
                 && free_bytes(&dir_of(file))
                     .is_some_and(|free| (free as f64) < crate::guard::limits::reserve(step_bytes));
             if sim.comm().max(f64::from(u8::from(full))) > 0.0 {
+                // the steps written before are counted (a few bytes of the reserve)
+                self.complete(s)?;
                 let free = free_bytes(&dir_of(file)).unwrap_or(0);
                 return Err(Failure {
                     why: format!(
@@ -296,21 +303,29 @@ impl Output {
                             human_bytes(crate::guard::limits::reserve(step_bytes)),
                             human_bytes(step_bytes),
                             self.series.steps_written(),
-                            holds(&self.series, self.last_written),
+                            holds(&self.series),
                             s.next
                         ),
                     ),
                 });
             }
         }
-        if let Err(e) = self.series.append(sim) {
+        if let Err(e) = self.series.append(sim, commit) {
             return Err(Failure {
                 why: format!("the series could not be written: {}", cause(&e)),
-                error: write_failed(e, &holds(&self.series, self.last_written), &s.next),
+                error: write_failed(e, &holds(&self.series), &s.next),
             });
         }
         self.last_written = sim.step();
         Ok(())
+    }
+
+    /// Makes every written step complete in the file.
+    fn complete(&mut self, s: &Settings) -> Result<(), Failure> {
+        self.series.commit().map_err(|e| Failure {
+            why: format!("the series could not be written: {}", cause(&e)),
+            error: write_failed(e, &holds(&self.series), &s.next),
+        })
     }
 }
 
@@ -368,15 +383,16 @@ fn steps(
         if let Some(h) = feed.before_step(sim)? {
             // the series ends with the last step computed
             if out.last_written != sim.step() {
-                out.write(sim, s, bar)?;
+                out.write(sim, s, bar, true)?;
             }
-            return Err(halted(h, Some(holds(&out.series, out.last_written))));
+            out.complete(s)?;
+            return Err(halted(h, Some(holds(&out.series))));
         }
         sim.advance()?;
         // a stop signal rides on the step's reduction: every process stops after this step
         let stop = sim.stop_signal();
         if sim.step().is_multiple_of(every) || sim.done() || stop != 0 {
-            out.write(sim, s, bar)?;
+            out.write(sim, s, bar, sim.done() || stop != 0)?;
         }
         feed.after_step(sim);
         bar.update(sim.step(), sim.max_speed());
@@ -390,7 +406,7 @@ fn steps(
                         "stopped by {name} after step {} of {}: {}; {}",
                         sim.step(),
                         sim.max_steps(),
-                        holds(&out.series, out.last_written),
+                        holds(&out.series),
                         s.next
                     ),
                 ),

@@ -270,6 +270,8 @@ pub struct CheckReport {
     pub output_mib: f64,
     pub memory_mib: f64,
     pub estimated_seconds: f64,
+    /// Seconds to write the output steps on the output's disk (a probe written there).
+    pub output_seconds: Option<f64>,
     pub warnings: Vec<String>,
 }
 
@@ -363,6 +365,11 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         output_mib: budget.output_bytes / 1048576.0,
         memory_mib: peak_rss() as f64 / 1048576.0,
         estimated_seconds: per_substep * 1.3 * sim.step_plan().cost * steps as f64,
+        output_seconds: crate::guard::limits::write_seconds(
+            &eprop_series::outcome::dir_of(file),
+            budget.step_bytes,
+            budget.output_steps,
+        ),
         warnings,
     })
 }
@@ -391,10 +398,16 @@ impl std::fmt::Display for CheckReport {
         if let Some(s) = &self.stiffness {
             writeln!(f, "{}", s.describe(12))?;
         }
+        let writing = match self.output_seconds {
+            Some(w) => format!(" ({} s of it writing the output)", crate::diagnostics::fixed(w, 3)),
+            None => String::new(),
+        };
         writeln!(
             f,
-            "  run         {} steps, about {:.3} s on one process; {:.1} MiB of memory",
-            self.steps, self.estimated_seconds, self.memory_mib
+            "  run         {} steps, about {} s on one process{writing}; {:.1} MiB of memory",
+            self.steps,
+            crate::diagnostics::fixed(self.estimated_seconds + self.output_seconds.unwrap_or(0.0), 3),
+            self.memory_mib
         )?;
         write!(
             f,

@@ -56,6 +56,23 @@ pub struct OutputSec {
     /// Replace an existing series in `file` (as `--overwrite`).
     #[serde(default)]
     pub overwrite: bool,
+    /// Seconds of wall time between flushes that complete the written steps in the file
+    /// (0: every output step).
+    #[serde(default = "one_second", deserialize_with = "seconds")]
+    pub flush: f64,
+}
+
+fn one_second() -> f64 {
+    1.0
+}
+
+fn seconds<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    match f64::deserialize(d)? {
+        s if s.is_finite() && s >= 0.0 => Ok(s),
+        _ => Err(D::Error::custom(
+            "must be a number of seconds, 0 or more; fix: 0 completes every output step in the file, the default 1 at most once a second",
+        )),
+    }
 }
 
 fn every_step() -> u64 {
@@ -113,6 +130,8 @@ pub struct Output {
     pub compression: u8,
     /// An existing series in `file` may be replaced.
     pub overwrite: bool,
+    /// Seconds between the flushes that make written steps complete in the file.
+    pub flush: f64,
 }
 
 impl Output {
@@ -144,6 +163,7 @@ pub fn resolve(sc: &Scenario) -> Output {
         precision: o.precision,
         compression: o.compression,
         overwrite: o.overwrite,
+        flush: o.flush,
     }
 }
 
@@ -164,6 +184,8 @@ mod tests {
         assert_eq!(o.file, PathBuf::from("dir/run.h5"));
         assert_eq!((o.every, o.precision, o.compression), (1, Precision::Float64, 0));
         assert_eq!(o.fields, Field::ALL);
+        assert_eq!(o.flush, 1.0);
+        assert_eq!(output("flush = 0").unwrap().flush, 0.0);
         let o = output("file = \"x/y.h5\"\nfields = [\"energy\", \"displacement\"]\nprecision = \"float32\"").unwrap();
         assert_eq!(o.file, PathBuf::from("dir/x/y.h5"));
         assert_eq!(o.fields(), [Field::Displacement, Field::Energy]);
@@ -185,6 +207,7 @@ mod tests {
                 "[output] precision: `float16` is not one of the accepted values; fix: use \"float64\" or \"float32\"",
             ),
             ("compression = 12", "[output] compression: must be a gzip level"),
+            ("flush = -1", "[output] flush: must be a number of seconds"),
         ] {
             let e = output(keys).unwrap_err();
             assert!(e.starts_with("dir/run.toml:6:"), "{keys}: {e}");

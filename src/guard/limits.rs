@@ -247,6 +247,37 @@ impl Budget {
     }
 }
 
+/// Seconds to write `steps` output steps of `step_bytes` each into `dir`, from a probe written
+/// there now: a few blocks of one step's size (64 MiB at most in all) and one sync, as a run
+/// writes its steps between flushes. None when the probe cannot be written or the disk is
+/// short of four times its size.
+pub fn write_seconds(dir: &std::path::Path, step_bytes: f64, steps: u64) -> Option<f64> {
+    use std::io::Write;
+    let block = (step_bytes as usize).clamp(4096, 32 << 20);
+    let count = ((64usize << 20) / block).clamp(2, 8);
+    let free = eprop_series::outcome::free_bytes(dir)?;
+    if (free as f64) < 4.0 * (block * count) as f64 {
+        return None;
+    }
+    let probe = dir.join(format!(".eprop-write-probe-{}", std::process::id()));
+    let data = vec![0x5au8; block];
+    let t = std::time::Instant::now();
+    let written = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .and_then(|mut f| {
+            for _ in 0..count {
+                f.write_all(&data)?;
+            }
+            f.sync_data()
+        });
+    let seconds = t.elapsed().as_secs_f64();
+    let _ = std::fs::remove_file(&probe);
+    written.ok()?;
+    Some(seconds / (block * count) as f64 * step_bytes * steps as f64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -81,6 +81,9 @@ pub struct Series {
     fields: Vec<Field>,
     /// Seconds of every append of this run.
     appends: Vec<f64>,
+    /// The simulation step of the last appended and of the last complete output step.
+    appended_step: u64,
+    complete_step: u64,
 }
 
 impl Series {
@@ -95,6 +98,7 @@ impl Series {
         io: Option<&mpi::topology::SimpleCommunicator>,
     ) -> Result<Series> {
         let output = &sim.setup().output;
+        let flush = output.flush;
         let fields = output.fields();
         let mut text_hash = Fnv::default();
         text_hash.bytes(sim.setup().scenario.text.as_bytes());
@@ -168,10 +172,13 @@ impl Series {
             if !resume.step.is_multiple_of(every) && resume.step < sim.max_steps() && writer.steps_written() > 1 {
                 writer.forget_last()?;
             }
+            writer.commit_every(flush);
             return Ok(Series {
                 writer,
                 fields,
                 appends: Vec::new(),
+                appended_step: resume.step,
+                complete_step: resume.step,
             });
         }
         let created =
@@ -182,12 +189,15 @@ impl Series {
                     writer.add_tools(sim.tools.len())?;
                 }
                 log_memory("the static output");
+                writer.commit_every(flush);
                 let mut series = Series {
                     writer,
                     fields,
                     appends: Vec::new(),
+                    appended_step: sim.step(),
+                    complete_step: sim.step(),
                 };
-                series.append(sim)?;
+                series.append(sim, true)?;
                 log_memory("the first output step");
                 Ok(series)
             });
@@ -213,17 +223,40 @@ impl Series {
         }
     }
 
-    /// Appends the simulation's current step (every process calls).
-    pub fn append(&mut self, sim: &Simulation) -> Result<()> {
+    /// Appends the simulation's current step (every process calls): complete in the file at
+    /// once with `commit`, else at the next commit (`[output] flush` seconds apart).
+    pub fn append(&mut self, sim: &Simulation, commit: bool) -> Result<()> {
         let t = Instant::now();
         let data = field_blocks(sim, &self.fields);
         let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
         if !sim.tools.is_empty() {
             self.writer.append_tools(sim.time(), sim.step(), &tool_rows(sim))?;
         }
-        self.writer.append(sim.time(), sim.step(), &refs, &sim.probes())?;
+        let committed = self
+            .writer
+            .append(sim.time(), sim.step(), &refs, &sim.probes(), commit)?;
+        self.appended_step = sim.step();
+        if committed {
+            self.complete_step = sim.step();
+        }
         self.appends.push(t.elapsed().as_secs_f64());
         Ok(())
+    }
+
+    /// Makes every appended step complete in the file (every process calls).
+    pub fn commit(&mut self) -> Result<()> {
+        let t = Instant::now();
+        self.writer.commit()?;
+        self.complete_step = self.appended_step;
+        if let Some(last) = self.appends.last_mut() {
+            *last += t.elapsed().as_secs_f64();
+        }
+        Ok(())
+    }
+
+    /// The simulation step of the last complete output step.
+    pub fn complete_step(&self) -> u64 {
+        self.complete_step
     }
 
     /// Seconds spent appending.
@@ -244,9 +277,14 @@ impl Series {
         self.writer.path()
     }
 
-    /// Complete steps in the file.
+    /// Output steps written (complete in the file after the next commit).
     pub fn steps_written(&self) -> usize {
         self.writer.steps_written()
+    }
+
+    /// Output steps complete in the file.
+    pub fn steps_complete(&self) -> usize {
+        self.writer.steps_complete()
     }
 }
 

@@ -14,6 +14,11 @@
 //! the team keeps a reference to it, and the process ends without the HDF5 and MPI
 //! finalisation (`stranded`, `distribute::launch`), after the data of every step before
 //! the failure was flushed.
+//!
+//! One process does the same: closing would write the metadata of the steps written since
+//! the last commit, which on a full disk lands in part and leaves a file its next open
+//! cannot truncate. Left open, the file on the disk is the one of the last commit (the rows
+//! written since lie beyond the space it describes), and `--restart` continues from it.
 
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
@@ -21,8 +26,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 static STRANDED: AtomicBool = AtomicBool::new(false);
 
-/// True when a file written by several processes failed: it is left open, and the process
-/// must end without finalising HDF5 and MPI (which would close it and hang).
+/// True when a write to a file failed: it is left open, and the process must end without
+/// finalising HDF5 and MPI (which would close it, and under MPI hang).
 pub fn stranded() -> bool {
     STRANDED.load(Ordering::SeqCst)
 }
@@ -230,12 +235,9 @@ impl Team {
         self.file.set(Some(file.id()));
     }
 
-    /// Under MPI after a failure: one more reference to the file, so that dropping every
-    /// handle never closes it, and the process marked to end without finalisation.
+    /// After a failure: one more reference to the file, so that dropping every handle never
+    /// closes it, and the process marked to end without finalisation.
     fn strand(&self) {
-        if self.comm.is_none() {
-            return;
-        }
         if let Some(id) = self.file.take() {
             // SAFETY: `id` is the open file's id (held since it was opened)
             unsafe {
@@ -347,6 +349,20 @@ impl Team {
             return Ok(None);
         }
         self.settle(what, r).map(Some)
+    }
+
+    /// Rank 0's `yes` on every process (a broadcast; every process calls).
+    pub fn root_decides(&self, yes: bool) -> bool {
+        use mpi::topology::Communicator;
+        use mpi::traits::Root;
+        match &self.comm {
+            None => yes,
+            Some(c) => {
+                let mut v = i32::from(yes);
+                c.process_at_rank(0).broadcast_into(&mut v);
+                v != 0
+            }
+        }
     }
 
     /// True when every process says `ok` (a reduction; every process calls).

@@ -128,7 +128,14 @@ pub struct SeriesWriter {
     probe_force: Dataset,
     probe_disp: Dataset,
     n_loads: usize,
+    /// Output steps whose rows are written.
     n_steps: usize,
+    /// Output steps counted complete in the file (`steps_complete`, `NSteps`): the rest are
+    /// written but not yet flushed and counted.
+    counted: usize,
+    /// Seconds between commits (flush, count, flush); 0 commits every step.
+    commit_every: f64,
+    last_commit: std::time::Instant,
     /// The writing processes; every call's outcome is agreed through it.
     team: Team,
     tools: Option<ToolSets>,
@@ -524,6 +531,9 @@ impl SeriesWriter {
             probe_disp,
             n_loads: nl,
             n_steps: 0,
+            counted: 0,
+            commit_every: 0.0,
+            last_commit: std::time::Instant::now(),
             team,
             tools: None,
             cell_offsets,
@@ -604,13 +614,26 @@ impl SeriesWriter {
         self.team.settle(what, if root { rows_of_root() } else { Ok(()) })
     }
 
+    /// Seconds between commits: steps appended in between are written but counted (and
+    /// flushed) only at the next commit. 0 (the default) commits every step.
+    pub fn commit_every(&mut self, seconds: f64) {
+        self.commit_every = seconds.max(0.0);
+    }
+
     /// Appends one output step (every process calls): `data[f]` holds field f for this
     /// process's block of nodes (node-major, components interleaved); `probes[l]` = (applied
-    /// force, contact displacement) of load l (used on rank 0). The step's rows and tables are
-    /// written and flushed before `steps_complete` counts it (a second flush), so a failure at
-    /// any point leaves the file at its previous complete step; a failure is a `WriteFailed` on
-    /// every process.
-    pub fn append(&mut self, time: f64, step: u64, data: &[&[f64]], probes: &[([f64; 3], [f64; 3])]) -> Result<()> {
+    /// force, contact displacement) of load l (used on rank 0). The step is then committed
+    /// when `commit` is true, when it is the first, or when the commit interval has passed
+    /// (rank 0's clock decides for every process); returns whether it was. A failure at any
+    /// point leaves the file at its last commit; a failure is a `WriteFailed` on every process.
+    pub fn append(
+        &mut self,
+        time: f64,
+        step: u64,
+        data: &[&[f64]],
+        probes: &[([f64; 3], [f64; 3])],
+        commit: bool,
+    ) -> Result<bool> {
         let k = self.n_steps;
         let n = self.n_points;
         let (b0, bl) = self.block;
@@ -669,8 +692,30 @@ impl SeriesWriter {
             Ok(())
         };
         t.settle(what, if root { tables() } else { Ok(()) })?;
-        t.settle(what, self.file.flush())?;
-        let ns = (k + 1) as i64;
+        self.n_steps = k + 1;
+        let due = commit
+            || self.counted == 0
+            || self.commit_every <= 0.0
+            || self.last_commit.elapsed().as_secs_f64() >= self.commit_every;
+        if self.team.root_decides(due) {
+            self.commit()?;
+            return Ok(true);
+        }
+        Ok(false)
+    }
+
+    /// Makes every appended step complete in the file (every process calls; nothing to do
+    /// when none is pending): the rows and tables are flushed before `steps_complete` and
+    /// `NSteps` count them (a second flush), so a failure at any point leaves the file at its
+    /// previous commit. Under MPI-IO each flush is a sync of the file on every process.
+    pub fn commit(&mut self) -> Result<()> {
+        if self.counted == self.n_steps {
+            return Ok(());
+        }
+        let (k, t) = (self.n_steps, &self.team);
+        let what = || format!("completing output steps {} to {}", self.counted, k - 1);
+        t.settle(what, self.file.flush().and_then(|_| self.sync()))?;
+        let ns = k as i64;
         let mut counted = self.steps.attr("NSteps").and_then(|a| a.write_scalar(&ns));
         keep(
             &mut counted,
@@ -680,8 +725,9 @@ impl SeriesWriter {
                 .and_then(|a| a.write_scalar(&ns)),
         );
         t.settle(what, counted)?;
-        t.settle(what, self.file.flush())?;
-        self.n_steps = k + 1;
+        t.settle(what, self.file.flush().and_then(|_| self.sync()))?;
+        self.counted = k;
+        self.last_commit = std::time::Instant::now();
         Ok(())
     }
 
@@ -816,6 +862,9 @@ impl SeriesWriter {
             probe_disp,
             n_loads,
             n_steps: k,
+            counted: k,
+            commit_every: 0.0,
+            last_commit: std::time::Instant::now(),
             steps,
             file,
             team,
@@ -852,6 +901,7 @@ impl SeriesWriter {
         )?;
         t.settle(what, self.file.flush())?;
         self.n_steps = k;
+        self.counted = k;
         self.truncate()
     }
 
@@ -880,8 +930,24 @@ impl SeriesWriter {
         t.settle(what, self.file.flush())
     }
 
+    /// Writes the file's data to the disk: under MPI-IO HDF5's flush did (a file sync on every
+    /// process); one process syncs it here, so that a commit means the same on any count.
+    fn sync(&self) -> hdf5::Result<()> {
+        if self.parallel {
+            return Ok(());
+        }
+        std::fs::File::open(&self.path)
+            .and_then(|f| f.sync_data())
+            .map_err(|e| hdf5::Error::from(format!("syncing the file to the disk: {e}")))
+    }
+
+    /// Output steps appended (complete in the file after the next commit).
     pub fn steps_written(&self) -> usize {
         self.n_steps
+    }
+    /// Output steps complete in the file (counted by its last commit).
+    pub fn steps_complete(&self) -> usize {
+        self.counted
     }
     pub fn path(&self) -> &Path {
         &self.path
