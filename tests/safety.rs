@@ -1429,6 +1429,19 @@ fn products_that_overflow_or_underflow_are_refused_when_the_scenario_is_read() {
     }
     let o = eprop(2, &["run", s(&dir.join("p0.toml")), "-q"]);
     refused(&o, 1, &["[tissue] young = 1e-300", "above 1e200", "fix:"]);
+    // a scale that puts the load's point at the mesh's fixed end says so
+    let sc = cylinder(dir, "scaled.toml", "", 2);
+    edit(&sc, "file = \"cyl.msh\"\n", "file = \"cyl.msh\"\nscale = 1e59\n");
+    let o = eprop(1, &["check", s(&sc)]);
+    refused(
+        &o,
+        1,
+        &[
+            "is in the fixed set",
+            "(with [mesh] scale = 1e59 the mesh spans 4.8867e59",
+            "fix:",
+        ],
+    );
     // the same cylinder in the continuum reading, its mesh read in mm and in m, and the
     // paper's defaults: accepted
     for (k, extra) in [

@@ -7,7 +7,8 @@
 //! would propagate nothing. The estimates are taken as logarithms (no estimate overflows) with
 //! the mesh's typical node spacing for a node's contact area; they lie within a few orders of
 //! magnitude of the run's values, far inside the margins `HUGE` and `TINY`. The run-time watch
-//! of `guard::plausible` stays: it sees what no estimate can (a live load, say).
+//! of `guard::plausible` stays: it sees what no estimate can (a live load's samples, say: live
+//! loads are not estimated here, so `run` and `serve` stop alike on the same samples).
 
 use super::{Load, Reading, Setup};
 use crate::diagnostics::{power_of_ten, short};
@@ -62,7 +63,9 @@ pub fn check(setup: &Setup) -> Result<()> {
     let (huge, tiny) = (HUGE.log10(), TINY.log10());
     for (k, l) in setup.loads.iter().enumerate() {
         let f = peak_force(l);
-        if !(f > 0.0) {
+        // a live load's force comes from the client of `eprop serve` (and `run` reads its
+        // table as that client would send it): the run-time watch sees it, as in a session
+        if l.live || !(f > 0.0) {
             continue;
         }
         let n = k + 1;
