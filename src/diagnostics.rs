@@ -88,9 +88,50 @@ pub fn fixed(x: f64, digits: usize) -> String {
     }
 }
 
+/// A number as written in a scenario (the shortest form that reads back the same), in exponent
+/// form when it is very large or very small (1e300, not 301 digits); never `-0`. `fixed` is
+/// for computed values, `short` for the values a user wrote.
+pub fn short(x: f64) -> String {
+    if x == 0.0 {
+        "0".into()
+    } else if x.is_finite() && !(1e-4..1e6).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
+/// `10^lg` in exponent form with two significant digits (an estimate held as its logarithm:
+/// 10^600 is "1.0e600", a number no f64 holds).
+pub fn power_of_ten(lg: f64) -> String {
+    if !lg.is_finite() {
+        return if lg > 0.0 { "inf".into() } else { "0".into() };
+    }
+    if lg.abs() > 1e15 {
+        return format!("10^({lg:.1e})");
+    }
+    let e = lg.floor();
+    let m = 10f64.powf(lg - e);
+    let (m, e) = if m >= 9.95 { (1.0, e + 1.0) } else { (m, e) };
+    format!("{m:.1}e{}", e as i64)
+}
+
 #[cfg(test)]
 mod fixed_tests {
-    use super::fixed;
+    use super::{fixed, power_of_ten, short};
+
+    #[test]
+    fn short_is_as_written_in_exponent_form_when_huge_or_tiny() {
+        assert_eq!(short(0.05), "0.05");
+        assert_eq!(short(100.0), "100");
+        assert_eq!(short(-0.0), "0");
+        assert_eq!(short(1e300), "1e300");
+        assert_eq!(short(-1e-300), "-1e-300");
+        assert_eq!(power_of_ten(299.46), "2.9e299");
+        assert_eq!(power_of_ten(600.0), "1.0e600");
+        assert_eq!(power_of_ten(-0.001), "1.0e0");
+        assert_eq!(power_of_ten(-1.4e300), "10^(-1.4e300)");
+    }
 
     #[test]
     fn fixed_where_it_reads_well_exponent_elsewhere_never_minus_zero() {

@@ -69,12 +69,15 @@ paper's per-node, unit-free reading (its defaults in parentheses). docs/model.md
 The summary gives the substep h, the steps, the speed, the largest displacement, the contact\n\
 displacement of each load and the state of each tool, and warnings about implausible inputs and\n\
 results. Run under mpirun for several processes; --restart FILE continues an interrupted series\n\
-from its last complete step (not with tools).\n\n\
+from its last complete step (tools included).\n\n\
 Safety: an output that is one of the run's inputs is refused; an existing series is replaced\n\
 only with --overwrite, any other existing file never; one run writes a file at a time (a lock,\n\
 <output>.lock, and an inode lock: links to a series being written are refused too); --restart\n\
 refuses a changed scenario, mesh or table; a run whose output would not fit on its disk is refused (--force starts it\n\
-anyway). SIGTERM, SIGINT and SIGHUP stop the run after a complete, written step.\n\
+anyway). Parameters whose products overflow or underflow (a load's contact stress and energy\n\
+density, the coupling's push, the continuum source) are refused when the scenario is read (by\n\
+check too); a state that is no longer finite stops the run. SIGTERM, SIGINT and SIGHUP stop the\n\
+run after a complete, written step.\n\
 Exit status: 0 done, 1 error or refusal (or a state that is no longer finite), 2 bad command\n\
 line, 3 stopped by a signal (continue with --restart), 4 the output could not be written\n\
 (disk full: free space, then continue with --restart).")]
@@ -256,7 +259,9 @@ Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a si
         quiet: bool,
     },
     /// Validate a scenario without running it and print what it derives: counts, fixed and
-    /// loaded nodes, h, dt, substeps, estimated run time, memory and output size.
+    /// loaded nodes, h, dt, substeps, estimated run time, memory and output size; refuses the
+    /// inputs `run` refuses (limits, parameters whose products overflow) and warns as it does
+    /// (what `run` would refuse about its output, it prints as a warning).
     Check {
         /// Scenario file (TOML)
         scenario: PathBuf,

@@ -518,7 +518,9 @@ fn a_state_that_is_not_finite_stops_the_run_on_1_and_2_ranks() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     let sc = cylinder(dir, "s.toml", "", 10);
-    edit(&sc, "normal = 0.3", "force = [1e200, 0.0, 0.0]");
+    // the energy density q = sigma^2 / (2 young), about 3e179, passes the check made when the
+    // scenario is read (1e200), but the squares of the potential overflow at step 1
+    edit(&sc, "normal = 0.3", "force = [1e90, 0.0, 0.0]");
     for ranks in [1, 2] {
         let h5 = dir.join(format!("nan{ranks}.h5"));
         let o = eprop(ranks, &["run", s(&sc), "-q", "-o", s(&h5)]);
@@ -1190,16 +1192,27 @@ fn a_tool_run_restarts_bit_for_bit_and_the_refusal_advises_it() {
 fn a_state_near_overflow_stops_the_run_and_is_not_restarted_from() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
-    // products that overflow: the energy |phi| and max |u| would be written as inf
-    for (name, extra) in [
-        ("young", "[tissue]\nyoung = 1e-300\n"),
-        ("coupling", "[model]\nreading = \"paper\"\ncoupling = 1e300\n"),
+    // products whose squares overflow (the energy |phi| and max |u| would be written as inf)
+    // but that pass the check made when the scenario is read (young = 1e-300 and coupling =
+    // 1e300 are refused there): the watch stops them at step 1 and names the cause
+    for (name, extra, cause) in [
+        ("young", "[tissue]\nyoung = 1e-180\n", "[tissue] young"),
+        (
+            "coupling",
+            "[model]\nreading = \"paper\"\ncoupling = 1e170\n",
+            "[model] coupling = 1e170 times load 1's energy density",
+        ),
     ] {
         let sc = cylinder(dir, &format!("{name}.toml"), extra, 10);
         for ranks in [1, 2] {
             let h5 = dir.join(format!("{name}{ranks}.h5"));
             let o = eprop(ranks, &["run", s(&sc), "-q", "-o", s(&h5)]);
-            refused(&o, 1, &["no longer finite (NaN or inf)", "Likely cause:", "fix:"]);
+            refused(
+                &o,
+                1,
+                &["no longer finite (NaN or inf)", "Likely cause:", cause, "fix:"],
+            );
+            assert!(!stderr(&o).contains("grew without bound"), "{}", stderr(&o));
             assert!(!stderr(&o).contains("young = 0.000"), "{}", stderr(&o));
             let (_, finite) = last_step(&h5);
             assert!(finite);
@@ -1353,4 +1366,219 @@ fn check_warns_about_what_serve_refuses() {
     let sc = cylinder(dir, "ok.toml", &tool.repeat(32), 4);
     let ws = warnings(&summary(&["check", s(&sc), "--json"]));
     assert!(!has(&ws, &["`eprop serve` will refuse"]), "{ws:?}");
+}
+
+/// Parameters whose products overflow or underflow are refused when the scenario is read, by
+/// `check` and `run` alike (on 2 ranks too), naming the keys, their values and the fix;
+/// nothing is written. An overflowing mechanics bound is not blamed on "stiffness = 0 and
+/// damping = 0".
+#[test]
+fn products_that_overflow_or_underflow_are_refused_when_the_scenario_is_read() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let continuum = "[model]\nreading = \"continuum\"\n[material]\nconductivity = 1e-300\n";
+    let cases: [(&str, &str, &[&str]); 6] = [
+        (
+            "[tissue]\nyoung = 1e-300\n",
+            "",
+            &["[tissue] young = 1e-300", "q(sigma) is about", "above 1e200"],
+        ),
+        (
+            "[tissue]\nyoung = 1e300\n",
+            "",
+            &["[tissue] young = 1e300", "below 1e-200", "underflows"],
+        ),
+        (
+            "[model]\nreading = \"paper\"\ncoupling = 1e300\n",
+            "",
+            &["[model] coupling = 1e300", "a push of about 3.9e298", "above 1e200"],
+        ),
+        (
+            "",
+            "normal = 1e250",
+            &["load 1's force 1.0000e250", "contact stress sigma", "above 1e200"],
+        ),
+        (
+            continuum,
+            "",
+            &["[material] conductivity 1e-300 m^2/s", "flux source", "below 1e-200"],
+        ),
+        (
+            "[material]\nmass = 1e300\ndamping = 1e-300\n[model]\nreading = \"paper\"\nstiffness = 0.0\n",
+            "",
+            &["[material] mass = 1e300, damping = 1e-300 and [model] stiffness = 0 overflows"],
+        ),
+    ];
+    for (k, (extra, load, needles)) in cases.iter().enumerate() {
+        let sc = cylinder(dir, &format!("p{k}.toml"), extra, 5);
+        if !load.is_empty() {
+            edit(&sc, "normal = 0.3", load);
+        }
+        if extra.contains("continuum") {
+            edit(&sc, "file = \"cyl.msh\"\n", "file = \"cyl.msh\"\nunit = \"m\"\n");
+        }
+        for args in [vec!["check", s(&sc)], vec!["run", s(&sc), "-q"]] {
+            let o = eprop(1, &args);
+            let mut all = needles.to_vec();
+            all.push("fix:");
+            refused(&o, 1, &all);
+            assert!(!stderr(&o).contains("stiffness = 0 and damping = 0"), "{}", stderr(&o));
+            assert!(!stderr(&o).contains("no longer finite"), "{}", stderr(&o));
+        }
+        assert!(!dir.join(format!("p{k}.h5")).exists(), "case {k} wrote output");
+    }
+    let o = eprop(2, &["run", s(&dir.join("p0.toml")), "-q"]);
+    refused(&o, 1, &["[tissue] young = 1e-300", "above 1e200", "fix:"]);
+    // a scale that puts the load's point at the mesh's fixed end says so
+    let sc = cylinder(dir, "scaled.toml", "", 2);
+    edit(&sc, "file = \"cyl.msh\"\n", "file = \"cyl.msh\"\nscale = 1e59\n");
+    let o = eprop(1, &["check", s(&sc)]);
+    refused(
+        &o,
+        1,
+        &[
+            "is in the fixed set",
+            "(with [mesh] scale = 1e59 the mesh spans 4.8867e59",
+            "fix:",
+        ],
+    );
+    // the same cylinder in the continuum reading, its mesh read in mm and in m, and the
+    // paper's defaults: accepted
+    for (k, extra) in [
+        "[model]\nreading = \"continuum\"\n",
+        "[model]\nreading = \"continuum\"\n[tissue]\nyoung = 1e6\n",
+        "",
+    ]
+    .iter()
+    .enumerate()
+    {
+        let sc = cylinder(dir, &format!("ok{k}.toml"), extra, 2);
+        if extra.contains("continuum") {
+            edit(&sc, "file = \"cyl.msh\"\n", "file = \"cyl.msh\"\nunit = \"mm\"\n");
+            ok(&eprop(1, &["check", s(&sc)]));
+            edit(&sc, "unit = \"mm\"", "unit = \"m\"");
+        }
+        ok(&eprop(1, &["check", s(&sc)]));
+    }
+}
+
+/// A run of more than 20 digits in `text` (a number printed in full), if any.
+fn long_number(text: &str) -> Option<String> {
+    let mut run = String::new();
+    for c in text.chars().chain(std::iter::once(' ')) {
+        if c.is_ascii_digit() {
+            run.push(c);
+        } else if run.len() > 20 {
+            return Some(run);
+        } else {
+            run.clear();
+        }
+    }
+    None
+}
+
+/// A negative zero in `text` ("-0", "-0.000", "-0.0000e0"), if any.
+fn negative_zero(text: &str) -> Option<String> {
+    let b = text.as_bytes();
+    for (i, _) in text.match_indices("-0") {
+        let rest: String = text[i + 1..].chars().take_while(|c| *c == '0' || *c == '.').collect();
+        let next = b.get(i + 1 + rest.len()).copied();
+        if !matches!(next, Some(b'1'..=b'9')) {
+            return Some(text[i..(i + 12).min(text.len())].to_string());
+        }
+    }
+    None
+}
+
+/// Every number in a message (errors, warnings, check's report, the summary) is short: fixed
+/// for moderate magnitudes, exponent form for huge or tiny ones, never 300 digits and never a
+/// negative zero.
+#[test]
+fn messages_print_no_long_decimals_and_no_negative_zero() {
+    assert_eq!(
+        long_number("dt = 1000000000000000000000000 s"),
+        Some("1000000000000000000000000".into())
+    );
+    assert_eq!(long_number("12345678901234567890 and 1e300"), None);
+    assert_eq!(negative_zero("F = (-0.3000, -0.0000, 1)"), Some("-0.0000, 1)".into()));
+    assert_eq!(negative_zero("u = (-0.0000e0)"), Some("-0.0000e0)".into()));
+    assert_eq!(negative_zero("-0.5 and -0.01 and --overwrite"), None);
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    std::fs::write(dir.join("late.csv"), "t,fx,fy,fz\n0,0,0,0\n1e300,1,0,0\n1e299,1,0,0\n").unwrap();
+    let tool = |r: &str, start: &str| {
+        format!("[[tool]]\nshape = \"sphere\"\nradius = {r}\nstart = {start}\nvelocity = [-0.01, 0, 0]\n")
+    };
+    let cases: Vec<(String, &str, &str)> = vec![
+        // the summary of a plain run: F = (-0.3000, -0.0000, -0.0000) before
+        (String::new(), "", ""),
+        (String::new(), "steps = 3", "steps = 3\ndt = 1e300"),
+        (String::new(), "steps = 3", "steps = 3\nh = 1e300"),
+        (
+            String::new(),
+            "normal = 0.3",
+            "normal = 0.3\nramp = [[0, 0], [1e300, 1]]",
+        ),
+        (String::new(), "normal = 0.3", "table = \"late.csv\""),
+        (
+            String::new(),
+            "nearest = [1.0, 0.0, 2.0]",
+            "nearest = [1e5, 1e-20, -1e5]",
+        ),
+        ("[material]\nmass = -1e300\n".into(), "", ""),
+        ("[integrator]\ntolerance = 1e300\n".into(), "", ""),
+        ("[tissue]\nyoung = 1e300\n".into(), "", ""),
+        (tool("0.1", "[1e300, 0, 2]"), "", ""),
+        (tool("1e300", "[0, 0, 10]"), "", ""),
+        (tool("0.1", "[-1e40, 0, 2]"), "", ""),
+    ];
+    for (k, (extra, from, to)) in cases.iter().enumerate() {
+        let sc = cylinder(dir, &format!("m{k}.toml"), extra, 3);
+        if !from.is_empty() {
+            edit(&sc, from, to);
+        }
+        for args in [vec!["check", s(&sc)], vec!["run", s(&sc), "--overwrite"]] {
+            let o = eprop(1, &args);
+            let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), stderr(&o));
+            assert_eq!(long_number(&text), None, "case {k} ({extra}{to}), {}: {text}", args[0]);
+            assert_eq!(
+                negative_zero(&text),
+                None,
+                "case {k} ({extra}{to}), {}: {text}",
+                args[0]
+            );
+        }
+    }
+}
+
+/// A sphere whose centre starts inside the organ deeper than its radius is warned about by
+/// `check` and at the start of `run` (what happens: a large foundation force from step 0, and
+/// the fix); one that starts outside is not.
+#[test]
+fn a_sphere_started_deep_inside_the_organ_is_warned_about() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let inside = "[[tool]]\nshape = \"sphere\"\nradius = 0.8\nstart = [0, 0, 2]\nvelocity = [0.01, 0, 0]\n";
+    let sc = cylinder(dir, "in.toml", inside, 2);
+    let needles = [
+        "tool 1: its centre starts inside the organ",
+        "deeper than its radius 0.8",
+        "a large foundation force and source from step 0",
+        "fix: start it outside the organ",
+    ];
+    let ws = warnings(&summary(&["check", s(&sc), "--json"]));
+    assert!(has(&ws, &needles), "{ws:?}");
+    assert!(!has(&ws, &["never reaches the organ's surface"]), "{ws:?}");
+    let o = eprop(1, &["run", s(&sc)]);
+    ok(&o);
+    assert!(needles.iter().all(|n| stderr(&o).contains(n)), "{}", stderr(&o));
+    let o = eprop(2, &["run", s(&sc), "--overwrite"]);
+    ok(&o);
+    assert!(stderr(&o).contains(needles[0]), "{}", stderr(&o));
+    // pressing from outside, and a sphere inside but within its radius of the surface
+    for (k, start) in ["[1.85, 0, 2]", "[0.5, 0, 2]"].iter().enumerate() {
+        let sc = cylinder(dir, &format!("out{k}.toml"), &inside.replace("[0, 0, 2]", start), 2);
+        let ws = warnings(&summary(&["check", s(&sc), "--json"]));
+        assert!(!has(&ws, &["starts inside the organ"]), "{start}: {ws:?}");
+    }
 }

@@ -310,7 +310,9 @@ fn read_curve(path: &Path) -> Result<Curve> {
         if let Some(&last) = x.last() {
             if a <= last {
                 bail!(
-                    "{name}:{k}: x = {a} does not increase (the row before has {last}); fix: sort the rows by x and keep one row per x"
+                    "{name}:{k}: x = {} does not increase (the row before has {}); fix: sort the rows by x and keep one row per x",
+                    crate::diagnostics::short(a),
+                    crate::diagnostics::short(last)
                 );
             }
         }

@@ -338,12 +338,12 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
             .map(|t| {
                 let (s, p) = (&t.tool.shape, t.state.position);
                 format!(
-                    "{} of radius {} at ({:.4}, {:.4}, {:.4}) at t = 0, indentation {:.4e}{}",
+                    "{} of radius {} at ({}, {}, {}) at t = 0, indentation {:.4e}{}",
                     s.name(),
-                    s.radius(),
-                    p[0],
-                    p[1],
-                    p[2],
+                    crate::diagnostics::short(s.radius()),
+                    fixed(p[0], 4),
+                    fixed(p[1], 4),
+                    fixed(p[2], 4),
                     t.state.indentation,
                     if t.tool.live { "; live (eprop serve)" } else { "" }
                 )

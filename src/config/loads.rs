@@ -112,6 +112,23 @@ impl Load {
     }
 }
 
+/// For a message about where a load lands: when `[mesh] scale` or `unit` rescales the mesh,
+/// what it spans then (the scenario's lengths are in the scaled unit: `nearest = [1, 0, 2]` on
+/// a mesh scaled by 1e59 lands at its fixed end); empty otherwise.
+fn scaled_hint(sc: &Scenario, mesh: &Mesh) -> String {
+    let ms = &sc.file.mesh;
+    let key = match (ms.unit, ms.scale) {
+        (Some(u), _) if u.metres() != 1.0 => format!("[mesh] unit = \"{}\"", u.name()),
+        (None, Some(s)) if s != 1.0 => format!("[mesh] scale = {}", crate::diagnostics::short(s)),
+        _ => return String::new(),
+    };
+    let (lo, hi) = mesh.bounds();
+    format!(
+        " (with {key} the mesh spans {:.4e}: every length of the scenario, `nearest` and `patch` included, is in that unit)",
+        super::distance(hi, lo)
+    )
+}
+
 /// Every load's contact nodes and weights on the mesh; none may be fixed.
 ///
 /// In the continuum reading a patch's nodes are those its disc reaches on the boundary faces,
@@ -141,8 +158,9 @@ pub fn resolve(sc: &Scenario, loads: &[Entry<Push>], mesh: &Mesh, fixed: &[bool]
                 Push::TABLE,
                 sel.key(),
                 format!(
-                    "the load's node {} is in the fixed set; fix: load free nodes or shrink the [[fixed]] set",
-                    mesh.node_ids[bad as usize]
+                    "the load's node {} is in the fixed set; fix: load free nodes or shrink the [[fixed]] set{}",
+                    mesh.node_ids[bad as usize],
+                    scaled_hint(sc, mesh)
                 ),
             ));
         }

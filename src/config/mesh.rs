@@ -84,7 +84,8 @@ fn scale<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
         Ok(Some(s))
     } else {
         Err(D::Error::custom(format!(
-            "{s} must be a positive number; fix: the factor from the mesh's length unit to the scenario's (1000 turns metres into mm)"
+            "{} must be a positive number; fix: the factor from the mesh's length unit to the scenario's (1000 turns metres into mm)",
+            crate::diagnostics::short(s)
         )))
     }
 }

@@ -17,6 +17,9 @@
 //! | `[output]` | `output` | `Output`: file, fields, precision |
 //! | `[performance]` | `performance` | `Performance`: substeps per fused sweep, vector kernel |
 //!
+//! Once resolved, `scales` refuses parameters whose products overflow or underflow (a load's
+//! stress and energy density, the coupling's push, the continuum source).
+//!
 //! Selectors (`box`, `sphere`, ..., `patch`) are one type for the three tables that select
 //! nodes (`select`); checked values and choices shared by sections are in `values`; command-line
 //! overrides (`--set KEY=VALUE`) edit the text before it is parsed (`set`).
@@ -29,6 +32,7 @@ mod mesh;
 mod model;
 mod output;
 mod performance;
+mod scales;
 mod select;
 pub mod set;
 pub mod tables;
@@ -380,7 +384,7 @@ impl Setup {
         let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         let tools = tools::resolve(sc, &f.tool)?;
-        Ok(Setup {
+        let setup = Setup {
             tools,
             model: f.model.clone(),
             integrator: f.integrator.settings(f.model.integrator),
@@ -395,7 +399,9 @@ impl Setup {
             loads,
             mesh,
             scenario,
-        })
+        };
+        scales::check(&setup)?;
+        Ok(setup)
     }
 }
 

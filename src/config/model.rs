@@ -153,7 +153,8 @@ fn accuracy<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
         Ok(a)
     } else {
         Err(D::Error::custom(format!(
-            "{a} is not a relative error per step; fix: a number between 0 and 1, such as {:e} (the default), or inf for no error control",
+            "{} is not a relative error per step; fix: a number between 0 and 1, such as {:e} (the default), or inf for no error control",
+            crate::diagnostics::short(a),
             integrator::DEFAULT_ACCURACY
         )))
     }
@@ -171,7 +172,8 @@ fn tolerance<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
         Ok(Some(t))
     } else {
         Err(D::Error::custom(format!(
-            "{t} is not a relative residual; fix: a number between 0 and 1, such as 1e-8 (by default 1e-2 of [integrator] accuracy)"
+            "{} is not a relative residual; fix: a number between 0 and 1, such as 1e-8 (by default 1e-2 of [integrator] accuracy)",
+            crate::diagnostics::short(t)
         )))
     }
 }

@@ -6,6 +6,7 @@
 //! at their line with the list of what the table accepts.
 
 use super::values::{Aabb, Ball, HalfSpace, Point};
+use crate::diagnostics::short;
 use eprop_io::geom::{dot, norm, sub};
 use eprop_io::Mesh;
 use serde::de::{self, DeserializeSeed, Deserializer, MapAccess, Visitor};
@@ -300,8 +301,11 @@ fn patch(mesh: &Mesh, ball: &Ball, area: &[f64], set: &mut [bool]) -> Result<(),
     }
     if !any {
         return Err(format!(
-            "no surface node within {} of {:?}; fix: move the center onto the surface or widen the radius (eprop info MESH gives the bounds)",
-            ball.radius, ball.center
+            "no surface node within {} of [{}, {}, {}]; fix: move the center onto the surface or widen the radius (eprop info MESH gives the bounds)",
+            short(ball.radius),
+            short(ball.center[0]),
+            short(ball.center[1]),
+            short(ball.center[2])
         ));
     }
     Ok(())

@@ -24,13 +24,14 @@ impl History {
     /// Appends a sample; its time must come after the last one and every value be finite.
     pub fn push(&mut self, row: [f64; 4]) -> Result<(), String> {
         if let Some(bad) = row.iter().find(|x| !x.is_finite()) {
-            return Err(format!("{bad} is not a finite number"));
+            return Err(format!("{} is not a finite number", crate::diagnostics::short(*bad)));
         }
         if let Some(last) = self.rows.last() {
             if !(row[0] > last[0]) {
                 return Err(format!(
                     "time {} does not come after the previous time {}",
-                    row[0], last[0]
+                    crate::diagnostics::short(row[0]),
+                    crate::diagnostics::short(last[0])
                 ));
             }
         }
@@ -157,8 +158,9 @@ pub fn parse_table(name: &str, bytes: &[u8], role: &str, columns: [&str; 4]) -> 
         if let Some(prev) = h.last_time() {
             if !(values[0] > prev) {
                 return Err(anyhow!(
-                    "{at}: time {} does not come after the previous row's time {prev}; fix: times must increase strictly (sort the rows, drop repeated times)",
-                    values[0]
+                    "{at}: time {} does not come after the previous row's time {}; fix: times must increase strictly (sort the rows, drop repeated times)",
+                    crate::diagnostics::short(values[0]),
+                    crate::diagnostics::short(prev)
                 ));
             }
         }

@@ -2,6 +2,7 @@
 //! boxes, spheres, half-spaces, ramps and the choices spelled as strings. A bad value fails
 //! the parse at its own line and column (see `Scenario::parse`).
 
+use crate::diagnostics::short;
 use serde::{Deserialize, Deserializer, Serialize};
 
 /// A finite number > 0.
@@ -15,7 +16,7 @@ impl TryFrom<f64> for Positive {
         if x > 0.0 && x.is_finite() {
             Ok(Positive(x))
         } else {
-            Err(format!("{x} must be a positive number"))
+            Err(format!("{} must be a positive number", short(x)))
         }
     }
 }
@@ -31,7 +32,7 @@ impl TryFrom<f64> for NonNegative {
         if x >= 0.0 && x.is_finite() {
             Ok(NonNegative(x))
         } else {
-            Err(format!("{x} must be zero or positive"))
+            Err(format!("{} must be zero or positive", short(x)))
         }
     }
 }
@@ -47,7 +48,7 @@ impl TryFrom<f64> for Finite {
         if x.is_finite() {
             Ok(Finite(x))
         } else {
-            Err(format!("{x} must be a finite number"))
+            Err(format!("{} must be a finite number", short(x)))
         }
     }
 }

@@ -6,6 +6,7 @@
 //! longer finite.
 
 use crate::config::{Reading, CONTINUUM};
+use crate::diagnostics::{fixed, short};
 use crate::simulate::Simulation;
 use eprop_io::geom::{norm, sub};
 use eprop_io::Mesh;
@@ -19,16 +20,6 @@ pub const NEAREST_FRACTION: f64 = 0.05;
 pub const AREA_FRACTION: f64 = 1e-6;
 /// The tissue law is meant for contact stresses sigma up to this multiple of `young`.
 pub const STRESS_RATIO: f64 = 1.0;
-
-/// A number as written in a scenario, in exponent form when it is very large or very small
-/// (no 300-digit decimals in a message).
-pub fn short(x: f64) -> String {
-    if x != 0.0 && x.is_finite() && !(1e-4..1e6).contains(&x.abs()) {
-        format!("{x:e}")
-    } else {
-        format!("{x}")
-    }
-}
 
 fn diagonal(mesh: &Mesh) -> f64 {
     let (lo, hi) = mesh.bounds();
@@ -88,15 +79,15 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
             if d > NEAREST_FRACTION * diag {
                 let x = mesh.points[node];
                 out.push(format!(
-                    "load {}: `nearest = [{}, {}, {}]` picks node {} at ({:.4}, {:.4}, {:.4}), {d:.4e} away from the point ({:.1} % of the mesh's diagonal {diag:.4e}); fix: give a point on the surface of the mesh",
+                    "load {}: `nearest = [{}, {}, {}]` picks node {} at ({}, {}, {}), {d:.4e} away from the point ({:.1} % of the mesh's diagonal {diag:.4e}); fix: give a point on the surface of the mesh",
                     k + 1,
-                    p.0[0],
-                    p.0[1],
-                    p.0[2],
+                    short(p.0[0]),
+                    short(p.0[1]),
+                    short(p.0[2]),
                     l.node_ids[0],
-                    x[0],
-                    x[1],
-                    x[2],
+                    fixed(x[0], 4),
+                    fixed(x[1], 4),
+                    fixed(x[2], 4),
                     100.0 * d / diag
                 ));
             }
@@ -223,6 +214,21 @@ pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
         if tool.live {
             continue;
         }
+        // a sphere whose centre starts inside the organ, deeper than its radius: it touches
+        // no surface node, yet the overlaps are measured along its direction of motion, so the
+        // surface behind it counts as pressed from the first step
+        if let crate::config::Shape::Sphere { radius } = tool.shape {
+            if let Some(depth) = sim.depth_inside(tool.path.at(0.0)) {
+                if depth > radius {
+                    out.push(format!(
+                        "tool {}: its centre starts inside the organ, {depth:.4e} from the nearest surface node, deeper than its radius {}: the contact measures each surface node's overlap against the rest surface along the tool's direction of motion, so once it moves the surface behind it counts as pressed by up to that depth, a large foundation force and source from step 0 (at rest it touches nothing and does nothing); fix: start it outside the organ, at the surface it should press (`start`, or the first row of its path table){metres}",
+                        k + 1,
+                        short(radius)
+                    ));
+                    continue;
+                }
+            }
+        }
         let mut times = vec![0.0];
         if let crate::config::Trajectory::Table(h) = &tool.path {
             let rows: Vec<f64> = h.rows().iter().map(|r| r[0]).filter(|&t| t > 0.0 && t < end).collect();
@@ -295,6 +301,23 @@ pub fn nonfinite_cause(sim: &Simulation) -> String {
                 a.sigma,
                 a.q,
                 a.sigma / sim.setup().law.young
+            );
+        }
+    }
+    // the coupling's push kappa q^p past the range whose squares (the norms written) are finite
+    let model = &sim.setup().model;
+    let (kappa, p) = (model.coupling(), model.exponent);
+    for (k, a) in sim.applied(sim.time()).iter().enumerate() {
+        let push = kappa * a.q.powf(p);
+        if !(push < 1e150) {
+            return format!(
+                "[model] coupling = {}{} times load {}'s energy density q = {:.4e} pushes with {:.4e}: the displacements' squares overflow; fix: a coupling near the reading's default ({})",
+                short(kappa),
+                if p == 1.0 { String::new() } else { format!(" (exponent {})", short(p)) },
+                k + 1,
+                a.q,
+                push,
+                short(model.reading.defaults().coupling)
             );
         }
     }

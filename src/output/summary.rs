@@ -2,7 +2,7 @@
 //! displacements), how (scheme, integrator, steps) and at what cost (time, memory, output).
 
 use crate::config::Stop;
-use crate::diagnostics::{peak_rss, spread};
+use crate::diagnostics::{fixed, peak_rss, spread};
 use crate::distribute::parts::GlobalSizes;
 use crate::output::series::Series;
 use crate::simulate::{scheme_name, Simulation};
@@ -111,14 +111,9 @@ impl std::fmt::Display for Summary {
                 f,
                 "  steps       {} to t = {} (restarted at step {k})",
                 self.steps,
-                crate::diagnostics::fixed(self.time, 6)
+                fixed(self.time, 6)
             )?,
-            None => writeln!(
-                f,
-                "  steps       {} to t = {}",
-                self.steps,
-                crate::diagnostics::fixed(self.time, 6)
-            )?,
+            None => writeln!(f, "  steps       {} to t = {}", self.steps, fixed(self.time, 6))?,
         }
         writeln!(
             f,
@@ -140,12 +135,12 @@ impl std::fmt::Display for Summary {
         }
         writeln!(
             f,
-            "  max |u|     {:.6e} at node {} ({:.4}, {:.4}, {:.4})",
+            "  max |u|     {:.6e} at node {} ({}, {}, {})",
             self.max_displacement,
             self.max_displacement_node,
-            self.max_displacement_at[0],
-            self.max_displacement_at[1],
-            self.max_displacement_at[2]
+            fixed(self.max_displacement_at[0], 4),
+            fixed(self.max_displacement_at[1], 4),
+            fixed(self.max_displacement_at[2], 4)
         )?;
         writeln!(
             f,
@@ -160,32 +155,32 @@ impl std::fmt::Display for Summary {
             };
             writeln!(
                 f,
-                "  load {}      {at}, F = ({:.4}, {:.4}, {:.4}), u = ({:.5e}, {:.5e}, {:.5e})",
+                "  load {}      {at}, F = ({}, {}, {}), u = ({:.5e}, {:.5e}, {:.5e})",
                 k + 1,
-                l.force[0],
-                l.force[1],
-                l.force[2],
-                l.displacement[0],
-                l.displacement[1],
-                l.displacement[2]
+                fixed(l.force[0], 4),
+                fixed(l.force[1], 4),
+                fixed(l.force[2], 4),
+                l.displacement[0] + 0.0, // + 0.0: never -0
+                l.displacement[1] + 0.0,
+                l.displacement[2] + 0.0
             )?;
         }
         for (k, t) in self.tools.iter().enumerate() {
             writeln!(
                 f,
-                "  tool {}      {} r = {} at ({:.4}, {:.4}, {:.4}), indentation {:.4e}, {} contact nodes (area {:.4e}), F = ({:.4e}, {:.4e}, {:.4e})",
+                "  tool {}      {} r = {} at ({}, {}, {}), indentation {:.4e}, {} contact nodes (area {:.4e}), F = ({:.4e}, {:.4e}, {:.4e})",
                 k + 1,
                 t.shape,
-                t.radius,
-                t.position[0],
-                t.position[1],
-                t.position[2],
+                crate::diagnostics::short(t.radius),
+                fixed(t.position[0], 4),
+                fixed(t.position[1], 4),
+                fixed(t.position[2], 4),
                 t.indentation,
                 t.contact_nodes,
                 t.contact_area,
-                t.force[0],
-                t.force[1],
-                t.force[2]
+                t.force[0] + 0.0, // + 0.0: never -0
+                t.force[1] + 0.0,
+                t.force[2] + 0.0
             )?;
         }
         for w in &self.warnings {

@@ -9,6 +9,7 @@ pub mod distributed;
 mod tests;
 
 use crate::config::{Fuse, Load, Precision, Reading, Scheme, Setup, Stop};
+use crate::diagnostics::short;
 use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
 use crate::discretize::operator::{Compact, Operator, Paper, V3};
 use crate::distribute::comm::{exact_sum, Comm, Serial};
@@ -138,12 +139,29 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
     let path = setup.scenario.path.display();
     let dt = match setup.time.dt {
         Some(dt) if dt > dt_bound => bail!(
-            "{path}: [time] dt = {dt} is above the mechanics stability bound {dt_bound:.6e}; fix: use dt <= {:.6e} or leave dt out (automatic)",
+            "{path}: [time] dt = {} is above the mechanics stability bound {dt_bound:.6e}; fix: use dt <= {:.6e} or leave dt out (automatic)",
+            short(dt),
             SAFETY * dt_bound
         ),
         Some(dt) => dt,
         None if dt_bound.is_finite() => SAFETY * dt_bound,
-        None => bail!("{path}: with stiffness = 0 and damping = 0 no step size is stable by itself; fix: set [time] dt"),
+        None => {
+            // infinite: every node has k = 0 and g = 0, or its bound overflows (2 m / g with
+            // m = 1e300 and g = 1e-300)
+            let (k, mat) = (setup.model.stiffness(), &setup.scenario.file.material);
+            let d = setup.model.reading.defaults();
+            let (m, g) = (mat.mass.unwrap_or(d.mass), mat.damping.unwrap_or(d.damping));
+            let damped = g > 0.0 || mat.region.iter().any(|r| r.with.damping.is_some_and(|g| g > 0.0));
+            if k == 0.0 && !damped {
+                bail!("{path}: with stiffness = 0 and damping = 0 no step size is stable by itself; fix: set [time] dt")
+            }
+            bail!(
+                "{path}: the mechanics stability bound of [material] mass = {}, damping = {} and [model] stiffness = {} overflows (2 mass / damping, or 2 sqrt(mass / stiffness), is beyond 1.8e308), so no step size follows from them; fix: check their units (docs/model.md), or set [time] dt",
+                short(m),
+                short(g),
+                short(k)
+            )
+        }
     };
     Ok((dt, dt_bound))
 }
@@ -744,6 +762,25 @@ impl Simulation {
             .fold(-1.0f64, f64::max);
         let largest = self.comm.max(largest);
         (largest >= 0.0).then(|| (largest / 0.87).sqrt())
+    }
+
+    /// How deep the rest-frame point `p` lies inside the organ: its distance to the nearest
+    /// surface node that moves, when p is on the inner side of that node's boundary dual area
+    /// (A_i . (p - X_i) < 0); None outside or without such nodes (every process calls: two
+    /// reductions).
+    pub(crate) fn depth_inside(&self, p: V3) -> Option<f64> {
+        let pts = &self.setup.mesh.points;
+        let (mut best, mut inside) = (f64::INFINITY, false);
+        for &i in &self.surface {
+            let w = eprop_io::geom::sub(p, pts[i as usize]);
+            let d = norm(w);
+            if d < best {
+                (best, inside) = (d, dot(w, self.dual.area[i as usize]) < 0.0);
+            }
+        }
+        let d = self.comm.min(best);
+        let flag = self.comm.max(f64::from(u8::from(inside && best == d)));
+        (d.is_finite() && flag > 0.0).then_some(d)
     }
 
     /// Tool k's state at each of the increasing `times` (from the run's start) as a run

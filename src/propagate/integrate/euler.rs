@@ -20,7 +20,8 @@ impl Euler {
     pub fn new(h_bound: f64, dt: f64, user_h: Option<f64>, path: &str, scheme: &str) -> Result<Euler> {
         let h_max = match user_h {
             Some(h) if h > h_bound => bail!(
-                "{path}: [time] h = {h} is above the stability bound {h_bound:.6e} of the {scheme} scheme on this mesh; fix: use h <= {:.6e} or leave h out (automatic)",
+                "{path}: [time] h = {} is above the stability bound {h_bound:.6e} of the {scheme} scheme on this mesh; fix: use h <= {:.6e} or leave h out (automatic)",
+                crate::diagnostics::short(h),
                 SAFETY * h_bound
             ),
             Some(h) => h,
