@@ -173,7 +173,7 @@ fn main() {
             let (mut child, addr) = start(r, &sc);
             let mut s = TcpStream::connect(&addr).unwrap();
             s.set_nodelay(true).unwrap();
-            s.write_all(&p::client_hello(p::VERSION)).unwrap();
+            s.write_all(&p::client_hello(p::VERSION_1)).unwrap();
             let mut b = [0u8; p::SERVER_SIZE];
             s.read_exact(&mut b).unwrap();
             assert!(matches!(p::read_reply(&b), Reply::Hello(_)));

@@ -4,7 +4,7 @@
 //! the main thread, which waits for the samples each step needs and publishes each step's
 //! results. The network thread never calls MPI.
 
-use super::protocol::{self as p, Code, Hello, Message, CLIENT_SIZE};
+use super::protocol::{self as p, Code, Hello, Message, Stream, Topology, CLIENT_SIZE};
 use crate::discretize::operator::V3;
 use serde::Serialize;
 use std::io::{ErrorKind, Read, Write};
@@ -99,6 +99,18 @@ struct State {
     /// A send that does not finish means the client does not read: meanwhile the thread
     /// reads none of the client's samples.
     sending: Option<Instant>,
+    /// The surface stream the client asked for (version 2), while it is connected.
+    stream: Option<Stream>,
+    /// The latest frame published (a step that is a multiple of the stream's every).
+    frame: Option<Arc<Frame>>,
+}
+
+/// The surface nodes' displacements at one physics step (3 per node, the topology's order).
+#[derive(Debug)]
+pub struct Frame {
+    pub step: u64,
+    pub t: f64,
+    pub u: Vec<f64>,
 }
 
 type Shared = Arc<(Mutex<State>, Condvar)>;
@@ -140,8 +152,15 @@ pub struct Session {
 }
 
 impl Session {
-    /// Starts the network thread on a bound listener.
-    pub fn start(listener: TcpListener, ents: Entities, hello: Hello, timeout: Duration) -> std::io::Result<Session> {
+    /// Starts the network thread on a bound listener; `surface` is what a streaming client
+    /// gets (None: the mesh has none).
+    pub fn start(
+        listener: TcpListener,
+        ents: Entities,
+        hello: Hello,
+        surface: Option<Arc<Topology>>,
+        timeout: Duration,
+    ) -> std::io::Result<Session> {
         listener.set_nonblocking(true)?;
         let listen = listener.local_addr()?.to_string();
         let n = ents.live.len();
@@ -165,6 +184,8 @@ impl Session {
                 answers: 0,
                 ended: None,
                 sending: None,
+                stream: None,
+                frame: None,
             }),
             Condvar::new(),
         ));
@@ -172,7 +193,7 @@ impl Session {
         let dt = hello.dt;
         let thread = std::thread::Builder::new()
             .name("eprop-serve".into())
-            .spawn(move || network(listener, s, e, hello, timeout))?;
+            .spawn(move || network(listener, s, e, hello, surface, timeout))?;
         Ok(Session {
             shared,
             thread: Some(thread),
@@ -283,6 +304,21 @@ impl Session {
         }
     }
 
+    /// Every how many steps the client wants a frame of the surface (0: no stream, or the
+    /// client is gone).
+    pub fn stream_every(&self) -> u64 {
+        let g = lock(&self.shared);
+        match (&g.phase, g.stream) {
+            (Phase::Connected, Some(s)) => u64::from(s.every),
+            _ => 0,
+        }
+    }
+
+    /// The surface's displacements at a step (sent after the next answer).
+    pub fn publish_frame(&self, f: Frame) {
+        lock(&self.shared).frame = Some(Arc::new(f));
+    }
+
     /// Ends the session because the run failed (the client gets the error).
     pub fn fail(&self, msg: &str) {
         let mut g = lock(&self.shared);
@@ -373,7 +409,14 @@ enum End {
 }
 
 /// The network thread: waits for a client, serves it, refuses any other.
-fn network(listener: TcpListener, shared: Shared, ents: Entities, hello: Hello, timeout: Duration) {
+fn network(
+    listener: TcpListener,
+    shared: Shared,
+    ents: Entities,
+    hello: Hello,
+    surface: Option<Arc<Topology>>,
+    timeout: Duration,
+) {
     let stream = loop {
         match listener.accept() {
             Ok((s, _)) => break s,
@@ -402,7 +445,15 @@ fn network(listener: TcpListener, shared: Shared, ents: Entities, hello: Hello, 
         g.client = Some(peer);
     }
     let mut stream = stream;
-    let end = serve_client(&mut stream, &listener, &shared, &ents, &hello, timeout);
+    let end = serve_client(
+        &mut stream,
+        &listener,
+        &shared,
+        &ents,
+        &hello,
+        surface.as_deref(),
+        timeout,
+    );
     let mut g = lock(&shared);
     match end {
         End::Bye => {
@@ -509,12 +560,42 @@ fn read_into(
     }
 }
 
+/// What a send that failed means.
+fn send_failed(e: std::io::Error, timeout: Duration) -> End {
+    let msg = match e.kind() {
+        ErrorKind::WouldBlock | ErrorKind::TimedOut => format!(
+            "{NOT_READING} within {} s; fix: read the answer to every message",
+            timeout.as_secs_f64()
+        ),
+        _ => format!("the client left while the server sent an answer ({e})"),
+    };
+    End::Error(None, msg)
+}
+
+/// Sends the latest frame if it is newer than the last one sent.
+fn send_frame(stream: &mut TcpStream, shared: &Shared, s: Stream, sent: &mut Option<u64>) -> std::io::Result<()> {
+    let f = {
+        let mut g = lock(shared);
+        let f = match &g.frame {
+            Some(f) if sent.is_none_or(|k| f.step > k) => f.clone(),
+            _ => return Ok(()),
+        };
+        g.sending = Some(Instant::now());
+        f
+    };
+    *sent = Some(f.step);
+    let out = stream.write_all(&p::frame(f.step, f.t, &f.u, s.width));
+    lock(shared).sending = None;
+    out
+}
+
 fn serve_client(
     stream: &mut TcpStream,
     listener: &TcpListener,
     shared: &Shared,
     ents: &Entities,
     hello: &Hello,
+    surface: Option<&Topology>,
     timeout: Duration,
 ) -> End {
     let _ = stream.set_nodelay(true);
@@ -523,21 +604,50 @@ fn serve_client(
     let mut last_look = Instant::now();
     // the magic first, so that another protocol is refused at once
     let mut first = [0u8; CLIENT_SIZE];
+    let mut opening = None;
     for (from, to) in [(0, 8), (8, CLIENT_SIZE)] {
         match read_into(stream, listener, shared, &mut last_look, &mut first[..to], from) {
             Ok(Some(())) => {}
             Ok(None) => return End::RunOver,
             Err(e) => return e,
         }
-        if let Err((code, msg)) = p::read_hello(&first) {
-            if to == CLIENT_SIZE || code == Code::NotEprop {
-                return End::Error(Some(code), msg);
-            }
+        match p::read_hello(&first) {
+            Ok(o) => opening = Some(o),
+            Err((code, msg)) if to == CLIENT_SIZE || code == Code::NotEprop => return End::Error(Some(code), msg),
+            Err(_) => {}
         }
     }
-    if !send(stream, &p::server_hello(hello)) {
+    let Some(opening) = opening else {
+        return End::Error(Some(Code::NotEprop), "internal: no hello read".into());
+    };
+    let stream_req = opening.stream;
+    let mut hello = Hello {
+        version: opening.version,
+        ..*hello
+    };
+    let mut topology = None;
+    if let Some(s) = stream_req {
+        let Some(t) = surface.filter(|t| !t.triangles.is_empty()) else {
+            return End::Error(
+                Some(Code::Stream),
+                "the mesh has no outer surface to stream; fix: ask for no stream".into(),
+            );
+        };
+        hello.surface_nodes = t.nodes.len() as u32;
+        hello.surface_triangles = t.triangles.len() as u32;
+        topology = Some(p::topology(t, s));
+        // before the hello: the physics learns of the stream with the first samples
+        lock(shared).stream = Some(s);
+    }
+    if !send(stream, &p::server_hello(&hello)) {
         return End::Error(None, "the client left after its hello".into());
     }
+    if let Some(t) = topology {
+        if let Err(e) = stream.write_all(&t) {
+            return send_failed(e, timeout);
+        }
+    }
+    let mut frame_sent: Option<u64> = None;
     let cv = &shared.1;
     loop {
         let b = match read_one(stream, listener, shared, &mut last_look) {
@@ -628,14 +738,12 @@ fn serve_client(
         let sent = stream.write_all(&p::answer(&a));
         lock(shared).sending = None;
         if let Err(e) = sent {
-            let msg = match e.kind() {
-                ErrorKind::WouldBlock | ErrorKind::TimedOut => format!(
-                    "{NOT_READING} within {} s; fix: read the answer to every message",
-                    timeout.as_secs_f64()
-                ),
-                _ => format!("the client left while the server sent an answer ({e})"),
-            };
-            return End::Error(None, msg);
+            return send_failed(e, timeout);
+        }
+        if let Some(s) = stream_req {
+            if let Err(e) = send_frame(stream, shared, s, &mut frame_sent) {
+                return send_failed(e, timeout);
+            }
         }
     }
 }
