@@ -1021,7 +1021,7 @@ fn stream_equals_series(ranks: usize, width: u32) -> Vec<u8> {
             (fh.kind, fh.width, fh.nodes),
             (p::answer::FRAME, width, h.surface_nodes)
         );
-        assert!(fh.step % 3 == 0 && last.is_none_or(|k| fh.step > k), "{fh:?}");
+        assert!(fh.step.is_multiple_of(3) && last.is_none_or(|k| fh.step > k), "{fh:?}");
         assert_eq!(fh.t_step, fh.step as f64 * h.dt);
         last = Some(fh.step);
         let j = steps.iter().position(|&k| k as u64 == fh.step).unwrap();
