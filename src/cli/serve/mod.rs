@@ -378,7 +378,19 @@ fn serve_simulation(
     };
     // what a streaming client gets: the surface of the whole mesh (rank 0)
     let surface = match &listener {
-        Some(_) => stream::topology(&sim).map(Arc::new),
+        Some(_) => {
+            let at = Instant::now();
+            let s = stream::topology(&sim).map(Arc::new);
+            if let Some(s) = &s {
+                tracing::info!(
+                    "the surface a streaming client gets: {} nodes, {} triangles ({:.3} s)",
+                    s.nodes.len(),
+                    s.triangles.len(),
+                    at.elapsed().as_secs_f64()
+                );
+            }
+            s
+        }
         None => None,
     };
     let timeout = Duration::from_secs_f64(opts.timeout);
