@@ -321,14 +321,14 @@ impl Feed for Live {
             _ => None,
         };
         if let Some(s) = &self.session {
-            s.publish(&o);
-            if let Some(u) = frame {
-                s.publish_frame(Frame {
+            s.publish(
+                &o,
+                frame.map(|u| Frame {
                     step: sim.step(),
                     t: sim.time(),
                     u,
-                });
-            }
+                }),
+            );
         }
     }
 

@@ -149,6 +149,8 @@ pub struct Session {
     dt: f64,
     behind: f64,
     warned: bool,
+    /// Every how many steps the client wants a frame (0: none), as of the last `wait`.
+    every: u64,
 }
 
 impl Session {
@@ -203,6 +205,7 @@ impl Session {
             dt,
             behind: 0.0,
             warned: false,
+            every: 0,
             waited: Duration::ZERO,
         })
     }
@@ -269,6 +272,10 @@ impl Session {
                 }
             }
         };
+        self.every = match (&g.phase, g.stream) {
+            (Phase::Connected, Some(s)) => u64::from(s.every),
+            _ => 0,
+        };
         // how far the client is ahead of this step: the physics falls behind when the lead grows
         let lead = (0..self.ents.live.len())
             .filter(|&e| self.ents.live[e] && g.latest[e].is_finite())
@@ -297,26 +304,26 @@ impl Session {
 
     /// The results of a physics step, one per entity (those of non-live entities are kept
     /// but not asked for).
-    pub fn publish(&self, outcomes: &[Outcome]) {
+    /// With a frame of the surface when a streaming client wants this step's.
+    pub fn publish(&self, outcomes: &[Outcome], frame: Option<Frame>) {
+        let frame = frame.map(Arc::new);
         let mut g = lock(&self.shared);
         for (r, o) in g.results.iter_mut().zip(outcomes) {
             *r = (Some(r.1), *o);
         }
+        let old = match frame {
+            Some(f) => g.frame.replace(f),
+            None => None,
+        };
+        // the frame replaced is freed after the lock
+        drop(g);
+        drop(old);
     }
 
     /// Every how many steps the client wants a frame of the surface (0: no stream, or the
-    /// client is gone).
+    /// client is gone), as of the last `wait`.
     pub fn stream_every(&self) -> u64 {
-        let g = lock(&self.shared);
-        match (&g.phase, g.stream) {
-            (Phase::Connected, Some(s)) => u64::from(s.every),
-            _ => 0,
-        }
-    }
-
-    /// The surface's displacements at a step (sent after the next answer).
-    pub fn publish_frame(&self, f: Frame) {
-        lock(&self.shared).frame = Some(Arc::new(f));
+        self.every
     }
 
     /// Ends the session because the run failed (the client gets the error).
@@ -572,23 +579,6 @@ fn send_failed(e: std::io::Error, timeout: Duration) -> End {
     End::Error(None, msg)
 }
 
-/// Sends the latest frame if it is newer than the last one sent.
-fn send_frame(stream: &mut TcpStream, shared: &Shared, s: Stream, sent: &mut Option<u64>) -> std::io::Result<()> {
-    let f = {
-        let mut g = lock(shared);
-        let f = match &g.frame {
-            Some(f) if sent.is_none_or(|k| f.step > k) => f.clone(),
-            _ => return Ok(()),
-        };
-        g.sending = Some(Instant::now());
-        f
-    };
-    *sent = Some(f.step);
-    let out = stream.write_all(&p::frame(f.step, f.t, &f.u, s.width));
-    lock(shared).sending = None;
-    out
-}
-
 fn serve_client(
     stream: &mut TcpStream,
     listener: &TcpListener,
@@ -724,6 +714,11 @@ fn serve_client(
         let last = g.results[e].1;
         g.answers += 1;
         g.sending = Some(Instant::now());
+        // the latest frame, if the client streams and has not had it
+        let frame = match (stream_req, &g.frame) {
+            (Some(s), Some(f)) if frame_sent.is_none_or(|k| f.step > k) => Some((s, f.clone())),
+            _ => None,
+        };
         drop(g);
         cv.notify_all();
         let a = p::Answer {
@@ -735,15 +730,14 @@ fn serve_client(
             force,
             displacement,
         };
-        let sent = stream.write_all(&p::answer(&a));
+        let mut sent = stream.write_all(&p::answer(&a));
+        if let (Ok(()), Some((s, f))) = (&sent, frame) {
+            frame_sent = Some(f.step);
+            sent = stream.write_all(&p::frame(f.step, f.t, &f.u, s.width));
+        }
         lock(shared).sending = None;
         if let Err(e) = sent {
             return send_failed(e, timeout);
-        }
-        if let Some(s) = stream_req {
-            if let Err(e) = send_frame(stream, shared, s, &mut frame_sent) {
-                return send_failed(e, timeout);
-            }
         }
     }
 }
