@@ -948,8 +948,9 @@ fn a_client_without_the_stream_gets_the_messages_of_version_1_and_nothing_else()
 }
 
 /// A streaming session (frames every 3 steps, values of `width` bytes) on `ranks` processes:
-/// the topology is the surface `eprop export --surface` writes, and every frame holds the
-/// series' displacements of the surface nodes at its step. Returns the topology's payload.
+/// the series is the batch run's, the topology is the surface `eprop export --surface` writes,
+/// and every frame holds the series' displacements of the surface nodes at its step. Returns
+/// the topology's payload.
 fn stream_equals_series(ranks: usize, width: u32) -> Vec<u8> {
     let d = tempfile::tempdir().unwrap();
     let (sc, path, force) = scenario(d.path(), "");
@@ -965,6 +966,10 @@ fn stream_equals_series(ranks: usize, width: u32) -> Vec<u8> {
     drive(&mut c, &path, &force, h.dt);
     let (ok, _, err) = server.finish(120);
     assert!(ok, "{err}");
+    // streaming changes nothing of the run: the batch series, bit for bit
+    let one = d.path().join("batch.h5");
+    batch(&sc, &one);
+    common::assert_same(&one, &live);
     let (th, tb) = &c.payloads[0];
     assert_eq!((th.kind, th.width, th.every), (p::answer::TOPOLOGY, width, 3));
     let topo = p::read_topology(th, tb);
