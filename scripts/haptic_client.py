@@ -10,6 +10,12 @@ displacement of the latest physics step, extrapolated to the message's time. At 
 says bye, prints the round-trip times, writes the PNG (force against time and against the
 tool's travel) and prints its path.
 
+With --stream K it speaks protocol version 2 and asks for the deformed surface: the server sends
+the outer surface once (rest coordinates, node ids, triangles), then after its answers the
+displacements of the surface nodes of every K-th step it reaches (f32, or f64 with --f64). The
+client prints the sizes, the frames and bytes received, and with --obj writes the last frame's
+deformed surface as OBJ (a viewer's input).
+
 The scenario served needs a `live = true` tool or load (scenarios/cylinder_live.toml has a live
 sphere); for real time, match its dt to the haptic loop (docs/protocol.md, "Real-time settings").
 
@@ -17,6 +23,8 @@ examples:
   eprop serve scenarios/cylinder_live.toml --listen 127.0.0.1:5555 &
   haptic_client.py 127.0.0.1:5555 --from 1.85,0,2 --to 1.5,0,2 --duration 40 --back --speed 40 -o force.png
   haptic_client.py 127.0.0.1:5555 --path scenarios/cylinder_indent_path.csv -o force.png --csv answers.csv
+  # the deformed surface too, a frame every 10 steps; the last one written as OBJ:
+  haptic_client.py 127.0.0.1:5555 --path scenarios/cylinder_indent_path.csv -o force.png --stream 10 --obj last.obj
   # a scenario with a live load (a [[load]] with live = true) instead of a tool:
   haptic_client.py 127.0.0.1:5555 --load 0 --from 0,0,0 --to 0,0,-0.3 --duration 10 -o f.png
 """
@@ -28,12 +36,13 @@ import sys
 import time
 
 MAGIC = b"EPROPHAP"
-VERSION = 1
+VERSION, VERSION_STREAM = 1, 2
+STREAM_SURFACE = 1
 POSE, FORCE, BYE = 2, 3, 4
-HELLO, A_TOOL, A_LOAD, A_BYE, A_END, A_ERROR = 1, 2, 3, 4, 5, 255
+HELLO, A_TOOL, A_LOAD, A_BYE, A_END, TOPOLOGY, FRAME, A_ERROR = 1, 2, 3, 4, 5, 6, 7, 255
 CLIENT = struct.Struct("<IIdddd")  # kind, index, t, x, y, z: 40 bytes
 ANSWER = struct.Struct("<IIQdddddddd")  # kind, index, step, t_step, t, force[3], displacement[3]: 80 bytes
-HELLO_REPLY = struct.Struct("<II8sIIIIdddQ16x")
+HELLO_REPLY = struct.Struct("<II8sIIIIdddQII8x")
 
 
 class Fail(Exception):
@@ -50,26 +59,76 @@ def recv_exact(s, n):
     return b
 
 
-def read_reply(s):
-    b = recv_exact(s, 80)
-    kind = struct.unpack_from("<I", b)[0]
-    if kind == A_ERROR:
-        code = struct.unpack_from("<I", b, 4)[0]
-        text = b[8:].split(b"\0", 1)[0].decode("utf-8", "replace")
-        raise Fail(f"server error {code}: {text}")
-    return kind, b
+class Surface:
+    """The surface stream (protocol version 2): the topology and the latest frame."""
+
+    def __init__(self):
+        self.n = self.m = 0
+        self.rest, self.ids, self.tris = [], [], []
+        self.frames, self.bytes = 0, 0
+        self.first_step = self.step = None
+        self.u = None
+
+    def take(self, kind, head, payload):
+        width, size, n = struct.unpack_from("<IQI", head, 4)
+        f = "f" if width == 4 else "d"
+        self.bytes += 80 + size
+        if kind == TOPOLOGY:
+            self.n, self.m = n, struct.unpack_from("<I", head, 20)[0]
+            self.rest = struct.unpack_from(f"<{3 * n}{f}", payload, 0)
+            self.ids = struct.unpack_from(f"<{n}I", payload, 3 * n * width)
+            self.tris = struct.unpack_from(f"<{3 * self.m}I", payload, 3 * n * width + 4 * n)
+        else:
+            self.step = struct.unpack_from("<Q", head, 32)[0]
+            if self.first_step is None:
+                self.first_step = self.step
+            self.u = struct.unpack(f"<{3 * n}{f}", payload)
+            self.frames += 1
+
+    def write_obj(self, path):
+        with open(path, "w") as f:
+            f.write(f"# eprop serve: deformed surface at step {self.step}\n")
+            for i in range(self.n):
+                x = [self.rest[3 * i + d] + self.u[3 * i + d] for d in range(3)]
+                f.write(f"v {x[0]!r} {x[1]!r} {x[2]!r}\n")
+            for k in range(self.m):
+                a, b, c = self.tris[3 * k:3 * k + 3]
+                f.write(f"f {a + 1} {b + 1} {c + 1}\n")
 
 
-def hello(s):
-    s.sendall(MAGIC + struct.pack("<I", VERSION) + bytes(28))
-    kind, b = read_reply(s)
+def read_reply(s, surface=None):
+    """The next message that is not a topology or frame (those go to `surface`)."""
+    while True:
+        b = recv_exact(s, 80)
+        kind = struct.unpack_from("<I", b)[0]
+        if kind == A_ERROR:
+            code = struct.unpack_from("<I", b, 4)[0]
+            text = b[8:].split(b"\0", 1)[0].decode("utf-8", "replace")
+            raise Fail(f"server error {code}: {text}")
+        if kind in (TOPOLOGY, FRAME):
+            payload = recv_exact(s, struct.unpack_from("<Q", b, 8)[0])
+            if surface is None:
+                raise Fail(f"a stream message (kind {kind}) the client did not ask for")
+            surface.take(kind, b, payload)
+            continue
+        return kind, b
+
+
+def hello(s, stream=0, width=4, surface=None):
+    if stream:
+        s.sendall(MAGIC + struct.pack("<IIII", VERSION_STREAM, STREAM_SURFACE, stream, width) + bytes(16))
+    else:
+        s.sendall(MAGIC + struct.pack("<I", VERSION) + bytes(28))
+    kind, b = read_reply(s, surface)
     if kind != HELLO:
         raise Fail(f"expected the server's hello, got message kind {kind}")
-    _, version, magic, tools, loads, live_tools, live_loads, dt, t0, timeout, max_steps = HELLO_REPLY.unpack(b)
+    (_, version, magic, tools, loads, live_tools, live_loads, dt, t0, timeout, max_steps, n, m) = HELLO_REPLY.unpack(b)
     if magic != MAGIC:
         raise Fail("the server is not eprop serve")
+    if stream and version != VERSION_STREAM:
+        raise Fail(f"the server answered version {version}; the surface stream needs version 2")
     return dict(tools=tools, loads=loads, live_tools=live_tools, live_loads=live_loads, dt=dt, t0=t0,
-                timeout=timeout, max_steps=max_steps)
+                timeout=timeout, max_steps=max_steps, surface_nodes=n, surface_triangles=m)
 
 
 def vec(text):
@@ -132,7 +191,13 @@ def main():
     ap.add_argument("--connect-timeout", type=float, default=30.0, help="seconds to wait for the server")
     ap.add_argument("-o", "--output", required=True, help="PNG to write")
     ap.add_argument("--csv", help="also write every answer to this CSV file")
+    ap.add_argument("--stream", type=int, default=0, metavar="K",
+                    help="ask for the deformed surface (protocol version 2), a frame of every K-th step")
+    ap.add_argument("--f64", action="store_true", help="stream f64 values (default f32)")
+    ap.add_argument("--obj", help="write the last frame's deformed surface to this OBJ file (needs --stream)")
     a = ap.parse_args()
+    if a.stream < 0 or (a.obj and not a.stream):
+        ap.error("--stream takes K >= 1; --obj needs --stream")
     if not a.path and (a.from_ is None or a.to is None):
         ap.error("give --from and --to, or --path")
     if a.rate <= 0 or (a.speed <= 0 and not a.path):
@@ -148,7 +213,8 @@ def main():
                 raise Fail(f"{a.address}: cannot connect: {e}")
             time.sleep(0.1)
     s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-    h = hello(s)
+    surface = Surface() if a.stream else None
+    h = hello(s, a.stream, 8 if a.f64 else 4, surface)
     if a.load is not None:
         kind, index, mask, what = FORCE, a.load, h["live_loads"], "load"
     else:
@@ -167,7 +233,7 @@ def main():
             time.sleep(wait)
         sent = time.perf_counter()
         s.sendall(CLIENT.pack(kind, index, t, *v))
-        k, b = read_reply(s)
+        k, b = read_reply(s, surface)
         rtts.append(time.perf_counter() - sent)
         if k == A_END:
             print("the run reached its end", file=sys.stderr)
@@ -179,7 +245,7 @@ def main():
     else:
         s.sendall(CLIENT.pack(BYE, 0, 0.0, 0.0, 0.0, 0.0))
         try:
-            read_reply(s)
+            read_reply(s, surface)
         except Fail:
             pass
     s.close()
@@ -191,6 +257,14 @@ def main():
     print(f"{len(rows)} answers in {wall:.2f} s ({len(rows) / wall:.0f}/s); round trip p50 {p(0.5):.3f} ms, "
           f"p99 {p(0.99):.3f} ms, max {r[-1] * 1e3:.3f} ms; physics steps {rows[0][2]}..{rows[-1][2]}",
           file=sys.stderr)
+    if surface is not None:
+        print(f"surface: {surface.n} nodes, {surface.m} triangles; {surface.frames} frames "
+              f"(steps {surface.first_step}..{surface.step}), {surface.bytes / 1e6:.2f} MB streamed", file=sys.stderr)
+        if a.obj:
+            if surface.u is None:
+                raise Fail("no frame arrived, so there is no deformed surface to write")
+            surface.write_obj(a.obj)
+            print(a.obj)
     if a.csv:
         with open(a.csv, "w", newline="") as f:
             w = csv.writer(f)

@@ -129,7 +129,10 @@ line, 3 stopped by a signal (continue with --restart), 4 the output could not be
 a TCP socket, and write the HDF5 series as `eprop run` does.\n\n\
 The client (scripts/haptic_client.py, or any program speaking docs/protocol.md) sends a hello, then \
 tool poses and forces with time stamps, and gets one answer per message at once: the contact force \
-and displacement of the latest physics step, extrapolated linearly to the message's time. Physics \
+and displacement of the latest physics step, extrapolated linearly to the message's time. A client \
+of protocol version 2 may also ask for the deformed surface: the outer surface once (rest coordinates, \
+node ids, triangles: the surface of `eprop export --surface`), then after its answers the surface \
+nodes' displacements of every K-th step, as f32 or f64 (scripts/haptic_client.py --stream K --obj FILE). Physics \
 step k (time k dt) waits until the client has sent a sample of every live input at or beyond k dt \
 (or bye) and uses the samples interpolated at that time, as `eprop run` does with the same samples \
 in a table: a session is reproducible bit for bit. After bye the inputs hold their last samples \

@@ -229,9 +229,14 @@ fn the_tool_scripts_draw_an_indentation_and_drive_a_live_session() {
     };
     let png = d.path().join("haptic.png");
     let csv = d.path().join("answers.csv");
+    let obj = d.path().join("last.obj");
     let out = py(&[
         script("haptic_client.py").to_str().unwrap(),
         &addr,
+        "--stream",
+        "5",
+        "--obj",
+        obj.to_str().unwrap(),
         "--from",
         "1.85,0,2",
         "--to",
@@ -272,6 +277,51 @@ fn the_tool_scripts_draw_an_indentation_and_drive_a_live_session() {
         .map(|l| l.split(',').nth(7).unwrap().parse::<f64>().unwrap())
         .fold(0.0, f64::min);
     assert!(fx_min < -0.1, "{fx_min}");
+    // the streamed surface's last frame, as OBJ: the surface `eprop export` writes at that
+    // step (f32 coordinates)
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("surface: ") && err.contains(" frames (steps "), "{err}");
+    let text = std::fs::read_to_string(&obj).unwrap();
+    let step: usize = text
+        .lines()
+        .next()
+        .and_then(|l| l.strip_prefix("# eprop serve: deformed surface at step "))
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(step > 0 && step.is_multiple_of(5), "{step}");
+    let prefix = d.path().join("exported");
+    let o = common::serial(
+        &[
+            "export",
+            d.path().join("cylinder_live.h5").to_str().unwrap(),
+            "--surface",
+            "obj",
+            "--step",
+            &step.to_string(),
+            "-o",
+            prefix.to_str().unwrap(),
+        ],
+        1,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let exported = std::fs::read_to_string(d.path().join(format!("exported_{step:06}.obj"))).unwrap();
+    let parse = |t: &str, tag: &str| -> Vec<Vec<f64>> {
+        t.lines()
+            .filter_map(|l| l.strip_prefix(tag))
+            .map(|l| l.split_whitespace().map(|x| x.parse().unwrap()).collect())
+            .collect()
+    };
+    assert_eq!(parse(&text, "f "), parse(&exported, "f "));
+    let (a, b) = (parse(&text, "v "), parse(&exported, "v "));
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert!(
+            x.iter().zip(y).all(|(p, q)| (p - q).abs() <= 1e-6 * (1.0 + q.abs())),
+            "{x:?} {y:?}"
+        );
+    }
     // a client without a server says so
     let out = py(&[
         script("haptic_client.py").to_str().unwrap(),

@@ -125,6 +125,8 @@ impl Server {
 
 struct Client {
     s: TcpStream,
+    /// The topologies and frames (version 2, streaming) read on the way to the replies.
+    payloads: Vec<(p::Header, Vec<u8>)>,
 }
 
 impl Client {
@@ -132,21 +134,34 @@ impl Client {
         let s = TcpStream::connect(addr).unwrap();
         s.set_nodelay(true).unwrap();
         s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
-        Client { s }
+        Client {
+            s,
+            payloads: Vec::new(),
+        }
     }
 
     fn raw(&mut self, b: &[u8]) {
         self.s.write_all(b).unwrap();
     }
 
+    /// The next reply; a topology or frame on the way is kept in `payloads`.
     fn reply(&mut self) -> Reply {
-        let mut b = [0u8; p::SERVER_SIZE];
-        self.s.read_exact(&mut b).unwrap();
-        p::read_reply(&b)
+        loop {
+            let mut b = [0u8; p::SERVER_SIZE];
+            self.s.read_exact(&mut b).unwrap();
+            match p::read_reply(&b) {
+                Reply::Payload(h) => {
+                    let mut data = vec![0u8; h.bytes as usize];
+                    self.s.read_exact(&mut data).unwrap();
+                    self.payloads.push((h, data));
+                }
+                r => return r,
+            }
+        }
     }
 
     fn hello(&mut self) -> p::Hello {
-        self.raw(&p::client_hello(p::VERSION));
+        self.raw(&p::client_hello(p::VERSION_1));
         match self.reply() {
             Reply::Hello(h) => h,
             r => panic!("{r:?}"),
@@ -230,6 +245,11 @@ fn batch(sc: &Path, out: &Path) {
 /// Sends both tables' rows in time order, in small bursts so that the physics runs between
 /// them, checking every answer; then bye.
 fn drive(c: &mut Client, path: &[[f64; 4]], force: &[[f64; 4]], dt: f64) {
+    drive_paced(c, path, force, dt, 3);
+}
+
+/// `drive` with a pause of `pause_ms` after every 25 messages.
+fn drive_paced(c: &mut Client, path: &[[f64; 4]], force: &[[f64; 4]], dt: f64, pause_ms: u64) {
     let mut all: Vec<(u32, [f64; 4])> = path.iter().map(|r| (p::kind::POSE, *r)).collect();
     all.extend(force.iter().map(|r| (p::kind::FORCE, *r)));
     all.sort_by(|a, b| a.1[0].total_cmp(&b.1[0]));
@@ -244,7 +264,7 @@ fn drive(c: &mut Client, path: &[[f64; 4]], force: &[[f64; 4]], dt: f64) {
         assert!(a.force.iter().chain(&a.displacement).all(|x| x.is_finite()));
         last_step = a.step;
         if k % 25 == 0 {
-            std::thread::sleep(Duration::from_millis(3));
+            std::thread::sleep(Duration::from_millis(pause_ms));
         }
     }
     match c.send(p::kind::BYE, 0, 0.0, [0.0; 3]) {
@@ -428,7 +448,36 @@ fn a_bad_hello_a_vanished_client_and_no_client_end_the_run_cleanly() {
             1,
             "not an eprop client",
         ),
-        (p::client_hello(2).to_vec(), 2, "protocol version 2 is not supported"),
+        (p::client_hello(3).to_vec(), 2, "protocol version 3 is not supported"),
+        // malformed requests of the surface stream (version 2)
+        (
+            p::client_hello_stream(p::Stream { every: 0, width: 4 }).to_vec(),
+            9,
+            "stream every 0 steps",
+        ),
+        (
+            p::client_hello_stream(p::Stream { every: 1, width: 2 }).to_vec(),
+            9,
+            "stream value width 2",
+        ),
+        (
+            {
+                let mut b = p::client_hello_stream(p::Stream { every: 1, width: 4 });
+                b[12] = 5;
+                b.to_vec()
+            },
+            9,
+            "stream kind 5",
+        ),
+        (
+            {
+                let mut b = p::client_hello(p::VERSION);
+                b[30] = 1;
+                b.to_vec()
+            },
+            9,
+            "bytes 24..40 must be zero",
+        ),
     ] {
         let server = serve(1, &sc, &out, &["--timeout", "20"]);
         let mut c = Client::connect(&server.addr);
@@ -467,7 +516,7 @@ fn a_second_client_is_refused_while_the_first_goes_on() {
     let (server, mut c) = session(d.path(), "", &["--timeout", "20"]);
     c.answer(p::kind::POSE, 0, 0.5, [1.6, 0.0, 2.0]);
     let mut second = Client::connect(&server.addr);
-    second.raw(&p::client_hello(p::VERSION));
+    second.raw(&p::client_hello(p::VERSION_1));
     let (code, message) = second.error();
     assert_eq!(code, 3);
     assert!(message.contains("another client holds the session"), "{message}");
@@ -864,4 +913,160 @@ fn a_physics_behind_the_client_is_warned_of_once() {
         1,
         "{err}"
     );
+}
+
+#[test]
+fn a_client_without_the_stream_gets_the_messages_of_version_1_and_nothing_else() {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, path, force) = scenario(d.path(), "");
+    let rows = in_time_order(&path[..40], &force[..6]);
+    // version 1, and version 2 without a stream
+    for version in [p::VERSION_1, p::VERSION] {
+        let server = serve(1, &sc, &d.path().join("live.h5"), &["--timeout", "30"]);
+        let mut c = Client::connect(&server.addr);
+        c.raw(&p::client_hello(version));
+        let mut b = [0u8; p::SERVER_SIZE];
+        c.s.read_exact(&mut b).unwrap();
+        let h = match p::read_reply(&b) {
+            Reply::Hello(h) => h,
+            r => panic!("{r:?}"),
+        };
+        // the hello of version 1: its version, the same fields, zeros after the step limit
+        assert_eq!(h.version, version);
+        assert_eq!(b, p::server_hello(&h));
+        assert_eq!(&b[4..8], &version.to_le_bytes());
+        assert!(b[64..].iter().all(|&x| x == 0), "{b:?}");
+        // one 80-byte answer per message, read in lock step: a byte more would be read as
+        // the next answer
+        for (kind, r) in &rows {
+            c.raw(&p::client_message(*kind, 0, r[0], [r[1], r[2], r[3]]));
+            c.s.read_exact(&mut b).unwrap();
+            match p::read_reply(&b) {
+                Reply::Answer(a) => assert_eq!(a.kind, *kind, "{a:?}"),
+                r => panic!("{r:?}"),
+            }
+        }
+        // bye: its answer, then the connection closes with nothing else
+        c.raw(&p::client_message(p::kind::BYE, 0, 0.0, [0.0; 3]));
+        let mut rest = Vec::new();
+        c.s.read_to_end(&mut rest).unwrap();
+        assert_eq!(rest.len(), p::SERVER_SIZE);
+        match p::read_reply(rest[..].try_into().unwrap()) {
+            Reply::Answer(a) => assert_eq!(a.kind, p::answer::BYE),
+            r => panic!("{r:?}"),
+        }
+        let (ok, _, err) = server.finish(120);
+        assert!(ok, "{err}");
+    }
+}
+
+/// A streaming session (frames every 3 steps, values of `width` bytes) on `ranks` processes:
+/// the series is the batch run's, the topology is the surface `eprop export --surface` writes,
+/// and every frame holds the series' displacements of the surface nodes at its step. Returns
+/// the topology's payload.
+fn stream_equals_series(ranks: usize, width: u32) -> Vec<u8> {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, path, force) = scenario(d.path(), "");
+    let live = d.path().join("live.h5");
+    let server = serve(ranks, &sc, &live, &["--timeout", "30"]);
+    let mut c = Client::connect(&server.addr);
+    c.raw(&p::client_hello_stream(p::Stream { every: 3, width }));
+    let h = match c.reply() {
+        Reply::Hello(h) => h,
+        r => panic!("{r:?}"),
+    };
+    assert_eq!(h.version, 2);
+    // pauses long enough for the physics to catch up now and then: frames come with answers
+    drive_paced(&mut c, &path, &force, h.dt, 20);
+    let (ok, _, err) = server.finish(120);
+    assert!(ok, "{err}");
+    // streaming changes nothing of the run: the batch series, bit for bit
+    let one = d.path().join("batch.h5");
+    batch(&sc, &one);
+    common::assert_same(&one, &live);
+    let (th, tb) = &c.payloads[0];
+    assert_eq!((th.kind, th.width, th.every), (p::answer::TOPOLOGY, width, 3));
+    let topo = p::read_topology(th, tb);
+    assert_eq!(
+        (topo.nodes.len(), topo.triangles.len()),
+        (h.surface_nodes as usize, h.surface_triangles as usize)
+    );
+    // the surface of `eprop export --surface` at output step 0: the same triangles over the
+    // same vertices
+    let obj = d.path().join("surf");
+    let o = common::serial(
+        &[
+            "export",
+            live.to_str().unwrap(),
+            "--surface",
+            "obj",
+            "--step",
+            "0",
+            "-o",
+            obj.to_str().unwrap(),
+        ],
+        1,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(d.path().join("surf_000000.obj")).unwrap();
+    let faces: Vec<[u32; 3]> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("f "))
+        .map(|l| {
+            let v: Vec<u32> = l.split(' ').map(|x| x.parse::<u32>().unwrap() - 1).collect();
+            [v[0], v[1], v[2]]
+        })
+        .collect();
+    assert_eq!(faces, topo.triangles);
+    let (mesh, _) = eprop_series::vtkhdf::read_mesh(&live).unwrap();
+    let cast = |x: f64| if width == 4 { f64::from(x as f32) } else { x };
+    for (i, &g) in topo.nodes.iter().enumerate() {
+        for k in 0..3 {
+            assert_eq!(topo.rest[3 * i + k], cast(mesh.points[g as usize][k]));
+        }
+    }
+    // every frame: the series' displacements at its step
+    let steps = hdf5::File::open(&live)
+        .unwrap()
+        .dataset("eprop/tools/step")
+        .unwrap()
+        .read_raw::<i64>()
+        .unwrap();
+    let frames = &c.payloads[1..];
+    assert!(frames.len() >= 3, "{} frames", frames.len());
+    let (mut last, mut moved) = (None, false);
+    for (fh, fb) in frames {
+        assert_eq!(
+            (fh.kind, fh.width, fh.nodes),
+            (p::answer::FRAME, width, h.surface_nodes)
+        );
+        assert!(fh.step.is_multiple_of(3) && last.is_none_or(|k| fh.step > k), "{fh:?}");
+        assert_eq!(fh.t_step, fh.step as f64 * h.dt);
+        last = Some(fh.step);
+        let j = steps.iter().position(|&k| k as u64 == fh.step).unwrap();
+        let u = eprop_series::vtkhdf::read_step(&live, "displacement", j).unwrap();
+        let got = p::read_values(fb, width);
+        for (i, &g) in topo.nodes.iter().enumerate() {
+            for k in 0..3 {
+                assert_eq!(got[3 * i + k], cast(u[3 * g as usize + k]), "step {}", fh.step);
+            }
+        }
+        moved |= got.iter().any(|&x| x != 0.0);
+    }
+    assert!(moved, "no frame shows the press");
+    tb.clone()
+}
+
+#[test]
+fn a_streaming_client_gets_the_surface_and_the_series_displacements() {
+    stream_equals_series(1, 8);
+    stream_equals_series(1, 4);
+}
+
+#[test]
+fn a_streaming_client_under_mpirun_gets_the_bytes_of_one_process() {
+    let one = stream_equals_series(1, 8);
+    for ranks in [2, 3] {
+        assert_eq!(stream_equals_series(ranks, 8), one, "{ranks} processes");
+    }
 }

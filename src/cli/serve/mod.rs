@@ -7,10 +7,13 @@
 //! k (time t_k) rank 0 waits until the client has sent a sample of every live input at or
 //! beyond t_k (or bye) and broadcasts the new samples; every process appends them to the same
 //! histories, so step k uses the inputs interpolated at t_k exactly as a batch run with the
-//! same samples in a table does, and writes the same series.
+//! same samples in a table does, and writes the same series. A client of protocol version 2
+//! may ask for the deformed surface (`stream`): rank 0 gathers the surface nodes'
+//! displacements every K steps and the network thread sends them after its answers.
 
 pub mod protocol;
 pub mod session;
+pub mod stream;
 
 use crate::cli::drive::{self, Feed, Halt, Settings};
 use crate::cli::run::{prepare_claimed, RunOptions};
@@ -25,9 +28,10 @@ use anyhow::{anyhow, bail, Result};
 use mpi::topology::SimpleCommunicator;
 use protocol::{Hello, MAX_LIVE};
 use serde::Serialize;
-use session::{Entities, Outcome, Session, SessionSummary};
+use session::{Entities, Frame, Outcome, Session, SessionSummary};
 use std::net::TcpListener;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// `eprop serve` options.
@@ -193,20 +197,25 @@ fn forget_before(sim: &mut Simulation, t: f64) {
 }
 
 /// Rank 0 waits for the samples that cover time t and sends them to every process; every
-/// process appends them. `Some`: the session ended (rank 0 has the message), with the stop
-/// signal that ended it (0: the client or a timeout).
-fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64) -> Result<Option<Halt>> {
-    let got = match session {
-        Some(s) => s.wait(t),
-        None => Ok(Vec::new()),
+/// process appends them and learns every how many steps the client wants a frame of the
+/// surface (`every`, 0: none). `Some`: the session ended (rank 0 has the message), with the
+/// stop signal that ended it (0: the client or a timeout).
+fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64, every: &mut u64) -> Result<Option<Halt>> {
+    let (got, wanted) = match session {
+        Some(s) => {
+            let got = s.wait(t);
+            (got, s.stream_every())
+        }
+        None => (Ok(Vec::new()), 0),
     };
     let c = sim.comm();
-    // head: [0 or 1 (the session ended), samples, the stop signal rank 0 has seen]
+    // head: [0 or 1 (the session ended), samples, the stop signal rank 0 has seen, every]
     let mut head = match &got {
-        Ok(samples) => [0.0, samples.len() as f64, 0.0],
-        Err(_) => [1.0, 0.0, f64::from(crate::guard::signals::pending())],
+        Ok(samples) => [0.0, samples.len() as f64, 0.0, wanted as f64],
+        Err(_) => [1.0, 0.0, f64::from(crate::guard::signals::pending()), 0.0],
     };
     c.broadcast(0, &mut head);
+    *every = head[3] as u64;
     if head[0] != 0.0 {
         return Ok(Some(Halt {
             message: match got {
@@ -265,12 +274,30 @@ fn outcomes(sim: &Simulation, any_live_load: bool) -> Vec<Outcome> {
 struct Live {
     session: Option<Session>,
     any_live_load: bool,
+    /// The surface a streaming client gets (rank 0).
+    surface: Option<Arc<protocol::Topology>>,
+    /// Every how many steps the client wants a frame (0: no stream), as of the last inputs.
+    every: u64,
+    /// The surface nodes' owners, once a client streams.
+    gather: Option<stream::Gather>,
+}
+
+impl Live {
+    /// The inputs of time t, and the surface's owners once a client streams.
+    fn inputs(&mut self, sim: &mut Simulation, t: f64) -> Result<Option<Halt>> {
+        let halt = inputs(sim, self.session.as_mut(), t, &mut self.every)?;
+        if halt.is_none() && self.every > 0 && self.gather.is_none() {
+            let nodes = self.surface.as_ref().map(|s| s.nodes.as_slice());
+            self.gather = Some(stream::Gather::new(sim, nodes)?);
+        }
+        Ok(halt)
+    }
 }
 
 impl Feed for Live {
     fn start(&mut self, sim: &mut Simulation) -> Result<Option<Halt>> {
         let start = sim.time();
-        let halt = inputs(sim, self.session.as_mut(), start)?;
+        let halt = self.inputs(sim, start)?;
         if halt.is_none() {
             sim.tools_at_rest();
         }
@@ -279,7 +306,7 @@ impl Feed for Live {
 
     fn before_step(&mut self, sim: &mut Simulation) -> Result<Option<Halt>> {
         let t_next = (sim.step() + 1) as f64 * sim.dt();
-        if let Some(h) = inputs(sim, self.session.as_mut(), t_next)? {
+        if let Some(h) = self.inputs(sim, t_next)? {
             return Ok(Some(h));
         }
         let now = sim.time();
@@ -289,8 +316,19 @@ impl Feed for Live {
 
     fn after_step(&mut self, sim: &Simulation) {
         let o = outcomes(sim, self.any_live_load);
+        let frame = match &self.gather {
+            Some(g) if self.every > 0 && sim.step().is_multiple_of(self.every) => g.collect(sim),
+            _ => None,
+        };
         if let Some(s) = &self.session {
-            s.publish(&o);
+            s.publish(
+                &o,
+                frame.map(|u| Frame {
+                    step: sim.step(),
+                    t: sim.time(),
+                    u,
+                }),
+            );
         }
     }
 
@@ -326,6 +364,7 @@ fn serve_simulation(
             .fold(0u32, |m, e| m | 1 << (e - from))
     };
     let hello = Hello {
+        version: protocol::VERSION_1,
         tools: ents.tools as u32,
         loads: (ents.live.len() - ents.tools) as u32,
         live_tools: mask(0, ents.tools),
@@ -334,19 +373,44 @@ fn serve_simulation(
         t0: sim.time(),
         timeout: opts.timeout,
         max_steps: sim.max_steps(),
+        surface_nodes: 0,
+        surface_triangles: 0,
+    };
+    // what a streaming client gets: the surface of the whole mesh (rank 0)
+    let surface = match &listener {
+        Some(_) => {
+            let at = Instant::now();
+            let s = stream::topology(&sim).map(Arc::new);
+            if let Some(s) = &s {
+                tracing::info!(
+                    "the surface a streaming client gets: {} nodes, {} triangles ({:.3} s)",
+                    s.nodes.len(),
+                    s.triangles.len(),
+                    at.elapsed().as_secs_f64()
+                );
+            }
+            s
+        }
+        None => None,
     };
     let timeout = Duration::from_secs_f64(opts.timeout);
     let session = match listener {
         Some(l) => {
             announce(&l, &opts.listen);
             Some(
-                Session::start(l, ents.clone(), hello, timeout)
+                Session::start(l, ents.clone(), hello, surface.clone(), timeout)
                     .map_err(|e| anyhow!("eprop serve: cannot start the network thread: {e}"))?,
             )
         }
         None => None,
     };
-    let mut feed = Live { session, any_live_load };
+    let mut feed = Live {
+        session,
+        any_live_load,
+        surface,
+        every: 0,
+        gather: None,
+    };
     let summary = drive::drive(sim, &mut feed, settings, checked)?;
     let session = feed.session.map(Session::finish);
     Ok(summary

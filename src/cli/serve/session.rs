@@ -4,7 +4,7 @@
 //! the main thread, which waits for the samples each step needs and publishes each step's
 //! results. The network thread never calls MPI.
 
-use super::protocol::{self as p, Code, Hello, Message, CLIENT_SIZE};
+use super::protocol::{self as p, Code, Hello, Message, Stream, Topology, CLIENT_SIZE};
 use crate::discretize::operator::V3;
 use serde::Serialize;
 use std::io::{ErrorKind, Read, Write};
@@ -99,6 +99,18 @@ struct State {
     /// A send that does not finish means the client does not read: meanwhile the thread
     /// reads none of the client's samples.
     sending: Option<Instant>,
+    /// The surface stream the client asked for (version 2), while it is connected.
+    stream: Option<Stream>,
+    /// The latest frame published (a step that is a multiple of the stream's every).
+    frame: Option<Arc<Frame>>,
+}
+
+/// The surface nodes' displacements at one physics step (3 per node, the topology's order).
+#[derive(Debug)]
+pub struct Frame {
+    pub step: u64,
+    pub t: f64,
+    pub u: Vec<f64>,
 }
 
 type Shared = Arc<(Mutex<State>, Condvar)>;
@@ -137,11 +149,20 @@ pub struct Session {
     dt: f64,
     behind: f64,
     warned: bool,
+    /// Every how many steps the client wants a frame (0: none), as of the last `wait`.
+    every: u64,
 }
 
 impl Session {
-    /// Starts the network thread on a bound listener.
-    pub fn start(listener: TcpListener, ents: Entities, hello: Hello, timeout: Duration) -> std::io::Result<Session> {
+    /// Starts the network thread on a bound listener; `surface` is what a streaming client
+    /// gets (None: the mesh has none).
+    pub fn start(
+        listener: TcpListener,
+        ents: Entities,
+        hello: Hello,
+        surface: Option<Arc<Topology>>,
+        timeout: Duration,
+    ) -> std::io::Result<Session> {
         listener.set_nonblocking(true)?;
         let listen = listener.local_addr()?.to_string();
         let n = ents.live.len();
@@ -165,6 +186,8 @@ impl Session {
                 answers: 0,
                 ended: None,
                 sending: None,
+                stream: None,
+                frame: None,
             }),
             Condvar::new(),
         ));
@@ -172,7 +195,7 @@ impl Session {
         let dt = hello.dt;
         let thread = std::thread::Builder::new()
             .name("eprop-serve".into())
-            .spawn(move || network(listener, s, e, hello, timeout))?;
+            .spawn(move || network(listener, s, e, hello, surface, timeout))?;
         Ok(Session {
             shared,
             thread: Some(thread),
@@ -182,6 +205,7 @@ impl Session {
             dt,
             behind: 0.0,
             warned: false,
+            every: 0,
             waited: Duration::ZERO,
         })
     }
@@ -248,6 +272,10 @@ impl Session {
                 }
             }
         };
+        self.every = match (&g.phase, g.stream) {
+            (Phase::Connected, Some(s)) => u64::from(s.every),
+            _ => 0,
+        };
         // how far the client is ahead of this step: the physics falls behind when the lead grows
         let lead = (0..self.ents.live.len())
             .filter(|&e| self.ents.live[e] && g.latest[e].is_finite())
@@ -276,11 +304,26 @@ impl Session {
 
     /// The results of a physics step, one per entity (those of non-live entities are kept
     /// but not asked for).
-    pub fn publish(&self, outcomes: &[Outcome]) {
+    /// With a frame of the surface when a streaming client wants this step's.
+    pub fn publish(&self, outcomes: &[Outcome], frame: Option<Frame>) {
+        let frame = frame.map(Arc::new);
         let mut g = lock(&self.shared);
         for (r, o) in g.results.iter_mut().zip(outcomes) {
             *r = (Some(r.1), *o);
         }
+        let old = match frame {
+            Some(f) => g.frame.replace(f),
+            None => None,
+        };
+        // the frame replaced is freed after the lock
+        drop(g);
+        drop(old);
+    }
+
+    /// Every how many steps the client wants a frame of the surface (0: no stream, or the
+    /// client is gone), as of the last `wait`.
+    pub fn stream_every(&self) -> u64 {
+        self.every
     }
 
     /// Ends the session because the run failed (the client gets the error).
@@ -373,7 +416,14 @@ enum End {
 }
 
 /// The network thread: waits for a client, serves it, refuses any other.
-fn network(listener: TcpListener, shared: Shared, ents: Entities, hello: Hello, timeout: Duration) {
+fn network(
+    listener: TcpListener,
+    shared: Shared,
+    ents: Entities,
+    hello: Hello,
+    surface: Option<Arc<Topology>>,
+    timeout: Duration,
+) {
     let stream = loop {
         match listener.accept() {
             Ok((s, _)) => break s,
@@ -402,7 +452,15 @@ fn network(listener: TcpListener, shared: Shared, ents: Entities, hello: Hello, 
         g.client = Some(peer);
     }
     let mut stream = stream;
-    let end = serve_client(&mut stream, &listener, &shared, &ents, &hello, timeout);
+    let end = serve_client(
+        &mut stream,
+        &listener,
+        &shared,
+        &ents,
+        &hello,
+        surface.as_deref(),
+        timeout,
+    );
     let mut g = lock(&shared);
     match end {
         End::Bye => {
@@ -509,12 +567,25 @@ fn read_into(
     }
 }
 
+/// What a send that failed means.
+fn send_failed(e: std::io::Error, timeout: Duration) -> End {
+    let msg = match e.kind() {
+        ErrorKind::WouldBlock | ErrorKind::TimedOut => format!(
+            "{NOT_READING} within {} s; fix: read the answer to every message",
+            timeout.as_secs_f64()
+        ),
+        _ => format!("the client left while the server sent an answer ({e})"),
+    };
+    End::Error(None, msg)
+}
+
 fn serve_client(
     stream: &mut TcpStream,
     listener: &TcpListener,
     shared: &Shared,
     ents: &Entities,
     hello: &Hello,
+    surface: Option<&Topology>,
     timeout: Duration,
 ) -> End {
     let _ = stream.set_nodelay(true);
@@ -523,21 +594,50 @@ fn serve_client(
     let mut last_look = Instant::now();
     // the magic first, so that another protocol is refused at once
     let mut first = [0u8; CLIENT_SIZE];
+    let mut opening = None;
     for (from, to) in [(0, 8), (8, CLIENT_SIZE)] {
         match read_into(stream, listener, shared, &mut last_look, &mut first[..to], from) {
             Ok(Some(())) => {}
             Ok(None) => return End::RunOver,
             Err(e) => return e,
         }
-        if let Err((code, msg)) = p::read_hello(&first) {
-            if to == CLIENT_SIZE || code == Code::NotEprop {
-                return End::Error(Some(code), msg);
-            }
+        match p::read_hello(&first) {
+            Ok(o) => opening = Some(o),
+            Err((code, msg)) if to == CLIENT_SIZE || code == Code::NotEprop => return End::Error(Some(code), msg),
+            Err(_) => {}
         }
     }
-    if !send(stream, &p::server_hello(hello)) {
+    let Some(opening) = opening else {
+        return End::Error(Some(Code::NotEprop), "internal: no hello read".into());
+    };
+    let stream_req = opening.stream;
+    let mut hello = Hello {
+        version: opening.version,
+        ..*hello
+    };
+    let mut topology = None;
+    if let Some(s) = stream_req {
+        let Some(t) = surface.filter(|t| !t.triangles.is_empty()) else {
+            return End::Error(
+                Some(Code::Stream),
+                "the mesh has no outer surface to stream; fix: ask for no stream".into(),
+            );
+        };
+        hello.surface_nodes = t.nodes.len() as u32;
+        hello.surface_triangles = t.triangles.len() as u32;
+        topology = Some(p::topology(t, s));
+        // before the hello: the physics learns of the stream with the first samples
+        lock(shared).stream = Some(s);
+    }
+    if !send(stream, &p::server_hello(&hello)) {
         return End::Error(None, "the client left after its hello".into());
     }
+    if let Some(t) = topology {
+        if let Err(e) = stream.write_all(&t) {
+            return send_failed(e, timeout);
+        }
+    }
+    let mut frame_sent: Option<u64> = None;
     let cv = &shared.1;
     loop {
         let b = match read_one(stream, listener, shared, &mut last_look) {
@@ -614,6 +714,11 @@ fn serve_client(
         let last = g.results[e].1;
         g.answers += 1;
         g.sending = Some(Instant::now());
+        // the latest frame, if the client streams and has not had it
+        let frame = match (stream_req, &g.frame) {
+            (Some(s), Some(f)) if frame_sent.is_none_or(|k| f.step > k) => Some((s, f.clone())),
+            _ => None,
+        };
         drop(g);
         cv.notify_all();
         let a = p::Answer {
@@ -625,17 +730,14 @@ fn serve_client(
             force,
             displacement,
         };
-        let sent = stream.write_all(&p::answer(&a));
+        let mut sent = stream.write_all(&p::answer(&a));
+        if let (Ok(()), Some((s, f))) = (&sent, frame) {
+            frame_sent = Some(f.step);
+            sent = stream.write_all(&p::frame(f.step, f.t, &f.u, s.width));
+        }
         lock(shared).sending = None;
         if let Err(e) = sent {
-            let msg = match e.kind() {
-                ErrorKind::WouldBlock | ErrorKind::TimedOut => format!(
-                    "{NOT_READING} within {} s; fix: read the answer to every message",
-                    timeout.as_secs_f64()
-                ),
-                _ => format!("the client left while the server sent an answer ({e})"),
-            };
-            return End::Error(None, msg);
+            return send_failed(e, timeout);
         }
     }
 }
