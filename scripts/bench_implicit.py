@@ -4,8 +4,11 @@
 For each box of N^3 cells (`eprop mesh box --kind tet`; fixed on x = 0, a patch load on
 x = 1, conductivity 0.05, dt automatic: the boxes of issue 24), on 1 and 2 processes:
   - eprop `run` with [model] integrator = "implicit" and each preconditioner: iterations per
-    solve and seconds per step from the log (`-vv`: one line per step; steps 2 to S, the
-    mechanics included, no output written, setup excluded);
+    solve and seconds per step from the log (`-vvv`: a line per step and per solve pair;
+    steps 2 to S, the mechanics included, no output written, setup excluded); with the
+    default --accuracy inf one TR-BDF2 step per mechanics step at solver tolerance 1e-8, as
+    PETSc's solves below; with an accuracy (1e-3, the run's default) the error control takes
+    as many TR-BDF2 steps as it needs, counted in the table;
   - `eprop export-operator`, then scripts/bench_ksp.py: PETSc CG with jacobi, gamg, hypre on
     the same matrix A = V - theta dt W, three components one by one, setup excluded.
 Prints a Markdown table. Needs mpirun, and python3-petsc4py / python3-h5py for PETSc
@@ -39,6 +42,7 @@ def main():
     ap.add_argument("--pre", default="multigrid,jacobi", help="eprop preconditioners (default multigrid,jacobi)")
     ap.add_argument("--steps", type=int, default=6, help="eprop steps per run (default 6)")
     ap.add_argument("--no-petsc", action="store_true", help="eprop only")
+    ap.add_argument("--accuracy", default="inf", help="eprop's [integrator] accuracy (default inf: one TR-BDF2 step per step, no error control)")
     a = ap.parse_args()
     eprop = os.path.join(HERE, "target", "release", "eprop")
     if not os.access(eprop, os.X_OK):
@@ -68,6 +72,7 @@ reading = "paper"
 integrator = "implicit"
 [integrator]
 preconditioner = "{pre}"
+accuracy = {a.accuracy}
 [[fixed]]
 group = "xmin"
 [[load]]
@@ -80,20 +85,28 @@ every = 1000
 """)
                 for p in [int(x) for x in a.procs.split(",")]:
                     out = os.path.join(work, "o.h5")
-                    cmd = [eprop, "-vv", "run", sc, "-o", out, "--overwrite"]
+                    cmd = [eprop, "-vvv", "run", sc, "-o", out, "--overwrite"]
                     if p > 1:
                         cmd = ["mpirun", "--oversubscribe", "-n", str(p)] + cmd
                     text, log = run(cmd, env, both=True)
                     nodes = re.search(r"\((\d+) nodes", text)
-                    # rank 0's (the first) line of each step: uptime and the two solves' iterations
+                    # rank 0's (the first) line of each step: its end (uptime) and its TR-BDF2 steps
                     steps = {}
-                    for m in re.finditer(r"([\d.]+)s\s+DEBUG implicit step (\d+): (\d+) \+ (\d+) iterations", log):
-                        steps.setdefault(int(m.group(2)), (float(m.group(1)), int(m.group(3)), int(m.group(4))))
+                    for m in re.finditer(r"([\d.]+)s\s+DEBUG implicit step (\d+): (\d+) TR-BDF2 steps, (\d+) rejected", log):
+                        steps.setdefault(int(m.group(2)), (float(m.group(1)), int(m.group(3)) + int(m.group(4))))
+                    if not steps:
+                        # without error control: one TR-BDF2 step per step, a line per solve pair
+                        for m in re.finditer(r"([\d.]+)s\s+TRACE implicit step (\d+): \d+ \+ \d+ iterations", log):
+                            steps.setdefault(int(m.group(2)), (float(m.group(1)), 1))
                     k = sorted(steps)
+                    if len(k) < 2:
+                        sys.exit(f"bench_implicit.py: no per-step lines in the log of {' '.join(cmd)}; fix: --steps 3 or more")
                     # steps 2..S: the first step's time holds one-off work
                     step = (steps[k[-1]][0] - steps[k[0]][0]) / (len(k) - 1)
-                    its = [steps[j][1] for j in k] + [steps[j][2] for j in k]
-                    rows.append((n, int(nodes.group(1)), f"eprop implicit, {pre}", p, sum(its) / len(its), step))
+                    tr = sum(steps[j][1] for j in k[1:]) / (len(k) - 1)
+                    its = [int(x) for m in re.finditer(r"TRACE implicit step \d+: (\d+) \+ (\d+) iterations", log) for x in m.groups()]
+                    label = f"eprop implicit, {pre}" + ("" if a.accuracy == "inf" else f", accuracy {a.accuracy}, {tr:.1f} TR-BDF2 steps")
+                    rows.append((n, int(nodes.group(1)), label, p, sum(its) / max(len(its), 1), step))
                     print(rows[-1], file=sys.stderr, flush=True)
             if a.no_petsc:
                 continue
