@@ -338,6 +338,46 @@ fn catch_up(c: &mut Client) {
     }
 }
 
+#[test]
+fn a_client_moving_a_sphere_deep_inside_the_organ_is_warned_about_once() {
+    let d = tempfile::tempdir().unwrap();
+    let (sc, _, _) = scenario(d.path(), "");
+    let out = d.path().join("live.h5");
+    for ranks in [1, 2] {
+        let server = serve(ranks, &sc, &out, &["--timeout", "20"]);
+        let mut c = Client::connect(&server.addr);
+        c.hello();
+        catch_up(&mut c);
+        // the cylinder's axis (radius 1) is 1 deep, the sphere's radius 0.5; then out again and in
+        c.answer(p::kind::FORCE, 0, 40.0, [0.0, -0.05, 0.0]);
+        for (k, x) in [0.0, 0.1, 1.6, 0.0].iter().enumerate() {
+            c.answer(p::kind::POSE, 0, 11.0 + k as f64, [*x, 0.0, 2.0]);
+        }
+        // until the physics has passed t = 12.5 (steps of 5/6)
+        let deadline = Instant::now() + Duration::from_secs(30);
+        for k in 1.. {
+            let a = c.answer(p::kind::POSE, 0, 14.0 + k as f64 * 1e-6, [0.0, 0.0, 2.0]);
+            if a.t_step >= 12.5 {
+                break;
+            }
+            assert!(Instant::now() < deadline, "the physics does not advance: {a:?}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        match c.send(p::kind::BYE, 0, 0.0, [0.0; 3]) {
+            Reply::Answer(a) => assert_eq!(a.kind, p::answer::BYE),
+            r => panic!("{r:?}"),
+        }
+        let (status, err) = server.finish_status(60);
+        assert_eq!(status, Some(0), "{ranks} ranks: {err}");
+        let warning = "tool 1: the client moved its centre inside the organ";
+        assert_eq!(err.matches(warning).count(), 1, "{ranks} ranks, once: {err}");
+        assert!(
+            err.contains("deeper than its radius 0.5") && err.contains("fix: move it"),
+            "{err}"
+        );
+    }
+}
+
 /// The series of a session that ended early: its complete steps read back, to step 12 or later.
 fn holds_steps_to_12(out: &Path) {
     let k = common::steps_complete(out);

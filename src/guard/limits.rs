@@ -50,7 +50,12 @@ pub fn steps(stop: &Stop, dt: f64, path: &str, from_cli: bool) -> Result<u64, St
     };
     if n > MAX_STEPS as f64 || n.is_nan() {
         let what = match *stop {
-            Stop::End(t) => format!("[time] end = {t:e} with dt = {dt:.4e} means {n:.3e} steps"),
+            Stop::End(t) => format!(
+                "[time] end = {} with dt = {} means {} steps",
+                crate::diagnostics::short(t),
+                crate::diagnostics::fixed(dt, 4),
+                crate::diagnostics::fixed(n, 3)
+            ),
             _ => format!("{} = {} steps", steps_key(stop, from_cli), grouped(n as u64)),
         };
         let fix = match stop {
@@ -71,10 +76,16 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
     let dt = plan.dt;
     if !(dt.is_normal() && dt >= MIN_STEP) {
         let (what, fix) = if user_dt {
-            (format!("[time] dt = {dt:e}"), "a larger [time] dt")
+            (
+                format!("[time] dt = {}", crate::diagnostics::short(dt)),
+                "a larger [time] dt",
+            )
         } else {
             (
-                format!("the mechanics step dt = {dt:e} (the stability bound of [material] mass, damping and [model] stiffness)"),
+                format!(
+                    "the mechanics step dt = {} (the stability bound of [material] mass, damping and [model] stiffness)",
+                    crate::diagnostics::fixed(dt, 4)
+                ),
                 "check the units of mass, damping and stiffness, or set [time] dt",
             )
         };
@@ -105,7 +116,7 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
             " (automatic: from [material] mass, damping and [model] stiffness)"
         };
         let why = match user_h {
-            Some(h) => format!("[time] h = {h:e}"),
+            Some(h) => format!("[time] h = {}", crate::diagnostics::short(h)),
             None => format!(
                 "h at most {h_max:.3e}, {} of the stability bound of [material] conductivity on this mesh",
                 crate::simulate::SAFETY
@@ -121,10 +132,10 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
     // Euler substep of another integrator is a yardstick, never taken
     if !(plan.step.is_normal() && plan.step >= MIN_STEP) {
         return Err(format!(
-            "{path}: the propagation step of {} ({}) = {:e} is below {MIN_STEP:e}; fix: check [material] conductivity and the mesh's units ([mesh] scale)",
+            "{path}: the propagation step of {} ({}) = {} is below {MIN_STEP:e}; fix: check [material] conductivity and the mesh's units ([mesh] scale)",
             plan.integrator.name(),
             if plan.integrator == Kind::Euler { "its substep h" } else { "its own step" },
-            plan.step
+            crate::diagnostics::fixed(plan.step, 4)
         ));
     }
     Ok(())

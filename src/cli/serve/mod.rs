@@ -280,9 +280,46 @@ struct Live {
     every: u64,
     /// The surface nodes' owners, once a client streams.
     gather: Option<stream::Gather>,
+    /// Per tool: where a live sphere's centre was last checked against the organ's inside
+    /// (None: not yet, or not a live sphere), and whether it was found deep inside (said once).
+    inside: Vec<(Option<V3>, bool)>,
 }
 
 impl Live {
+    /// Warns once per live sphere whose centre a client moved inside the organ, deeper than
+    /// its radius (every process calls; checked again only after it moved half a radius, so
+    /// a still tool costs nothing).
+    fn look_inside(&mut self, sim: &Simulation, t: f64) {
+        for (k, run) in sim.tools.iter().enumerate() {
+            let tool = &run.tool;
+            let crate::config::Shape::Sphere { radius } = tool.shape else {
+                continue;
+            };
+            let (last, warned) = &mut self.inside[k];
+            if !tool.live || *warned {
+                continue;
+            }
+            let c = tool.path.at(t);
+            if last.is_some_and(|p| eprop_io::geom::norm(eprop_io::geom::sub(c, p)) < 0.5 * radius) {
+                continue;
+            }
+            *last = Some(c);
+            if let Some(depth) = sim.depth_inside(c).filter(|&d| d > radius) {
+                *warned = true;
+                // a warning, not a progress line: said under -q too
+                if sim.comm().rank() == 0 {
+                    eprintln!(
+                        "warning: tool {}: the client moved its centre inside the organ at t = {}, {} from the nearest surface node, deeper than its radius {}: the surface behind it counts as pressed by up to that depth, a large foundation force and source; fix: move it from outside onto the surface it should press",
+                        k + 1,
+                        crate::diagnostics::fixed(t, 6),
+                        crate::diagnostics::fixed(depth, 4),
+                        crate::diagnostics::short(radius)
+                    );
+                }
+            }
+        }
+    }
+
     /// The inputs of time t, and the surface's owners once a client streams.
     fn inputs(&mut self, sim: &mut Simulation, t: f64) -> Result<Option<Halt>> {
         let halt = inputs(sim, self.session.as_mut(), t, &mut self.every)?;
@@ -309,6 +346,7 @@ impl Feed for Live {
         if let Some(h) = self.inputs(sim, t_next)? {
             return Ok(Some(h));
         }
+        self.look_inside(sim, t_next);
         let now = sim.time();
         forget_before(sim, now);
         Ok(None)
@@ -410,6 +448,7 @@ fn serve_simulation(
         surface,
         every: 0,
         gather: None,
+        inside: vec![(None, false); sim.tools.len()],
     };
     let summary = drive::drive(sim, &mut feed, settings, checked)?;
     let session = feed.session.map(Session::finish);

@@ -235,10 +235,11 @@ impl Session {
                         let unread = g.sending.filter(|&since| since <= start || since.elapsed() >= STUCK);
                         let msg = if let Some(since) = unread {
                             format!(
-                                "{} (for {:.1} s), so it read none of the samples sent since; the next step needs one of {} at or beyond t = {t}; fix: read the answer to every message",
+                                "{} (for {:.1} s), so it read none of the samples sent since; the next step needs one of {} at or beyond t = {}; fix: read the answer to every message",
                                 NOT_READING,
                                 since.elapsed().as_secs_f64(),
-                                self.ents.name(e)
+                                self.ents.name(e),
+                                crate::diagnostics::fixed(t, 6)
                             )
                         } else if g.phase == Phase::Waiting {
                             format!(
@@ -247,8 +248,9 @@ impl Session {
                             )
                         } else {
                             format!(
-                                "the client sent no sample of {} at or beyond t = {t} within {} s (stalled); fix: keep sending, say bye, or raise --timeout",
+                                "the client sent no sample of {} at or beyond t = {} within {} s (stalled); fix: keep sending, say bye, or raise --timeout",
                                 self.ents.name(e),
+                                crate::diagnostics::fixed(t, 6),
                                 self.timeout.as_secs_f64()
                             )
                         };
@@ -259,8 +261,9 @@ impl Session {
                     let sig = crate::guard::signals::pending();
                     if sig != 0 {
                         let msg = format!(
-                            "stopped by {} while waiting for the client's samples at t = {t}",
-                            crate::guard::signals::name(sig)
+                            "stopped by {} while waiting for the client's samples at t = {}",
+                            crate::guard::signals::name(sig),
+                            crate::diagnostics::fixed(t, 6)
                         );
                         fail(&mut g, Code::Server, &msg);
                         cv.notify_all();
@@ -705,7 +708,12 @@ fn serve_client(
             drop(g);
             return End::Error(
                 Some(Code::Sample),
-                format!("time {t} of {} is not after its last sample's {last}", ents.name(e)),
+                format!(
+                    "time {} of {} is not after its last sample's {}",
+                    crate::diagnostics::short(t),
+                    ents.name(e),
+                    crate::diagnostics::short(last)
+                ),
             );
         }
         g.latest[e] = t;
