@@ -63,7 +63,9 @@ paper's per-node, unit-free reading (its defaults in parentheses). docs/model.md
   [time]      steps = N | end = T s | equilibrium = tol m/s;  dt, h s optional (automatic)\n\
   [output]    file = \"out.h5\" (default: <scenario stem>.h5 beside the scenario), every = 1,\n\
               fields = [\"displacement\", ...], precision = \"float64\" | \"float32\",\n\
-              compression = 0..9 (gzip), overwrite = false (replace an existing series)\n\
+              compression = 0..9 (gzip), overwrite = false (replace an existing series),\n\
+              flush = 1 s (written steps are flushed, synced and counted at most this far apart\n\
+              and at every end: a crash loses at most that much; 0: every output step)\n\
   [performance] fuse = \"auto\" | 1..16 (explicit Euler substeps per fused sweep; auto: timed on one\n\
               process, 1 on several), simd = true (false: the portable kernel, other rounding)\n\n\
 The summary gives the substep h, the steps, the speed, the largest displacement, the contact\n\
