@@ -270,10 +270,15 @@ impl Implicit {
             Some(l) => l,
             None => {
                 let theta_tau = THETA * self.plan.dt * 0.5f64.powi(level as i32);
+                // a multigrid keeps its hierarchy and recombines it (setup once per run)
+                let pre = match self.pre.derive(theta_tau) {
+                    Some(derived) => derived?,
+                    None => preconditioner(self.kind, prop, &self.vol, theta_tau, comm, &self.path)?,
+                };
                 Level {
                     theta_tau,
                     a_bound: comm.max(row_bound(&prop.op, &self.vol, theta_tau)),
-                    pre: preconditioner(self.kind, prop, &self.vol, theta_tau, comm, &self.path)?,
+                    pre,
                 }
             }
         };

@@ -187,6 +187,11 @@ pub trait Precond: Send {
     fn cost(&self) -> f64 {
         0.0
     }
+    /// The preconditioner of the same operator with another theta tau, made from this one
+    /// more cheaply than anew (None: build it anew).
+    fn derive(&self, _theta_tau: f64) -> Option<anyhow::Result<Box<dyn Precond>>> {
+        None
+    }
 }
 
 #[cfg(test)]

@@ -35,6 +35,7 @@ use crate::propagate::Propagation;
 use anyhow::{bail, Result};
 use csr::Csr;
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Coarsening stops at this many rows (the coarsest level is solved directly).
 pub const COARSE_MAX: usize = 400;
@@ -51,13 +52,15 @@ pub const SWEEP_COST: f64 = 1.4;
 /// The Chebyshev degree of the smoother.
 pub const DEGREE: usize = 2;
 
-/// One level: A = V + c K on one pattern, its Chebyshev smoother and its work vectors.
+/// One level: A = V + c K on one pattern, its Chebyshev smoother and its work vectors. The
+/// pattern, V, K and the transfers do not depend on c: hierarchies for other coefficients
+/// share them (`Precond::derive`).
 #[derive(Clone)]
 struct Level {
-    ptr: Vec<usize>,
-    col: Vec<u32>,
-    v: Vec<f64>,
-    k: Vec<f64>,
+    ptr: Arc<Vec<usize>>,
+    col: Arc<Vec<u32>>,
+    v: Arc<Vec<f64>>,
+    k: Arc<Vec<f64>>,
     a: Vec<f64>,
     dinv: Vec<f64>,
     /// Chebyshev interval of D^-1 A
@@ -65,8 +68,8 @@ struct Level {
     hi: f64,
     /// prolongator to this level from the next coarser one and its transpose (empty on the
     /// coarsest level)
-    p: Csr,
-    r: Csr,
+    p: Arc<Csr>,
+    r: Arc<Csr>,
     x: Vec<V3>,
     b: Vec<V3>,
     t: Vec<V3>,
@@ -121,14 +124,14 @@ impl Level {
         Level {
             a: vec![0.0; col.len()],
             dinv: vec![0.0; n],
-            ptr,
-            col,
-            v: vv,
-            k: kv,
+            ptr: Arc::new(ptr),
+            col: Arc::new(col),
+            v: Arc::new(vv),
+            k: Arc::new(kv),
             lo: 0.0,
             hi: 0.0,
-            p: Csr::default(),
-            r: Csr::default(),
+            p: Arc::default(),
+            r: Arc::default(),
             x: z.clone(),
             b: z.clone(),
             t: z,
@@ -137,7 +140,7 @@ impl Level {
 
     /// A = V + c K, its inverse diagonal and Chebyshev interval.
     fn combine(&mut self, c: f64) {
-        self.a = self.v.iter().zip(&self.k).map(|(v, k)| v + c * k).collect();
+        self.a = self.v.iter().zip(self.k.iter()).map(|(v, k)| v + c * k).collect();
         let n = self.n();
         self.dinv = (0..n)
             .map(|i| {
@@ -246,6 +249,7 @@ fn lambda_max(ptr: &[usize], col: &[u32], val: &[f64], dinv: &[f64]) -> f64 {
 }
 
 /// The direct solve of the coarsest level.
+#[derive(Clone)]
 enum Coarse {
     /// Lower Cholesky factor, dense by rows.
     Dense(Vec<f64>),
@@ -254,6 +258,7 @@ enum Coarse {
 }
 
 /// The smoothed-aggregation hierarchy of one process (a `Precond`).
+#[derive(Clone)]
 pub struct Multigrid {
     /// owned local index of each free row (the rows of `fine`)
     rows: Vec<u32>,
@@ -266,8 +271,8 @@ pub struct Multigrid {
     vol: Vec<f64>,
     dinv0: Vec<f64>,
     /// prolongator from levels[0] to the owned rows, and its transpose
-    p0: Csr,
-    r0: Csr,
+    p0: Arc<Csr>,
+    r0: Arc<Csr>,
     /// level-0 iterate (with the halo), search direction and residual
     x0: NodeField<V3>,
     d0: Vec<V3>,
@@ -338,8 +343,8 @@ impl Multigrid {
         let (fine, p) = if coarsened {
             let mut fine = levels.remove(0);
             let p = std::mem::take(&mut fine.p);
-            fine.r = Csr::default();
-            (fine, p)
+            fine.r = Arc::default();
+            (fine, Arc::try_unwrap(p).unwrap_or_else(|p| (*p).clone()))
         } else {
             // no coarsening: the local fine level itself is the coarse problem
             let p = Csr {
@@ -366,7 +371,8 @@ impl Multigrid {
             };
             p0.ptr.push(p0.ptr[i] + len);
         }
-        let r0 = p0.transpose();
+        let r0 = Arc::new(p0.transpose());
+        let p0 = Arc::new(p0);
         let degree = DEGREE;
         let layout = prop.layout();
         let mut mg = Multigrid {
@@ -439,8 +445,8 @@ impl Multigrid {
             let r = p.transpose();
             let kc = r.matmul(&k.matmul(&p));
             let vc = r.matmul(&vm.matmul(&p));
-            level.p = p;
-            level.r = r;
+            level.p = Arc::new(p);
+            level.r = Arc::new(r);
             levels.push(level);
             k = kc;
             vm = vc;
@@ -672,5 +678,11 @@ impl Precond for Multigrid {
     }
     fn cost(&self) -> f64 {
         SWEEP_COST * self.cycle_work() * self.fine.n() as f64 / self.owned.max(1) as f64
+    }
+    /// The hierarchy for another theta tau: the same aggregates, transfers and Galerkin
+    /// products (shared), recombined (`set_coefficient`: the same bits as one built for it).
+    fn derive(&self, theta_tau: f64) -> Option<Result<Box<dyn Precond>>> {
+        let mut m = self.clone();
+        Some(m.set_coefficient(theta_tau).map(|()| Box::new(m) as Box<dyn Precond>))
     }
 }
