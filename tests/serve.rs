@@ -248,12 +248,14 @@ fn drive(c: &mut Client, path: &[[f64; 4]], force: &[[f64; 4]], dt: f64) {
     drive_paced(c, path, force, dt, 3);
 }
 
-/// `drive` with a pause of `pause_ms` after every 25 messages.
+/// `drive` with a pause of `pause_ms` after every 25 messages, doubled (up to 1 s) while the
+/// physics did not advance since the previous pause (a loaded machine).
 fn drive_paced(c: &mut Client, path: &[[f64; 4]], force: &[[f64; 4]], dt: f64, pause_ms: u64) {
     let mut all: Vec<(u32, [f64; 4])> = path.iter().map(|r| (p::kind::POSE, *r)).collect();
     all.extend(force.iter().map(|r| (p::kind::FORCE, *r)));
     all.sort_by(|a, b| a.1[0].total_cmp(&b.1[0]));
     let mut last_step = 0;
+    let (mut pause, mut step_at_pause) = (pause_ms, u64::MAX);
     for (k, (kind, r)) in all.iter().enumerate() {
         let a = c.answer(*kind, 0, r[0], [r[1], r[2], r[3]]);
         assert_eq!(a.kind, if *kind == p::kind::POSE { 2 } else { 3 });
@@ -264,7 +266,13 @@ fn drive_paced(c: &mut Client, path: &[[f64; 4]], force: &[[f64; 4]], dt: f64, p
         assert!(a.force.iter().chain(&a.displacement).all(|x| x.is_finite()));
         last_step = a.step;
         if k % 25 == 0 {
-            std::thread::sleep(Duration::from_millis(pause_ms));
+            pause = if a.step == step_at_pause {
+                (2 * pause).min(1000)
+            } else {
+                pause_ms
+            };
+            step_at_pause = a.step;
+            std::thread::sleep(Duration::from_millis(pause));
         }
     }
     match c.send(p::kind::BYE, 0, 0.0, [0.0; 3]) {

@@ -311,7 +311,7 @@ impl Live {
                     eprintln!(
                         "warning: tool {}: the client moved its centre inside the organ at t = {}, {} from the nearest surface node, deeper than its radius {}: the surface behind it counts as pressed by up to that depth, a large foundation force and source; fix: move it from outside onto the surface it should press",
                         k + 1,
-                        crate::diagnostics::fixed(t, 6),
+                        crate::diagnostics::short(t),
                         crate::diagnostics::fixed(depth, 4),
                         crate::diagnostics::short(radius)
                     );

@@ -239,7 +239,7 @@ impl Session {
                                 NOT_READING,
                                 since.elapsed().as_secs_f64(),
                                 self.ents.name(e),
-                                crate::diagnostics::fixed(t, 6)
+                                crate::diagnostics::short(t)
                             )
                         } else if g.phase == Phase::Waiting {
                             format!(
@@ -250,7 +250,7 @@ impl Session {
                             format!(
                                 "the client sent no sample of {} at or beyond t = {} within {} s (stalled); fix: keep sending, say bye, or raise --timeout",
                                 self.ents.name(e),
-                                crate::diagnostics::fixed(t, 6),
+                                crate::diagnostics::short(t),
                                 self.timeout.as_secs_f64()
                             )
                         };
@@ -263,7 +263,7 @@ impl Session {
                         let msg = format!(
                             "stopped by {} while waiting for the client's samples at t = {}",
                             crate::guard::signals::name(sig),
-                            crate::diagnostics::fixed(t, 6)
+                            crate::diagnostics::short(t)
                         );
                         fail(&mut g, Code::Server, &msg);
                         cv.notify_all();
