@@ -30,19 +30,31 @@ pub fn layout(sizes: &GlobalSizes) -> Layout {
 /// owned nodes of every process (one all-to-all per field; every process calls).
 pub fn field_blocks(sim: &Simulation, fields: &[Field]) -> Vec<Vec<f64>> {
     let no = sim.n_owned();
-    let c = sim.comm();
-    fields
-        .iter()
-        .map(|f| match f {
-            Field::Displacement => sim.blocks().collect(sim.u()[..no].as_flattened(), 3, c),
-            Field::Velocity => sim.blocks().collect(sim.v()[..no].as_flattened(), 3, c),
-            Field::Potential => sim.blocks().collect(sim.prop.phi[..no].as_flattened(), 3, c),
-            Field::Energy => {
-                let energy: Vec<f64> = sim.prop.phi[..no].iter().map(|p| norm(*p)).collect();
-                sim.blocks().collect(&energy, 1, c)
+    let widths: Vec<usize> = fields.iter().map(|f| f.components()).collect();
+    let w: usize = widths.iter().sum();
+    // every field of a node side by side: one exchange for all of them
+    let mut packed = Vec::with_capacity(no * w);
+    for i in 0..no {
+        for f in fields {
+            match f {
+                Field::Displacement => packed.extend_from_slice(&sim.u()[i]),
+                Field::Velocity => packed.extend_from_slice(&sim.v()[i]),
+                Field::Potential => packed.extend_from_slice(&sim.prop.phi[i]),
+                Field::Energy => packed.push(norm(sim.prop.phi[i])),
             }
-        })
-        .collect()
+        }
+    }
+    let block = sim.blocks().collect(&packed, w, sim.comm());
+    let rows = block.len() / w.max(1);
+    let mut out: Vec<Vec<f64>> = widths.iter().map(|&c| Vec::with_capacity(rows * c)).collect();
+    for row in block.chunks_exact(w.max(1)) {
+        let mut at = 0;
+        for (o, &c) in out.iter_mut().zip(&widths) {
+            o.extend_from_slice(&row[at..at + c]);
+            at += c;
+        }
+    }
+    out
 }
 
 /// Each tool's row of the output (`/eprop/tools`).
