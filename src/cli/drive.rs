@@ -310,22 +310,24 @@ impl Output {
                 });
             }
         }
-        if let Err(e) = self.series.append(sim, commit) {
-            return Err(Failure {
-                why: format!("the series could not be written: {}", cause(&e)),
-                error: write_failed(e, &holds(&self.series), &s.next),
-            });
-        }
+        let appended = self.series.append(sim, commit);
+        appended.map_err(|e| self.failed(e, s))?;
         self.last_written = sim.step();
         Ok(())
     }
 
     /// Makes every written step complete in the file.
     fn complete(&mut self, s: &Settings) -> Result<(), Failure> {
-        self.series.commit().map_err(|e| Failure {
+        let committed = self.series.commit();
+        committed.map_err(|e| self.failed(e, s))
+    }
+
+    /// A failed write of the series, with what the file keeps.
+    fn failed(&self, e: anyhow::Error, s: &Settings) -> Failure {
+        Failure {
             why: format!("the series could not be written: {}", cause(&e)),
             error: write_failed(e, &holds(&self.series), &s.next),
-        })
+        }
     }
 }
 

@@ -185,6 +185,16 @@ pub fn scale_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
 /// At most this many instants of a tool's path are looked at by `tool_warnings`.
 const TOOL_SAMPLES: usize = 1000;
 
+/// How deep a sphere tool's centre at `at` lies inside the organ when that is deeper than its
+/// radius (None for other shapes, outside, or shallower; every process calls): the case where
+/// the surface behind it counts as pressed by up to that depth once it moves.
+pub(crate) fn sphere_deep_inside(sim: &Simulation, tool: &crate::config::Tool, at: [f64; 3]) -> Option<f64> {
+    let crate::config::Shape::Sphere { radius } = tool.shape else {
+        return None;
+    };
+    sim.depth_inside(at).filter(|&d| d > radius)
+}
+
 /// Warnings about the tools of a simulation, as for loads (`load_warnings`): a contact
 /// pressure past the tissue law's range at the deepest point of the path, a tool too small for
 /// the mesh, a tool that never reaches the organ; each with the hint about a mesh in metres.
@@ -217,17 +227,13 @@ pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
         // a sphere whose centre starts inside the organ, deeper than its radius: it touches
         // no surface node, yet the overlaps are measured along its direction of motion, so the
         // surface behind it counts as pressed from the first step
-        if let crate::config::Shape::Sphere { radius } = tool.shape {
-            if let Some(depth) = sim.depth_inside(tool.path.at(0.0)) {
-                if depth > radius {
-                    out.push(format!(
-                        "tool {}: its centre starts inside the organ, {depth:.4e} from the nearest surface node, deeper than its radius {}: the contact measures each surface node's overlap against the rest surface along the tool's direction of motion, so once it moves the surface behind it counts as pressed by up to that depth, a large foundation force and source from step 0 (at rest it touches nothing and does nothing); fix: start it outside the organ, at the surface it should press (`start`, or the first row of its path table){metres}",
-                        k + 1,
-                        short(radius)
-                    ));
-                    continue;
-                }
-            }
+        if let Some(depth) = sphere_deep_inside(sim, tool, tool.path.at(0.0)) {
+            out.push(format!(
+                "tool {}: its centre starts inside the organ, {depth:.4e} from the nearest surface node, deeper than its radius {}: the contact measures each surface node's overlap against the rest surface along the tool's direction of motion, so once it moves the surface behind it counts as pressed by up to that depth, a large foundation force and source from step 0 (at rest it touches nothing and does nothing); fix: start it outside the organ, at the surface it should press (`start`, or the first row of its path table){metres}",
+                k + 1,
+                short(radius)
+            ));
+            continue;
         }
         let mut times = vec![0.0];
         if let crate::config::Trajectory::Table(h) = &tool.path {

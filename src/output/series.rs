@@ -27,7 +27,7 @@ pub fn layout(sizes: &GlobalSizes) -> Layout {
 }
 
 /// This process's block of each field (global node order, flattened), collected from the
-/// owned nodes of every process (one all-to-all per field; every process calls).
+/// owned nodes of every process (one all-to-all for every field together; every process calls).
 pub fn field_blocks(sim: &Simulation, fields: &[Field]) -> Vec<Vec<f64>> {
     let no = sim.n_owned();
     let widths: Vec<usize> = fields.iter().map(|f| f.components()).collect();

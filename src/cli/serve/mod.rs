@@ -292,11 +292,9 @@ impl Live {
     fn look_inside(&mut self, sim: &Simulation, t: f64) {
         for (k, run) in sim.tools.iter().enumerate() {
             let tool = &run.tool;
-            let crate::config::Shape::Sphere { radius } = tool.shape else {
-                continue;
-            };
+            let radius = tool.shape.radius();
             let (last, warned) = &mut self.inside[k];
-            if !tool.live || *warned {
+            if !tool.live || *warned || !matches!(tool.shape, crate::config::Shape::Sphere { .. }) {
                 continue;
             }
             let c = tool.path.at(t);
@@ -304,7 +302,7 @@ impl Live {
                 continue;
             }
             *last = Some(c);
-            if let Some(depth) = sim.depth_inside(c).filter(|&d| d > radius) {
+            if let Some(depth) = crate::guard::plausible::sphere_deep_inside(sim, tool, c) {
                 *warned = true;
                 // a warning, not a progress line: said under -q too
                 if sim.comm().rank() == 0 {
