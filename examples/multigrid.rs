@@ -19,7 +19,7 @@ fn main() -> anyhow::Result<()> {
         .collect();
     let tt = eprop::propagate::integrate::implicit::THETA * sim.dt();
     let t = Instant::now();
-    let mut mg = Multigrid::new(sim.prop(), &vol, tt)?;
+    let mut mg = Multigrid::new(sim.prop(), &vol, sim.gid(), tt, &eprop::distribute::comm::Serial)?;
     let mut prop = sim.into_propagation();
     let setup_s = t.elapsed().as_secs_f64();
     let t = Instant::now();

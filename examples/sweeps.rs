@@ -38,6 +38,7 @@ fn main() -> anyhow::Result<()> {
         sim.prop(),
         sim.volumes(),
         &active,
+        sim.gid(),
         0.5,
         1e-5,
         &settings,

@@ -106,6 +106,17 @@ impl Comm for Threads<'_> {
     fn all_gather(&self, x: &[f64]) -> Vec<f64> {
         self.gather_f64(x)
     }
+    fn all_gather_var(&self, x: &[f64]) -> (Vec<f64>, Vec<usize>) {
+        let bytes: Vec<u8> = x.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let got = self.exchange(vec![bytes; self.shared.size]);
+        let counts = got.iter().map(|b| b.len() / 8).collect();
+        let all = got
+            .concat()
+            .chunks(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        (all, counts)
+    }
     fn abort(&self, _: i32) -> ! {
         panic!("abort on thread process {}", self.rank)
     }

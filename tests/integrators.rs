@@ -51,7 +51,25 @@ fn stepper(
     match kind {
         "euler" => Box::new(Euler::new(hb, dt, Some(dt / k as f64), "t", "compact").unwrap()),
         "rkl2" => Box::new(Rkl2::new(hb, dt, 1, 1 << 20, layout, "t", String::new()).unwrap()),
-        _ => Box::new(Implicit::new(prop, vol, active, dt, hb, &settings(), "t", 0, String::new(), &Serial).unwrap()),
+        _ => {
+            let gid: Vec<u64> = (0..layout.n_local as u64).collect();
+            Box::new(
+                Implicit::new(
+                    prop,
+                    vol,
+                    active,
+                    &gid,
+                    dt,
+                    hb,
+                    &settings(),
+                    "t",
+                    0,
+                    String::new(),
+                    &Serial,
+                )
+                .unwrap(),
+            )
+        }
     }
 }
 
@@ -414,6 +432,7 @@ fn a_solve_that_does_not_converge_is_an_error_that_names_the_fix() {
             s.prop(),
             s.volumes(),
             s.active(),
+            s.gid(),
             s.dt(),
             hb,
             &st,
@@ -604,6 +623,7 @@ fn the_error_estimates_match_the_true_error_on_an_eigenvector() {
     let n = s.n_owned();
     let v = box_mode(&s, [1.0, 0.5, -1.0]);
     let (vol, active, hb) = (s.volumes().to_vec(), s.active().to_vec(), s.step_plan().h_bound);
+    let gid = s.gid().to_vec();
     let mut prop = s.into_propagation();
     let mut lv = vec![[0.0; 3]; n];
     prop.apply(&v, &mut lv);
@@ -621,6 +641,7 @@ fn the_error_estimates_match_the_true_error_on_an_eigenvector() {
                     &prop,
                     &vol,
                     &active,
+                    &gid,
                     dt,
                     hb,
                     &settings(),

@@ -287,6 +287,19 @@ fn bitwise_identical_on_1_to_4_ranks_every_deterministic_integrator() {
         &format!("[integrator]\npreconditioner = \"jacobi\"\n{stiff}"),
         "auto",
     );
+    // the multigrid's coarse levels are global: the same bits too, on a box large enough to
+    // coarsen twice, under error control
+    let cube = d.path().join("cube.msh");
+    eprop_io::write_mesh(
+        &eprop_io::generate::box_mesh([1.0; 3], [14, 14, 14], eprop_io::generate::BoxCells::Tet).unwrap(),
+        &cube,
+    )
+    .unwrap();
+    check_ranks(
+        &cube,
+        "[model]\nreading = \"paper\"\nintegrator = \"implicit\"\n[integrator]\npreconditioner = \"multigrid\"\naccuracy = 1e-4\n[material]\nconductivity = 0.5\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\nnearest = [1.0, 0.5, 0.5]\nnormal = 1.0\n",
+        "multigrid",
+    );
 }
 
 #[test]
@@ -295,10 +308,10 @@ fn bitwise_identical_on_1_to_4_ranks_every_integrator_organ_mesh() {
         return;
     };
     let case = "[material]\nconductivity = 0.3\n[[fixed]]\nhalfspace = { point = [-4.0, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.0, 5.2, 0.5]\nnormal = 1.0\n";
-    for kind in ["rkl2", "implicit"] {
+    for (kind, pre) in [("rkl2", "jacobi"), ("implicit", "jacobi"), ("implicit", "multigrid")] {
         check_ranks(
             &mesh,
-            &format!("[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n[integrator]\npreconditioner = \"jacobi\"\n{case}"),
+            &format!("[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n[integrator]\npreconditioner = \"{pre}\"\n{case}"),
             kind,
         );
     }

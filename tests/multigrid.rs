@@ -31,6 +31,7 @@ fn implicit(s: &Simulation, pre: Preconditioner, tolerance: f64) -> Implicit {
         s.prop(),
         s.volumes(),
         s.active(),
+        s.gid(),
         s.dt(),
         hb,
         &settings,
@@ -123,7 +124,7 @@ fn the_v_cycle_is_symmetric_and_positive() {
     let s = box_sim(16);
     let n = s.n_owned();
     let vol = volumes(&s);
-    let mut mg = Multigrid::new(s.prop(), &vol, THETA * s.dt()).unwrap();
+    let mut mg = Multigrid::new(s.prop(), &vol, s.gid(), THETA * s.dt(), &Serial).unwrap();
     let mut prop = s.into_propagation();
     assert!(mg.sizes().len() >= 2, "{:?}", mg.sizes());
     let mask = |v: Vec<V3>| -> Vec<V3> {
@@ -154,9 +155,9 @@ fn a_new_coefficient_recombines_to_the_hierarchy_built_for_it() {
     let n = s.n_owned();
     let vol = volumes(&s);
     let (c1, c2) = (THETA * s.dt(), 0.3 * THETA * s.dt());
-    let mut a = Multigrid::new(s.prop(), &vol, c1).unwrap();
+    let mut a = Multigrid::new(s.prop(), &vol, s.gid(), c1, &Serial).unwrap();
     a.set_coefficient(c2).unwrap();
-    let mut b = Multigrid::new(s.prop(), &vol, c2).unwrap();
+    let mut b = Multigrid::new(s.prop(), &vol, s.gid(), c2, &Serial).unwrap();
     let mut prop = s.into_propagation();
     assert_eq!(a.coefficient(), c2);
     let x = pseudo_random(n, 3);

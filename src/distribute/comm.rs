@@ -24,6 +24,8 @@ pub trait Comm {
     fn all_to_all(&self, send: &[f64], counts: &[usize]) -> Vec<f64>;
     /// Every process's `x`, in rank order.
     fn all_gather(&self, x: &[f64]) -> Vec<f64>;
+    /// Every process's `x` of any length, in rank order, with the lengths.
+    fn all_gather_var(&self, x: &[f64]) -> (Vec<f64>, Vec<usize>);
     /// Ends every process after an error on this one.
     fn abort(&self, code: i32) -> !;
     /// The MPI communicator of these processes, for libraries that take one (None on one
@@ -327,6 +329,9 @@ impl Comm for Serial {
     fn all_gather(&self, x: &[f64]) -> Vec<f64> {
         x.to_vec()
     }
+    fn all_gather_var(&self, x: &[f64]) -> (Vec<f64>, Vec<usize>) {
+        (x.to_vec(), vec![x.len()])
+    }
     fn abort(&self, code: i32) -> ! {
         std::process::exit(code)
     }
@@ -372,6 +377,18 @@ impl Comm for Mpi {
         let mut out = vec![0.0; x.len() * self.size()];
         self.world.all_gather_into(x, &mut out[..]);
         out
+    }
+    fn all_gather_var(&self, x: &[f64]) -> (Vec<f64>, Vec<usize>) {
+        let n = i32::try_from(x.len()).expect("a gather of more than 2^31 values");
+        let mut counts = vec![0i32; self.size()];
+        self.world.all_gather_into(&n, &mut counts[..]);
+        let d = displacements(&counts);
+        let mut out = vec![0.0; counts.iter().map(|&c| c as usize).sum()];
+        {
+            let mut rp = PartitionMut::new(&mut out[..], &counts[..], &d[..]);
+            self.world.all_gather_varcount_into(x, &mut rp);
+        }
+        (out, counts.iter().map(|&c| c as usize).collect())
     }
     fn max(&self, x: f64) -> f64 {
         let mut y = 0.0;

@@ -142,10 +142,62 @@ impl Halo {
         self.start(data, stride).finish(data);
     }
 
+    /// Personalised all-to-all over the halo's communicator, the counts known on both sides:
+    /// `send` holds `send_counts[q]` values for process q, and the result `recv_counts[q]`
+    /// values from q, in rank order. On one process it is `send` itself.
+    pub fn all_to_all(&self, send: &[f64], send_counts: &[usize], recv_counts: &[usize]) -> Vec<f64> {
+        let Some(comm) = &self.comm else {
+            return send.to_vec();
+        };
+        use mpi::datatype::{Partition, PartitionMut};
+        use mpi::traits::*;
+        let sc: Vec<i32> = send_counts.iter().map(|&c| count(c)).collect();
+        let rc: Vec<i32> = recv_counts.iter().map(|&c| count(c)).collect();
+        let (sd, rd) = (offsets(&sc), offsets(&rc));
+        let mut out = vec![0.0; recv_counts.iter().sum()];
+        {
+            let sp = Partition::new(send, &sc[..], &sd[..]);
+            let mut rp = PartitionMut::new(&mut out[..], &rc[..], &rd[..]);
+            comm.all_to_all_varcount_into(&sp, &mut rp);
+        }
+        out
+    }
+
+    /// Every process's `x` (`counts[q]` values from process q, known everywhere), in rank
+    /// order. On one process it is `x` itself.
+    pub fn all_gather(&self, x: &[f64], counts: &[usize]) -> Vec<f64> {
+        let Some(comm) = &self.comm else {
+            return x.to_vec();
+        };
+        use mpi::datatype::PartitionMut;
+        use mpi::traits::*;
+        let c: Vec<i32> = counts.iter().map(|&c| count(c)).collect();
+        let d = offsets(&c);
+        let mut out = vec![0.0; counts.iter().sum()];
+        {
+            let mut rp = PartitionMut::new(&mut out[..], &c[..], &d[..]);
+            comm.all_gather_varcount_into(x, &mut rp);
+        }
+        out
+    }
+
     /// Seconds spent waiting in `finish` so far.
     pub fn wait_seconds(&self) -> f64 {
         self.waited.get()
     }
+}
+
+/// Exclusive prefix sums of message sizes (MPI displacements).
+fn offsets(counts: &[i32]) -> Vec<i32> {
+    let mut at = 0;
+    counts
+        .iter()
+        .map(|&c| {
+            let d = at;
+            at += c;
+            d
+        })
+        .collect()
 }
 
 fn count(n: usize) -> i32 {

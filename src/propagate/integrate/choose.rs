@@ -131,6 +131,7 @@ fn implicit(cx: &Context, per_step: usize, why: String) -> Result<Implicit> {
         cx.prop,
         cx.vol,
         cx.active,
+        cx.gid,
         cx.dt,
         cx.h_bound,
         cx.settings,

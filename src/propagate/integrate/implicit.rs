@@ -96,6 +96,7 @@ fn preconditioner(
     kind: Preconditioner,
     prop: &Propagation,
     vol: &[f64],
+    gid: &[u64],
     theta_tau: f64,
     comm: &dyn Comm,
     path: &str,
@@ -109,7 +110,7 @@ fn preconditioner(
             })
         }
         Preconditioner::Multigrid => Box::new(
-            super::multigrid::Multigrid::new(prop, vol, theta_tau).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
+            super::multigrid::Multigrid::new(prop, vol, gid, theta_tau, comm).map_err(|e| anyhow::anyhow!("{path}: {e}"))?,
         ),
         #[cfg(eprop_hypre)]
         Preconditioner::Amg => Box::new(
@@ -159,6 +160,8 @@ pub struct Implicit {
     a_bound: f64,
     /// V_i of the owned rows that move, 0 elsewhere
     vol: Vec<f64>,
+    /// global ids of the local nodes (owned, then halo)
+    gid: Vec<u64>,
     pre: Box<dyn Precond>,
     tol: f64,
     max_iterations: usize,
@@ -179,11 +182,13 @@ pub struct Implicit {
 
 impl Implicit {
     /// The TR-BDF2 stepper for the mechanics step dt on `prop`'s operator (compact scheme);
-    /// `vol` are the control volumes and `active` the nodes that move (owned first).
+    /// `vol` are the control volumes, `active` the nodes that move and `gid` their global ids
+    /// (owned first).
     pub fn new(
         prop: &Propagation,
         vol: &[f64],
         active: &[bool],
+        gid: &[u64],
         dt: f64,
         h_bound: f64,
         settings: &Settings,
@@ -197,7 +202,7 @@ impl Implicit {
         let theta_tau = THETA * dt;
         let vol: Vec<f64> = (0..n).map(|i| if active[i] { vol[i] } else { 0.0 }).collect();
         let a_bound = comm.max(row_bound(&prop.op, &vol, theta_tau));
-        let pre = preconditioner(settings.preconditioner, prop, &vol, theta_tau, comm, path)?;
+        let pre = preconditioner(settings.preconditioner, prop, &vol, gid, theta_tau, comm, path)?;
         let z = || NodeField::filled(layout, [0.0; 3]);
         let zo = || vec![[0.0; 3]; n];
         Ok(Implicit {
@@ -220,6 +225,7 @@ impl Implicit {
             theta_tau,
             a_bound,
             vol,
+            gid: gid.to_vec(),
             pre,
             tol: settings.tolerance,
             max_iterations: settings.max_iterations,
@@ -273,7 +279,7 @@ impl Implicit {
                 // a multigrid keeps its hierarchy and recombines it (setup once per run)
                 let pre = match self.pre.derive(theta_tau) {
                     Some(derived) => derived?,
-                    None => preconditioner(self.kind, prop, &self.vol, theta_tau, comm, &self.path)?,
+                    None => preconditioner(self.kind, prop, &self.vol, &self.gid, theta_tau, comm, &self.path)?,
                 };
                 Level {
                     theta_tau,

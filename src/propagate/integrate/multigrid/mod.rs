@@ -6,10 +6,15 @@
 //! diffusion matrix and c = theta tau. One scalar hierarchy serves the three components:
 //! - level 0 is the solver's own A on every process (the operator sweep with its halo
 //!   exchange, `Propagation::update_to`): its smoothing couples the processes;
-//! - the coarse levels are this process's own: aggregated from K on its free owned rows
-//!   (couplings to other processes' nodes left out), so the coarse correction is
-//!   block-diagonal over the processes;
-//! - aggregation on K's strong connections (`aggregate`), nodes in local order;
+//! - the coarse levels are global and the same on every process: at setup every process
+//!   gathers the free rows of K (global ids, `Comm::all_gather_var`) and builds the whole
+//!   hierarchy from them in global id order, so aggregates cross process boundaries as if
+//!   there were one process;
+//! - restriction: each coarse row has an owner (the process of its largest prolongator
+//!   entry), which sums it from the fine residuals of its support in global order (those of
+//!   other processes arrive in one all-to-all on a fixed plan); every process then gathers
+//!   the whole coarse vector, runs the coarse cycle itself, and prolongs to its own rows;
+//! - aggregation on K's strong connections (`aggregate`), nodes in global id order;
 //! - prolongator P = (I - omega D_K^-1 K) P_tent, P_tent the aggregates' constants,
 //!   omega = 4 / (3 lambda_max(D_K^-1 K)) by power iteration;
 //! - Galerkin coarse matrices kept apart, V_c = P^T V P and K_c = P^T K P, so that a new c
@@ -20,16 +25,17 @@
 //! - coarsest level (at most COARSE_MAX rows, or where aggregation stalls): dense Cholesky.
 //!
 //! Every level's matrix is read once per kernel for the three columns. Every sum is in a
-//! fixed order, so the cycle is the same bits on any thread count; over several processes
-//! each one's coarse levels are its own (aggregates do not cross process boundaries), so the
-//! preconditioner, and the iterates, depend on the partition: results agree across process
-//! counts to the solver tolerance, not bitwise (docs/integrators.md).
+//! fixed order (global ids on level 0's transfers), so the cycle, and the iterates, are the
+//! same bits on any thread and process count. The price: each process holds the global
+//! coarse levels and level 0's global matrix (for the smoother's bounds), and repeats the
+//! coarse cycle; setup gathers the whole fine matrix on every process (docs/integrators.md).
 
 pub mod aggregate;
 pub mod csr;
 
 use super::Precond;
 use crate::discretize::operator::{Operator, V3};
+use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
 use crate::propagate::Propagation;
 use anyhow::{bail, Result};
@@ -257,22 +263,48 @@ enum Coarse {
     Smooth,
 }
 
-/// The smoothed-aggregation hierarchy of one process (a `Precond`).
+/// The restriction from level 0 to the first coarse level over the processes: every coarse
+/// row has one owner, which sums it from the fine residuals of its support in global order;
+/// then every process gathers the whole coarse vector. The same bits on any process count.
+#[derive(Default)]
+struct Plan {
+    /// per process q: the owned rows whose residual q needs (ascending global id)
+    send: Vec<Vec<u32>>,
+    /// values sent to and received from each process (three per row)
+    send_counts: Vec<usize>,
+    recv_counts: Vec<usize>,
+    /// the position in `buf` of each row received, in arrival order
+    recv_pos: Vec<u32>,
+    /// the rows of R = P^T this process sums, over the positions of `buf`
+    r: Csr,
+    /// coarse values gathered from each process (three per row) and the coarse row of each,
+    /// in arrival order
+    coarse_counts: Vec<usize>,
+    order: Vec<u32>,
+}
+
+/// The smoothed-aggregation hierarchy (a `Precond`): level 0 on this process's rows, the
+/// coarse levels global and the same on every process.
 #[derive(Clone)]
 pub struct Multigrid {
-    /// owned local index of each free row (the rows of `fine`)
-    rows: Vec<u32>,
+    /// the global free row (index among the free rows in global id order) of each owned row,
+    /// u32::MAX where it does not move
+    free_of: Vec<u32>,
     /// owned rows
     owned: usize,
-    /// level 0 on the free owned rows alone: its eigenvalue bound serves the level-0
+    /// level 0, global (free rows in global id order): its bounds serve the level-0
     /// smoother, its size the work estimate
     fine: Level,
     /// V_i of the owned rows (0 on rows that do not move) and the inverse diagonal of A
     vol: Vec<f64>,
     dinv0: Vec<f64>,
-    /// prolongator from levels[0] to the owned rows, and its transpose
+    /// prolongator from levels[0] to the owned rows
     p0: Arc<Csr>,
-    r0: Arc<Csr>,
+    /// the restriction's communication and rows, and its buffers
+    plan: Arc<Plan>,
+    send_buf: Vec<f64>,
+    buf: Vec<V3>,
+    mine: Vec<V3>,
     /// level-0 iterate (with the halo), search direction and residual
     x0: NodeField<V3>,
     d0: Vec<V3>,
@@ -284,69 +316,141 @@ pub struct Multigrid {
     coarse: Coarse,
     degree: usize,
     coefficient: f64,
+    /// free rows over all rows, over every process
+    free_fraction: f64,
+    /// entries of the global prolongator from levels[0]
+    p_nnz: usize,
+}
+
+/// One free row gathered from its process: global id, process, V_i, and where its pairs
+/// (global id of j, V_i c_ij), ascending in j, start in the gathered values and how many.
+struct Row {
+    gid: u64,
+    rank: u32,
+    vol: f64,
+    at: usize,
+    len: usize,
 }
 
 impl Multigrid {
-    /// The hierarchy of A = V - theta tau W on this process's free owned rows (`vol` > 0) of
-    /// `prop`'s compact operator.
-    pub fn new(prop: &Propagation, vol: &[f64], theta_tau: f64) -> Result<Multigrid> {
+    /// The hierarchy of A = V - theta tau W on the free rows (`vol` > 0, owned rows) of
+    /// `prop`'s compact operator over every process of `comm`; `gid` numbers the local nodes
+    /// (owned, then halo). The coarse levels are built from the global matrix in global id
+    /// order on every process alike, so the preconditioner does not depend on the partition.
+    pub fn new(prop: &Propagation, vol: &[f64], gid: &[u64], theta_tau: f64, comm: &dyn Comm) -> Result<Multigrid> {
         let t0 = std::time::Instant::now();
         let Operator::Compact(op) = &prop.op else {
             bail!("the multigrid preconditioner needs the compact scheme; fix: use [integrator] preconditioner = \"jacobi\"");
         };
         let n = vol.len();
-        let rows: Vec<u32> = (0..n as u32).filter(|&i| vol[i as usize] > 0.0).collect();
-        let mut index = vec![u32::MAX; n];
-        for (k, &i) in rows.iter().enumerate() {
-            index[i as usize] = k as u32;
-        }
-        // K = -W on the free owned rows: K_ij = -(V_i c_ij + V_j c_ji) / 2 (exactly symmetric),
-        // K_ii = V_i sum_j c_ij over every neighbour (as A's diagonal)
-        let mut ptr = Vec::with_capacity(rows.len() + 1);
-        ptr.push(0);
-        let (mut col, mut val) = (vec![], vec![]);
-        let mut row: Vec<(u32, f64)> = vec![];
-        for &i in &rows {
-            let i = i as usize;
+        let (me, size) = (comm.rank(), comm.size());
+        // this process's free rows, gathered on every process
+        let mut send = vec![];
+        let mut row: Vec<(u64, f64)> = vec![];
+        for i in 0..n {
+            if !(vol[i] > 0.0) {
+                continue;
+            }
             row.clear();
-            let mut diag = 0.0;
             for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
-                let a = vol[i] * op.c(p);
-                diag += a;
-                let j = op.col[p] as usize;
-                if j < n && index[j] != u32::MAX {
-                    let back = (op.row_ptr[j] as usize..op.row_ptr[j + 1] as usize)
-                        .find(|&q| op.col[q] as usize == i)
-                        .map_or(a, |q| vol[j] * op.c(q));
-                    row.push((index[j], -0.5 * (a + back)));
+                row.push((gid[op.col[p] as usize], vol[i] * op.c(p)));
+            }
+            row.sort_by_key(|e| e.0);
+            send.extend_from_slice(&[gid[i] as f64, vol[i], row.len() as f64]);
+            for &(g, a) in &row {
+                send.extend_from_slice(&[g as f64, a]);
+            }
+        }
+        let (all, counts) = comm.all_gather_var(&send);
+        drop(send);
+        let mut rows = vec![];
+        let mut at = 0;
+        for (q, &c) in counts.iter().enumerate() {
+            let end = at + c;
+            while at < end {
+                let len = all[at + 2] as usize;
+                rows.push(Row {
+                    gid: all[at] as u64,
+                    rank: q as u32,
+                    vol: all[at + 1],
+                    at: at + 3,
+                    len,
+                });
+                at += 3 + 2 * len;
+            }
+        }
+        rows.sort_by_key(|r| r.gid);
+        let m = rows.len();
+        let span = rows
+            .iter()
+            .flat_map(|r| std::iter::once(r.gid).chain((0..r.len).map(|k| all[r.at + 2 * k] as u64)))
+            .max()
+            .map_or(0, |g| g as usize + 1);
+        let mut free = vec![u32::MAX; span];
+        for (k, r) in rows.iter().enumerate() {
+            free[r.gid as usize] = k as u32;
+        }
+        // K = -W: K_ij = -(V_i c_ij + V_j c_ji) / 2 between free rows (exactly symmetric),
+        // K_ii = V_i sum_j c_ij over every neighbour in global order (as A's diagonal)
+        let pair = |r: &Row, k: usize| (all[r.at + 2 * k] as u64, all[r.at + 2 * k + 1]);
+        let back = |r: &Row, g: u64| {
+            let (mut lo, mut hi) = (0, r.len);
+            while lo < hi {
+                let mid = (lo + hi) / 2;
+                match pair(r, mid).0.cmp(&g) {
+                    std::cmp::Ordering::Less => lo = mid + 1,
+                    std::cmp::Ordering::Greater => hi = mid,
+                    std::cmp::Ordering::Equal => return Some(pair(r, mid).1),
                 }
             }
-            row.push((index[i], diag));
-            row.sort_by_key(|e| e.0);
-            for &(j, v) in &row {
-                col.push(j);
-                val.push(v);
-            }
-            ptr.push(col.len());
-        }
-        let m = rows.len();
-        let k = Csr {
-            n_cols: m,
-            ptr,
-            col,
-            val,
+            None
         };
-        let v: Vec<f64> = rows.iter().map(|&i| vol[i as usize]).collect();
+        let built: Vec<Vec<(u32, f64)>> = rows
+            .par_iter()
+            .enumerate()
+            .with_min_len(1024)
+            .map(|(k, r)| {
+                let mut out = Vec::with_capacity(r.len + 1);
+                let mut diag = 0.0;
+                for e in 0..r.len {
+                    let (g, a) = pair(r, e);
+                    diag += a;
+                    let j = free[g as usize];
+                    if j != u32::MAX && j as usize != k {
+                        let b = back(&rows[j as usize], r.gid).unwrap_or(a);
+                        out.push((j, -0.5 * (a + b)));
+                    }
+                }
+                let at = out.partition_point(|e| (e.0 as usize) < k);
+                out.insert(at, (k as u32, diag));
+                out
+            })
+            .collect();
+        let mut k = Csr {
+            n_cols: m,
+            ptr: Vec::with_capacity(m + 1),
+            col: vec![],
+            val: vec![],
+        };
+        k.ptr.push(0);
+        for r in built {
+            for (j, v) in r {
+                k.col.push(j);
+                k.val.push(v);
+            }
+            k.ptr.push(k.col.len());
+        }
+        let v: Vec<f64> = rows.iter().map(|r| r.vol).collect();
+        drop(all);
         let mut levels = Self::hierarchy(k, &v);
         let coarsened = levels.len() >= 2;
-        // level 0 runs on the solver's operator: its transfers in the owned numbering
-        let (fine, p) = if coarsened {
+        let (mut fine, p) = if coarsened {
             let mut fine = levels.remove(0);
             let p = std::mem::take(&mut fine.p);
             fine.r = Arc::default();
             (fine, Arc::try_unwrap(p).unwrap_or_else(|p| (*p).clone()))
         } else {
-            // no coarsening: the local fine level itself is the coarse problem
+            // no coarsening: the fine level itself is the coarse problem
             let p = Csr {
                 n_cols: m,
                 ptr: (0..=m).collect(),
@@ -355,34 +459,43 @@ impl Multigrid {
             };
             (levels[0].clone(), p)
         };
+        // only the fine level's matrix is used (its bounds): no work vectors
+        (fine.x, fine.b, fine.t) = (vec![], vec![], vec![]);
+        let free_of: Vec<u32> = (0..n)
+            .map(|i| if vol[i] > 0.0 { free[gid[i] as usize] } else { u32::MAX })
+            .collect();
+        // P's rows of the owned nodes
         let mut p0 = Csr {
             n_cols: p.n_cols,
             ptr: Vec::with_capacity(n + 1),
-            col: p.col,
-            val: p.val,
+            col: vec![],
+            val: vec![],
         };
         p0.ptr.push(0);
-        for i in 0..n {
-            let k = index[i];
-            let len = if k == u32::MAX {
-                0
-            } else {
-                p.ptr[k as usize + 1] - p.ptr[k as usize]
-            };
-            p0.ptr.push(p0.ptr[i] + len);
+        for &k in &free_of {
+            if k != u32::MAX {
+                let s = p.ptr[k as usize]..p.ptr[k as usize + 1];
+                p0.col.extend_from_slice(&p.col[s.clone()]);
+                p0.val.extend_from_slice(&p.val[s]);
+            }
+            p0.ptr.push(p0.col.len());
         }
-        let r0 = Arc::new(p0.transpose());
-        let p0 = Arc::new(p0);
+        let plan = Self::plan(&p, &rows, &free_of, me, size);
         let degree = DEGREE;
         let layout = prop.layout();
+        let total = comm.sum_i128(n as i128).max(1) as f64;
+        let (n_buf, n_mine) = (plan.r.n_cols, plan.r.n_rows());
         let mut mg = Multigrid {
-            rows,
+            free_of,
             owned: n,
             fine,
             vol: vol.to_vec(),
             dinv0: vec![0.0; n],
-            p0,
-            r0,
+            p0: Arc::new(p0),
+            plan: Arc::new(plan),
+            send_buf: vec![],
+            buf: vec![[0.0; 3]; n_buf],
+            mine: vec![[0.0; 3]; n_mine],
             x0: NodeField::filled(layout, [0.0; 3]),
             d0: vec![[0.0; 3]; n],
             t0: vec![[0.0; 3]; n],
@@ -391,6 +504,8 @@ impl Multigrid {
             coarse: Coarse::Smooth,
             degree,
             coefficient: f64::NAN,
+            free_fraction: m as f64 / total,
+            p_nnz: p.nnz(),
         };
         mg.set_coefficient(theta_tau)?;
         tracing::debug!(
@@ -402,6 +517,108 @@ impl Multigrid {
             t0.elapsed().as_secs_f64()
         );
         Ok(mg)
+    }
+
+    /// The restriction's plan on process `me` of `size` from the global prolongator `p`
+    /// (rows: the free rows `rows` in global order): a coarse row belongs to the process of
+    /// its largest entry's fine row (the first of equal ones).
+    fn plan(p: &Csr, rows: &[Row], free_of: &[u32], me: usize, size: usize) -> Plan {
+        let r = p.transpose();
+        let nc = r.n_rows();
+        let owner: Vec<u32> = (0..nc)
+            .map(|a| {
+                let mut best = (f64::NEG_INFINITY, None);
+                for q in r.ptr[a]..r.ptr[a + 1] {
+                    if r.val[q] > best.0 {
+                        best = (r.val[q], Some(r.col[q]));
+                    }
+                }
+                best.1.map_or(0, |i| rows[i as usize].rank)
+            })
+            .collect();
+        let mut order = vec![];
+        let mut coarse_counts = vec![0; size];
+        for q in 0..size {
+            for a in 0..nc {
+                if owner[a] as usize == q {
+                    order.push(a as u32);
+                    coarse_counts[q] += 3;
+                }
+            }
+        }
+        // the fine rows this process's coarse rows read, ascending, and their positions
+        let mut pos = vec![u32::MAX; rows.len()];
+        let mut need = vec![];
+        for a in (0..nc).filter(|&a| owner[a] as usize == me) {
+            for q in r.ptr[a]..r.ptr[a + 1] {
+                let i = r.col[q] as usize;
+                if pos[i] == u32::MAX {
+                    pos[i] = 0;
+                    need.push(i as u32);
+                }
+            }
+        }
+        need.sort_unstable();
+        for (k, &i) in need.iter().enumerate() {
+            pos[i as usize] = k as u32;
+        }
+        let mut mine = Csr {
+            n_cols: need.len(),
+            ptr: vec![0],
+            col: vec![],
+            val: vec![],
+        };
+        for a in (0..nc).filter(|&a| owner[a] as usize == me) {
+            for q in r.ptr[a]..r.ptr[a + 1] {
+                mine.col.push(pos[r.col[q] as usize]);
+                mine.val.push(r.val[q]);
+            }
+            mine.ptr.push(mine.col.len());
+        }
+        let mut recv_pos = vec![];
+        let mut recv_counts = vec![0; size];
+        for q in 0..size {
+            for &i in &need {
+                if rows[i as usize].rank as usize == q {
+                    recv_pos.push(pos[i as usize]);
+                    recv_counts[q] += 3;
+                }
+            }
+        }
+        // what every process's coarse rows read of this process's rows
+        let mut local = vec![u32::MAX; rows.len()];
+        for (l, &k) in free_of.iter().enumerate() {
+            if k != u32::MAX {
+                local[k as usize] = l as u32;
+            }
+        }
+        let mut wanted: Vec<Vec<u32>> = vec![vec![]; size];
+        for a in 0..nc {
+            for q in r.ptr[a]..r.ptr[a + 1] {
+                let i = r.col[q] as usize;
+                if rows[i].rank as usize == me {
+                    wanted[owner[a] as usize].push(i as u32);
+                }
+            }
+        }
+        let send: Vec<Vec<u32>> = wanted
+            .into_iter()
+            .map(|mut w| {
+                w.sort_unstable();
+                w.dedup();
+                w.into_iter().map(|i| local[i as usize]).collect()
+            })
+            .collect();
+        let send_counts = send.iter().map(|s| 3 * s.len()).collect();
+        Plan {
+            send,
+            send_counts,
+            recv_counts,
+            recv_pos,
+            r: mine,
+            coarse_counts,
+            order,
+        }
     }
 
     /// The levels of A = diag(v) + c K (K symmetric, rows' columns ascending with the
@@ -458,10 +675,11 @@ impl Multigrid {
     /// A = V + c K on every level (the prolongators stay): new smoothers and coarse factor.
     pub fn set_coefficient(&mut self, c: f64) -> Result<()> {
         self.fine.combine(c);
-        self.dinv0 = vec![0.0; self.owned];
-        for (k, &i) in self.rows.iter().enumerate() {
-            self.dinv0[i as usize] = self.fine.dinv[k];
-        }
+        self.dinv0 = self
+            .free_of
+            .iter()
+            .map(|&k| if k == u32::MAX { 0.0 } else { self.fine.dinv[k as usize] })
+            .collect();
         for l in &mut self.levels {
             l.combine(c);
         }
@@ -535,7 +753,7 @@ impl Multigrid {
     /// coarse level's too and the transfers, and the coarsest solve.
     pub fn cycle_work(&self) -> f64 {
         let n0 = self.fine.col.len().max(1) as f64;
-        let mut w = (2 * self.degree) as f64 * n0 + 2.0 * self.p0.nnz() as f64;
+        let mut w = (2 * self.degree) as f64 * n0 + 2.0 * self.p_nnz as f64;
         let last = self.levels.len() - 1;
         for (i, l) in self.levels.iter().enumerate() {
             if i < last {
@@ -658,13 +876,27 @@ impl Precond for Multigrid {
                 }
             });
         }
-        csr::spmv(
-            &self.r0.ptr,
-            &self.r0.col,
-            &self.r0.val,
-            &self.t0,
-            &mut self.levels[0].b,
-        );
+        // restriction: this process's coarse rows from the residuals of their supports, then
+        // the whole coarse vector on every process
+        let plan = &*self.plan;
+        self.send_buf.clear();
+        for list in &plan.send {
+            for &l in list {
+                self.send_buf.extend_from_slice(&self.t0[l as usize]);
+            }
+        }
+        let got = prop
+            .halo
+            .all_to_all(&self.send_buf, &plan.send_counts, &plan.recv_counts);
+        for (k, &at) in plan.recv_pos.iter().enumerate() {
+            self.buf[at as usize] = [got[3 * k], got[3 * k + 1], got[3 * k + 2]];
+        }
+        csr::spmv(&plan.r.ptr, &plan.r.col, &plan.r.val, &self.buf, &mut self.mine);
+        let all = prop.halo.all_gather(self.mine.as_flattened(), &plan.coarse_counts);
+        let b = &mut self.levels[0].b;
+        for (k, &a) in plan.order.iter().enumerate() {
+            b[a as usize] = [all[3 * k], all[3 * k + 1], all[3 * k + 2]];
+        }
         self.cycle();
         csr::spmv_add(
             &self.p0.ptr,
@@ -677,7 +909,8 @@ impl Precond for Multigrid {
         z.copy_from_slice(&self.x0[..n]);
     }
     fn cost(&self) -> f64 {
-        SWEEP_COST * self.cycle_work() * self.fine.n() as f64 / self.owned.max(1) as f64
+        // the one-process cost (the same on any process count, for the automatic choice)
+        SWEEP_COST * self.cycle_work() * self.free_fraction
     }
     /// The hierarchy for another theta tau: the same aggregates, transfers and Galerkin
     /// products (shared), recombined (`set_coefficient`: the same bits as one built for it).
