@@ -398,8 +398,16 @@ mod avx_update {
         _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p)), _mm_load_sd(p.add(2)), 1)
     }
 
+    /// Rows handed to `f` per block: their sums are computed by the vector kernel first, then
+    /// `f` runs outside it, where the compiler can inline it (a closure does not inline into
+    /// a function with target features of its own).
+    const BLOCK: usize = 64;
+
     /// `avx::step_rows`'s row sums, handed to `f` with the row's index, x_i and y_i.
-    #[target_feature(enable = "avx2,fma")]
+    ///
+    /// # Safety
+    /// AVX2 and FMA are available, and every column index is below `x.len()`.
+    #[inline]
     pub unsafe fn update_rows<C: Copy + Into<f64>, A, F>(
         row_ptr: &[u32],
         col: &[u32],
@@ -412,9 +420,31 @@ mod avx_update {
     ) where
         F: Fn(&mut A, usize, V3, V3, &mut V3),
     {
+        let mut sums = [[0.0f64; 3]; BLOCK];
+        for (b, ys) in y.chunks_mut(BLOCK).enumerate() {
+            let first = start + b * BLOCK;
+            let sums = &mut sums[..ys.len()];
+            row_sums(row_ptr, col, coef, x, first, sums);
+            for (k, (yi, l)) in ys.iter_mut().zip(sums.iter()).enumerate() {
+                let i = first + k;
+                f(acc, i, *x.get_unchecked(i), *l, yi);
+            }
+        }
+    }
+
+    /// (L x)_i for the rows start..start + out.len().
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn row_sums<C: Copy + Into<f64>>(
+        row_ptr: &[u32],
+        col: &[u32],
+        coef: &[C],
+        x: &[V3],
+        start: usize,
+        out: &mut [V3],
+    ) {
         let xp = x.as_ptr() as *const f64;
-        let rows = &row_ptr[start..start + y.len() + 1];
-        for (k, yi) in y.iter_mut().enumerate() {
+        let rows = &row_ptr[start..start + out.len() + 1];
+        for (k, o) in out.iter_mut().enumerate() {
             let i = start + k;
             let (s, e) = (rows[k] as usize, rows[k + 1] as usize);
             let (cols, cs) = (&col[s..e], &coef[s..e]);
@@ -440,7 +470,7 @@ mod avx_update {
             let sum = _mm256_add_pd(_mm256_add_pd(acc4[0], acc4[1]), _mm256_add_pd(acc4[2], acc4[3]));
             let mut l = [0.0f64; 4];
             _mm256_storeu_pd(l.as_mut_ptr(), sum);
-            f(acc, i, *x.get_unchecked(i), [l[0], l[1], l[2]], yi);
+            *o = [l[0], l[1], l[2]];
         }
     }
 }

@@ -144,41 +144,44 @@ impl Halo {
 
     /// Personalised all-to-all over the halo's communicator, the counts known on both sides:
     /// `send` holds `send_counts[q]` values for process q, and the result `recv_counts[q]`
-    /// values from q, in rank order. On one process it is `send` itself.
-    pub fn all_to_all(&self, send: &[f64], send_counts: &[usize], recv_counts: &[usize]) -> Vec<f64> {
+    /// values from q, in rank order.
+    /// The result goes into `out`, exactly as long. On one process nothing moves (`send` and
+    /// `out` are empty).
+    pub fn all_to_all_into(&self, send: &[f64], send_counts: &[usize], recv_counts: &[usize], out: &mut [f64]) {
+        assert_eq!(
+            out.len(),
+            recv_counts.iter().sum::<usize>(),
+            "all_to_all_into: receive length"
+        );
         let Some(comm) = &self.comm else {
-            return send.to_vec();
+            out.copy_from_slice(send);
+            return;
         };
         use mpi::datatype::{Partition, PartitionMut};
         use mpi::traits::*;
         let sc: Vec<i32> = send_counts.iter().map(|&c| count(c)).collect();
         let rc: Vec<i32> = recv_counts.iter().map(|&c| count(c)).collect();
         let (sd, rd) = (offsets(&sc), offsets(&rc));
-        let mut out = vec![0.0; recv_counts.iter().sum()];
-        {
-            let sp = Partition::new(send, &sc[..], &sd[..]);
-            let mut rp = PartitionMut::new(&mut out[..], &rc[..], &rd[..]);
-            comm.all_to_all_varcount_into(&sp, &mut rp);
-        }
-        out
+        let sp = Partition::new(send, &sc[..], &sd[..]);
+        let mut rp = PartitionMut::new(&mut out[..], &rc[..], &rd[..]);
+        comm.all_to_all_varcount_into(&sp, &mut rp);
     }
 
     /// Every process's `x` (`counts[q]` values from process q, known everywhere), in rank
-    /// order. On one process it is `x` itself.
-    pub fn all_gather(&self, x: &[f64], counts: &[usize]) -> Vec<f64> {
+    /// order, into `out` (resized). On one process it is `x` itself.
+    pub fn all_gather_into(&self, x: &[f64], counts: &[usize], out: &mut Vec<f64>) {
         let Some(comm) = &self.comm else {
-            return x.to_vec();
+            out.clear();
+            out.extend_from_slice(x);
+            return;
         };
         use mpi::datatype::PartitionMut;
         use mpi::traits::*;
         let c: Vec<i32> = counts.iter().map(|&c| count(c)).collect();
         let d = offsets(&c);
-        let mut out = vec![0.0; counts.iter().sum()];
-        {
-            let mut rp = PartitionMut::new(&mut out[..], &c[..], &d[..]);
-            comm.all_gather_varcount_into(x, &mut rp);
-        }
-        out
+        out.resize(counts.iter().sum(), 0.0);
+        let mut rp = PartitionMut::new(&mut out[..], &c[..], &d[..]);
+        comm.all_gather_varcount_into(x, &mut rp);
     }
 
     /// Seconds spent waiting in `finish` so far.

@@ -84,6 +84,41 @@ pub fn aggregate(k: &Csr, eps: f64) -> (Vec<u32>, usize) {
     (agg, count as usize)
 }
 
+/// The filtered matrix of the prolongator smoothing (Vanek, Mandel and Brezina 1996): the
+/// diagonal and the strong connections of `k`, each row's weak entries added to its diagonal
+/// (so row sums stay), in the order of the row's entries.
+pub fn filtered(k: &Csr, eps: f64) -> Csr {
+    let n = k.n_rows();
+    let d = k.diagonal();
+    let mut f = Csr {
+        n_cols: k.n_cols,
+        ptr: Vec::with_capacity(n + 1),
+        col: Vec::with_capacity(k.nnz()),
+        val: Vec::with_capacity(k.nnz()),
+    };
+    f.ptr.push(0);
+    for i in 0..n {
+        let mut weak = 0.0;
+        let mut at = None;
+        for p in k.ptr[i]..k.ptr[i + 1] {
+            let j = k.col[p] as usize;
+            if j == i {
+                at = Some(f.col.len());
+            } else if !strong(k.val[p], d[i], d[j], eps) {
+                weak += k.val[p];
+                continue;
+            }
+            f.col.push(j as u32);
+            f.val.push(k.val[p]);
+        }
+        if let Some(a) = at {
+            f.val[a] += weak;
+        }
+        f.ptr.push(f.col.len());
+    }
+    f
+}
+
 /// The tentative prolongator: P_ia = 1 where node i is in aggregate a.
 pub fn tentative(agg: &[u32], n_agg: usize) -> Csr {
     Csr {

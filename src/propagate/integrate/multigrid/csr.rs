@@ -138,12 +138,13 @@ fn rows_of<T: Send, F: Fn(usize, &mut [T]) + Sync + Send>(y: &mut [T], f: F) {
     }
 }
 
-/// (A x)_i for the three columns, in the order of the row's entries.
+/// (A x)_i for the three columns, in the order of the row's entries (values stored in f64 or
+/// f32, summed in f64).
 #[inline(always)]
-fn row3(ptr: &[usize], col: &[u32], val: &[f64], i: usize, x: &[V3]) -> V3 {
+fn row3<V: Copy + Into<f64>>(ptr: &[usize], col: &[u32], val: &[V], i: usize, x: &[V3]) -> V3 {
     let mut s = [0.0; 3];
     for p in ptr[i]..ptr[i + 1] {
-        let (a, xj) = (val[p], x[col[p] as usize]);
+        let (a, xj): (f64, V3) = (val[p].into(), x[col[p] as usize]);
         s[0] += a * xj[0];
         s[1] += a * xj[1];
         s[2] += a * xj[2];
@@ -152,7 +153,7 @@ fn row3(ptr: &[usize], col: &[u32], val: &[f64], i: usize, x: &[V3]) -> V3 {
 }
 
 /// y = A x (three columns).
-pub fn spmv(ptr: &[usize], col: &[u32], val: &[f64], x: &[V3], y: &mut [V3]) {
+pub fn spmv<V: Copy + Into<f64> + Sync>(ptr: &[usize], col: &[u32], val: &[V], x: &[V3], y: &mut [V3]) {
     rows_of(y, |s, y| {
         for (k, yi) in y.iter_mut().enumerate() {
             *yi = row3(ptr, col, val, s + k, x);
@@ -161,7 +162,7 @@ pub fn spmv(ptr: &[usize], col: &[u32], val: &[f64], x: &[V3], y: &mut [V3]) {
 }
 
 /// y += A x (three columns).
-pub fn spmv_add(ptr: &[usize], col: &[u32], val: &[f64], x: &[V3], y: &mut [V3]) {
+pub fn spmv_add<V: Copy + Into<f64> + Sync>(ptr: &[usize], col: &[u32], val: &[V], x: &[V3], y: &mut [V3]) {
     rows_of(y, |s, y| {
         for (k, yi) in y.iter_mut().enumerate() {
             let t = row3(ptr, col, val, s + k, x);
@@ -173,7 +174,7 @@ pub fn spmv_add(ptr: &[usize], col: &[u32], val: &[f64], x: &[V3], y: &mut [V3])
 }
 
 /// r = b - A x (three columns).
-pub fn residual(ptr: &[usize], col: &[u32], val: &[f64], x: &[V3], b: &[V3], r: &mut [V3]) {
+pub fn residual<V: Copy + Into<f64> + Sync>(ptr: &[usize], col: &[u32], val: &[V], x: &[V3], b: &[V3], r: &mut [V3]) {
     rows_of(r, |s, r| {
         for (k, ri) in r.iter_mut().enumerate() {
             let t = row3(ptr, col, val, s + k, x);
@@ -185,10 +186,10 @@ pub fn residual(ptr: &[usize], col: &[u32], val: &[f64], x: &[V3], b: &[V3], r: 
 
 /// d = alpha d + beta D^-1 (b - A x) (three columns): one Chebyshev update in one pass.
 #[allow(clippy::too_many_arguments)]
-pub fn cheb_update(
+pub fn cheb_update<V: Copy + Into<f64> + Sync>(
     ptr: &[usize],
     col: &[u32],
-    val: &[f64],
+    val: &[V],
     dinv: &[f64],
     x: &[V3],
     b: &[V3],

@@ -15,8 +15,9 @@
 //!   other processes arrive in one all-to-all on a fixed plan); every process then gathers
 //!   the whole coarse vector, runs the coarse cycle itself, and prolongs to its own rows;
 //! - aggregation on K's strong connections (`aggregate`), nodes in global id order;
-//! - prolongator P = (I - omega D_K^-1 K) P_tent, P_tent the aggregates' constants,
-//!   omega = 4 / (3 lambda_max(D_K^-1 K)) by power iteration;
+//! - prolongator P = (I - omega D_F^-1 K_F) P_tent, P_tent the aggregates' constants, K_F
+//!   the filtered K (its strong connections; the weak ones added to the diagonal),
+//!   omega = 4 / (3 lambda_max(D_F^-1 K_F)) by power iteration;
 //! - Galerkin coarse matrices kept apart, V_c = P^T V P and K_c = P^T K P, so that a new c
 //!   only recombines A_c = V_c + c K_c (`set_coefficient`), the prolongators stay;
 //! - smoothing: Chebyshev of degree 2 on D_A^-1 A over [0.1 lambda, max(1.1 lambda, Gershgorin)] (power
@@ -67,7 +68,10 @@ struct Level {
     col: Arc<Vec<u32>>,
     v: Arc<Vec<f64>>,
     k: Arc<Vec<f64>>,
+    /// A = V + c K rounded to f32 (`a32`, what the cycle reads) and back (`a`, what the
+    /// bounds and the coarsest factor use: the same matrix)
     a: Vec<f64>,
+    a32: Vec<f32>,
     dinv: Vec<f64>,
     /// Chebyshev interval of D^-1 A
     lo: f64,
@@ -76,6 +80,9 @@ struct Level {
     /// coarsest level)
     p: Arc<Csr>,
     r: Arc<Csr>,
+    /// their values in f32 (what the cycle reads)
+    p32: Arc<Vec<f32>>,
+    r32: Arc<Vec<f32>>,
     x: Vec<V3>,
     b: Vec<V3>,
     t: Vec<V3>,
@@ -129,6 +136,7 @@ impl Level {
         let z = vec![[0.0; 3]; n];
         Level {
             a: vec![0.0; col.len()],
+            a32: vec![],
             dinv: vec![0.0; n],
             ptr: Arc::new(ptr),
             col: Arc::new(col),
@@ -138,6 +146,8 @@ impl Level {
             hi: 0.0,
             p: Arc::default(),
             r: Arc::default(),
+            p32: Arc::default(),
+            r32: Arc::default(),
             x: z.clone(),
             b: z.clone(),
             t: z,
@@ -146,7 +156,15 @@ impl Level {
 
     /// A = V + c K, its inverse diagonal and Chebyshev interval.
     fn combine(&mut self, c: f64) {
-        self.a = self.v.iter().zip(self.k.iter()).map(|(v, k)| v + c * k).collect();
+        // stored in f32: a cycle reads a third fewer bytes; the preconditioner is still a
+        // fixed symmetric operator
+        self.a32 = self
+            .v
+            .iter()
+            .zip(self.k.iter())
+            .map(|(v, k)| (v + c * k) as f32)
+            .collect();
+        self.a = self.a32.iter().map(|&a| a as f64).collect();
         let n = self.n();
         self.dinv = (0..n)
             .map(|i| {
@@ -195,7 +213,7 @@ impl Level {
             csr::cheb_update(
                 &self.ptr,
                 &self.col,
-                &self.a,
+                &self.a32,
                 &self.dinv,
                 &self.x,
                 &self.b,
@@ -210,7 +228,7 @@ impl Level {
             csr::cheb_update(
                 &self.ptr,
                 &self.col,
-                &self.a,
+                &self.a32,
                 &self.dinv,
                 &self.x,
                 &self.b,
@@ -264,19 +282,20 @@ enum Coarse {
 }
 
 /// The restriction from level 0 to the first coarse level over the processes: every coarse
-/// row has one owner, which sums it from the fine residuals of its support in global order;
-/// then every process gathers the whole coarse vector. The same bits on any process count.
+/// row has one owner, which sums it from the fine residuals of its support in global order
+/// (other processes' residuals received behind its own); then every process gathers the
+/// whole coarse vector. The same bits on any process count.
 #[derive(Default)]
 struct Plan {
     /// per process q: the owned rows whose residual q needs (ascending global id)
     send: Vec<Vec<u32>>,
-    /// values sent to and received from each process (three per row)
+    /// values sent to and received from each process (three per row; none to itself)
     send_counts: Vec<usize>,
     recv_counts: Vec<usize>,
-    /// the position in `buf` of each row received, in arrival order
-    recv_pos: Vec<u32>,
-    /// the rows of R = P^T this process sums, over the positions of `buf`
+    /// the rows of R = P^T this process sums, over the residual's positions (the owned rows,
+    /// then those received, in arrival order), and their values in f32
     r: Csr,
+    r32: Vec<f32>,
     /// coarse values gathered from each process (three per row) and the coarse row of each,
     /// in arrival order
     coarse_counts: Vec<usize>,
@@ -298,16 +317,19 @@ pub struct Multigrid {
     /// V_i of the owned rows (0 on rows that do not move) and the inverse diagonal of A
     vol: Vec<f64>,
     dinv0: Vec<f64>,
-    /// prolongator from levels[0] to the owned rows
+    /// prolongator from levels[0] to the owned rows, its values in f32
     p0: Arc<Csr>,
+    p0_32: Arc<Vec<f32>>,
     /// the restriction's communication and rows, and its buffers
     plan: Arc<Plan>,
     send_buf: Vec<f64>,
-    buf: Vec<V3>,
+    recv_buf: Vec<f64>,
     mine: Vec<V3>,
-    /// level-0 iterate (with the halo), search direction and residual
+    /// level-0 iterates (with the halo): the current one, the previous and the next, and
+    /// the residual (the owned rows, then other processes' rows the restriction reads)
     x0: NodeField<V3>,
-    d0: Vec<V3>,
+    xp: NodeField<V3>,
+    x1: NodeField<V3>,
     t0: Vec<V3>,
     /// the coarse levels (levels[0] is the fine level itself where it did not coarsen)
     levels: Vec<Level>,
@@ -484,21 +506,23 @@ impl Multigrid {
         let degree = DEGREE;
         let layout = prop.layout();
         let total = comm.sum_i128(n as i128).max(1) as f64;
-        let (n_buf, n_mine) = (plan.r.n_cols, plan.r.n_rows());
+        let (n_t, n_mine) = (plan.r.n_cols, plan.r.n_rows());
         let mut mg = Multigrid {
             free_of,
             owned: n,
             fine,
             vol: vol.to_vec(),
             dinv0: vec![0.0; n],
+            p0_32: Arc::new(p0.val.iter().map(|&v| v as f32).collect()),
             p0: Arc::new(p0),
             plan: Arc::new(plan),
             send_buf: vec![],
-            buf: vec![[0.0; 3]; n_buf],
+            recv_buf: vec![],
             mine: vec![[0.0; 3]; n_mine],
             x0: NodeField::filled(layout, [0.0; 3]),
-            d0: vec![[0.0; 3]; n],
-            t0: vec![[0.0; 3]; n],
+            xp: NodeField::filled(layout, [0.0; 3]),
+            x1: NodeField::filled(layout, [0.0; 3]),
+            t0: vec![[0.0; 3]; n_t],
             levels,
             coarsened,
             coarse: Coarse::Smooth,
@@ -547,23 +571,34 @@ impl Multigrid {
             }
         }
         // the fine rows this process's coarse rows read, ascending, and their positions
+        // where each fine row's residual is: an owned row at its local index, another
+        // process's at n + its place in arrival order (process order, then global order)
+        let n = free_of.len();
         let mut pos = vec![u32::MAX; rows.len()];
-        let mut need = vec![];
+        for (l, &k) in free_of.iter().enumerate() {
+            if k != u32::MAX {
+                pos[k as usize] = l as u32;
+            }
+        }
+        let mut foreign = vec![];
+        let mut seen = vec![false; rows.len()];
         for a in (0..nc).filter(|&a| owner[a] as usize == me) {
             for q in r.ptr[a]..r.ptr[a + 1] {
                 let i = r.col[q] as usize;
-                if pos[i] == u32::MAX {
-                    pos[i] = 0;
-                    need.push(i as u32);
+                if rows[i].rank as usize != me && !seen[i] {
+                    seen[i] = true;
+                    foreign.push(i as u32);
                 }
             }
         }
-        need.sort_unstable();
-        for (k, &i) in need.iter().enumerate() {
-            pos[i as usize] = k as u32;
+        foreign.sort_unstable_by_key(|&i| (rows[i as usize].rank, i));
+        let mut recv_counts = vec![0; size];
+        for (k, &i) in foreign.iter().enumerate() {
+            pos[i as usize] = (n + k) as u32;
+            recv_counts[rows[i as usize].rank as usize] += 3;
         }
         let mut mine = Csr {
-            n_cols: need.len(),
+            n_cols: n + foreign.len(),
             ptr: vec![0],
             col: vec![],
             val: vec![],
@@ -575,25 +610,9 @@ impl Multigrid {
             }
             mine.ptr.push(mine.col.len());
         }
-        let mut recv_pos = vec![];
-        let mut recv_counts = vec![0; size];
-        for q in 0..size {
-            for &i in &need {
-                if rows[i as usize].rank as usize == q {
-                    recv_pos.push(pos[i as usize]);
-                    recv_counts[q] += 3;
-                }
-            }
-        }
-        // what every process's coarse rows read of this process's rows
-        let mut local = vec![u32::MAX; rows.len()];
-        for (l, &k) in free_of.iter().enumerate() {
-            if k != u32::MAX {
-                local[k as usize] = l as u32;
-            }
-        }
+        // what the other processes' coarse rows read of this process's rows
         let mut wanted: Vec<Vec<u32>> = vec![vec![]; size];
-        for a in 0..nc {
+        for a in (0..nc).filter(|&a| owner[a] as usize != me) {
             for q in r.ptr[a]..r.ptr[a + 1] {
                 let i = r.col[q] as usize;
                 if rows[i].rank as usize == me {
@@ -606,7 +625,7 @@ impl Multigrid {
             .map(|mut w| {
                 w.sort_unstable();
                 w.dedup();
-                w.into_iter().map(|i| local[i as usize]).collect()
+                w.into_iter().map(|i| pos[i as usize]).collect()
             })
             .collect();
         let send_counts = send.iter().map(|s| 3 * s.len()).collect();
@@ -614,7 +633,7 @@ impl Multigrid {
             send,
             send_counts,
             recv_counts,
-            recv_pos,
+            r32: mine.val.iter().map(|&v| v as f32).collect(),
             r: mine,
             coarse_counts,
             order,
@@ -646,22 +665,25 @@ impl Multigrid {
                 levels.push(level);
                 break;
             }
-            // P = (I - omega D^-1 K) P_tent
-            let dk = k.diagonal();
+            // P = (I - omega D_F^-1 K_F) P_tent, K_F the filtered K
+            let kf = aggregate::filtered(&k, eps);
+            let dk = kf.diagonal();
             let dinv: Vec<f64> = dk.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect();
-            let lam = lambda_max(&k.ptr, &k.col, &k.val, &dinv);
+            let lam = lambda_max(&kf.ptr, &kf.col, &kf.val, &dinv);
             let omega = if lam > 0.0 { 4.0 / (3.0 * lam) } else { 0.0 };
-            let mut s = k.clone();
+            let mut s = kf;
             for i in 0..n {
                 for p in s.ptr[i]..s.ptr[i + 1] {
                     let delta = if s.col[p] as usize == i { 1.0 } else { 0.0 };
-                    s.val[p] = delta - omega * dinv[i] * k.val[p];
+                    s.val[p] = delta - omega * dinv[i] * s.val[p];
                 }
             }
             let p = s.matmul(&aggregate::tentative(&agg, n_agg));
             let r = p.transpose();
             let kc = r.matmul(&k.matmul(&p));
             let vc = r.matmul(&vm.matmul(&p));
+            level.p32 = Arc::new(p.val.iter().map(|&v| v as f32).collect());
+            level.r32 = Arc::new(r.val.iter().map(|&v| v as f32).collect());
             level.p = Arc::new(p);
             level.r = Arc::new(r);
             levels.push(level);
@@ -774,40 +796,48 @@ impl Multigrid {
         let (lo, hi) = (self.fine.lo, self.fine.hi);
         let theta = 0.5 * (hi + lo);
         let delta = 0.5 * (hi - lo);
-        let n = self.owned;
-        let c = self.coefficient;
-        let (vol, dinv) = (&self.vol[..], &self.dinv0[..]);
         // a process without rows that move still sweeps (the exchanges pair up)
         let (theta, delta) = if theta > 0.0 { (theta, delta) } else { (1.0, 0.5) };
         let sigma = theta / delta;
         let mut rho = 1.0 / sigma;
+        // the three-term form x_k+1 = x_k + alpha (x_k - x_k-1) + beta D^-1 (b - A x_k): each
+        // sweep writes the next iterate, and the iterates rotate (no separate update pass)
+        let mut first = zero;
         if zero {
-            for i in 0..n {
+            let dinv = &self.dinv0;
+            for i in 0..self.owned {
                 let w = dinv[i] / theta;
-                self.d0[i] = [b[i][0] * w, b[i][1] * w, b[i][2] * w];
-                self.x0[i] = self.d0[i];
+                self.x0[i] = [b[i][0] * w, b[i][1] * w, b[i][2] * w];
             }
         } else {
-            prop.update_to(&mut self.x0, &mut self.d0, |i, xi, l, di| {
-                let (v, w) = (vol[i], dinv[i] / theta);
-                for k in 0..3 {
-                    di[k] = w * (b[i][k] - v * (xi[k] - c * l[k]));
-                }
-            });
-            csr::add(&mut self.x0[..n], &self.d0);
+            self.sweep0(prop, b, 0.0, 1.0 / theta, false);
         }
         for _ in 1..self.degree {
             let rho_new = 1.0 / (2.0 * sigma - rho);
-            let (alpha, beta) = (rho_new * rho, 2.0 * rho_new / delta);
-            prop.update_to(&mut self.x0, &mut self.d0, |i, xi, l, di| {
-                let (v, w) = (vol[i], beta * dinv[i]);
-                for k in 0..3 {
-                    di[k] = alpha * di[k] + w * (b[i][k] - v * (xi[k] - c * l[k]));
-                }
-            });
-            csr::add(&mut self.x0[..n], &self.d0);
+            self.sweep0(prop, b, rho_new * rho, 2.0 * rho_new / delta, first);
+            first = false;
             rho = rho_new;
         }
+    }
+
+    /// One Chebyshev sweep of level 0: x1 = x0 + alpha (x0 - xp) + beta D^-1 (b - A x0) (xp
+    /// taken as 0 when `from_zero`), then (xp, x0, x1) <- (x0, x1, xp).
+    fn sweep0(&mut self, prop: &mut Propagation, b: &[V3], alpha: f64, beta: f64, from_zero: bool) {
+        let n = self.owned;
+        let c = self.coefficient;
+        let Multigrid {
+            vol, dinv0, xp, x0, x1, ..
+        } = self;
+        let (vol, dinv, xp) = (&vol[..], &dinv0[..], &xp[..n]);
+        prop.update_to(x0, &mut x1[..n], |i, xi, l, yi| {
+            let (v, w) = (vol[i], beta * dinv[i]);
+            let p = if from_zero { [0.0; 3] } else { xp[i] };
+            for k in 0..3 {
+                yi[k] = xi[k] + alpha * (xi[k] - p[k]) + w * (b[i][k] - v * (xi[k] - c * l[k]));
+            }
+        });
+        std::mem::swap(&mut self.xp, &mut self.x0);
+        std::mem::swap(&mut self.x0, &mut self.x1);
     }
 
     /// One V-cycle on levels[0].b into levels[0].x.
@@ -818,8 +848,8 @@ impl Multigrid {
             let (fine, coarse) = self.levels.split_at_mut(l + 1);
             let lv = &mut fine[l];
             lv.smooth(deg, true);
-            csr::residual(&lv.ptr, &lv.col, &lv.a, &lv.x, &lv.b, &mut lv.t);
-            csr::spmv(&lv.r.ptr, &lv.r.col, &lv.r.val, &lv.t, &mut coarse[0].b);
+            csr::residual(&lv.ptr, &lv.col, &lv.a32, &lv.x, &lv.b, &mut lv.t);
+            csr::spmv(&lv.r.ptr, &lv.r.col, &lv.r32, &lv.t, &mut coarse[0].b);
         }
         let lv = &mut self.levels[last];
         match &self.coarse {
@@ -856,7 +886,7 @@ impl Multigrid {
         for l in (0..last).rev() {
             let (fine, coarse) = self.levels.split_at_mut(l + 1);
             let lv = &mut fine[l];
-            csr::spmv_add(&lv.p.ptr, &lv.p.col, &lv.p.val, &coarse[0].x, &mut lv.x);
+            csr::spmv_add(&lv.p.ptr, &lv.p.col, &lv.p32, &coarse[0].x, &mut lv.x);
             lv.smooth(deg, false);
         }
     }
@@ -869,7 +899,7 @@ impl Precond for Multigrid {
         self.smooth0(prop, r, true);
         {
             let (vol, c) = (&self.vol[..], self.coefficient);
-            prop.update_to(&mut self.x0, &mut self.t0, |i, xi, l, ti| {
+            prop.update_to(&mut self.x0, &mut self.t0[..n], |i, xi, l, ti| {
                 let v = vol[i];
                 for k in 0..3 {
                     ti[k] = r[i][k] - v * (xi[k] - c * l[k]);
@@ -885,14 +915,16 @@ impl Precond for Multigrid {
                 self.send_buf.extend_from_slice(&self.t0[l as usize]);
             }
         }
-        let got = prop
-            .halo
-            .all_to_all(&self.send_buf, &plan.send_counts, &plan.recv_counts);
-        for (k, &at) in plan.recv_pos.iter().enumerate() {
-            self.buf[at as usize] = [got[3 * k], got[3 * k + 1], got[3 * k + 2]];
-        }
-        csr::spmv(&plan.r.ptr, &plan.r.col, &plan.r.val, &self.buf, &mut self.mine);
-        let all = prop.halo.all_gather(self.mine.as_flattened(), &plan.coarse_counts);
+        prop.halo.all_to_all_into(
+            &self.send_buf,
+            &plan.send_counts,
+            &plan.recv_counts,
+            self.t0[n..].as_flattened_mut(),
+        );
+        csr::spmv(&plan.r.ptr, &plan.r.col, &plan.r32, &self.t0, &mut self.mine);
+        let all = &mut self.recv_buf;
+        prop.halo
+            .all_gather_into(self.mine.as_flattened(), &plan.coarse_counts, all);
         let b = &mut self.levels[0].b;
         for (k, &a) in plan.order.iter().enumerate() {
             b[a as usize] = [all[3 * k], all[3 * k + 1], all[3 * k + 2]];
@@ -901,7 +933,7 @@ impl Precond for Multigrid {
         csr::spmv_add(
             &self.p0.ptr,
             &self.p0.col,
-            &self.p0.val,
+            &self.p0_32,
             &self.levels[0].x,
             &mut self.x0[..n],
         );
