@@ -333,6 +333,19 @@ impl Propagation {
         self.fold_to(x, y, |_: &mut (), i, xi, l, yi| f(i, xi, l, yi), |_, _| ());
     }
 
+    /// `update_to` with another operator on the same rows and halo (a preconditioner's own
+    /// copy of the operator, in other precision or weights): `op` has this one's pattern.
+    pub fn update_with<F>(&mut self, op: &Operator, x: &mut NodeField<V3>, y: &mut [V3], f: F)
+    where
+        F: Fn(usize, V3, V3, &mut V3) + Sync,
+    {
+        let Propagation { halo, grad, layout, .. } = self;
+        let f = |_: &mut (), i, xi, l, yi: &mut V3| f(i, xi, l, yi);
+        sweep(op, halo, grad, x, *layout, |op, x, g, rows| {
+            op.fold_rows(x, g, y, rows, &f, &|_, _| ());
+        });
+    }
+
     /// `update_to` that also folds a value over the owned rows (`Operator::fold_rows`): each
     /// block of rows starts from `A::default()`, `combine` merges blocks in no fixed order.
     pub fn fold_to<A, F, C>(&mut self, x: &mut NodeField<V3>, y: &mut [V3], f: F, combine: C) -> A

@@ -35,7 +35,7 @@ pub mod aggregate;
 pub mod csr;
 
 use super::Precond;
-use crate::discretize::operator::{Operator, V3};
+use crate::discretize::operator::{Compact, Operator, V3};
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
 use crate::propagate::Propagation;
@@ -53,9 +53,10 @@ const EPS: f64 = 0.08;
 /// Power iterations for the eigenvalue bounds.
 const POWER_ITERATIONS: usize = 12;
 /// Forward Euler substeps per level-0 matrix application of the cycle (three columns): a
-/// V-cycle of 7.5 such applications took 10.5 times an operator application on the 50^3 box
+/// V-cycle of 6.33 such applications took 6.0-6.3 times an operator application on the 70^3
+/// box, 5.37 took 5.1 on the tetgen kidney and 6.31 took 5.2 on the liver
 /// (`examples/multigrid.rs`), the operator application about one substep.
-pub const SWEEP_COST: f64 = 1.4;
+pub const SWEEP_COST: f64 = 0.95;
 /// The Chebyshev degree of the smoother.
 pub const DEGREE: usize = 2;
 
@@ -314,6 +315,9 @@ pub struct Multigrid {
     /// level 0, global (free rows in global id order): its bounds serve the level-0
     /// smoother, its size the work estimate
     fine: Level,
+    /// the level-0 sweeps' operator: the weights w_ij = V_i c_ij made exactly symmetric, in
+    /// f32, on the solver's pattern (`Propagation::update_with`)
+    sweep_op: Arc<Operator>,
     /// V_i of the owned rows (0 on rows that do not move) and the inverse diagonal of A
     vol: Vec<f64>,
     dinv0: Vec<f64>,
@@ -448,6 +452,32 @@ impl Multigrid {
                 out
             })
             .collect();
+        // level 0's own copy of the operator for the smoothing sweeps: the weights
+        // w_ij = -K_ij (exactly symmetric; V_i c_ij towards nodes that do not move) in f32, so
+        // that a sweep reads fewer bytes and the cycle stays a symmetric operator
+        let mut w32 = vec![0.0f32; op.col.len()];
+        for i in 0..n {
+            if !(vol[i] > 0.0) {
+                continue;
+            }
+            let row = &built[free[gid[i] as usize] as usize];
+            for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
+                let j = free.get(gid[op.col[p] as usize] as usize).copied().unwrap_or(u32::MAX);
+                let w = match row.binary_search_by_key(&j, |e| e.0) {
+                    Ok(at) if j != u32::MAX => -row[at].1,
+                    _ => vol[i] * op.c(p),
+                };
+                w32[p] = w as f32;
+            }
+        }
+        let sweep_op = Operator::Compact(Compact {
+            row_ptr: op.row_ptr.clone(),
+            col: op.col.clone(),
+            coef: vec![],
+            coef32: w32,
+            n_cols: op.n_cols,
+            kernel: op.kernel,
+        });
         let mut k = Csr {
             n_cols: m,
             ptr: Vec::with_capacity(m + 1),
@@ -511,6 +541,7 @@ impl Multigrid {
             free_of,
             owned: n,
             fine,
+            sweep_op: Arc::new(sweep_op),
             vol: vol.to_vec(),
             dinv0: vec![0.0; n],
             p0_32: Arc::new(p0.val.iter().map(|&v| v as f32).collect()),
@@ -826,14 +857,21 @@ impl Multigrid {
         let n = self.owned;
         let c = self.coefficient;
         let Multigrid {
-            vol, dinv0, xp, x0, x1, ..
+            vol,
+            dinv0,
+            xp,
+            x0,
+            x1,
+            sweep_op,
+            ..
         } = self;
         let (vol, dinv, xp) = (&vol[..], &dinv0[..], &xp[..n]);
-        prop.update_to(x0, &mut x1[..n], |i, xi, l, yi| {
+        // (A x)_i = V_i x_i - c sum_j w_ij (x_j - x_i)
+        prop.update_with(sweep_op, x0, &mut x1[..n], |i, xi, l, yi| {
             let (v, w) = (vol[i], beta * dinv[i]);
             let p = if from_zero { [0.0; 3] } else { xp[i] };
             for k in 0..3 {
-                yi[k] = xi[k] + alpha * (xi[k] - p[k]) + w * (b[i][k] - v * (xi[k] - c * l[k]));
+                yi[k] = xi[k] + alpha * (xi[k] - p[k]) + w * (b[i][k] - (v * xi[k] - c * l[k]));
             }
         });
         std::mem::swap(&mut self.xp, &mut self.x0);
@@ -899,10 +937,10 @@ impl Precond for Multigrid {
         self.smooth0(prop, r, true);
         {
             let (vol, c) = (&self.vol[..], self.coefficient);
-            prop.update_to(&mut self.x0, &mut self.t0[..n], |i, xi, l, ti| {
+            prop.update_with(&self.sweep_op, &mut self.x0, &mut self.t0[..n], |i, xi, l, ti| {
                 let v = vol[i];
                 for k in 0..3 {
-                    ti[k] = r[i][k] - v * (xi[k] - c * l[k]);
+                    ti[k] = r[i][k] - (v * xi[k] - c * l[k]);
                 }
             });
         }
