@@ -49,7 +49,7 @@ paper's per-node, unit-free reading (its defaults in parentheses). docs/model.md
               coupling = 15 1/m (kappa = 1), exponent = 1.0 (p),\n\
               integrator = \"auto\" | \"euler\" | \"rkl2\" | \"implicit\" (docs/integrators.md)\n\
   [integrator] accuracy = 1e-3 (rkl2, implicit: relative error per step; inf: no error control),\n\
-              tolerance = 1e-2 of accuracy, preconditioner = \"jacobi\" | \"multigrid\" | \"amg\", max_iterations = 2000 (implicit);\n\
+              tolerance = 1e-2 of accuracy, preconditioner = \"auto\" | \"jacobi\" | \"multigrid\" | \"amg\", max_iterations = 2000 (implicit);\n\
               max_stages = 4096 (rkl2)\n\
   [tissue]    young = 4000 Pa (100), beta = 0.0 (exponential law when > 0)\n\
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\

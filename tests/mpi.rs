@@ -318,8 +318,7 @@ fn bitwise_identical_on_1_to_4_ranks_every_integrator_organ_mesh() {
 }
 
 /// Implicit runs with the preconditioner `pre` on 1 to `max_ranks` ranks agree with the
-/// deterministic Jacobi path to the solver tolerance (the preconditioner follows the
-/// partition: not bitwise).
+/// Jacobi path to the solver tolerance.
 fn preconditioned_runs_agree(pre: &str, max_ranks: usize) {
     let d = tempfile::tempdir().unwrap();
     let mesh = d.path().join("cyl.msh");
@@ -387,7 +386,7 @@ fn amg_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
 
 #[test]
 fn multigrid_preconditioned_runs_agree_across_ranks_to_the_solver_tolerance() {
-    // each rank's hierarchy is its own (a block preconditioner over the ranks)
+    // (and bitwise across ranks: bitwise_identical_on_1_to_4_ranks_every_deterministic_integrator)
     preconditioned_runs_agree("multigrid", 3);
 }
 

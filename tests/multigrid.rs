@@ -166,3 +166,27 @@ fn a_new_coefficient_recombines_to_the_hierarchy_built_for_it() {
     b.apply(&mut prop, &x, &mut zb);
     assert_eq!(za, zb);
 }
+
+#[test]
+fn the_automatic_preconditioner_takes_multigrid_only_where_jacobi_iterates_long() {
+    // the box at its automatic dt: jacobi iterates long, multigrid takes over
+    let s = box_sim(20);
+    let mut st = implicit(&s, Preconditioner::Auto, 1e-8);
+    let gid = s.gid().to_vec();
+    let it = st.trial(&mut s.into_propagation(), &gid, &Serial).unwrap();
+    assert_eq!(
+        st.preconditioner_name(),
+        "multigrid",
+        "{}",
+        st.preconditioner_phrase(it)
+    );
+    assert!(st.preconditioner_phrase(it).contains("against jacobi's"));
+    // a conductivity 100 times smaller: few jacobi iterations, multigrid not worth its cycle
+    let weak = BOX.replace("conductivity = 0.05", "conductivity = 0.0005");
+    let s = sim(box_mesh([1.0; 3], [20, 20, 20], BoxCells::Tet).unwrap(), &weak);
+    let mut st = implicit(&s, Preconditioner::Auto, 1e-8);
+    let gid = s.gid().to_vec();
+    let it = st.trial(&mut s.into_propagation(), &gid, &Serial).unwrap();
+    assert_eq!(st.preconditioner_name(), "jacobi", "{}", st.preconditioner_phrase(it));
+    assert!(it < eprop::propagate::integrate::implicit::MULTIGRID_FROM);
+}

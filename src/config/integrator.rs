@@ -39,19 +39,23 @@ impl std::fmt::Display for Kind {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Preconditioner {
-    /// Diagonal: deterministic, the same bits on any number of processes.
+    /// Jacobi, or multigrid where a trial solve shows it cheaper (`Implicit::trial`): both
+    /// the same bits on any number of processes, so the choice is too.
     #[default]
+    Auto,
+    /// Diagonal: deterministic, the same bits on any number of processes.
     Jacobi,
     /// Smoothed-aggregation multigrid (`multigrid`): one V-cycle per iteration, a handful of
-    /// iterations whatever the resolution; each process's coarse hierarchy is its own, so
-    /// results agree across process counts to the solver tolerance, not bitwise.
+    /// iterations whatever the resolution; its coarse levels are global, so it gives the same
+    /// bits on any number of processes.
     Multigrid,
     /// hypre BoomerAMG (algebraic multigrid): fewer iterations; agrees across process counts
     /// to the solver tolerance, not bitwise.
     Amg,
 }
 
-pub const PRECONDITIONERS: [(&str, Preconditioner); 3] = [
+pub const PRECONDITIONERS: [(&str, Preconditioner); 4] = [
+    ("auto", Preconditioner::Auto),
     ("multigrid", Preconditioner::Multigrid),
     ("jacobi", Preconditioner::Jacobi),
     ("amg", Preconditioner::Amg),
@@ -102,7 +106,7 @@ impl Default for Settings {
             tolerance: DEFAULT_TOLERANCE,
             max_iterations: DEFAULT_MAX_ITERATIONS,
             max_stages: DEFAULT_MAX_STAGES,
-            preconditioner: Preconditioner::Jacobi,
+            preconditioner: Preconditioner::Auto,
         }
     }
 }

@@ -137,8 +137,8 @@ pub struct IntegratorSec {
     /// rkl2: stages per mechanics step before it is an error
     #[serde(default = "default_max_stages", deserialize_with = "max_stages")]
     pub max_stages: u64,
-    /// implicit: "jacobi" (the default: the same bits on any number of processes),
-    /// "multigrid" (smoothed aggregation) or "amg" (hypre BoomerAMG)
+    /// implicit: "auto" (the default: jacobi, or multigrid where a trial solve shows it
+    /// cheaper), "jacobi", "multigrid" (smoothed aggregation) or "amg" (hypre BoomerAMG)
     #[serde(default)]
     pub preconditioner: Preconditioner,
 }

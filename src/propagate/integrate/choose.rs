@@ -208,8 +208,8 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 apps,
                 cost,
                 format!(
-                    "the scenario's choice: TR-BDF2, {} preconditioner ({it} iterations per solve in a trial), {}",
-                    s.preconditioner.name(),
+                    "the scenario's choice: TR-BDF2, {}, {}",
+                    imp.preconditioner_phrase(it),
                     accuracy_phrase(s.accuracy)
                 ),
             );
@@ -312,9 +312,9 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 count(rkl2_cost),
                 predicted(rkl2_trial.map(|t| t.1)),
                 match &trial {
-                    Some((_, it, apps, cost, err)) => format!(
+                    Some((imp, it, apps, cost, err)) => format!(
                         ", implicit ({}) ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps{})",
-                        s.preconditioner.name(),
+                        imp.preconditioner_name(),
                         predicted(*err)
                     ),
                     None => String::new(),
@@ -330,13 +330,13 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                     Ok(Box::new(r))
                 }
                 Kind::Implicit => {
-                    let (mut imp, _, apps, cost, _) = trial.expect("implicit was tried");
+                    let (mut imp, it, apps, cost, _) = trial.expect("implicit was tried");
                     imp.set_plan(
                         apps,
                         cost,
                         format!(
-                            "auto: implicit (TR-BDF2, {} preconditioner) is the cheapest: {others}; {}",
-                            s.preconditioner.name(),
+                            "auto: implicit (TR-BDF2, {}) is the cheapest: {others}; {}",
+                            imp.preconditioner_phrase(it),
                             accuracy_phrase(s.accuracy)
                         ),
                     );

@@ -103,7 +103,8 @@ fn preconditioner(
 ) -> Result<Box<dyn Precond>> {
     let _ = (comm, path);
     Ok(match kind {
-        Preconditioner::Jacobi => {
+        // auto starts on jacobi; the trial solve may switch it to multigrid (`Implicit::trial`)
+        Preconditioner::Jacobi | Preconditioner::Auto => {
             let d = diagonal(&prop.op, vol, theta_tau);
             Box::new(Jacobi {
                 inv: d.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect(),
@@ -131,6 +132,15 @@ struct Level {
     pre: Box<dyn Precond>,
 }
 
+/// `preconditioner = "auto"` tries multigrid only where jacobi's trial solve takes at least
+/// this many iterations (below it, a V-cycle's cost, several operator applications, leaves no
+/// room to win: the stiff tetgen kidney of 313k nodes took 31 with jacobi and 9 with
+/// multigrid, and a step 3x longer with multigrid).
+pub const MULTIGRID_FROM: usize = 40;
+/// ... and takes it only where its trial solve is this many times cheaper than jacobi's (its
+/// setup, and a recombination per error-control level, are not in the trial).
+pub const MULTIGRID_MARGIN: f64 = 1.5;
+
 /// The relative tolerance of the error estimate's filter solve (an estimate needs two digits).
 pub const FILTER_TOLERANCE: f64 = 1e-2;
 /// How often the estimate goes through (V - theta tau W)^-1 V.
@@ -148,6 +158,8 @@ pub struct Implicit {
     /// per mechanics step, no estimate).
     accuracy: f64,
     kind: Preconditioner,
+    /// How `preconditioner = "auto"` chose (empty otherwise)
+    pre_note: String,
     /// The level whose matrix theta_tau, a_bound and pre hold, and the other levels built
     level: u32,
     levels: Vec<Option<Level>>,
@@ -218,6 +230,7 @@ impl Implicit {
             },
             accuracy: f64::INFINITY,
             kind: settings.preconditioner,
+            pre_note: String::new(),
             level: 0,
             levels: Vec::new(),
             substeps: (0, 0),
@@ -368,7 +381,71 @@ impl Implicit {
     /// Iterations of one solve of A x = V z from x = 0, z a pseudo-random field of the global
     /// node ids (the same on any number of processes): the automatic choice's estimate of
     /// the iterations per solve. `gid` covers the owned nodes.
+    ///
+    /// With `preconditioner = "auto"` the first trial also settles the preconditioner:
+    /// jacobi, unless jacobi takes at least `MULTIGRID_FROM` iterations and a multigrid's
+    /// trial solve costs less than 1 / `MULTIGRID_MARGIN` of jacobi's (iterations times the
+    /// cost of one, `CG_COST` plus the V-cycle's). The counts are the same on any number of
+    /// processes, and so is the choice.
     pub fn trial(&mut self, prop: &mut Propagation, gid: &[u64], comm: &dyn Comm) -> Result<usize> {
+        let it = self.trial_solve(prop, gid, comm)?;
+        if self.kind != Preconditioner::Auto {
+            return Ok(it);
+        }
+        self.kind = Preconditioner::Jacobi;
+        if it < MULTIGRID_FROM {
+            self.pre_note = format!("auto: jacobi, {it} iterations per solve in a trial");
+            return Ok(it);
+        }
+        let mg = match super::multigrid::Multigrid::new(prop, &self.vol, &self.gid, self.theta_tau, comm) {
+            Ok(m) => m,
+            Err(e) => {
+                self.pre_note = format!("auto: jacobi ({it} iterations per solve in a trial; multigrid: {e})");
+                return Ok(it);
+            }
+        };
+        let jacobi = std::mem::replace(&mut self.pre, Box::new(mg));
+        let (cost_j, mg_it) = (it as f64 * super::choose::CG_COST, self.trial_solve(prop, gid, comm));
+        match mg_it {
+            Ok(k) if k as f64 * (super::choose::CG_COST + self.pre.cost()) * MULTIGRID_MARGIN < cost_j => {
+                self.kind = Preconditioner::Multigrid;
+                self.pre_note = format!("auto: multigrid, {k} iterations per solve in a trial against jacobi's {it}");
+                Ok(k)
+            }
+            Ok(k) => {
+                self.pre = jacobi;
+                self.pre_note = format!("auto: jacobi, {it} iterations per solve in a trial against multigrid's {k} at several times the cost each");
+                Ok(it)
+            }
+            Err(_) => {
+                self.pre = jacobi;
+                self.pre_note =
+                    format!("auto: jacobi, {it} iterations per solve in a trial (multigrid's trial did not converge)");
+                Ok(it)
+            }
+        }
+    }
+
+    /// The preconditioner in use.
+    pub fn preconditioner_name(&self) -> &'static str {
+        self.kind.name()
+    }
+
+    /// The preconditioner in use and how it was chosen (or the trial's `it` iterations per
+    /// solve), for the summary and `eprop check`.
+    pub fn preconditioner_phrase(&self, it: usize) -> String {
+        if self.pre_note.is_empty() {
+            format!(
+                "{} preconditioner ({it} iterations per solve in a trial)",
+                self.kind.name()
+            )
+        } else {
+            format!("{} preconditioner ({})", self.kind.name(), self.pre_note)
+        }
+    }
+
+    /// One trial solve with the current preconditioner (`trial`).
+    fn trial_solve(&mut self, prop: &mut Propagation, gid: &[u64], comm: &dyn Comm) -> Result<usize> {
         use super::stability::hash_unit;
         let n = self.vol.len();
         for i in 0..n {

@@ -1,11 +1,13 @@
-//! Smoothed-aggregation algebraic multigrid (Vanek, Mandel and Brezina 1996): the default
-//! preconditioner of the implicit solves, one V-cycle per conjugate-gradient iteration for
-//! the three components together.
+//! Smoothed-aggregation algebraic multigrid (Vanek, Mandel and Brezina 1996): the
+//! preconditioner of the implicit solves where many Jacobi iterations would be needed
+//! (`preconditioner = "auto"` or `"multigrid"`), one V-cycle per conjugate-gradient iteration
+//! for the three components together.
 //!
 //! The TR-BDF2 matrix is A = V + c K with V the control volumes, K = -W the (positive)
 //! diffusion matrix and c = theta tau. One scalar hierarchy serves the three components:
-//! - level 0 is the solver's own A on every process (the operator sweep with its halo
-//!   exchange, `Propagation::update_to`): its smoothing couples the processes;
+//! - level 0 is the solver's own A on every process (its pattern swept with the halo
+//!   exchange, `Propagation::update_with`, on weights w_ij = -K_ij in f32): its smoothing
+//!   couples the processes;
 //! - the coarse levels are global and the same on every process: at setup every process
 //!   gathers the free rows of K (global ids, `Comm::all_gather_var`) and builds the whole
 //!   hierarchy from them in global id order, so aggregates cross process boundaries as if
@@ -69,10 +71,11 @@ struct Level {
     col: Arc<Vec<u32>>,
     v: Arc<Vec<f64>>,
     k: Arc<Vec<f64>>,
-    /// A = V + c K rounded to f32 (`a32`, what the cycle reads) and back (`a`, what the
-    /// bounds and the coarsest factor use: the same matrix)
+    /// A = V + c K (what the bounds and the coarsest factor use) and rounded to f32 (what the
+    /// cycle reads); neither kept for a level that only serves its bounds
     a: Vec<f64>,
     a32: Vec<f32>,
+    bounds_only: bool,
     dinv: Vec<f64>,
     /// Chebyshev interval of D^-1 A
     lo: f64,
@@ -138,6 +141,7 @@ impl Level {
         Level {
             a: vec![0.0; col.len()],
             a32: vec![],
+            bounds_only: false,
             dinv: vec![0.0; n],
             ptr: Arc::new(ptr),
             col: Arc::new(col),
@@ -157,15 +161,7 @@ impl Level {
 
     /// A = V + c K, its inverse diagonal and Chebyshev interval.
     fn combine(&mut self, c: f64) {
-        // stored in f32: a cycle reads a third fewer bytes; the preconditioner is still a
-        // fixed symmetric operator
-        self.a32 = self
-            .v
-            .iter()
-            .zip(self.k.iter())
-            .map(|(v, k)| (v + c * k) as f32)
-            .collect();
-        self.a = self.a32.iter().map(|&a| a as f64).collect();
+        self.a = self.v.iter().zip(self.k.iter()).map(|(v, k)| v + c * k).collect();
         let n = self.n();
         self.dinv = (0..n)
             .map(|i| {
@@ -188,8 +184,15 @@ impl Level {
         let gershgorin = (0..n)
             .map(|i| self.dinv[i] * (self.ptr[i]..self.ptr[i + 1]).map(|p| self.a[p].abs()).sum::<f64>())
             .fold(0.0, f64::max);
-        self.hi = (1.1 * lam).max(gershgorin);
+        // (1 + 1e-6): the cycle reads A rounded to f32 (a third fewer bytes; still a fixed
+        // symmetric operator), whose bound may lie 1e-7 above this one
+        self.hi = (1.1 * lam).max(gershgorin * (1.0 + 1e-6));
         self.lo = 0.1 * lam.min(self.hi);
+        if self.bounds_only {
+            self.a = vec![];
+        } else {
+            self.a32 = self.a.iter().map(|&a| a as f32).collect();
+        }
     }
 
     /// Chebyshev smoothing of A x = b: `degree` steps from x = 0 (`zero`) or from x.
@@ -511,8 +514,9 @@ impl Multigrid {
             };
             (levels[0].clone(), p)
         };
-        // only the fine level's matrix is used (its bounds): no work vectors
+        // only the fine level's bounds are used: no work vectors, no A kept
         (fine.x, fine.b, fine.t) = (vec![], vec![], vec![]);
+        fine.bounds_only = true;
         let free_of: Vec<u32> = (0..n)
             .map(|i| if vol[i] > 0.0 { free[gid[i] as usize] } else { u32::MAX })
             .collect();
