@@ -209,6 +209,54 @@ pub fn cheb_update<V: Copy + Into<f64> + Sync>(
     });
 }
 
+/// `cheb_update` on the rows `rows` only (the rows of this process), then x += d on them; the
+/// same row sums (`row3`) as the full kernel, so the same bits row for row.
+#[allow(clippy::too_many_arguments)]
+pub fn cheb_step_rows<V: Copy + Into<f64>>(
+    rows: &[u32],
+    ptr: &[usize],
+    col: &[u32],
+    val: &[V],
+    dinv: &[f64],
+    x: &mut [V3],
+    b: &[V3],
+    d: &mut [V3],
+    alpha: f64,
+    beta: f64,
+) {
+    for &i in rows {
+        let i = i as usize;
+        let t = row3(ptr, col, val, i, x);
+        let (bi, w) = (b[i], beta * dinv[i]);
+        for c in 0..3 {
+            d[i][c] = alpha * d[i][c] + w * (bi[c] - t[c]);
+        }
+    }
+    for &i in rows {
+        let i = i as usize;
+        for c in 0..3 {
+            x[i][c] += d[i][c];
+        }
+    }
+}
+
+/// `residual` on the rows `rows` only.
+pub fn residual_rows<V: Copy + Into<f64>>(
+    rows: &[u32],
+    ptr: &[usize],
+    col: &[u32],
+    val: &[V],
+    x: &[V3],
+    b: &[V3],
+    r: &mut [V3],
+) {
+    for &i in rows {
+        let i = i as usize;
+        let t = row3(ptr, col, val, i, x);
+        r[i] = [b[i][0] - t[0], b[i][1] - t[1], b[i][2] - t[2]];
+    }
+}
+
 /// x += d.
 pub fn add(x: &mut [V3], d: &[V3]) {
     rows_of(x, |s, x| {

@@ -40,6 +40,7 @@ use super::Precond;
 use crate::discretize::operator::{Compact, Operator, V3};
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
+use crate::distribute::halo::Halo;
 use crate::propagate::Propagation;
 use anyhow::{bail, Result};
 use csr::Csr;
@@ -76,6 +77,11 @@ struct Level {
     a: Vec<f64>,
     a32: Vec<f32>,
     bounds_only: bool,
+    /// the rows this process computes, where the level is split over the processes (level
+    /// 1 on several processes; None: every row here), and the gather's buffers
+    own: Option<Arc<Own>>,
+    send: Vec<f64>,
+    recv: Vec<f64>,
     dinv: Vec<f64>,
     /// Chebyshev interval of D^-1 A
     lo: f64,
@@ -90,6 +96,17 @@ struct Level {
     x: Vec<V3>,
     b: Vec<V3>,
     t: Vec<V3>,
+}
+
+/// A level's rows split over the processes: each computes its own rows of a kernel, then
+/// every process gathers all of them (`Level::share`).
+struct Own {
+    /// this process's rows, ascending
+    rows: Vec<u32>,
+    /// values from each process (three per row) and the row of each gathered one, in
+    /// arrival order
+    counts: Vec<usize>,
+    order: Vec<u32>,
 }
 
 impl Level {
@@ -142,6 +159,9 @@ impl Level {
             a: vec![0.0; col.len()],
             a32: vec![],
             bounds_only: false,
+            own: None,
+            send: vec![],
+            recv: vec![],
             dinv: vec![0.0; n],
             ptr: Arc::new(ptr),
             col: Arc::new(col),
@@ -195,8 +215,9 @@ impl Level {
         }
     }
 
-    /// Chebyshev smoothing of A x = b: `degree` steps from x = 0 (`zero`) or from x.
-    fn smooth(&mut self, degree: usize, zero: bool) {
+    /// Chebyshev smoothing of A x = b: `degree` steps from x = 0 (`zero`) or from x. A split
+    /// level updates its own rows and gathers x after each step.
+    fn smooth(&mut self, degree: usize, zero: bool, halo: &Halo) {
         let theta = 0.5 * (self.hi + self.lo);
         let delta = 0.5 * (self.hi - self.lo);
         if !(theta > 0.0) {
@@ -214,34 +235,79 @@ impl Level {
                 .for_each(|((d, b), w)| *d = [b[0] * w / theta, b[1] * w / theta, b[2] * w / theta]);
             self.x.copy_from_slice(&self.t);
         } else {
-            csr::cheb_update(
-                &self.ptr,
-                &self.col,
-                &self.a32,
-                &self.dinv,
-                &self.x,
-                &self.b,
-                &mut self.t,
-                0.0,
-                1.0 / theta,
-            );
-            csr::add(&mut self.x, &self.t);
+            self.cheb_step(0.0, 1.0 / theta, halo);
         }
         for _ in 1..degree {
             let rho_new = 1.0 / (2.0 * sigma - rho);
-            csr::cheb_update(
-                &self.ptr,
-                &self.col,
-                &self.a32,
-                &self.dinv,
-                &self.x,
-                &self.b,
-                &mut self.t,
-                rho_new * rho,
-                2.0 * rho_new / delta,
-            );
-            csr::add(&mut self.x, &self.t);
+            self.cheb_step(rho_new * rho, 2.0 * rho_new / delta, halo);
             rho = rho_new;
+        }
+    }
+
+    /// d = alpha d + beta D^-1 (b - A x), x += d: on every row, or on this process's rows
+    /// and then x gathered.
+    fn cheb_step(&mut self, alpha: f64, beta: f64, halo: &Halo) {
+        match self.own.clone() {
+            None => {
+                csr::cheb_update(
+                    &self.ptr,
+                    &self.col,
+                    &self.a32,
+                    &self.dinv,
+                    &self.x,
+                    &self.b,
+                    &mut self.t,
+                    alpha,
+                    beta,
+                );
+                csr::add(&mut self.x, &self.t);
+            }
+            Some(own) => {
+                csr::cheb_step_rows(
+                    &own.rows,
+                    &self.ptr,
+                    &self.col,
+                    &self.a32,
+                    &self.dinv,
+                    &mut self.x,
+                    &self.b,
+                    &mut self.t,
+                    alpha,
+                    beta,
+                );
+                Self::share(&own, &mut self.x, halo, &mut self.send, &mut self.recv);
+            }
+        }
+    }
+
+    /// t = b - A x: on every row, or on this process's rows and then gathered.
+    fn residual(&mut self, halo: &Halo) {
+        match self.own.clone() {
+            None => csr::residual(&self.ptr, &self.col, &self.a32, &self.x, &self.b, &mut self.t),
+            Some(own) => {
+                csr::residual_rows(
+                    &own.rows,
+                    &self.ptr,
+                    &self.col,
+                    &self.a32,
+                    &self.x,
+                    &self.b,
+                    &mut self.t,
+                );
+                Self::share(&own, &mut self.t, halo, &mut self.send, &mut self.recv);
+            }
+        }
+    }
+
+    /// Every process's rows of v, gathered into v everywhere.
+    fn share(own: &Own, v: &mut [V3], halo: &Halo, send: &mut Vec<f64>, recv: &mut Vec<f64>) {
+        send.clear();
+        for &i in &own.rows {
+            send.extend_from_slice(&v[i as usize]);
+        }
+        halo.all_gather_into(send, &own.counts, recv);
+        for (k, &a) in own.order.iter().enumerate() {
+            v[a as usize] = [recv[3 * k], recv[3 * k + 1], recv[3 * k + 2]];
         }
     }
 }
@@ -364,8 +430,9 @@ struct Row {
 impl Multigrid {
     /// The hierarchy of A = V - theta tau W on the free rows (`vol` > 0, owned rows) of
     /// `prop`'s compact operator over every process of `comm`; `gid` numbers the local nodes
-    /// (owned, then halo). The coarse levels are built from the global matrix in global id
-    /// order on every process alike, so the preconditioner does not depend on the partition.
+    /// (owned, then halo). The coarse levels are built from the global matrix, its rows in an
+    /// order computed from global ids, on every process alike, so the preconditioner does not
+    /// depend on the partition.
     pub fn new(prop: &Propagation, vol: &[f64], gid: &[u64], theta_tau: f64, comm: &dyn Comm) -> Result<Multigrid> {
         let t0 = std::time::Instant::now();
         let Operator::Compact(op) = &prop.op else {
@@ -575,6 +642,18 @@ impl Multigrid {
             p0.ptr.push(p0.col.len());
         }
         let plan = Self::plan(&p, &rows, &free_of, me, size);
+        // on several processes the first coarse level is split by the restriction's owners
+        // (each computes its rows of the smoothing and the residual, then all gather them);
+        // the coarser ones are small and every process runs them whole
+        if size > 1 && coarsened && levels.len() > 1 {
+            let first: usize = plan.coarse_counts[..me].iter().sum::<usize>() / 3;
+            let mine = plan.coarse_counts[me] / 3;
+            levels[0].own = Some(Arc::new(Own {
+                rows: plan.order[first..first + mine].to_vec(),
+                counts: plan.coarse_counts.clone(),
+                order: plan.order.clone(),
+            }));
+        }
         let degree = DEGREE;
         let layout = prop.layout();
         let total = comm.sum_i128(n as i128).max(1) as f64;
@@ -932,14 +1011,14 @@ impl Multigrid {
     }
 
     /// One V-cycle on levels[0].b into levels[0].x.
-    fn cycle(&mut self) {
+    fn cycle(&mut self, halo: &Halo) {
         let deg = self.degree;
         let last = self.levels.len() - 1;
         for l in 0..last {
             let (fine, coarse) = self.levels.split_at_mut(l + 1);
             let lv = &mut fine[l];
-            lv.smooth(deg, true);
-            csr::residual(&lv.ptr, &lv.col, &lv.a32, &lv.x, &lv.b, &mut lv.t);
+            lv.smooth(deg, true, halo);
+            lv.residual(halo);
             csr::spmv(&lv.r.ptr, &lv.r.col, &lv.r32, &lv.t, &mut coarse[0].b);
         }
         let lv = &mut self.levels[last];
@@ -971,14 +1050,14 @@ impl Multigrid {
                 }
             }
             Coarse::Smooth => {
-                lv.smooth(4 * deg, true);
+                lv.smooth(4 * deg, true, halo);
             }
         }
         for l in (0..last).rev() {
             let (fine, coarse) = self.levels.split_at_mut(l + 1);
             let lv = &mut fine[l];
             csr::spmv_add(&lv.p.ptr, &lv.p.col, &lv.p32, &coarse[0].x, &mut lv.x);
-            lv.smooth(deg, false);
+            lv.smooth(deg, false, halo);
         }
     }
 }
@@ -1027,7 +1106,7 @@ impl Precond for Multigrid {
         for (k, &a) in plan.order.iter().enumerate() {
             b[a as usize] = [all[3 * k], all[3 * k + 1], all[3 * k + 2]];
         }
-        self.cycle();
+        self.cycle(&prop.halo);
         csr::spmv_add(
             &self.p0.ptr,
             &self.p0.col,
