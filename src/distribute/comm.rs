@@ -287,7 +287,7 @@ fn truncate(y: f64) -> i128 {
 }
 
 /// Exclusive prefix sums of message sizes (MPI displacements).
-fn displacements(counts: &[i32]) -> Vec<i32> {
+pub(crate) fn displacements(counts: &[i32]) -> Vec<i32> {
     let mut d = Vec::with_capacity(counts.len());
     let mut at = 0;
     for &c in counts {

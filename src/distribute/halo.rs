@@ -7,7 +7,7 @@
 //! `Exchange::progress` between pieces so MPI moves rendezvous-size messages while it works),
 //! and `finish` waits and writes the halo entries. Halo entries are written nowhere else.
 
-use crate::distribute::comm::Comm;
+use crate::distribute::comm::{displacements, Comm};
 use eprop_partition::HaloPattern;
 use mpi::ffi;
 use mpi::raw::AsRaw;
@@ -161,7 +161,7 @@ impl Halo {
         use mpi::traits::*;
         let sc: Vec<i32> = send_counts.iter().map(|&c| count(c)).collect();
         let rc: Vec<i32> = recv_counts.iter().map(|&c| count(c)).collect();
-        let (sd, rd) = (offsets(&sc), offsets(&rc));
+        let (sd, rd) = (displacements(&sc), displacements(&rc));
         let sp = Partition::new(send, &sc[..], &sd[..]);
         let mut rp = PartitionMut::new(&mut out[..], &rc[..], &rd[..]);
         comm.all_to_all_varcount_into(&sp, &mut rp);
@@ -178,7 +178,7 @@ impl Halo {
         use mpi::datatype::PartitionMut;
         use mpi::traits::*;
         let c: Vec<i32> = counts.iter().map(|&c| count(c)).collect();
-        let d = offsets(&c);
+        let d = displacements(&c);
         out.resize(counts.iter().sum(), 0.0);
         let mut rp = PartitionMut::new(&mut out[..], &c[..], &d[..]);
         comm.all_gather_varcount_into(x, &mut rp);
@@ -188,19 +188,6 @@ impl Halo {
     pub fn wait_seconds(&self) -> f64 {
         self.waited.get()
     }
-}
-
-/// Exclusive prefix sums of message sizes (MPI displacements).
-fn offsets(counts: &[i32]) -> Vec<i32> {
-    let mut at = 0;
-    counts
-        .iter()
-        .map(|&c| {
-            let d = at;
-            at += c;
-            d
-        })
-        .collect()
 }
 
 fn count(n: usize) -> i32 {

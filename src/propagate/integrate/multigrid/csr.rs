@@ -128,6 +128,44 @@ impl Csr {
     }
 }
 
+/// A transfer between levels (a prolongator or its transpose) as the cycle reads it: values
+/// in f32, summed in f64 by the kernels.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Transfer {
+    pub ptr: Vec<usize>,
+    pub col: Vec<u32>,
+    pub val: Vec<f32>,
+}
+
+impl Transfer {
+    pub fn n_rows(&self) -> usize {
+        self.ptr.len().saturating_sub(1)
+    }
+
+    pub fn nnz(&self) -> usize {
+        self.col.len()
+    }
+
+    /// The identity of n rows.
+    pub fn identity(n: usize) -> Transfer {
+        Transfer {
+            ptr: (0..=n).collect(),
+            col: (0..n as u32).collect(),
+            val: vec![1.0; n],
+        }
+    }
+}
+
+impl From<&Csr> for Transfer {
+    fn from(a: &Csr) -> Transfer {
+        Transfer {
+            ptr: a.ptr.clone(),
+            col: a.col.clone(),
+            val: a.val.iter().map(|&v| v as f32).collect(),
+        }
+    }
+}
+
 /// Runs `f(first_row, rows_of_y)` over y in chunks, in parallel when y is large.
 #[inline]
 fn rows_of<T: Send, F: Fn(usize, &mut [T]) + Sync + Send>(y: &mut [T], f: F) {

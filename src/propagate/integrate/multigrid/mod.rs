@@ -43,7 +43,7 @@ use crate::distribute::field::NodeField;
 use crate::distribute::halo::Halo;
 use crate::propagate::Propagation;
 use anyhow::{bail, Result};
-use csr::Csr;
+use csr::{Csr, Transfer};
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -88,11 +88,8 @@ struct Level {
     hi: f64,
     /// prolongator to this level from the next coarser one and its transpose (empty on the
     /// coarsest level)
-    p: Arc<Csr>,
-    r: Arc<Csr>,
-    /// their values in f32 (what the cycle reads)
-    p32: Arc<Vec<f32>>,
-    r32: Arc<Vec<f32>>,
+    p: Arc<Transfer>,
+    r: Arc<Transfer>,
     x: Vec<V3>,
     b: Vec<V3>,
     t: Vec<V3>,
@@ -171,8 +168,6 @@ impl Level {
             hi: 0.0,
             p: Arc::default(),
             r: Arc::default(),
-            p32: Arc::default(),
-            r32: Arc::default(),
             x: z.clone(),
             b: z.clone(),
             t: z,
@@ -362,10 +357,10 @@ struct Plan {
     /// values sent to and received from each process (three per row; none to itself)
     send_counts: Vec<usize>,
     recv_counts: Vec<usize>,
-    /// the rows of R = P^T this process sums, over the residual's positions (the owned rows,
-    /// then those received, in arrival order), and their values in f32
-    r: Csr,
-    r32: Vec<f32>,
+    /// the residual's length here: the owned rows, then those received, in arrival order
+    residual_len: usize,
+    /// the rows of R = P^T this process sums, over the residual's positions
+    r: Transfer,
     /// coarse values gathered from each process (three per row) and the coarse row of each,
     /// in arrival order
     coarse_counts: Vec<usize>,
@@ -390,9 +385,8 @@ pub struct Multigrid {
     /// V_i of the owned rows (0 on rows that do not move) and the inverse diagonal of A
     vol: Vec<f64>,
     dinv0: Vec<f64>,
-    /// prolongator from levels[0] to the owned rows, its values in f32
-    p0: Arc<Csr>,
-    p0_32: Arc<Vec<f32>>,
+    /// prolongator from levels[0] to the owned rows
+    p0: Arc<Transfer>,
     /// the restriction's communication and rows, and its buffers
     plan: Arc<Plan>,
     send_buf: Vec<f64>,
@@ -600,20 +594,14 @@ impl Multigrid {
         let v: Vec<f64> = rows.iter().map(|r| r.vol).collect();
         let mut levels = Self::hierarchy(k, &v);
         let coarsened = levels.len() >= 2;
-        let (mut fine, p) = if coarsened {
+        let (mut fine, p, r) = if coarsened {
             let mut fine = levels.remove(0);
-            let p = std::mem::take(&mut fine.p);
-            fine.r = Arc::default();
-            (fine, Arc::try_unwrap(p).unwrap_or_else(|p| (*p).clone()))
+            let (p, r) = (std::mem::take(&mut fine.p), std::mem::take(&mut fine.r));
+            (fine, p, r)
         } else {
             // no coarsening: the fine level itself is the coarse problem
-            let p = Csr {
-                n_cols: m,
-                ptr: (0..=m).collect(),
-                col: (0..m as u32).collect(),
-                val: vec![1.0; m],
-            };
-            (levels[0].clone(), p)
+            let id = Arc::new(Transfer::identity(m));
+            (levels[0].clone(), id.clone(), id)
         };
         // only the fine level's bounds are used: no work vectors, no A kept
         (fine.x, fine.b, fine.t) = (vec![], vec![], vec![]);
@@ -622,8 +610,7 @@ impl Multigrid {
             .map(|i| if vol[i] > 0.0 { free[gid[i] as usize] } else { u32::MAX })
             .collect();
         // P's rows of the owned nodes
-        let mut p0 = Csr {
-            n_cols: p.n_cols,
+        let mut p0 = Transfer {
             ptr: Vec::with_capacity(n + 1),
             col: vec![],
             val: vec![],
@@ -637,7 +624,8 @@ impl Multigrid {
             }
             p0.ptr.push(p0.col.len());
         }
-        let plan = Self::plan(&p, &rows, &free_of, me, size);
+        let plan = Self::plan(&r, &rows, &free_of, me, size);
+        drop(r);
         // on several processes the first coarse level is split by the restriction's owners
         // (each computes its rows of the smoothing and the residual, then all gather them);
         // the coarser ones are small and every process runs them whole
@@ -653,7 +641,7 @@ impl Multigrid {
         let degree = DEGREE;
         let layout = prop.layout();
         let total = comm.sum_i128(n as i128).max(1) as f64;
-        let (n_t, n_mine) = (plan.r.n_cols, plan.r.n_rows());
+        let (n_t, n_mine) = (plan.residual_len, plan.r.n_rows());
         let mut mg = Multigrid {
             free_of,
             owned: n,
@@ -661,7 +649,6 @@ impl Multigrid {
             sweep_op: Arc::new(sweep_op),
             vol: vol.to_vec(),
             dinv0: vec![0.0; n],
-            p0_32: Arc::new(p0.val.iter().map(|&v| v as f32).collect()),
             p0: Arc::new(p0),
             plan: Arc::new(plan),
             send_buf: vec![],
@@ -691,15 +678,14 @@ impl Multigrid {
         Ok(mg)
     }
 
-    /// The restriction's plan on process `me` of `size` from the global prolongator `p`
-    /// (rows: the free rows `rows` in global order): a coarse row belongs to the process of
+    /// The restriction's plan on process `me` of `size` from the global restriction `r` = P^T
+    /// (columns: the free rows `rows` in global order): a coarse row belongs to the process of
     /// its largest entry's fine row (the first of equal ones).
-    fn plan(p: &Csr, rows: &[Row], free_of: &[u32], me: usize, size: usize) -> Plan {
-        let r = p.transpose();
+    fn plan(r: &Transfer, rows: &[Row], free_of: &[u32], me: usize, size: usize) -> Plan {
         let nc = r.n_rows();
         let owner: Vec<u32> = (0..nc)
             .map(|a| {
-                let mut best = (f64::NEG_INFINITY, None);
+                let mut best = (f32::NEG_INFINITY, None);
                 for q in r.ptr[a]..r.ptr[a + 1] {
                     if r.val[q] > best.0 {
                         best = (r.val[q], Some(r.col[q]));
@@ -745,8 +731,7 @@ impl Multigrid {
             pos[i as usize] = (n + k) as u32;
             recv_counts[rows[i as usize].rank as usize] += 3;
         }
-        let mut mine = Csr {
-            n_cols: n + foreign.len(),
+        let mut mine = Transfer {
             ptr: vec![0],
             col: vec![],
             val: vec![],
@@ -781,7 +766,7 @@ impl Multigrid {
             send,
             send_counts,
             recv_counts,
-            r32: mine.val.iter().map(|&v| v as f32).collect(),
+            residual_len: n + foreign.len(),
             r: mine,
             coarse_counts,
             order,
@@ -814,11 +799,7 @@ impl Multigrid {
                 break;
             }
             // P = (I - omega D_F^-1 K_F) P_tent, K_F the filtered K
-            let kf = if std::env::var("MGNOFILT").is_ok() {
-                k.clone()
-            } else {
-                aggregate::filtered(&k, eps)
-            };
+            let kf = aggregate::filtered(&k, eps);
             let dk = kf.diagonal();
             let dinv: Vec<f64> = dk.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect();
             let lam = lambda_max(&kf.ptr, &kf.col, &kf.val, &dinv);
@@ -834,10 +815,8 @@ impl Multigrid {
             let r = p.transpose();
             let kc = r.matmul(&k.matmul(&p));
             let vc = r.matmul(&vm.matmul(&p));
-            level.p32 = Arc::new(p.val.iter().map(|&v| v as f32).collect());
-            level.r32 = Arc::new(r.val.iter().map(|&v| v as f32).collect());
-            level.p = Arc::new(p);
-            level.r = Arc::new(r);
+            level.p = Arc::new(Transfer::from(&p));
+            level.r = Arc::new(Transfer::from(&r));
             levels.push(level);
             k = kc;
             vm = vc;
@@ -988,20 +967,13 @@ impl Multigrid {
         } = self;
         let (vol, dinv, xp) = (&vol[..], &dinv0[..], &xp[..n]);
         // (A x)_i = V_i x_i - c sum_j w_ij (x_j - x_i)
-        let op64 = std::env::var("MGF64").is_ok();
-        let f = |i: usize, xi: V3, l: V3, yi: &mut V3| {
+        prop.update_with(sweep_op, x0, &mut x1[..n], |i, xi, l, yi| {
             let (v, w) = (vol[i], beta * dinv[i]);
             let p = if from_zero { [0.0; 3] } else { xp[i] };
-            let s = if op64 { v } else { 1.0 };
             for k in 0..3 {
-                yi[k] = xi[k] + alpha * (xi[k] - p[k]) + w * (b[i][k] - (v * xi[k] - c * s * l[k]));
+                yi[k] = xi[k] + alpha * (xi[k] - p[k]) + w * (b[i][k] - (v * xi[k] - c * l[k]));
             }
-        };
-        if op64 {
-            prop.update_to(x0, &mut x1[..n], f);
-        } else {
-            prop.update_with(sweep_op, x0, &mut x1[..n], f);
-        }
+        });
         std::mem::swap(&mut self.xp, &mut self.x0);
         std::mem::swap(&mut self.x0, &mut self.x1);
     }
@@ -1015,7 +987,7 @@ impl Multigrid {
             let lv = &mut fine[l];
             lv.smooth(deg, true, halo);
             lv.residual(halo);
-            csr::spmv(&lv.r.ptr, &lv.r.col, &lv.r32, &lv.t, &mut coarse[0].b);
+            csr::spmv(&lv.r.ptr, &lv.r.col, &lv.r.val, &lv.t, &mut coarse[0].b);
         }
         let lv = &mut self.levels[last];
         match &self.coarse {
@@ -1052,7 +1024,7 @@ impl Multigrid {
         for l in (0..last).rev() {
             let (fine, coarse) = self.levels.split_at_mut(l + 1);
             let lv = &mut fine[l];
-            csr::spmv_add(&lv.p.ptr, &lv.p.col, &lv.p32, &coarse[0].x, &mut lv.x);
+            csr::spmv_add(&lv.p.ptr, &lv.p.col, &lv.p.val, &coarse[0].x, &mut lv.x);
             lv.smooth(deg, false, halo);
         }
     }
@@ -1065,19 +1037,12 @@ impl Precond for Multigrid {
         self.smooth0(prop, r, true);
         {
             let (vol, c) = (&self.vol[..], self.coefficient);
-            let op64 = std::env::var("MGF64").is_ok();
-            let f = |i: usize, xi: V3, l: V3, ti: &mut V3| {
+            prop.update_with(&self.sweep_op, &mut self.x0, &mut self.t0[..n], |i, xi, l, ti| {
                 let v = vol[i];
-                let s = if op64 { v } else { 1.0 };
                 for k in 0..3 {
-                    ti[k] = r[i][k] - (v * xi[k] - c * s * l[k]);
+                    ti[k] = r[i][k] - (v * xi[k] - c * l[k]);
                 }
-            };
-            if op64 {
-                prop.update_to(&mut self.x0, &mut self.t0[..n], f);
-            } else {
-                prop.update_with(&self.sweep_op, &mut self.x0, &mut self.t0[..n], f);
-            }
+            });
         }
         // restriction: this process's coarse rows from the residuals of their supports, then
         // the whole coarse vector on every process
@@ -1094,7 +1059,7 @@ impl Precond for Multigrid {
             &plan.recv_counts,
             self.t0[n..].as_flattened_mut(),
         );
-        csr::spmv(&plan.r.ptr, &plan.r.col, &plan.r32, &self.t0, &mut self.mine);
+        csr::spmv(&plan.r.ptr, &plan.r.col, &plan.r.val, &self.t0, &mut self.mine);
         let all = &mut self.recv_buf;
         prop.halo
             .all_gather_into(self.mine.as_flattened(), &plan.coarse_counts, all);
@@ -1106,7 +1071,7 @@ impl Precond for Multigrid {
         csr::spmv_add(
             &self.p0.ptr,
             &self.p0.col,
-            &self.p0_32,
+            &self.p0.val,
             &self.levels[0].x,
             &mut self.x0[..n],
         );
