@@ -176,7 +176,7 @@ fn build_stepper(
     gid: &[u64],
     h_bound: f64,
     dt: f64,
-    trial: Option<[crate::propagate::integrate::choose::Trial; 2]>,
+    trial: Option<crate::propagate::integrate::choose::TrialRun>,
     comm: &dyn Comm,
 ) -> Result<Box<dyn Stepper>> {
     let path = setup.scenario.path.display().to_string();
@@ -357,21 +357,30 @@ fn applied_at(loads: &[Load], law: &crate::discretize::material::TissueLaw, t: f
 }
 
 /// The loads' sources at the first step whose loads push (within the first TRIAL_SEARCH
-/// steps) and at the step after it, for the automatic choice's trial steps; None when no load
-/// pushes by then. The same answer on every process (the loads' forces are global).
-#[allow(clippy::type_complexity)]
+/// steps) and at the two steps after it, for the automatic choice's trial steps, with the
+/// run's steps from that first one (None for a run to equilibrium, whose length is not known);
+/// None when no load pushes by then. The same answer on every process (the loads' forces are
+/// global).
 fn trial_sources(
     setup: &Setup,
     loads: &[Load],
     load_local: &[Vec<(u32, f64, f64, f64)>],
     vol: &[f64],
     dt: f64,
-) -> Option<[crate::propagate::integrate::choose::Trial; 2]> {
+) -> Option<crate::propagate::integrate::choose::TrialRun> {
     const TRIAL_SEARCH: u64 = 1000;
     let applied = |k: u64| applied_at(loads, &setup.law, k as f64 * dt);
     let first = (0..TRIAL_SEARCH).find(|&k| applied(k).iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0))?;
     let flux = Flux::of(setup, vol);
-    Some([first, first + 1].map(|k| load_sources(loads, load_local, &applied(k), flux)))
+    let steps = match setup.time.stop {
+        Stop::Steps(n) => Some(n),
+        Stop::End(t) => Some((t / dt - 1e-9).ceil().max(0.0) as u64),
+        Stop::Equilibrium { .. } => None,
+    };
+    Some(crate::propagate::integrate::choose::TrialRun {
+        sources: [first, first + 1, first + 2].map(|k| load_sources(loads, load_local, &applied(k), flux)),
+        steps: steps.map(|n| n.saturating_sub(first)),
+    })
 }
 
 /// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):

@@ -6,9 +6,13 @@
 //!   modes stay resolved (tau / h_median <= Z_RKL2);
 //! - implicit: 2 (k + 2) + 1 operator applications times CG_COST and 2 (k + 1) preconditioner
 //!   applications at their own cost (a multigrid V-cycle: `multigrid::SWEEP_COST` per level-0
-//!   matrix application of the cycle), k the iterations of a trial solve made here (with
-//!   jacobi the same on any number of processes; with multigrid the hierarchy, and so k,
-//!   follows the partition).
+//!   matrix application of the cycle), k the iterations of a trial solve made here (the same
+//!   on any number of processes with jacobi and multigrid).
+//!
+//! Under error control, where a load pushes, the candidates that may win are measured instead
+//! on three mechanics steps from phi = 0 under the first loads, and their mean over the run's
+//! length replaces the model (`run_average`): a load switched on at once starts a transient
+//! that costs the first steps many short sub-steps, and most so for implicit.
 //!
 //! Only the compact scheme has candidates besides euler; euler stays unless another is MARGIN
 //! times cheaper.
@@ -75,14 +79,45 @@ pub struct Context<'a> {
     pub vol: &'a [f64],
     pub active: &'a [bool],
     pub gid: &'a [u64],
-    /// The loads' sources (owned rows) at the first step a load pushes and at the step after
-    /// it: `auto` measures the candidates on these two steps.
-    pub trial: Option<[Trial; 2]>,
+    /// The loads' sources (owned rows) at the first step a load pushes and at the two steps
+    /// after it, and the run's length: `auto` measures the candidates on these three steps.
+    pub trial: Option<TrialRun>,
     pub comm: &'a dyn Comm,
 }
 
 /// Sources of a trial step, on the owned rows.
 pub type Trial = Vec<(u32, V3)>;
+
+/// What the trial steps need: the loads' sources at the first step a load pushes and at the
+/// two steps after it, and the run's steps from that first one (None: not known, a run to
+/// equilibrium).
+#[derive(Clone)]
+pub struct TrialRun {
+    pub sources: [Trial; 3],
+    pub steps: Option<u64>,
+}
+
+/// The applications per step over a run of `steps` steps whose first three steps took
+/// `apps` (a trial from phi = 0): the first two as measured (the start's transient, which
+/// error control resolves with short sub-steps) and the third for every later step. A run of
+/// unknown length counts the third alone, the cost it settles to.
+pub fn run_average(apps: [usize; 3], steps: Option<u64>) -> f64 {
+    let [a, b, c] = apps.map(|x| x as f64);
+    match steps {
+        None => c,
+        Some(0 | 1) => a,
+        Some(2) => (a + b) / 2.0,
+        Some(n) => (a + b + (n - 2) as f64 * c) / n as f64,
+    }
+}
+
+/// The run's length in a message.
+fn over(steps: Option<u64>) -> String {
+    match steps {
+        Some(n) => format!("averaged over the run's {n} steps"),
+        None => "the third (the run's length is not known)".into(),
+    }
+}
 
 /// A count for a message: whole below 1e9, else in exponent form (a saturated count is
 /// `usize::MAX`, which says nothing in full).
@@ -142,16 +177,18 @@ fn implicit(cx: &Context, per_step: usize, why: String) -> Result<Implicit> {
     )
 }
 
-/// Two mechanics steps of `st` from phi = 0 under the two trial sources: the operator
-/// applications and the estimated error of the second (phi is zero again afterwards).
-fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &[Trial; 2]) -> Result<(usize, f64)> {
+/// Three mechanics steps of `st` from phi = 0 under the trial sources: the operator
+/// applications of each and the largest estimated error (phi is zero again afterwards).
+fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &[Trial; 3]) -> Result<([usize; 3], f64)> {
     let zero = |p: &mut Propagation| p.phi.iter_mut().for_each(|x| *x = [0.0; 3]);
     zero(cx.prop);
-    let mut run = || -> Result<(usize, f64)> {
-        st.advance(cx.prop, &q[0], cx.comm)?;
-        let e1 = st.last_error().unwrap_or(0.0);
-        let b = st.advance(cx.prop, &q[1], cx.comm)?;
-        Ok((b.applications, e1.max(st.last_error().unwrap_or(0.0))))
+    let mut run = || -> Result<([usize; 3], f64)> {
+        let (mut apps, mut err) = ([0; 3], 0.0f64);
+        for (a, q) in apps.iter_mut().zip(q) {
+            *a = st.advance(cx.prop, q, cx.comm)?.applications;
+            err = err.max(st.last_error().unwrap_or(0.0));
+        }
+        Ok((apps, err))
     };
     let r = run();
     zero(cx.prop);
@@ -237,8 +274,8 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             let st = stages_for(cx.dt / n as f64, cx.h_bound);
             let controlled = s.accuracy.is_finite();
             let doubling = if controlled { DOUBLING } else { 1.0 };
-            // the stability model's costs, replaced by two trial steps under the first load
-            // where the accuracy is controlled and a load pushes
+            // the stability model's costs, replaced by three trial steps under the first load
+            // where the accuracy is controlled and a load pushes (`run_average`)
             let mut rkl2_cost = doubling * STAGE_COST * st.saturating_mul(n) as f64;
             let (mut rkl2, mut rkl2_trial) = (None, None);
             // a candidate when the super-steps alone (without the doubling, which the trial
@@ -248,12 +285,13 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 r.set_accuracy(s.accuracy);
                 if controlled {
                     if let Some(q) = cx.trial.clone() {
-                        let t = trial_steps(&mut r, cx, &q);
+                        let t = trial_steps(&mut r, cx, &q.sources);
                         r.restart_count();
                         match t {
                             Ok((apps, err)) => {
-                                rkl2_cost = STAGE_COST * apps as f64;
-                                rkl2_trial = Some((apps, err));
+                                let mean = run_average(apps, q.steps);
+                                rkl2_cost = STAGE_COST * mean;
+                                rkl2_trial = Some((apps, mean, err));
                             }
                             Err(_) => rkl2_cost = f64::INFINITY,
                         }
@@ -274,20 +312,23 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 let mut imp = implicit(cx, 0, String::new())?;
                 if let Ok(it) = imp.trial(cx.prop, cx.gid, cx.comm) {
                     imp.set_accuracy(s.accuracy);
-                    let mut apps = controlled_applications(it, controlled);
+                    let mut apps = controlled_applications(it, controlled) as f64;
                     let mut err = None;
                     let mut ok = true;
                     if controlled {
                         if let Some(q) = cx.trial.clone() {
-                            let t = trial_steps(&mut imp, cx, &q);
+                            let t = trial_steps(&mut imp, cx, &q.sources);
                             imp.restart_count();
                             match t {
-                                Ok((a, e)) => (apps, err) = (a, Some(e)),
+                                Ok((a, e)) => {
+                                    apps = run_average(a, q.steps);
+                                    err = Some((a, e));
+                                }
                                 Err(_) => ok = false,
                             }
                         }
                     }
-                    let cost = imp.cost_of(apps);
+                    let cost = imp.cost_of(1) * apps;
                     if ok {
                         let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
                         if cost * margin < best_cost {
@@ -302,20 +343,34 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 Some(e) => format!(", predicted error {e:.1e}"),
                 None => String::new(),
             };
+            let steps = cx.trial.as_ref().map(|q| q.steps).unwrap_or(None);
+            let measured = |what: &str, a: [usize; 3]| {
+                format!(
+                    "{what} in three trial steps {}, {}, {}, {}",
+                    a[0],
+                    a[1],
+                    a[2],
+                    over(steps)
+                )
+            };
             let others = format!(
                 "per step euler {} substeps, rkl2 {} (~{} substeps{}){}",
                 count(substeps),
                 match rkl2_trial {
-                    Some((apps, _)) => format!("{apps} stages in a trial step"),
+                    Some((apps, mean, _)) => format!("~{mean:.0} stages ({})", measured("stages", apps)),
                     None => format!("{} stages", count(st.saturating_mul(n) as f64)),
                 },
                 count(rkl2_cost),
-                predicted(rkl2_trial.map(|t| t.1)),
+                predicted(rkl2_trial.map(|t| t.2)),
                 match &trial {
                     Some((imp, it, apps, cost, err)) => format!(
-                        ", implicit ({}) ~{apps} applications ({it} iterations per solve in a trial; ~{cost:.0} substeps{})",
+                        ", implicit ({}) ~{apps:.0} applications ({it} iterations per solve in a trial{}; ~{cost:.0} substeps{})",
                         imp.preconditioner_name(),
-                        predicted(*err)
+                        match err {
+                            Some((a, _)) => format!("; {}", measured("applications", *a)),
+                            None => String::new(),
+                        },
+                        predicted(err.map(|e| e.1))
                     ),
                     None => String::new(),
                 }
@@ -332,7 +387,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 Kind::Implicit => {
                     let (mut imp, it, apps, cost, _) = trial.expect("implicit was tried");
                     imp.set_plan(
-                        apps,
+                        apps.round() as usize,
                         cost,
                         format!(
                             "auto: implicit (TR-BDF2, {}) is the cheapest: {others}; {}",
@@ -351,5 +406,26 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 ),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::run_average;
+
+    #[test]
+    fn the_run_average_weighs_the_start_by_the_runs_length() {
+        // implicit on the 50^3 box: a costly first step, then one sub-step per step
+        let implicit = [551, 126, 21];
+        let rkl2 = [939, 391, 337];
+        assert_eq!(run_average(implicit, Some(1)), 551.0);
+        assert_eq!(run_average(implicit, Some(2)), (551.0 + 126.0) / 2.0);
+        assert_eq!(run_average(implicit, Some(10)), (551.0 + 126.0 + 8.0 * 21.0) / 10.0);
+        assert_eq!(run_average(implicit, None), 21.0);
+        // a multigrid application costs about 6.5 rkl2 stages: a short run takes the cheap
+        // start, a long one the cheap steps
+        let dearer = 6.5;
+        assert!(run_average(rkl2, Some(3)) < dearer * run_average(implicit, Some(3)));
+        assert!(run_average(rkl2, Some(200)) > dearer * run_average(implicit, Some(200)));
     }
 }
