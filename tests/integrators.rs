@@ -669,3 +669,55 @@ fn the_error_estimates_match_the_true_error_on_an_eigenvector() {
         }
     }
 }
+
+#[test]
+fn auto_replays_its_trial_steps_and_gives_the_bits_of_the_integrator_it_chose() {
+    // a stiff 16^3 box under an impulsive patch load: auto takes rkl2 for a short run and
+    // implicit for a long one (the first steps' transient weighs less), and the run replays
+    // the chosen one's trial steps instead of computing them again
+    let d = tempfile::tempdir().unwrap();
+    eprop_io::write_mesh(
+        &box_mesh([1.0; 3], [16, 16, 16], BoxCells::Tet).unwrap(),
+        &d.path().join("box.msh"),
+    )
+    .unwrap();
+    for (steps, want) in [(4, "rkl2"), (60, "implicit")] {
+        let sc = d.path().join(format!("box{steps}.toml"));
+        std::fs::write(
+            &sc,
+            format!(
+                "[mesh]\nfile = \"box.msh\"\n[material]\nconductivity = 2.0\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = {{ center = [1.0, 0.5, 0.5], radius = 0.2 }}\nnormal = 1.0\n[time]\nsteps = {steps}\n[output]\nevery = 1\n"
+            ),
+        )
+        .unwrap();
+        let sc = sc.to_str().unwrap();
+        let (auto, named) = (
+            d.path().join(format!("auto{steps}.h5")),
+            d.path().join(format!("{want}{steps}.h5")),
+        );
+        let out = common::serial(&["-vv", "run", sc, "-o", auto.to_str().unwrap()], 1);
+        let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{text}");
+        assert!(
+            text.contains(&format!("integrator  {want}, ")) && text.contains("auto: "),
+            "{steps} steps: {text}"
+        );
+        assert_eq!(
+            text.matches("replayed from the automatic choice's trial").count(),
+            3,
+            "{text}"
+        );
+        let set = format!("model.integrator={want}");
+        let out = common::serial(&["run", sc, "-q", "--set", &set, "-o", named.to_str().unwrap()], 1);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let (fa, fb, names) = common::open_pair(&auto, &named);
+        let fields: Vec<_> = names.iter().filter(|n| n.contains("PointData")).collect();
+        assert!(fields.len() >= 3, "{names:?}");
+        for name in fields {
+            assert!(
+                common::bits(&fa, name) == common::bits(&fb, name),
+                "{steps} steps, {name} differs"
+            );
+        }
+    }
+}

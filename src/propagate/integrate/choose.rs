@@ -22,7 +22,7 @@ use super::rkl2::{stages_for, STAGE_COST};
 use super::{Euler, Implicit, Kind, Rkl2, Settings, Stepper};
 use crate::discretize::operator::V3;
 use crate::distribute::comm::Comm;
-use crate::propagate::Propagation;
+use crate::propagate::{Propagation, Sources};
 use anyhow::{bail, Result};
 
 /// Cost of one conjugate-gradient iteration of `implicit` (Jacobi) in forward Euler
@@ -177,22 +177,118 @@ fn implicit(cx: &Context, per_step: usize, why: String) -> Result<Implicit> {
     )
 }
 
-/// Three mechanics steps of `st` from phi = 0 under the trial sources: the operator
-/// applications of each and the largest estimated error (phi is zero again afterwards).
-fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &[Trial; 3]) -> Result<([usize; 3], f64)> {
+/// A trial step as it ran: the potential after it (every local row, the halo's too), its
+/// operator applications and estimated error.
+struct Recorded {
+    phi: Vec<V3>,
+    applications: usize,
+    error: Option<f64>,
+}
+
+/// Three mechanics steps of `st` from phi = 0 under the trial sources: what each did, and
+/// the largest estimated error (phi is zero again afterwards).
+fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &[Trial; 3]) -> Result<(Vec<Recorded>, f64)> {
     let zero = |p: &mut Propagation| p.phi.iter_mut().for_each(|x| *x = [0.0; 3]);
     zero(cx.prop);
-    let mut run = || -> Result<([usize; 3], f64)> {
-        let (mut apps, mut err) = ([0; 3], 0.0f64);
-        for (a, q) in apps.iter_mut().zip(q) {
-            *a = st.advance(cx.prop, q, cx.comm)?.applications;
-            err = err.max(st.last_error().unwrap_or(0.0));
+    let mut run = || -> Result<(Vec<Recorded>, f64)> {
+        let (mut steps, mut err) = (Vec::with_capacity(3), 0.0f64);
+        for q in q {
+            let applications = st.advance(cx.prop, q, cx.comm)?.applications;
+            let error = st.last_error();
+            err = err.max(error.unwrap_or(0.0));
+            steps.push(Recorded {
+                phi: cx.prop.phi.to_vec(),
+                applications,
+                error,
+            });
         }
-        Ok((apps, err))
+        Ok((steps, err))
     };
     let r = run();
     zero(cx.prop);
     r
+}
+
+/// The operator applications of recorded trial steps.
+fn applications(r: &[Recorded]) -> [usize; 3] {
+    std::array::from_fn(|k| r.get(k).map_or(0, |r| r.applications))
+}
+
+/// The chosen integrator, which first replays its own trial steps where the run repeats them
+/// exactly: the same sources and the same potential on the owned rows before the step, bit
+/// for bit on every process. A stepper computes the same bits from the same input (its state
+/// between mechanics steps is only a cache: built preconditioners, counters), so a replayed
+/// step is the step it would compute, and the trial's work is not done twice. Where anything
+/// differs (a tool in contact, a load that follows the deformation, a restart), the record is
+/// dropped and the stepper computes.
+pub struct Replay {
+    inner: Box<dyn Stepper>,
+    /// The trial's sources and its steps not yet replayed, in order.
+    sources: Vec<Trial>,
+    recorded: Vec<Recorded>,
+    /// The potential the next recorded step started from (None: zero).
+    before: Option<Vec<V3>>,
+}
+
+impl Replay {
+    fn new(inner: Box<dyn Stepper>, sources: [Trial; 3], recorded: Vec<Recorded>) -> Replay {
+        let mut sources = sources.to_vec();
+        sources.truncate(recorded.len());
+        Replay {
+            inner,
+            sources,
+            recorded,
+            before: None,
+        }
+    }
+
+    /// Whether the step about to run is the next recorded one, on every process.
+    fn repeats(&self, prop: &Propagation, q: &Sources, comm: &dyn Comm) -> bool {
+        let n = prop.layout().n_owned;
+        let same = |a: V3, b: V3| (0..3).all(|d| a[d].to_bits() == b[d].to_bits());
+        let sources = self
+            .sources
+            .first()
+            .is_some_and(|t| t.len() == q.len() && t.iter().zip(q).all(|(a, b)| a.0 == b.0 && same(a.1, b.1)));
+        let phi = match &self.before {
+            None => prop.phi[..n].iter().all(|x| x.iter().all(|v| v.to_bits() == 0)),
+            Some(b) => prop.phi[..n].iter().zip(&b[..n]).all(|(x, y)| same(*x, *y)),
+        };
+        comm.min(if sources && phi { 1.0 } else { 0.0 }) == 1.0
+    }
+}
+
+impl Stepper for Replay {
+    fn plan(&self) -> &super::StepPlan {
+        self.inner.plan()
+    }
+    fn last_error(&self) -> Option<f64> {
+        self.inner.last_error()
+    }
+    fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<super::StepStats> {
+        if !self.recorded.is_empty() {
+            if self.repeats(prop, q, comm) {
+                let r = self.recorded.remove(0);
+                self.sources.remove(0);
+                prop.phi.copy_from_slice(&r.phi);
+                self.before = Some(r.phi);
+                self.inner.replayed(r.error);
+                tracing::debug!(
+                    "{} step replayed from the automatic choice's trial ({} operator applications)",
+                    self.inner.plan().integrator.name(),
+                    r.applications
+                );
+                return Ok(super::StepStats {
+                    applications: r.applications,
+                });
+            }
+            (self.recorded, self.sources, self.before) = (Vec::new(), Vec::new(), None);
+        }
+        self.inner.advance(prop, q, comm)
+    }
+    fn replayed(&mut self, error: Option<f64>) {
+        self.inner.replayed(error)
+    }
 }
 
 /// The stepper of the scenario.
@@ -277,7 +373,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             // the stability model's costs, replaced by three trial steps under the first load
             // where the accuracy is controlled and a load pushes (`run_average`)
             let mut rkl2_cost = doubling * STAGE_COST * st.saturating_mul(n) as f64;
-            let (mut rkl2, mut rkl2_trial) = (None, None);
+            let (mut rkl2, mut rkl2_trial, mut rkl2_record) = (None, None, None);
             // a candidate when the super-steps alone (without the doubling, which the trial
             // measures with the levels the control takes) are cheaper than euler
             if st.saturating_mul(n) <= s.max_stages && rkl2_cost / doubling < substeps {
@@ -288,10 +384,12 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                         let t = trial_steps(&mut r, cx, &q.sources);
                         r.restart_count();
                         match t {
-                            Ok((apps, err)) => {
+                            Ok((rec, err)) => {
+                                let apps = applications(&rec);
                                 let mean = run_average(apps, q.steps);
                                 rkl2_cost = STAGE_COST * mean;
                                 rkl2_trial = Some((apps, mean, err));
+                                rkl2_record = Some(rec);
                             }
                             Err(_) => rkl2_cost = f64::INFINITY,
                         }
@@ -307,7 +405,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             }
             // implicit costs at least one iteration per stage: try it only where it can win
             let floor = CG_COST * (2.0 * 3.0 + 1.0);
-            let mut trial = None;
+            let (mut trial, mut implicit_record) = (None, None);
             if floor * MARGIN < best_cost.max(substeps.min(rkl2_cost)) {
                 let mut imp = implicit(cx, 0, String::new())?;
                 if let Ok(it) = imp.trial(cx.prop, cx.gid, cx.comm) {
@@ -320,9 +418,11 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                             let t = trial_steps(&mut imp, cx, &q.sources);
                             imp.restart_count();
                             match t {
-                                Ok((a, e)) => {
+                                Ok((rec, e)) => {
+                                    let a = applications(&rec);
                                     apps = run_average(a, q.steps);
                                     err = Some((a, e));
+                                    implicit_record = Some(rec);
                                 }
                                 Err(_) => ok = false,
                             }
@@ -375,6 +475,13 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                     None => String::new(),
                 }
             );
+            // the chosen one replays its trial steps where the run repeats them
+            let replay = |st: Box<dyn Stepper>, rec: Option<Vec<Recorded>>| -> Box<dyn Stepper> {
+                match (rec, cx.trial.clone()) {
+                    (Some(rec), Some(q)) => Box::new(Replay::new(st, q.sources, rec)),
+                    _ => st,
+                }
+            };
             match best {
                 Kind::Rkl2 => {
                     let mut r = rkl2.expect("rkl2 was built");
@@ -382,7 +489,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                         "auto: rkl2 is the cheapest: {others}; {}",
                         accuracy_phrase(s.accuracy)
                     ));
-                    Ok(Box::new(r))
+                    Ok(replay(Box::new(r), rkl2_record))
                 }
                 Kind::Implicit => {
                     let (mut imp, it, apps, cost, _) = trial.expect("implicit was tried");
@@ -395,7 +502,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                             accuracy_phrase(s.accuracy)
                         ),
                     );
-                    Ok(Box::new(imp))
+                    Ok(replay(Box::new(imp), implicit_record))
                 }
                 _ => euler(
                     cx,

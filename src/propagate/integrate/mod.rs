@@ -81,6 +81,9 @@ pub trait Stepper {
     fn last_error(&self) -> Option<f64> {
         None
     }
+    /// A step was replayed from the automatic choice's trial (`choose::Replay`): counts it,
+    /// with its estimated error.
+    fn replayed(&mut self, _error: Option<f64>) {}
 }
 
 pub use crate::config::integrator::{

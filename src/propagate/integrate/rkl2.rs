@@ -359,6 +359,10 @@ impl Stepper for Rkl2 {
     fn last_error(&self) -> Option<f64> {
         self.accuracy.is_finite().then_some(self.error)
     }
+    fn replayed(&mut self, error: Option<f64>) {
+        self.step += 1;
+        self.error = error.unwrap_or(0.0);
+    }
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<StepStats> {
         if self.accuracy.is_finite() {
             let applications = self.controlled(prop, q, comm)?;
