@@ -301,11 +301,13 @@ impl Implicit {
                 }
             }
         };
-        let old = Level {
+        let mut old = Level {
             theta_tau: self.theta_tau,
             a_bound: self.a_bound,
             pre: std::mem::replace(&mut self.pre, next.pre),
         };
+        // one level's preconditioner runs at a time: the others keep no work buffers
+        old.pre.release();
         self.levels[self.level as usize] = Some(old);
         (self.theta_tau, self.a_bound, self.level) = (next.theta_tau, next.a_bound, level);
         Ok(())

@@ -190,6 +190,9 @@ pub trait Precond: Send {
     fn cost(&self) -> f64 {
         0.0
     }
+    /// Frees the work buffers while the preconditioner of another sub-step length runs (the
+    /// next `apply` allocates them again).
+    fn release(&mut self) {}
     /// The preconditioner of the same operator with another theta tau, made from this one
     /// more cheaply than anew (None: build it anew).
     fn derive(&self, _theta_tau: f64) -> Option<anyhow::Result<Box<dyn Precond>>> {

@@ -373,7 +373,7 @@ struct Plan {
 pub struct Multigrid {
     /// the global free row (index among the free rows in global id order) of each owned row,
     /// u32::MAX where it does not move
-    free_of: Vec<u32>,
+    free_of: Arc<Vec<u32>>,
     /// owned rows
     owned: usize,
     /// level 0, global (free rows in global id order): its bounds serve the level-0
@@ -383,7 +383,7 @@ pub struct Multigrid {
     /// f32, on the solver's pattern (`Propagation::update_with`)
     sweep_op: Arc<Operator>,
     /// V_i of the owned rows (0 on rows that do not move) and the inverse diagonal of A
-    vol: Vec<f64>,
+    vol: Arc<Vec<f64>>,
     dinv0: Vec<f64>,
     /// prolongator from levels[0] to the owned rows
     p0: Arc<Transfer>,
@@ -393,11 +393,15 @@ pub struct Multigrid {
     recv_buf: Vec<f64>,
     mine: Vec<V3>,
     /// level-0 iterates (with the halo): the current one, the previous and the next, and
-    /// the residual (the owned rows, then other processes' rows the restriction reads)
+    /// the residual (the owned rows, then other processes' rows the restriction reads); empty
+    /// while released (`Precond::release`), allocated again by the next application
     x0: NodeField<V3>,
     xp: NodeField<V3>,
     x1: NodeField<V3>,
     t0: Vec<V3>,
+    /// the sizes of t0 and `mine`
+    n_t: usize,
+    n_mine: usize,
     /// the coarse levels (levels[0] is the fine level itself where it did not coarsen)
     levels: Vec<Level>,
     /// whether level 0 was aggregated (else levels[0] is level 0 itself, solved directly)
@@ -643,11 +647,11 @@ impl Multigrid {
         let total = comm.sum_i128(n as i128).max(1) as f64;
         let (n_t, n_mine) = (plan.residual_len, plan.r.n_rows());
         let mut mg = Multigrid {
-            free_of,
+            free_of: Arc::new(free_of),
             owned: n,
             fine,
             sweep_op: Arc::new(sweep_op),
-            vol: vol.to_vec(),
+            vol: Arc::new(vol.to_vec()),
             dinv0: vec![0.0; n],
             p0: Arc::new(p0),
             plan: Arc::new(plan),
@@ -658,6 +662,8 @@ impl Multigrid {
             xp: NodeField::filled(layout, [0.0; 3]),
             x1: NodeField::filled(layout, [0.0; 3]),
             t0: vec![[0.0; 3]; n_t],
+            n_t,
+            n_mine,
             levels,
             coarsened,
             coarse: Coarse::Smooth,
@@ -873,6 +879,10 @@ impl Multigrid {
         } else {
             Coarse::Smooth
         };
+        // A in f64 served the bounds and the coarsest factor; the cycle reads the f32 copy
+        for l in &mut self.levels {
+            l.a = Vec::new();
+        }
         Ok(())
     }
 
@@ -1033,6 +1043,15 @@ impl Multigrid {
 impl Precond for Multigrid {
     fn apply(&mut self, prop: &mut Propagation, r: &[V3], z: &mut [V3]) {
         let n = self.owned;
+        if self.x0.is_empty() {
+            // released: every application writes these before it reads them
+            let layout = prop.layout();
+            self.x0 = NodeField::filled(layout, [0.0; 3]);
+            self.xp = NodeField::filled(layout, [0.0; 3]);
+            self.x1 = NodeField::filled(layout, [0.0; 3]);
+            self.t0 = vec![[0.0; 3]; self.n_t];
+            self.mine = vec![[0.0; 3]; self.n_mine];
+        }
         // level 0: smoothing, residual, restriction
         self.smooth0(prop, r, true);
         {
@@ -1077,6 +1096,11 @@ impl Precond for Multigrid {
         );
         self.smooth0(prop, r, false);
         z.copy_from_slice(&self.x0[..n]);
+    }
+    fn release(&mut self) {
+        let empty = || NodeField::filled(Default::default(), [0.0; 3]);
+        (self.x0, self.xp, self.x1) = (empty(), empty(), empty());
+        (self.t0, self.mine, self.send_buf, self.recv_buf) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     }
     fn cost(&self) -> f64 {
         // the one-process cost (the same on any process count, for the automatic choice)
