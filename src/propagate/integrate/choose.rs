@@ -12,7 +12,9 @@
 //! Under error control, where a load pushes, the candidates that may win are measured instead
 //! on three mechanics steps from phi = 0 under the first loads, and their mean over the run's
 //! length replaces the model (`run_average`): a load switched on at once starts a transient
-//! that costs the first steps many short sub-steps, and most so for implicit.
+//! that costs the first steps many short sub-steps, and most so for implicit. The candidates
+//! are measured in the order of lower bounds known beforehand, the second only where it can
+//! still win, and the chosen one replays its trial steps in the run (`Replay`).
 //!
 //! Only the compact scheme has candidates besides euler; euler stays unless another is MARGIN
 //! times cheaper.
@@ -348,171 +350,230 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             );
             Ok(Box::new(imp))
         }
-        Kind::Auto => {
-            if !cx.compact {
-                return euler(
-                    cx,
-                    format!(
-                        "auto: on the {} scheme (complex spectrum) only euler is stable",
-                        cx.scheme
-                    ),
-                );
-            }
-            if cx.user_h.is_some() {
-                return euler(cx, "auto: the scenario sets the Euler substep h".into());
-            }
-            let substeps = if cx.h_bound.is_finite() {
-                (cx.dt / (SAFETY * cx.h_bound)).ceil().max(1.0)
-            } else {
-                1.0
-            };
-            let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
-            let st = stages_for(cx.dt / n as f64, cx.h_bound);
-            let controlled = s.accuracy.is_finite();
-            let doubling = if controlled { DOUBLING } else { 1.0 };
-            // the stability model's costs, replaced by three trial steps under the first load
-            // where the accuracy is controlled and a load pushes (`run_average`)
-            let mut rkl2_cost = doubling * STAGE_COST * st.saturating_mul(n) as f64;
-            let (mut rkl2, mut rkl2_trial, mut rkl2_record) = (None, None, None);
-            // a candidate when the super-steps alone (without the doubling, which the trial
-            // measures with the levels the control takes) are cheaper than euler
-            if st.saturating_mul(n) <= s.max_stages && rkl2_cost / doubling < substeps {
-                let mut r = Rkl2::new(cx.h_bound, cx.dt, n, s.max_stages, layout, cx.path, String::new())?;
-                r.set_accuracy(s.accuracy);
-                if controlled {
-                    if let Some(q) = cx.trial.clone() {
-                        let t = trial_steps(&mut r, cx, &q.sources);
-                        r.restart_count();
-                        match t {
-                            Ok((rec, err)) => {
-                                let apps = applications(&rec);
-                                let mean = run_average(apps, q.steps);
-                                rkl2_cost = STAGE_COST * mean;
-                                rkl2_trial = Some((apps, mean, err));
-                                rkl2_record = Some(rec);
-                            }
-                            Err(_) => rkl2_cost = f64::INFINITY,
-                        }
-                    }
-                }
-                if rkl2_cost.is_finite() {
-                    rkl2 = Some(r);
-                }
-            }
-            let (mut best, mut best_cost) = (Kind::Euler, substeps);
-            if rkl2.is_some() && rkl2_cost * MARGIN < best_cost {
-                (best, best_cost) = (Kind::Rkl2, rkl2_cost);
-            }
-            // implicit costs at least one iteration per stage: try it only where it can win
-            let floor = CG_COST * (2.0 * 3.0 + 1.0);
-            let (mut trial, mut implicit_record) = (None, None);
-            if floor * MARGIN < best_cost.max(substeps.min(rkl2_cost)) {
-                let mut imp = implicit(cx, 0, String::new())?;
-                if let Ok(it) = imp.trial(cx.prop, cx.gid, cx.comm) {
-                    imp.set_accuracy(s.accuracy);
-                    let mut apps = controlled_applications(it, controlled) as f64;
-                    let mut err = None;
-                    let mut ok = true;
-                    if controlled {
-                        if let Some(q) = cx.trial.clone() {
-                            let t = trial_steps(&mut imp, cx, &q.sources);
-                            imp.restart_count();
-                            match t {
-                                Ok((rec, e)) => {
-                                    let a = applications(&rec);
-                                    apps = run_average(a, q.steps);
-                                    err = Some((a, e));
-                                    implicit_record = Some(rec);
-                                }
-                                Err(_) => ok = false,
-                            }
-                        }
-                    }
-                    let cost = imp.cost_of(1) * apps;
-                    if ok {
-                        let margin = if best == Kind::Euler { MARGIN } else { 1.0 };
-                        if cost * margin < best_cost {
-                            (best, best_cost) = (Kind::Implicit, cost);
-                        }
-                        trial = Some((imp, it, apps, cost, err));
-                    }
-                }
-            }
-            let _ = best_cost;
-            let predicted = |e: Option<f64>| match e {
-                Some(e) => format!(", predicted error {e:.1e}"),
-                None => String::new(),
-            };
-            let steps = cx.trial.as_ref().map(|q| q.steps).unwrap_or(None);
-            let measured = |what: &str, a: [usize; 3]| {
-                format!(
-                    "{what} in three trial steps {}, {}, {}, {}",
-                    a[0],
-                    a[1],
-                    a[2],
-                    over(steps)
-                )
-            };
-            let others = format!(
-                "per step euler {} substeps, rkl2 {} (~{} substeps{}){}",
-                count(substeps),
-                match rkl2_trial {
-                    Some((apps, mean, _)) => format!("~{mean:.0} stages ({})", measured("stages", apps)),
-                    None => format!("{} stages", count(st.saturating_mul(n) as f64)),
-                },
-                count(rkl2_cost),
-                predicted(rkl2_trial.map(|t| t.2)),
-                match &trial {
-                    Some((imp, it, apps, cost, err)) => format!(
-                        ", implicit ({}) ~{apps:.0} applications ({it} iterations per solve in a trial{}; ~{cost:.0} substeps{})",
-                        imp.preconditioner_name(),
-                        match err {
-                            Some((a, _)) => format!("; {}", measured("applications", *a)),
-                            None => String::new(),
-                        },
-                        predicted(err.map(|e| e.1))
-                    ),
-                    None => String::new(),
-                }
-            );
-            // the chosen one replays its trial steps where the run repeats them
-            let replay = |st: Box<dyn Stepper>, rec: Option<Vec<Recorded>>| -> Box<dyn Stepper> {
-                match (rec, cx.trial.clone()) {
-                    (Some(rec), Some(q)) => Box::new(Replay::new(st, q.sources, rec)),
-                    _ => st,
-                }
-            };
-            match best {
-                Kind::Rkl2 => {
-                    let mut r = rkl2.expect("rkl2 was built");
-                    r.set_why(format!(
-                        "auto: rkl2 is the cheapest: {others}; {}",
-                        accuracy_phrase(s.accuracy)
-                    ));
-                    Ok(replay(Box::new(r), rkl2_record))
-                }
-                Kind::Implicit => {
-                    let (mut imp, it, apps, cost, _) = trial.expect("implicit was tried");
-                    imp.set_plan(
-                        apps.round() as usize,
-                        cost,
-                        format!(
-                            "auto: implicit (TR-BDF2, {}) is the cheapest: {others}; {}",
-                            imp.preconditioner_phrase(it),
-                            accuracy_phrase(s.accuracy)
-                        ),
-                    );
-                    Ok(replay(Box::new(imp), implicit_record))
-                }
-                _ => euler(
-                    cx,
-                    format!(
-                        "auto: euler, no other is {MARGIN}x cheaper: {others}; accuracy {:e} per step for the others",
-                        s.accuracy
-                    ),
-                ),
+        Kind::Auto => auto(cx),
+    }
+}
+
+/// A candidate's cost per step in forward Euler substeps and what the message says of it.
+struct Measured {
+    cost: f64,
+    /// the trial steps' applications and largest estimated error, where they ran
+    trial: Option<([usize; 3], f64)>,
+    record: Option<Vec<Recorded>>,
+}
+
+/// The candidate's cost: from its trial steps where the error is controlled and a load
+/// pushes (`run_average` of their applications times `per_application`), else `model`;
+/// infinite when the trial fails.
+fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: f64) -> Measured {
+    let (Some(q), true) = (cx.trial.clone(), cx.settings.accuracy.is_finite()) else {
+        return Measured {
+            cost: model,
+            trial: None,
+            record: None,
+        };
+    };
+    match trial_steps(st, cx, &q.sources) {
+        Ok((rec, err)) => {
+            let apps = applications(&rec);
+            Measured {
+                cost: per_application * run_average(apps, q.steps),
+                trial: Some((apps, err)),
+                record: Some(rec),
             }
         }
+        Err(_) => Measured {
+            cost: f64::INFINITY,
+            trial: None,
+            record: None,
+        },
+    }
+}
+
+/// `auto`: the cheapest of euler, rkl2 and implicit at the accuracy (module notes). Each
+/// candidate has a lower bound on its cost per step known before its trial steps: rkl2 at
+/// least one doubled super-step over dt (2 STAGE_COST stages_for(dt)), implicit at least half
+/// of one controlled TR-BDF2 step at its trial solve's iterations. The candidate with the
+/// lower bound is measured first, and the other only where its bound can still beat that.
+fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
+    let s = cx.settings;
+    if !cx.compact {
+        return euler(
+            cx,
+            format!(
+                "auto: on the {} scheme (complex spectrum) only euler is stable",
+                cx.scheme
+            ),
+        );
+    }
+    if cx.user_h.is_some() {
+        return euler(cx, "auto: the scenario sets the Euler substep h".into());
+    }
+    let layout = cx.prop.layout();
+    let substeps = if cx.h_bound.is_finite() {
+        (cx.dt / (SAFETY * cx.h_bound)).ceil().max(1.0)
+    } else {
+        1.0
+    };
+    let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
+    let st = stages_for(cx.dt / n as f64, cx.h_bound);
+    let controlled = s.accuracy.is_finite();
+    let doubling = if controlled { DOUBLING } else { 1.0 };
+    let measured = controlled && cx.trial.is_some();
+    // rkl2: the stability model's cost; a candidate when its super-steps alone (without the
+    // doubling, which the trial measures with the levels the control takes) beat euler
+    let rkl2_model = doubling * STAGE_COST * st.saturating_mul(n) as f64;
+    let mut rkl2 = None;
+    if st.saturating_mul(n) <= s.max_stages && rkl2_model / doubling < substeps {
+        let mut r = Rkl2::new(cx.h_bound, cx.dt, n, s.max_stages, layout, cx.path, String::new())?;
+        r.set_accuracy(s.accuracy);
+        rkl2 = Some(r);
+    }
+    let rkl2_bound = if measured {
+        2.0 * STAGE_COST * stages_for(cx.dt, cx.h_bound).min(st.saturating_mul(n)) as f64
+    } else {
+        rkl2_model
+    };
+    // implicit costs at least one iteration per stage: a trial solve only where it can win
+    let floor = CG_COST * (2.0 * 3.0 + 1.0);
+    let mut imp = None;
+    if floor * MARGIN < substeps {
+        let mut i = implicit(cx, 0, String::new())?;
+        if let Ok(it) = i.trial(cx.prop, cx.gid, cx.comm) {
+            i.set_accuracy(s.accuracy);
+            imp = Some((i, it));
+        }
+    }
+    let imp_model = imp
+        .as_ref()
+        .map(|(i, it)| i.cost_of(controlled_applications(*it, controlled)));
+    let imp_bound = imp_model.map(|m| if measured { 0.5 * m } else { m });
+    // measure in the order of the bounds; the second only where it can still win
+    let (mut best, mut best_cost) = (Kind::Euler, substeps);
+    let wins =
+        |cost: f64, best: Kind, best_cost: f64| cost * if best == Kind::Euler { MARGIN } else { 1.0 } < best_cost;
+    let (mut rkl2_m, mut imp_m): (Option<Measured>, Option<Measured>) = (None, None);
+    let rkl2_first = match imp_bound {
+        Some(b) => rkl2_bound <= b,
+        None => true,
+    };
+    for turn in 0..2 {
+        if (turn == 0) == rkl2_first {
+            if let Some(r) = rkl2.as_mut() {
+                if wins(rkl2_bound, best, best_cost) {
+                    let m = measure(r, cx, rkl2_model, STAGE_COST);
+                    r.restart_count();
+                    if m.cost.is_finite() && wins(m.cost, best, best_cost) {
+                        (best, best_cost) = (Kind::Rkl2, m.cost);
+                    }
+                    rkl2_m = Some(m);
+                }
+            }
+        } else if let Some((i, _)) = imp.as_mut() {
+            if wins(imp_bound.unwrap_or(f64::INFINITY), best, best_cost) {
+                let per = i.cost_of(1);
+                let m = measure(i, cx, imp_model.unwrap_or(f64::INFINITY), per);
+                i.restart_count();
+                if m.cost.is_finite() && wins(m.cost, best, best_cost) {
+                    (best, best_cost) = (Kind::Implicit, m.cost);
+                }
+                imp_m = Some(m);
+            }
+        }
+    }
+    let predicted = |t: &Option<([usize; 3], f64)>| match t {
+        Some((_, e)) => format!(", predicted error {e:.1e}"),
+        None => String::new(),
+    };
+    let steps = cx.trial.as_ref().map(|q| q.steps).unwrap_or(None);
+    let in_trial = |what: &str, t: &Option<([usize; 3], f64)>, open: &str, close: &str| match t {
+        Some((a, _)) => format!(
+            "{open}{what} in three trial steps {}, {}, {}, {}{close}",
+            a[0],
+            a[1],
+            a[2],
+            over(steps)
+        ),
+        None => String::new(),
+    };
+    let rkl2_text = match (&rkl2, &rkl2_m) {
+        (Some(_), Some(m)) if m.trial.is_some() => format!(
+            ", rkl2 ~{:.0} stages{} (~{} substeps{})",
+            m.cost / STAGE_COST,
+            in_trial("stages", &m.trial, " (", ")"),
+            count(m.cost),
+            predicted(&m.trial)
+        ),
+        (Some(_), Some(m)) => format!(
+            ", rkl2 {} stages (~{} substeps)",
+            count(st.saturating_mul(n) as f64),
+            count(m.cost)
+        ),
+        (Some(_), None) => format!(
+            ", rkl2 at least ~{} substeps (not tried: it cannot win)",
+            count(rkl2_bound)
+        ),
+        (None, _) => format!(
+            ", rkl2 {} stages (~{} substeps)",
+            count(st.saturating_mul(n) as f64),
+            count(rkl2_model)
+        ),
+    };
+    let imp_text = match (&imp, &imp_m) {
+        (Some((i, it)), Some(m)) => format!(
+            ", implicit ({}) ~{:.0} applications ({it} iterations per solve in a trial{}; ~{:.0} substeps{})",
+            i.preconditioner_name(),
+            m.cost / i.cost_of(1),
+            in_trial("applications", &m.trial, "; ", ""),
+            m.cost,
+            predicted(&m.trial)
+        ),
+        (Some((i, it)), None) => format!(
+            ", implicit ({}) at least ~{:.0} substeps ({it} iterations per solve in a trial; not tried further: it cannot win)",
+            i.preconditioner_name(),
+            imp_bound.unwrap_or(f64::INFINITY)
+        ),
+        (None, _) => String::new(),
+    };
+    let others = format!("per step euler {} substeps{rkl2_text}{imp_text}", count(substeps));
+    // the chosen one replays its trial steps where the run repeats them
+    let replay = |st: Box<dyn Stepper>, rec: Option<Vec<Recorded>>| -> Box<dyn Stepper> {
+        match (rec, cx.trial.clone()) {
+            (Some(rec), Some(q)) => Box::new(Replay::new(st, q.sources, rec)),
+            _ => st,
+        }
+    };
+    match best {
+        Kind::Rkl2 => {
+            let mut r = rkl2.expect("rkl2 was built");
+            r.set_why(format!(
+                "auto: rkl2 is the cheapest: {others}; {}",
+                accuracy_phrase(s.accuracy)
+            ));
+            Ok(replay(Box::new(r), rkl2_m.and_then(|m| m.record)))
+        }
+        Kind::Implicit => {
+            let (mut i, it) = imp.expect("implicit was tried");
+            let m = imp_m.expect("implicit was measured");
+            let apps = m.cost / i.cost_of(1);
+            i.set_plan(
+                apps.round() as usize,
+                m.cost,
+                format!(
+                    "auto: implicit (TR-BDF2, {}) is the cheapest: {others}; {}",
+                    i.preconditioner_phrase(it),
+                    accuracy_phrase(s.accuracy)
+                ),
+            );
+            Ok(replay(Box::new(i), m.record))
+        }
+        _ => euler(
+            cx,
+            format!(
+                "auto: euler, no other is {MARGIN}x cheaper: {others}; accuracy {:e} per step for the others",
+                s.accuracy
+            ),
+        ),
     }
 }
 
