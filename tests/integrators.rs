@@ -681,19 +681,23 @@ fn auto_replays_its_trial_steps_and_gives_the_bits_of_the_integrator_it_chose() 
         &d.path().join("box.msh"),
     )
     .unwrap();
-    for (steps, want) in [(4, "rkl2"), (60, "implicit")] {
-        let sc = d.path().join(format!("box{steps}.toml"));
+    // and a sphere that reaches the box at step 3 and presses on (its contact sources are
+    // known in advance): rkl2, replayed from step 3
+    let patch = "[[load]]\npatch = { center = [1.0, 0.5, 0.5], radius = 0.2 }\nnormal = 1.0\n";
+    let sphere = "[tissue]\nyoung = 1.0\n[[tool]]\nshape = \"sphere\"\nradius = 0.3\nstart = [1.32, 0.5, 0.5]\nvelocity = [-0.02, 0.0, 0.0]\n";
+    for (steps, want, push) in [(4, "rkl2", patch), (60, "implicit", patch), (60, "rkl2", sphere)] {
+        let sc = d.path().join(format!("box{steps}{want}{}.toml", push.len()));
         std::fs::write(
             &sc,
             format!(
-                "[mesh]\nfile = \"box.msh\"\n[material]\nconductivity = 2.0\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\npatch = {{ center = [1.0, 0.5, 0.5], radius = 0.2 }}\nnormal = 1.0\n[time]\nsteps = {steps}\n[output]\nevery = 1\n"
+                "[mesh]\nfile = \"box.msh\"\n[material]\nconductivity = 2.0\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"xmin\"\n{push}[time]\nsteps = {steps}\n[output]\nevery = 1\n"
             ),
         )
         .unwrap();
         let sc = sc.to_str().unwrap();
         let (auto, named) = (
-            d.path().join(format!("auto{steps}.h5")),
-            d.path().join(format!("{want}{steps}.h5")),
+            d.path().join(format!("auto{steps}{want}{}.h5", push.len())),
+            d.path().join(format!("{want}{steps}{}.h5", push.len())),
         );
         let out = common::serial(&["-vv", "run", sc, "-o", auto.to_str().unwrap()], 1);
         let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);

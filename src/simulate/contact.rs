@@ -364,6 +364,42 @@ pub fn at_rest(tools: &mut [ToolRun], t: f64, n: &Nodes, law: &TissueLaw, u: &[V
     }
 }
 
+/// The tools' sources (this process's surface nodes, in the order a run appends them) at the
+/// step times k dt, k = 0, 1, ..., as a run makes them (each path's record from its start),
+/// until `stop(k, sources)` says so or `steps` steps; `tools` are left alone. None where a
+/// tool is live (its path is not known in advance).
+#[allow(clippy::too_many_arguments)]
+pub fn planned_sources(
+    tools: &[ToolRun],
+    dt: f64,
+    steps: u64,
+    n: &Nodes,
+    law: &TissueLaw,
+    conductivity: Option<&[crate::discretize::material::Tensor]>,
+    mut stop: impl FnMut(u64, &[(u32, V3)]) -> bool,
+) -> Option<Vec<Vec<(u32, V3)>>> {
+    if tools.iter().any(|t| t.tool.live) {
+        return None;
+    }
+    let mut runs: Vec<ToolRun> = tools.to_vec();
+    for r in &mut runs {
+        r.start_at(r.tool.path.at(0.0));
+    }
+    let mut out = Vec::new();
+    for k in 0..steps {
+        let mut q = Vec::new();
+        for r in &mut runs {
+            r.sources(k as f64 * dt, n, law, conductivity, &mut q);
+        }
+        let done = stop(k, &q);
+        out.push(q);
+        if done {
+            break;
+        }
+    }
+    Some(out)
+}
+
 /// The tools of a run continued at `step` (a restart): each path's record is what the run
 /// made of it (its start at t = 0, then every step's time j dt up to `step`), and the state is
 /// measured there with the restored displacement u (every process calls: reductions). The

@@ -356,21 +356,45 @@ fn applied_at(loads: &[Load], law: &crate::discretize::material::TissueLaw, t: f
         .collect()
 }
 
-/// The loads' sources at the first step whose loads push (within the first TRIAL_SEARCH
-/// steps) and at the two steps after it, for the automatic choice's trial steps, with the
-/// run's steps from that first one (None for a run to equilibrium, whose length is not known);
-/// None when no load pushes by then. The same answer on every process (the loads' forces are
-/// global).
+/// The sources of the first step whose loads push or whose tools press (within the first
+/// TRIAL_SEARCH steps) and of the two steps after it, as the run will make them (a tool's
+/// contact source depends only on its path and the rest surface), for the automatic choice's
+/// trial steps, with the run's steps from that first one (None for a run to equilibrium, whose
+/// length is not known); None when nothing pushes by then, or a tool is live (its path is not
+/// known in advance). The same step on every process (a reduction where tools press).
+#[allow(clippy::too_many_arguments)]
 fn trial_sources(
     setup: &Setup,
     loads: &[Load],
     load_local: &[Vec<(u32, f64, f64, f64)>],
+    tools: &[ToolRun],
+    nodes: &contact::Nodes,
     vol: &[f64],
     dt: f64,
+    comm: &dyn Comm,
 ) -> Option<crate::propagate::integrate::choose::TrialRun> {
     const TRIAL_SEARCH: u64 = 1000;
     let applied = |k: u64| applied_at(loads, &setup.law, k as f64 * dt);
-    let first = (0..TRIAL_SEARCH).find(|&k| applied(k).iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0))?;
+    let pushes = (0..TRIAL_SEARCH).find(|&k| applied(k).iter().any(|a| norm(a.force) > 0.0 && a.q != 0.0));
+    let mut planned = Vec::new();
+    let mut first = pushes;
+    if !tools.is_empty() {
+        // every process plans to its own first pressed step (or the search's end) and two more
+        let conductivity = (setup.model.reading == Reading::Continuum).then_some(&setup.r[..]);
+        let limit = pushes.map_or(TRIAL_SEARCH, |k| k + 1);
+        let mut mine = None;
+        planned = contact::planned_sources(tools, dt, limit + 2, nodes, &setup.law, conductivity, |k, q| {
+            if mine.is_none() && q.iter().any(|(_, x)| x.iter().any(|&v| v != 0.0)) {
+                mine = Some(k);
+            }
+            mine.is_some_and(|m| k >= m + 2)
+        })?;
+        let pressed = comm.min(mine.map_or(f64::INFINITY, |k| k as f64));
+        if pressed.is_finite() {
+            first = Some(first.map_or(pressed as u64, |k| k.min(pressed as u64)));
+        }
+    }
+    let first = first?;
     let flux = Flux::of(setup, vol);
     let steps = match setup.time.stop {
         Stop::Steps(n) => Some(n),
@@ -378,7 +402,14 @@ fn trial_sources(
         Stop::Equilibrium { .. } => None,
     };
     Some(crate::propagate::integrate::choose::TrialRun {
-        sources: [first, first + 1, first + 2].map(|k| load_sources(loads, load_local, &applied(k), flux)),
+        sources: [first, first + 1, first + 2].map(|k| {
+            let mut q = load_sources(loads, load_local, &applied(k), flux);
+            if let Some(t) = planned.get(k as usize) {
+                q.extend_from_slice(t);
+            }
+            q
+        }),
+        first,
         steps: steps.map(|n| n.saturating_sub(first)),
     })
 }
@@ -537,10 +568,6 @@ impl Simulation {
         let (dt, dt_bound) = mechanics_dt(&setup, &active, n_owned, c)?;
         let h_bound = stability::euler_bound(&mut prop, &active, &gid, c);
         let (loads, load_local) = resolve_loads(&setup, &dual, &numbering, c)?;
-        let trial = trial_sources(&setup, &loads, &load_local, &dual.vol, dt);
-        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, trial, c)?;
-        let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
-        let vol_block = blocks.collect(&dual.vol, 1, c);
         let mut tools: Vec<ToolRun> = setup.tools.iter().cloned().map(ToolRun::new).collect();
         let (mut surface, mut on_surface) = (Vec::new(), Vec::new());
         if !tools.is_empty() {
@@ -553,6 +580,19 @@ impl Simulation {
             let rest = vec![[0.0; 3]; n_owned];
             contact::at_rest(&mut tools, 0.0, &nodes, &setup.law, &rest, c);
         }
+        let trial = trial_sources(
+            &setup,
+            &loads,
+            &load_local,
+            &tools,
+            &nodes_of(&surface, &setup, &dual),
+            &dual.vol,
+            dt,
+            c,
+        );
+        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, trial, c)?;
+        let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
+        let vol_block = blocks.collect(&dual.vol, 1, c);
         Ok(Simulation {
             tools,
             surface,
@@ -598,7 +638,16 @@ impl Simulation {
 
     /// Replaces the mechanics step (and re-plans the propagation for it).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
-        let trial = trial_sources(&self.setup, &self.loads, &self.load_local, &self.dual.vol, dt);
+        let trial = trial_sources(
+            &self.setup,
+            &self.loads,
+            &self.load_local,
+            &self.tools,
+            &self.tool_nodes(),
+            &self.dual.vol,
+            dt,
+            self.comm.as_ref(),
+        );
         self.stepper = build_stepper(
             &self.setup,
             &mut self.prop,

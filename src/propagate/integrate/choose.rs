@@ -96,6 +96,8 @@ pub type Trial = Vec<(u32, V3)>;
 #[derive(Clone)]
 pub struct TrialRun {
     pub sources: [Trial; 3],
+    /// The run's step (from 0) whose sources are `sources[0]`.
+    pub first: u64,
     pub steps: Option<u64>,
 }
 
@@ -230,17 +232,20 @@ pub struct Replay {
     recorded: Vec<Recorded>,
     /// The potential the next recorded step started from (None: zero).
     before: Option<Vec<V3>>,
+    /// Steps to take before the first recorded one (a run's steps before anything pushes).
+    wait: u64,
 }
 
 impl Replay {
-    fn new(inner: Box<dyn Stepper>, sources: [Trial; 3], recorded: Vec<Recorded>) -> Replay {
-        let mut sources = sources.to_vec();
+    fn new(inner: Box<dyn Stepper>, trial: TrialRun, recorded: Vec<Recorded>) -> Replay {
+        let mut sources = trial.sources.to_vec();
         sources.truncate(recorded.len());
         Replay {
             inner,
             sources,
             recorded,
             before: None,
+            wait: trial.first,
         }
     }
 
@@ -268,6 +273,12 @@ impl Stepper for Replay {
         self.inner.last_error()
     }
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<super::StepStats> {
+        if self.wait > 0 {
+            // before the first recorded step; whether the run then repeats the trial is
+            // checked on the inputs, so a run that does not (a restart) only computes
+            self.wait -= 1;
+            return self.inner.advance(prop, q, comm);
+        }
         if !self.recorded.is_empty() {
             if self.repeats(prop, q, comm) {
                 let r = self.recorded.remove(0);
@@ -539,7 +550,7 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
     // the chosen one replays its trial steps where the run repeats them
     let replay = |st: Box<dyn Stepper>, rec: Option<Vec<Recorded>>| -> Box<dyn Stepper> {
         match (rec, cx.trial.clone()) {
-            (Some(rec), Some(q)) => Box::new(Replay::new(st, q.sources, rec)),
+            (Some(rec), Some(q)) => Box::new(Replay::new(st, q, rec)),
             _ => st,
         }
     };
