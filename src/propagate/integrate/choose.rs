@@ -9,8 +9,8 @@
 //!   matrix application of the cycle), k the iterations of a trial solve made here (the same
 //!   on any number of processes with jacobi and multigrid).
 //!
-//! Under error control, where a load pushes, the candidates that may win are measured instead
-//! on three mechanics steps from phi = 0 under the first loads, and their mean over the run's
+//! Under error control, where a load pushes or a tool presses, the candidates that may win are
+//! measured instead on three mechanics steps from phi = 0 under the first sources, and their mean over the run's
 //! length replaces the model (`run_average`): a load switched on at once starts a transient
 //! that costs the first steps many short sub-steps, and most so for implicit. The candidates
 //! are measured in the order of lower bounds known beforehand, the second only where it can
@@ -81,8 +81,8 @@ pub struct Context<'a> {
     pub vol: &'a [f64],
     pub active: &'a [bool],
     pub gid: &'a [u64],
-    /// The loads' sources (owned rows) at the first step a load pushes and at the two steps
-    /// after it, and the run's length: `auto` measures the candidates on these three steps.
+    /// The sources (owned rows) of the first step a load pushes or a tool presses and of the
+    /// two steps after it, and the run's length: `auto` measures the candidates on these.
     pub trial: Option<TrialRun>,
     pub comm: &'a dyn Comm,
 }
@@ -90,9 +90,9 @@ pub struct Context<'a> {
 /// Sources of a trial step, on the owned rows.
 pub type Trial = Vec<(u32, V3)>;
 
-/// What the trial steps need: the loads' sources at the first step a load pushes and at the
-/// two steps after it, and the run's steps from that first one (None: not known, a run to
-/// equilibrium).
+/// What the trial steps need: the sources of the first step a load pushes or a tool presses
+/// and of the two steps after it, and the run's steps from that first one (None: not known, a
+/// run to equilibrium).
 #[derive(Clone)]
 pub struct TrialRun {
     pub sources: [Trial; 3],
