@@ -521,11 +521,11 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             count(st.saturating_mul(n) as f64),
             count(m.cost)
         ),
-        (Some(_), None) => format!(
+        (Some(_), None) if measured => format!(
             ", rkl2 at least ~{} substeps (not tried: it cannot win)",
             count(rkl2_bound)
         ),
-        (None, _) => format!(
+        _ => format!(
             ", rkl2 {} stages (~{} substeps)",
             count(st.saturating_mul(n) as f64),
             count(rkl2_model)
@@ -540,10 +540,16 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             m.cost,
             predicted(&m.trial)
         ),
-        (Some((i, it)), None) => format!(
+        (Some((i, it)), None) if measured => format!(
             ", implicit ({}) at least ~{:.0} substeps ({it} iterations per solve in a trial; not tried further: it cannot win)",
             i.preconditioner_name(),
             imp_bound.unwrap_or(f64::INFINITY)
+        ),
+        (Some((i, it)), None) => format!(
+            ", implicit ({}) ~{} applications ({it} iterations per solve in a trial; ~{:.0} substeps)",
+            i.preconditioner_name(),
+            controlled_applications(*it, controlled),
+            imp_model.unwrap_or(f64::INFINITY)
         ),
         (None, _) => String::new(),
     };
