@@ -70,7 +70,9 @@ pub const DEGREE: usize = 2;
 struct Level {
     ptr: Arc<Vec<usize>>,
     col: Arc<Vec<u32>>,
-    v: Arc<Vec<f64>>,
+    /// V on the pattern, or only its diagonal where V is diagonal (level 0: the control
+    /// volumes), whose off-diagonal entries are zeros
+    v: Mass,
     k: Arc<Vec<f64>>,
     /// A = V + c K (what the bounds and the coarsest factor use) and rounded to f32 (what the
     /// cycle reads); neither kept for a level that only serves its bounds
@@ -93,6 +95,13 @@ struct Level {
     x: Vec<V3>,
     b: Vec<V3>,
     t: Vec<V3>,
+}
+
+/// The V of a level's A = V + c K.
+#[derive(Clone)]
+enum Mass {
+    Full(Arc<Vec<f64>>),
+    Diagonal(Arc<Vec<f64>>),
 }
 
 /// A level's rows split over the processes: each computes its own rows of a kernel, then
@@ -152,8 +161,23 @@ impl Level {
             ptr.push(col.len());
         }
         let z = vec![[0.0; 3]; n];
+        // a diagonal V keeps its diagonal alone (the pattern's other entries hold zeros)
+        let diagonal = (0..n).all(|i| (v.ptr[i]..v.ptr[i + 1]).all(|q| v.col[q] as usize == i));
+        let v = if diagonal {
+            Mass::Diagonal(Arc::new(
+                (0..n)
+                    .map(|i| {
+                        (ptr[i]..ptr[i + 1])
+                            .find(|&p| col[p] as usize == i)
+                            .map_or(0.0, |p| vv[p])
+                    })
+                    .collect(),
+            ))
+        } else {
+            Mass::Full(Arc::new(vv))
+        };
         Level {
-            a: vec![0.0; col.len()],
+            a: Vec::new(),
             a32: vec![],
             bounds_only: false,
             own: None,
@@ -162,7 +186,7 @@ impl Level {
             dinv: vec![0.0; n],
             ptr: Arc::new(ptr),
             col: Arc::new(col),
-            v: Arc::new(vv),
+            v,
             k: Arc::new(kv),
             lo: 0.0,
             hi: 0.0,
@@ -176,8 +200,22 @@ impl Level {
 
     /// A = V + c K, its inverse diagonal and Chebyshev interval.
     fn combine(&mut self, c: f64) {
-        self.a = self.v.iter().zip(self.k.iter()).map(|(v, k)| v + c * k).collect();
         let n = self.n();
+        self.a = match &self.v {
+            Mass::Full(v) => v.iter().zip(self.k.iter()).map(|(v, k)| v + c * k).collect(),
+            // the same sums: 0 + c k off the diagonal
+            Mass::Diagonal(d) => {
+                let (ptr, col, k) = (&self.ptr, &self.col, &self.k);
+                (0..n)
+                    .flat_map(|i| {
+                        (ptr[i]..ptr[i + 1]).map(move |p| {
+                            let v = if col[p] as usize == i { d[i] } else { 0.0 };
+                            v + c * k[p]
+                        })
+                    })
+                    .collect()
+            }
+        };
         self.dinv = (0..n)
             .map(|i| {
                 let d = (self.ptr[i]..self.ptr[i + 1])
