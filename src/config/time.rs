@@ -43,6 +43,13 @@ pub struct Time {
     pub h: Option<f64>,
 }
 
+/// The steps of a run to `end` with mechanics step dt: ceil(end / dt), an end a rounding
+/// error past a whole number of steps not counting another (a float: its size is checked by
+/// `guard::limits::steps` before it is made an integer).
+pub fn steps_to(end: f64, dt: f64) -> f64 {
+    (end / dt - 1e-9).ceil().max(0.0)
+}
+
 /// The stop condition from `steps`, `end` and `equilibrium` (the values are checked already).
 pub fn resolve(sc: &Scenario, sec: &Spanned<TimeSec>) -> Result<Time> {
     let tm = sec.get_ref();

@@ -46,7 +46,7 @@ fn steps_key(stop: &Stop, from_cli: bool) -> &'static str {
 pub fn steps(stop: &Stop, dt: f64, path: &str, from_cli: bool) -> Result<u64, String> {
     let n = match *stop {
         Stop::Steps(n) | Stop::Equilibrium { max_steps: n, .. } => n as f64,
-        Stop::End(t) => (t / dt - 1e-9).ceil().max(0.0),
+        Stop::End(t) => crate::config::steps_to(t, dt),
     };
     if n > MAX_STEPS as f64 || n.is_nan() {
         let what = match *stop {

@@ -398,7 +398,7 @@ fn trial_sources(
     let flux = Flux::of(setup, vol);
     let steps = match setup.time.stop {
         Stop::Steps(n) => Some(n),
-        Stop::End(t) => Some((t / dt - 1e-9).ceil().max(0.0) as u64),
+        Stop::End(t) => Some(crate::config::steps_to(t, dt) as u64),
         Stop::Equilibrium { .. } => None,
     };
     Some(crate::propagate::integrate::choose::TrialRun {
@@ -749,7 +749,7 @@ impl Simulation {
     pub fn max_steps(&self) -> u64 {
         match self.setup.time.stop {
             Stop::Steps(n) => n,
-            Stop::End(t) => (t / self.dt - 1e-9).ceil().max(0.0) as u64,
+            Stop::End(t) => crate::config::steps_to(t, self.dt) as u64,
             Stop::Equilibrium { max_steps, .. } => max_steps,
         }
     }
