@@ -339,9 +339,14 @@ impl Level {
             send.extend_from_slice(&v[i as usize]);
         }
         halo.all_gather_into(send, &own.counts, recv);
-        for (k, &a) in own.order.iter().enumerate() {
-            v[a as usize] = [recv[3 * k], recv[3 * k + 1], recv[3 * k + 2]];
-        }
+        scatter(&own.order, recv, v);
+    }
+}
+
+/// Gathered values (three per row, in arrival order) into the rows `order` of v.
+fn scatter(order: &[u32], gathered: &[f64], v: &mut [V3]) {
+    for (k, &a) in order.iter().enumerate() {
+        v[a as usize] = [gathered[3 * k], gathered[3 * k + 1], gathered[3 * k + 2]];
     }
 }
 
@@ -681,7 +686,6 @@ impl Multigrid {
             }));
         }
         let degree = DEGREE;
-        let layout = prop.layout();
         let total = comm.sum_i128(n as i128).max(1) as f64;
         let (n_t, n_mine) = (plan.residual_len, plan.r.n_rows());
         let mut mg = Multigrid {
@@ -695,11 +699,12 @@ impl Multigrid {
             plan: Arc::new(plan),
             send_buf: vec![],
             recv_buf: vec![],
-            mine: vec![[0.0; 3]; n_mine],
-            x0: NodeField::filled(layout, [0.0; 3]),
-            xp: NodeField::filled(layout, [0.0; 3]),
-            x1: NodeField::filled(layout, [0.0; 3]),
-            t0: vec![[0.0; 3]; n_t],
+            // the work buffers: made by the first application (`apply`)
+            mine: vec![],
+            x0: NodeField::filled(Default::default(), [0.0; 3]),
+            xp: NodeField::filled(Default::default(), [0.0; 3]),
+            x1: NodeField::filled(Default::default(), [0.0; 3]),
+            t0: vec![],
             n_t,
             n_mine,
             levels,
@@ -1082,7 +1087,7 @@ impl Precond for Multigrid {
     fn apply(&mut self, prop: &mut Propagation, r: &[V3], z: &mut [V3]) {
         let n = self.owned;
         if self.x0.is_empty() {
-            // released: every application writes these before it reads them
+            // not made yet, or released: every application writes these before it reads them
             let layout = prop.layout();
             self.x0 = NodeField::filled(layout, [0.0; 3]);
             self.xp = NodeField::filled(layout, [0.0; 3]);
@@ -1117,13 +1122,9 @@ impl Precond for Multigrid {
             self.t0[n..].as_flattened_mut(),
         );
         csr::spmv(&plan.r.ptr, &plan.r.col, &plan.r.val, &self.t0, &mut self.mine);
-        let all = &mut self.recv_buf;
         prop.halo
-            .all_gather_into(self.mine.as_flattened(), &plan.coarse_counts, all);
-        let b = &mut self.levels[0].b;
-        for (k, &a) in plan.order.iter().enumerate() {
-            b[a as usize] = [all[3 * k], all[3 * k + 1], all[3 * k + 2]];
-        }
+            .all_gather_into(self.mine.as_flattened(), &plan.coarse_counts, &mut self.recv_buf);
+        scatter(&plan.order, &self.recv_buf, &mut self.levels[0].b);
         self.cycle(&prop.halo);
         csr::spmv_add(
             &self.p0.ptr,
