@@ -20,6 +20,7 @@ examples:
 import argparse
 import os
 import re
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -106,8 +107,7 @@ every = 1000
                     # steps 2..S: the first step's time holds one-off work
                     step = (steps[k[-1]][0] - steps[k[0]][0]) / (len(k) - 1)
                     # the median step: past the first steps' transient under error control
-                    each = sorted(steps[k[j]][0] - steps[k[j - 1]][0] for j in range(1, len(k)))
-                    median = each[len(each) // 2] if len(each) % 2 else (each[len(each) // 2 - 1] + each[len(each) // 2]) / 2
+                    median = statistics.median(steps[k[j]][0] - steps[k[j - 1]][0] for j in range(1, len(k)))
                     tr = sum(steps[j][1] for j in k[1:]) / (len(k) - 1)
                     its = [int(x) for m in re.finditer(r"TRACE implicit step \d+: (\d+) \+ (\d+) iterations", log) for x in m.groups()]
                     label = f"eprop implicit, {pre}" + ("" if a.accuracy == "inf" else f", accuracy {a.accuracy}, {tr:.1f} TR-BDF2 steps")

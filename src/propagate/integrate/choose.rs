@@ -10,9 +10,10 @@
 //!   on any number of processes with jacobi and multigrid).
 //!
 //! Under error control, where a load pushes or a tool presses, the candidates that may win are
-//! measured instead on three mechanics steps from phi = 0 under the first sources, and their mean over the run's
-//! length replaces the model (`run_average`): a load switched on at once starts a transient
-//! that costs the first steps many short sub-steps, and most so for implicit. The candidates
+//! measured instead on three mechanics steps from phi = 0 under the first sources, and their
+//! mean over the run's length replaces the model (`run_average`): a load switched on at once
+//! starts a transient that costs the first steps many short sub-steps, and most so for
+//! implicit. The candidates
 //! are measured in the order of lower bounds known beforehand, the second only where it can
 //! still win, and the chosen one replays its trial steps in the run (`Replay`).
 //!
@@ -375,7 +376,8 @@ struct Measured {
 }
 
 /// The candidate's cost: from its trial steps where the error is controlled and a load
-/// pushes (`run_average` of their applications times `per_application`), else `model`;
+/// pushes or a tool presses (`run_average` of their applications times `per_application`),
+/// else `model`;
 /// infinite when the trial fails.
 fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: f64) -> Measured {
     let (Some(q), true) = (cx.trial.clone(), cx.settings.accuracy.is_finite()) else {
@@ -465,12 +467,12 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
     let wins =
         |cost: f64, best: Kind, best_cost: f64| cost * if best == Kind::Euler { MARGIN } else { 1.0 } < best_cost;
     let (mut rkl2_m, mut imp_m): (Option<Measured>, Option<Measured>) = (None, None);
-    let rkl2_first = match imp_bound {
-        Some(b) => rkl2_bound <= b,
-        None => true,
+    let order = match imp_bound {
+        Some(b) if b < rkl2_bound => [Kind::Implicit, Kind::Rkl2],
+        _ => [Kind::Rkl2, Kind::Implicit],
     };
-    for turn in 0..2 {
-        if (turn == 0) == rkl2_first {
+    for kind in order {
+        if kind == Kind::Rkl2 {
             if let Some(r) = rkl2.as_mut() {
                 if wins(rkl2_bound, best, best_cost) {
                     let m = measure(r, cx, rkl2_model, STAGE_COST);
