@@ -40,8 +40,9 @@ pub const Z_RKL2: f64 = 20.0;
 pub const DOUBLING: f64 = 1.0 + std::f64::consts::SQRT_2;
 
 /// Operator applications of one controlled TR-BDF2 step whose solves take `it` iterations:
-/// the two stages, the estimate's operator application and its two filter solves (to 1e-2,
-/// about 0.4 of the iterations of a stage's solve).
+/// the two stages, the estimate's operator application and its two filter solves (with
+/// jacobi about 0.4 of the iterations of a stage's solve; a multigrid's take about 0.25, so
+/// this overestimates them there, and auto measures before it chooses).
 pub fn controlled_applications(it: usize, controlled: bool) -> usize {
     let stages = 2 * (it + 2) + 1;
     if controlled {
