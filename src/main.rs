@@ -101,11 +101,12 @@ line, 3 stopped by a signal (continue with --restart), 4 the output could not be
         /// Print the summary as JSON
         #[arg(long)]
         json: bool,
-        /// No progress lines
+        /// No progress lines (nor the notes of a setup longer than 2 s)
         #[arg(long, short)]
         quiet: bool,
         /// Without a terminal (a batch job's log): a progress line every N steps, every T
-        /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar
+        /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar. A setup that
+        /// takes longer than 2 s notes what it does (auto's trial steps, the multigrid)
         #[arg(long, value_name = "N|Ts|Tm", default_value = "10s")]
         progress_every: Every,
         /// Continue the series in FILE (the output of an interrupted run of the same scenario and

@@ -6,6 +6,7 @@ use crate::cli::drive::{self, Batch, Settings};
 use crate::config::{Fuse, Scenario, Setup, Stop};
 use crate::distribute::parts::GlobalSizes;
 use crate::guard::safety::{self, OutputLock};
+use crate::output::progress;
 pub use crate::output::progress::Every;
 use crate::output::series::check_output_dir;
 use crate::output::summary::Summary;
@@ -152,7 +153,10 @@ pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
     let (setup, claim) = prepare_claimed(path, opts)?;
     let sizes = GlobalSizes::of(&setup.mesh);
-    let sim = Simulation::new(setup)?;
+    progress::setup_notes((!opts.quiet).then_some(t0));
+    let sim = Simulation::new(setup);
+    progress::setup_notes(None);
+    let sim = sim?;
     let summary = run_simulation(sim, sizes, t0, opts, None, 0)?;
     drop(claim);
     Ok(summary.expect("one process has the summary"))
@@ -165,11 +169,14 @@ pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
 pub fn run_mpi(world: SimpleCommunicator, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
     let t0 = Instant::now();
     let mut claim = None;
+    progress::setup_notes((mpi::traits::Communicator::rank(&world) == 0 && !opts.quiet).then_some(t0));
     let b = build_mpi(world, || {
         let (setup, c) = prepare_claimed(path, opts)?;
         claim = Some(c);
         Ok(setup)
-    })?;
+    });
+    progress::setup_notes(None);
+    let b = b?;
     let summary = run_simulation(b.sim, b.sizes, t0, opts, Some(&b.io_comm), b.rank0_scatter_peak);
     drop(claim);
     summary

@@ -3,7 +3,33 @@
 //! `--progress-every` steps or seconds (default every 10 s).
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
+
+/// A setup that has run this long prints notes of what it does (`setup_note`); a shorter one
+/// prints nothing.
+pub const SETUP_QUIET_FOR: f64 = 2.0;
+
+static SETUP: Mutex<Option<Instant>> = Mutex::new(None);
+
+/// Turns the setup notes on (`Some(start)`: the setup's start) or off. A run turns them on for
+/// the process that prints its progress (rank 0, without --quiet) while it sets up.
+pub fn setup_notes(start: Option<Instant>) {
+    *SETUP.lock().unwrap_or_else(|e| e.into_inner()) = start;
+}
+
+/// A note on stderr about a long setup (a batch job's log is otherwise silent until the first
+/// step): `  setup 12.4s: <note>`, when the notes are on and the setup has run for
+/// `SETUP_QUIET_FOR` seconds.
+pub fn setup_note(note: impl FnOnce() -> String) {
+    let start = *SETUP.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(t0) = start {
+        let s = t0.elapsed().as_secs_f64();
+        if s >= SETUP_QUIET_FOR {
+            eprintln!("  setup {}: {}", clock(s), note());
+        }
+    }
+}
 
 const TEMPLATE: &str = "  [{bar:30}] step {pos}/{len} {per_sec} ETA {eta} max|v| {msg}";
 

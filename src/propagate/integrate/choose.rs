@@ -388,9 +388,25 @@ fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: 
             record: None,
         };
     };
+    let name = st.plan().integrator;
+    crate::output::progress::setup_note(|| {
+        format!(
+            "auto: measuring {name} over three trial steps under the first loads (the chosen integrator replays them)"
+        )
+    });
+    let t = std::time::Instant::now();
     match trial_steps(st, cx, &q.sources) {
         Ok((rec, err)) => {
             let apps = applications(&rec);
+            crate::output::progress::setup_note(|| {
+                format!(
+                    "auto: {name}: {}, {}, {} operator applications in {:.1} s",
+                    apps[0],
+                    apps[1],
+                    apps[2],
+                    t.elapsed().as_secs_f64()
+                )
+            });
             Measured {
                 cost: per_application * run_average(apps, q.steps),
                 trial: Some((apps, err)),

@@ -724,6 +724,13 @@ impl Multigrid {
             mg.degree,
             t0.elapsed().as_secs_f64()
         );
+        crate::output::progress::setup_note(|| {
+            format!(
+                "multigrid hierarchy {:?} rows, built in {:.1} s",
+                mg.sizes(),
+                t0.elapsed().as_secs_f64()
+            )
+        });
         Ok(mg)
     }
 
