@@ -41,8 +41,9 @@ pub const DOUBLING: f64 = 1.0 + std::f64::consts::SQRT_2;
 
 /// Operator applications of one controlled TR-BDF2 step whose solves take `it` iterations:
 /// the two stages, the estimate's operator application and its two filter solves (with
-/// jacobi about 0.4 of the iterations of a stage's solve; a multigrid's take about 0.25, so
-/// this overestimates them there, and auto measures before it chooses).
+/// jacobi about 0.4 of the iterations of a stage's solve; a multigrid's two filter steps are
+/// one application each, so this overestimates them there, and auto measures before it
+/// chooses).
 pub fn controlled_applications(it: usize, controlled: bool) -> usize {
     let stages = 2 * (it + 2) + 1;
     if controlled {
