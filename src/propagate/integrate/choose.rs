@@ -39,6 +39,11 @@ pub const Z_RKL2: f64 = 20.0;
 /// doubling): 1 + sqrt 2 times the stages of the super-step alone.
 pub const DOUBLING: f64 = 1.0 + std::f64::consts::SQRT_2;
 
+/// The fewest operator applications of a controlled TR-BDF2 step: the right-hand side, two
+/// solves that start converged (two each), the estimate's and its two filter passes (one each
+/// with a multigrid), as at a steady state. A lower bound of every step's.
+pub const LEAST_CONTROLLED: usize = 8;
+
 /// Operator applications of one controlled TR-BDF2 step whose solves take `it` iterations:
 /// the two stages, the estimate's operator application and its two filter solves (with
 /// jacobi about 0.4 of the iterations of a stage's solve; a multigrid's two filter steps are
@@ -193,13 +198,19 @@ struct Recorded {
 }
 
 /// Three mechanics steps of `st` from phi = 0 under the trial sources: what each did, and
-/// the largest estimated error (phi is zero again afterwards).
-fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &[Trial; 3]) -> Result<(Vec<Recorded>, f64)> {
+/// the largest estimated error (phi is zero again afterwards). After each step `go_on` sees
+/// the applications so far; when it says no, the trial stops there (fewer records).
+fn trial_steps(
+    st: &mut dyn Stepper,
+    cx: &mut Context,
+    sources: &[Trial; 3],
+    go_on: &dyn Fn(&[usize]) -> bool,
+) -> Result<(Vec<Recorded>, f64)> {
     let zero = |p: &mut Propagation| p.phi.iter_mut().for_each(|x| *x = [0.0; 3]);
     zero(cx.prop);
     let mut run = || -> Result<(Vec<Recorded>, f64)> {
         let (mut steps, mut err) = (Vec::with_capacity(3), 0.0f64);
-        for q in q {
+        for q in sources {
             let applications = st.advance(cx.prop, q, cx.comm)?.applications;
             let error = st.last_error();
             err = err.max(error.unwrap_or(0.0));
@@ -208,12 +219,30 @@ fn trial_steps(st: &mut dyn Stepper, cx: &mut Context, q: &[Trial; 3]) -> Result
                 applications,
                 error,
             });
+            let apps: Vec<usize> = steps.iter().map(|r| r.applications).collect();
+            if steps.len() < sources.len() && !go_on(&apps) {
+                break;
+            }
         }
         Ok((steps, err))
     };
     let r = run();
     zero(cx.prop);
     r
+}
+
+/// The least the run's applications per step can average, `steps` steps from the first push,
+/// when the first trial steps took `apps` and every later step takes at least `least`.
+fn least_average(apps: &[usize], least: f64, steps: Option<u64>) -> f64 {
+    match steps {
+        Some(n) if n as usize >= apps.len() && n > 0 => {
+            let known: f64 = apps.iter().map(|&a| a as f64).sum();
+            (known + (n as usize - apps.len()) as f64 * least) / n as f64
+        }
+        Some(n) => apps.iter().take(n.max(1) as usize).map(|&a| a as f64).sum::<f64>() / n.max(1) as f64,
+        // a run to equilibrium counts the third step alone
+        None => least,
+    }
 }
 
 /// The operator applications of recorded trial steps.
@@ -375,18 +404,31 @@ struct Measured {
     /// the trial steps' applications and largest estimated error, where they ran
     trial: Option<([usize; 3], f64)>,
     record: Option<Vec<Recorded>>,
+    /// the trial steps taken before the candidate could no longer win (its trial stopped)
+    stopped: Option<Vec<usize>>,
+}
+
+/// What a candidate must beat: the best cost per step so far, whether that is euler's (which
+/// another candidate beats only by MARGIN), and the least applications any step of the
+/// candidate takes.
+#[derive(Clone, Copy)]
+struct Limit {
+    best: f64,
+    euler: bool,
+    least: f64,
 }
 
 /// The candidate's cost: from its trial steps where the error is controlled and a load
 /// pushes or a tool presses (`run_average` of their applications times `per_application`),
-/// else `model`;
-/// infinite when the trial fails.
-fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: f64) -> Measured {
+/// else `model`; infinite when the trial fails. The trial stops early once the steps taken
+/// and `limit.least` for the rest of the run cannot beat `limit.best`.
+fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: f64, limit: Limit) -> Measured {
     let (Some(q), true) = (cx.trial.clone(), cx.settings.accuracy.is_finite()) else {
         return Measured {
             cost: model,
             trial: None,
             record: None,
+            stopped: None,
         };
     };
     let name = st.plan().integrator;
@@ -396,7 +438,24 @@ fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: 
         )
     });
     let t = std::time::Instant::now();
-    match trial_steps(st, cx, &q.sources) {
+    let at_least = |apps: &[usize]| per_application * least_average(apps, limit.least, q.steps);
+    let go_on = |apps: &[usize]| wins(at_least(apps), limit.euler, limit.best);
+    match trial_steps(st, cx, &q.sources, &go_on) {
+        Ok((rec, _)) if rec.len() < q.sources.len() => {
+            let apps: Vec<usize> = rec.iter().map(|r| r.applications).collect();
+            crate::output::progress::setup_note(|| {
+                format!(
+                    "auto: {name}: {apps:?} operator applications in {:.1} s: it cannot win, its trial stops",
+                    t.elapsed().as_secs_f64()
+                )
+            });
+            Measured {
+                cost: at_least(&apps),
+                trial: None,
+                record: None,
+                stopped: Some(apps),
+            }
+        }
         Ok((rec, err)) => {
             let apps = applications(&rec);
             crate::output::progress::setup_note(|| {
@@ -412,14 +471,22 @@ fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: 
                 cost: per_application * run_average(apps, q.steps),
                 trial: Some((apps, err)),
                 record: Some(rec),
+                stopped: None,
             }
         }
         Err(_) => Measured {
             cost: f64::INFINITY,
             trial: None,
             record: None,
+            stopped: None,
         },
     }
+}
+
+/// Whether a candidate of `cost` per step beats the best so far, `best` (euler's when `euler`:
+/// another integrator must be MARGIN times cheaper than it).
+fn wins(cost: f64, euler: bool, best: f64) -> bool {
+    cost * if euler { MARGIN } else { 1.0 } < best
 }
 
 /// `auto`: the cheapest of euler, rkl2 and implicit at the accuracy (module notes). Each
@@ -479,34 +546,47 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
     let imp_model = imp
         .as_ref()
         .map(|(i, it)| i.cost_of(controlled_applications(*it, controlled)));
-    let imp_bound = imp_model.map(|m| if measured { 0.5 * m } else { m });
-    // measure in the order of the bounds; the second only where it can still win
+    let imp_bound = imp
+        .as_ref()
+        .zip(imp_model)
+        .map(|((i, _), m)| if measured { i.cost_of(LEAST_CONTROLLED) } else { m });
+    // measure in the order of the models (a guess); the second only where it can still win,
+    // and each trial only while it can
     let (mut best, mut best_cost) = (Kind::Euler, substeps);
-    let wins =
-        |cost: f64, best: Kind, best_cost: f64| cost * if best == Kind::Euler { MARGIN } else { 1.0 } < best_cost;
     let (mut rkl2_m, mut imp_m): (Option<Measured>, Option<Measured>) = (None, None);
-    let order = match imp_bound {
-        Some(b) if b < rkl2_bound => [Kind::Implicit, Kind::Rkl2],
+    let order = match imp_model {
+        Some(m) if m < rkl2_model => [Kind::Implicit, Kind::Rkl2],
         _ => [Kind::Rkl2, Kind::Implicit],
     };
+    let beats = |cost: f64, best: Kind, best_cost: f64| wins(cost, best == Kind::Euler, best_cost);
     for kind in order {
         if kind == Kind::Rkl2 {
             if let Some(r) = rkl2.as_mut() {
-                if wins(rkl2_bound, best, best_cost) {
-                    let m = measure(r, cx, rkl2_model, STAGE_COST);
+                if beats(rkl2_bound, best, best_cost) {
+                    let limit = Limit {
+                        best: best_cost,
+                        euler: best == Kind::Euler,
+                        least: rkl2_bound / STAGE_COST,
+                    };
+                    let m = measure(r, cx, rkl2_model, STAGE_COST, limit);
                     r.restart_count();
-                    if m.cost.is_finite() && wins(m.cost, best, best_cost) {
+                    if m.cost.is_finite() && m.stopped.is_none() && beats(m.cost, best, best_cost) {
                         (best, best_cost) = (Kind::Rkl2, m.cost);
                     }
                     rkl2_m = Some(m);
                 }
             }
         } else if let Some((i, _)) = imp.as_mut() {
-            if wins(imp_bound.unwrap_or(f64::INFINITY), best, best_cost) {
+            if beats(imp_bound.unwrap_or(f64::INFINITY), best, best_cost) {
                 let per = i.cost_of(1);
-                let m = measure(i, cx, imp_model.unwrap_or(f64::INFINITY), per);
+                let limit = Limit {
+                    best: best_cost,
+                    euler: best == Kind::Euler,
+                    least: LEAST_CONTROLLED as f64,
+                };
+                let m = measure(i, cx, imp_model.unwrap_or(f64::INFINITY), per, limit);
                 i.restart_count();
-                if m.cost.is_finite() && wins(m.cost, best, best_cost) {
+                if m.cost.is_finite() && m.stopped.is_none() && beats(m.cost, best, best_cost) {
                     (best, best_cost) = (Kind::Implicit, m.cost);
                 }
                 imp_m = Some(m);
@@ -536,6 +616,16 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             count(m.cost),
             predicted(&m.trial)
         ),
+        (
+            Some(_),
+            Some(Measured {
+                stopped: Some(a), cost, ..
+            }),
+        ) => format!(
+            ", rkl2 at least ~{} substeps (its trial stopped after {a:?} stages, {}: it cannot win)",
+            count(*cost),
+            over(steps)
+        ),
         (Some(_), Some(m)) => format!(
             ", rkl2 {} stages (~{} substeps)",
             count(st.saturating_mul(n) as f64),
@@ -552,6 +642,11 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         ),
     };
     let imp_text = match (&imp, &imp_m) {
+        (Some((i, it)), Some(Measured { stopped: Some(a), cost, .. })) => format!(
+            ", implicit ({}) at least ~{cost:.0} substeps ({it} iterations per solve in a trial; its trial stopped after {a:?} applications, {}: it cannot win)",
+            i.preconditioner_name(),
+            over(steps)
+        ),
         (Some((i, it)), Some(m)) => format!(
             ", implicit ({}) ~{:.0} applications ({it} iterations per solve in a trial{}; ~{:.0} substeps{})",
             i.preconditioner_name(),
@@ -617,7 +712,29 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
 
 #[cfg(test)]
 mod tests {
-    use super::run_average;
+    use super::{least_average, run_average};
+
+    #[test]
+    fn a_stopped_trial_bounds_the_run_average_from_below() {
+        // every later step takes at least `least`: the bound never exceeds the run's average,
+        // and is the average itself when the run is no longer than the steps known
+        let apps = [1263, 573, 493];
+        let least = 200.0;
+        for steps in [Some(1), Some(2), Some(3), Some(8), Some(30), None] {
+            let full = run_average(apps, steps);
+            for j in 1..=3 {
+                let lb = least_average(&apps[..j], least, steps);
+                assert!(lb <= full + 1e-9, "{steps:?} after {j}: {lb} > {full}");
+            }
+        }
+        assert_eq!(
+            least_average(&apps[..1], least, Some(30)),
+            (1263.0 + 29.0 * least) / 30.0
+        );
+        assert_eq!(least_average(&apps[..2], least, Some(2)), run_average(apps, Some(2)));
+        assert_eq!(least_average(&apps[..1], least, Some(1)), 1263.0);
+        assert_eq!(least_average(&apps[..2], least, None), least);
+    }
 
     #[test]
     fn the_run_average_weighs_the_start_by_the_runs_length() {
