@@ -768,17 +768,27 @@ fn a_full_disk_at_creation_and_mid_run_on_2_ranks_stops_every_rank_cleanly() {
     // ends with status 4 and the file keeps every step before
     let h5 = disk.path().join("tight.h5");
     let filler = disk.leave_free(1800 * 1024);
+    // what the disk was before and after a run that did not stop as it should (seen twice in
+    // a full suite: the run wrote all its steps, as if the tmpfs were no longer there)
+    let before = disk.state();
     let o = eprop(2, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "1000"]);
+    if o.status.code() != Some(1) {
+        eprintln!(
+            "unforced tight run: status {:?}; before: {before}; after: {}",
+            o.status.code(),
+            disk.state()
+        );
+    }
     refused(&o, 1, &["the run would write about", "free while writing", "--force"]);
+    let before = disk.state();
     let o = eprop(2, &["run", s(&sc), "-q", "-o", s(&h5), "--steps", "1000", "--force"]);
     if o.status.code() != Some(4) {
-        // what the disk held when the run did not stop (seen once in a full suite)
         eprintln!(
-            "tight run: status {:?}, {} bytes free, {} bytes written, filler {} bytes",
+            "tight run: status {:?}, {} bytes written, filler {} bytes; before: {before}; after: {}",
             o.status.code(),
-            eprop_series::outcome::free_bytes(disk.path()).unwrap_or(0),
             std::fs::metadata(&h5).map_or(0, |m| m.len()),
-            std::fs::metadata(&filler).map_or(0, |m| m.len())
+            std::fs::metadata(&filler).map_or(0, |m| m.len()),
+            disk.state()
         );
     }
     refused(
