@@ -274,19 +274,28 @@ impl Tmpfs {
     pub fn path(&self) -> &Path {
         self.dir.path()
     }
+    /// The lines of /proc/self/mountinfo whose mount point is this tmpfs's path.
+    fn mountinfo(&self) -> Vec<String> {
+        let path = self.path().to_string_lossy().to_string();
+        let mounts = std::fs::read_to_string("/proc/self/mountinfo").unwrap_or_default();
+        mounts
+            .lines()
+            .filter(|l| l.split(' ').nth(4) == Some(path.as_str()))
+            .map(str::to_string)
+            .collect()
+    }
+    /// Whether a tmpfs is still mounted at the path.
+    pub fn mounted(&self) -> bool {
+        self.mountinfo().iter().any(|l| l.contains(" - tmpfs "))
+    }
     /// What the disk is now, for a failure's message: whether the tmpfs is still mounted at its
     /// path (its line of /proc/self/mountinfo) and the free bytes there.
     pub fn state(&self) -> String {
-        let path = self.path().to_string_lossy().to_string();
-        let mounts = std::fs::read_to_string("/proc/self/mountinfo").unwrap_or_default();
-        let line: Vec<&str> = mounts
-            .lines()
-            .filter(|l| l.split(' ').nth(4) == Some(path.as_str()))
-            .collect();
         format!(
-            "{path}: {} bytes free, mounted: {:?}",
+            "{}: {} bytes free, mounted: {:?}",
+            self.path().display(),
             eprop_series::outcome::free_bytes(self.path()).unwrap_or(0),
-            line
+            self.mountinfo()
         )
     }
     /// Fills the file system (a filler file takes every free byte).
