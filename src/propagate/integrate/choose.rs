@@ -13,9 +13,9 @@
 //! measured instead on three mechanics steps from phi = 0 under the first sources, and their
 //! mean over the run's length replaces the model (`run_average`): a load switched on at once
 //! starts a transient that costs the first steps many short sub-steps, and most so for
-//! implicit. The candidates
-//! are measured in the order of lower bounds known beforehand, the second only where it can
-//! still win, and the chosen one replays its trial steps in the run (`Replay`).
+//! implicit. The candidates are measured in the order of their models, the second only where a
+//! lower bound known beforehand can still win, each trial only while it can, and the chosen
+//! one replays its trial steps in the run (`Replay`).
 //!
 //! Only the compact scheme has candidates besides euler; euler stays unless another is MARGIN
 //! times cheaper.
@@ -489,11 +489,47 @@ fn wins(cost: f64, euler: bool, best: f64) -> bool {
     cost * if euler { MARGIN } else { 1.0 } < best
 }
 
+/// A candidate whose lower bound `bound` per step can still beat the best so far (`best`: the
+/// integrator and its cost per step): measured (`measure`, every later step at least `least`
+/// applications), and made the best where its cost beats it; None where it was not measured.
+#[allow(clippy::too_many_arguments)]
+fn consider(
+    st: &mut dyn Stepper,
+    cx: &mut Context,
+    kind: Kind,
+    model: f64,
+    per_application: f64,
+    bound: f64,
+    least: f64,
+    best: &mut (Kind, f64),
+) -> Option<Measured> {
+    let euler = best.0 == Kind::Euler;
+    if !wins(bound, euler, best.1) {
+        return None;
+    }
+    let m = measure(
+        st,
+        cx,
+        model,
+        per_application,
+        Limit {
+            best: best.1,
+            euler,
+            least,
+        },
+    );
+    if m.cost.is_finite() && m.stopped.is_none() && wins(m.cost, euler, best.1) {
+        *best = (kind, m.cost);
+    }
+    Some(m)
+}
+
 /// `auto`: the cheapest of euler, rkl2 and implicit at the accuracy (module notes). Each
 /// candidate has a lower bound on its cost per step known before its trial steps: rkl2 at
-/// least one doubled super-step over dt (2 STAGE_COST stages_for(dt)), implicit at least half
-/// of one controlled TR-BDF2 step at its trial solve's iterations. The candidate with the
-/// lower bound is measured first, and the other only where its bound can still beat that.
+/// least one doubled super-step over dt (2 STAGE_COST stages_for(dt)), implicit at least
+/// LEAST_CONTROLLED applications. The candidates are measured in the order of their models,
+/// the second only where its bound can still beat the first, and each trial only while it
+/// can win (`least_average`).
 fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
     let s = cx.settings;
     if !cx.compact {
@@ -552,45 +588,24 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         .map(|((i, _), m)| if measured { i.cost_of(LEAST_CONTROLLED) } else { m });
     // measure in the order of the models (a guess); the second only where it can still win,
     // and each trial only while it can
-    let (mut best, mut best_cost) = (Kind::Euler, substeps);
+    let mut best = (Kind::Euler, substeps);
     let (mut rkl2_m, mut imp_m): (Option<Measured>, Option<Measured>) = (None, None);
     let order = match imp_model {
         Some(m) if m < rkl2_model => [Kind::Implicit, Kind::Rkl2],
         _ => [Kind::Rkl2, Kind::Implicit],
     };
-    let beats = |cost: f64, best: Kind, best_cost: f64| wins(cost, best == Kind::Euler, best_cost);
     for kind in order {
         if kind == Kind::Rkl2 {
             if let Some(r) = rkl2.as_mut() {
-                if beats(rkl2_bound, best, best_cost) {
-                    let limit = Limit {
-                        best: best_cost,
-                        euler: best == Kind::Euler,
-                        least: rkl2_bound / STAGE_COST,
-                    };
-                    let m = measure(r, cx, rkl2_model, STAGE_COST, limit);
-                    r.restart_count();
-                    if m.cost.is_finite() && m.stopped.is_none() && beats(m.cost, best, best_cost) {
-                        (best, best_cost) = (Kind::Rkl2, m.cost);
-                    }
-                    rkl2_m = Some(m);
-                }
+                let least = rkl2_bound / STAGE_COST;
+                rkl2_m = consider(r, cx, kind, rkl2_model, STAGE_COST, rkl2_bound, least, &mut best);
+                r.restart_count();
             }
         } else if let Some((i, _)) = imp.as_mut() {
-            if beats(imp_bound.unwrap_or(f64::INFINITY), best, best_cost) {
-                let per = i.cost_of(1);
-                let limit = Limit {
-                    best: best_cost,
-                    euler: best == Kind::Euler,
-                    least: LEAST_CONTROLLED as f64,
-                };
-                let m = measure(i, cx, imp_model.unwrap_or(f64::INFINITY), per, limit);
-                i.restart_count();
-                if m.cost.is_finite() && m.stopped.is_none() && beats(m.cost, best, best_cost) {
-                    (best, best_cost) = (Kind::Implicit, m.cost);
-                }
-                imp_m = Some(m);
-            }
+            let (model, bound) = (imp_model.unwrap_or(f64::INFINITY), imp_bound.unwrap_or(f64::INFINITY));
+            let per = i.cost_of(1);
+            imp_m = consider(i, cx, kind, model, per, bound, LEAST_CONTROLLED as f64, &mut best);
+            i.restart_count();
         }
     }
     let predicted = |t: &Option<([usize; 3], f64)>| match t {
@@ -676,7 +691,7 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             _ => st,
         }
     };
-    match best {
+    match best.0 {
         Kind::Rkl2 => {
             let mut r = rkl2.expect("rkl2 was built");
             r.set_why(format!(
