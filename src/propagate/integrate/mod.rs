@@ -146,14 +146,19 @@ pub struct Control {
 
 impl Control {
     pub fn new(start: u32, p: f64) -> Control {
-        let q = p.max(0.5);
-        Control {
+        let mut c = Control {
             level: start,
             pos: 0,
             p,
-            growth: 2f64.powf(q),
+            growth: 0.0,
             lowered_from: None,
-        }
+        };
+        c.growth = c.asymptotic();
+        c
+    }
+    /// The factor a doubled sub-step multiplies the estimate by where the error is asymptotic.
+    fn asymptotic(&self) -> f64 {
+        2f64.powf(self.p.max(0.5))
     }
     /// The sub-step's share of dt.
     pub fn fraction(&self) -> f64 {
@@ -170,9 +175,9 @@ impl Control {
         // what the last lowering did to the estimate (a rejection right after it counts too)
         if let Some(before) = self.lowered_from.take() {
             self.growth = if before > 0.0 && ratio.is_finite() {
-                (ratio / before).clamp(2.0, 2f64.powf(q))
+                (ratio / before).clamp(2.0, self.asymptotic())
             } else {
-                2f64.powf(q)
+                self.asymptotic()
             };
         }
         if !(ratio <= 1.0) {
