@@ -688,15 +688,7 @@ fn max_abs(v: V3) -> f64 {
 /// one, which `max` would skip).
 #[inline(always)]
 fn max2(m: [f64; 2], r: V3, u: V3) -> [f64; 2] {
-    let f = |m: f64, v: V3| {
-        let a = v[0].abs().max(v[1].abs()).max(v[2].abs());
-        if a.is_finite() && m.is_finite() {
-            m.max(a)
-        } else {
-            f64::INFINITY
-        }
-    };
-    [f(m[0], r), f(m[1], u)]
+    [m[0].max(max_abs(r)), m[1].max(max_abs(u))]
 }
 
 /// Largest component magnitudes of r and u on this process.
