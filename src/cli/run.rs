@@ -153,10 +153,9 @@ pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
     let (setup, claim) = prepare_claimed(path, opts)?;
     let sizes = GlobalSizes::of(&setup.mesh);
-    progress::setup_notes((!opts.quiet).then_some(t0));
-    let sim = Simulation::new(setup);
-    progress::setup_notes(None);
-    let sim = sim?;
+    let notes = progress::SetupNotes::on((!opts.quiet).then_some(t0));
+    let sim = Simulation::new(setup)?;
+    drop(notes);
     let summary = run_simulation(sim, sizes, t0, opts, None, 0)?;
     drop(claim);
     Ok(summary.expect("one process has the summary"))
@@ -169,14 +168,13 @@ pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
 pub fn run_mpi(world: SimpleCommunicator, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
     let t0 = Instant::now();
     let mut claim = None;
-    progress::setup_notes((mpi::traits::Communicator::rank(&world) == 0 && !opts.quiet).then_some(t0));
+    let notes = progress::SetupNotes::on((mpi::traits::Communicator::rank(&world) == 0 && !opts.quiet).then_some(t0));
     let b = build_mpi(world, || {
         let (setup, c) = prepare_claimed(path, opts)?;
         claim = Some(c);
         Ok(setup)
-    });
-    progress::setup_notes(None);
-    let b = b?;
+    })?;
+    drop(notes);
     let summary = run_simulation(b.sim, b.sizes, t0, opts, Some(&b.io_comm), b.rank0_scatter_peak);
     drop(claim);
     summary

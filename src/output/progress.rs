@@ -12,10 +12,26 @@ pub const SETUP_QUIET_FOR: f64 = 2.0;
 
 static SETUP: Mutex<Option<Instant>> = Mutex::new(None);
 
-/// Turns the setup notes on (`Some(start)`: the setup's start) or off. A run turns them on for
-/// the process that prints its progress (rank 0, without --quiet) while it sets up.
-pub fn setup_notes(start: Option<Instant>) {
+fn setup_notes(start: Option<Instant>) {
     *SETUP.lock().unwrap_or_else(|e| e.into_inner()) = start;
+}
+
+/// The setup notes, on while this lives (`on(Some(start))`: the setup's start; `on(None)`
+/// leaves them off) and off once it is dropped, an error's early return included. A run
+/// holds it while it sets up, on the process that prints its progress (rank 0, without -q).
+pub struct SetupNotes;
+
+impl SetupNotes {
+    pub fn on(start: Option<Instant>) -> SetupNotes {
+        setup_notes(start);
+        SetupNotes
+    }
+}
+
+impl Drop for SetupNotes {
+    fn drop(&mut self) {
+        setup_notes(None);
+    }
 }
 
 /// A note on stderr about a long setup (a batch job's log is otherwise silent until the first
