@@ -676,9 +676,9 @@ impl Implicit {
 /// The largest component magnitude of v (infinite for a non-finite one).
 #[inline(always)]
 fn max_abs(v: V3) -> f64 {
-    let a = v[0].abs().max(v[1].abs()).max(v[2].abs());
-    if a.is_finite() {
-        a
+    // f64::max skips a NaN: test every component, not the maximum
+    if v.iter().all(|x| x.is_finite()) {
+        v[0].abs().max(v[1].abs()).max(v[2].abs())
     } else {
         f64::INFINITY
     }
@@ -893,6 +893,17 @@ impl Implicit {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_nan_in_any_component_makes_the_maximum_infinite() {
+        assert_eq!(max_abs([1.0, -3.0, 2.0]), 3.0);
+        for k in 0..3 {
+            let mut v = [1.0, 2.0, 3.0];
+            v[k] = f64::NAN;
+            assert_eq!(max_abs(v), f64::INFINITY, "{v:?}");
+            assert_eq!(max2([0.0; 2], v, [1.0; 3]), [f64::INFINITY, 1.0]);
+        }
+    }
 
     #[test]
     fn tr_bdf2_is_second_order_and_l_stable_where_crank_nicolson_rings() {
