@@ -13,7 +13,7 @@ use crate::guard::safety::{self, Agreed, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
 use crate::output::progress::{Every, Progress};
 use crate::output::series::Series;
 use crate::output::summary::{summarize, Summary, Timing};
-use crate::simulate::Simulation;
+use crate::simulate::{Simulation, StopToken};
 use anyhow::Result;
 use eprop_series::outcome::{dir_of, free_bytes, human_bytes, Cause, WriteFailed};
 use mpi::topology::SimpleCommunicator;
@@ -70,6 +70,9 @@ pub struct Settings<'a> {
     pub next: String,
     /// When the command started (for the setup time).
     pub t0: Instant,
+    /// The stop the command's signal handler requests (`crate::guard::signals`): the run
+    /// stops after the step in progress, written.
+    pub stop: StopToken,
     pub rank0_scatter_peak: u64,
 }
 
@@ -340,6 +343,7 @@ fn steps(
 ) -> Result<Option<Summary>, Failure> {
     let fresh = !s.restart;
     let show = sim.comm().rank() == 0 && !s.quiet;
+    sim.set_stop(s.stop.clone());
     if let Some(h) = feed.start(sim)? {
         return Err(halted(h, None));
     }
@@ -391,7 +395,7 @@ fn steps(
             return Err(halted(h, Some(holds(&out.series))));
         }
         sim.advance()?;
-        // a stop signal rides on the step's reduction: every process stops after this step
+        // a stop request rides on the step's reduction: every process stops after this step
         let stop = sim.stop_signal();
         if sim.step().is_multiple_of(every) || sim.done() || stop != 0 {
             out.write(sim, s, bar, sim.done() || stop != 0)?;

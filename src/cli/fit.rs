@@ -22,7 +22,7 @@ use crate::config::{Scenario, Setup};
 use crate::distribute::launch::is_root;
 use crate::guard::safety::{self, Agreed, Input, EXIT_ERROR, EXIT_STOPPED};
 use crate::simulate::distributed::build_mpi;
-use crate::simulate::Simulation;
+use crate::simulate::{Simulation, StopToken};
 use anyhow::{anyhow, bail, Result};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
@@ -417,9 +417,11 @@ impl Probe {
 type Outcome = std::result::Result<Vec<f64>, String>;
 
 /// One full simulation with the parameter values `p` applied; the measured y at the curve's x,
-/// or why there is none (a state that is no longer finite, x beyond the simulated range).
+/// or why there is none (a state that is no longer finite, x beyond the simulated range). A
+/// request on `stop` (a signal) ends it after the step in progress.
 fn evaluate(
     world: Option<&SimpleCommunicator>,
+    stop: &StopToken,
     scenario: &Path,
     opts: &FitOptions,
     params: &[Param],
@@ -435,6 +437,7 @@ fn evaluate(
         None => Simulation::new(make()?)?,
         Some(w) => build_mpi(w.duplicate(), make)?.sim,
     };
+    sim.set_stop(stop.clone());
     let probe = Probe::new(&sim, scenario, curve, opts)?;
     let mut xs = vec![];
     let mut ys = vec![];
@@ -952,7 +955,7 @@ fn plot(prefix: &Path, png: &Path) -> std::result::Result<(), String> {
 /// Fits the parameters on this process alone (`world` None) or on every process of `world`;
 /// returns the report on rank 0.
 pub fn fit_on(world: Option<SimpleCommunicator>, scenario: &Path, opts: &FitOptions) -> Result<Option<FitReport>> {
-    crate::guard::signals::install();
+    let stop = crate::guard::signals::install();
     let t0 = Instant::now();
     let w = world.as_ref();
     let root = is_root(w);
@@ -1064,7 +1067,7 @@ pub fn fit_on(world: Option<SimpleCommunicator>, scenario: &Path, opts: &FitOpti
     let mut residuals = |z: &[f64], what: &str| -> Result<Outcome> {
         count += 1;
         let p = values(z);
-        let out = evaluate(w, scenario, opts, &params, &p, &curve)?;
+        let out = evaluate(w, &stop, scenario, opts, &params, &p, &curve)?;
         let r = out.map(|f| f.iter().zip(&curve.y).map(|(a, b)| a - b).collect::<Vec<f64>>());
         if show {
             let ps: Vec<String> = names.iter().zip(&p).map(|(n, v)| format!("{n} = {v:.6e}")).collect();

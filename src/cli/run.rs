@@ -11,7 +11,7 @@ pub use crate::output::progress::Every;
 use crate::output::series::check_output_dir;
 use crate::output::summary::Summary;
 use crate::simulate::distributed::build_mpi;
-use crate::simulate::Simulation;
+use crate::simulate::{Simulation, StopToken};
 use anyhow::{bail, Result};
 use mpi::topology::SimpleCommunicator;
 use std::path::{Path, PathBuf};
@@ -141,22 +141,23 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
 /// `world`; returns the summary on the process that prints it. SIGTERM, SIGINT and SIGHUP stop
 /// the run after a complete, written step (`crate::guard::signals`).
 pub fn run_on(world: Option<SimpleCommunicator>, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
-    crate::guard::signals::install();
+    let stop = crate::guard::signals::install();
     match world {
-        Some(w) => run_mpi(w, path, opts),
-        None => run(path, opts).map(Some),
+        Some(w) => run_mpi(w, path, opts, stop),
+        None => run(path, opts, stop).map(Some),
     }
 }
 
-/// Runs a scenario file on one process to its stop condition; returns the summary.
-pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
+/// Runs a scenario file on one process to its stop condition (or until `stop` is requested);
+/// returns the summary.
+pub fn run(path: &Path, opts: &RunOptions, stop: StopToken) -> Result<Summary> {
     let t0 = Instant::now();
     let (setup, claim) = prepare_claimed(path, opts)?;
     let sizes = GlobalSizes::of(&setup.mesh);
     let notes = progress::SetupNotes::on((!opts.quiet).then_some(t0));
     let sim = Simulation::new(setup)?;
     drop(notes);
-    let summary = run_simulation(sim, sizes, t0, opts, None, 0)?;
+    let summary = run_simulation(sim, sizes, t0, opts, None, 0, stop)?;
     drop(claim);
     Ok(summary.expect("one process has the summary"))
 }
@@ -165,7 +166,7 @@ pub fn run(path: &Path, opts: &RunOptions) -> Result<Summary> {
 /// mesh, splits the node graph with METIS and sends every process its part; each process
 /// builds its own geometry and operator, steps its part with halo exchanges and writes its
 /// rows of the output file (collective MPI-IO). Returns the summary on rank 0.
-pub fn run_mpi(world: SimpleCommunicator, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
+pub fn run_mpi(world: SimpleCommunicator, path: &Path, opts: &RunOptions, stop: StopToken) -> Result<Option<Summary>> {
     let t0 = Instant::now();
     let mut claim = None;
     let notes = progress::SetupNotes::on((mpi::traits::Communicator::rank(&world) == 0 && !opts.quiet).then_some(t0));
@@ -175,7 +176,7 @@ pub fn run_mpi(world: SimpleCommunicator, path: &Path, opts: &RunOptions) -> Res
         Ok(setup)
     })?;
     drop(notes);
-    let summary = run_simulation(b.sim, b.sizes, t0, opts, Some(&b.io_comm), b.rank0_scatter_peak);
+    let summary = run_simulation(b.sim, b.sizes, t0, opts, Some(&b.io_comm), b.rank0_scatter_peak, stop);
     drop(claim);
     summary
 }
@@ -189,6 +190,7 @@ fn run_simulation(
     opts: &RunOptions,
     io: Option<&SimpleCommunicator>,
     rank0_scatter_peak: u64,
+    stop: StopToken,
 ) -> Result<Option<Summary>> {
     let again = again(
         &sim.setup().scenario.path,
@@ -208,6 +210,7 @@ fn run_simulation(
         next: format!("continue with `{again}`"),
         t0,
         rank0_scatter_peak,
+        stop,
     };
     let checked = drive::check(&sim, &settings)?;
     drive::drive(sim, &mut Batch, &settings, checked)

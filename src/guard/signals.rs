@@ -1,25 +1,24 @@
 //! Stopping a run on SIGTERM, SIGINT or SIGHUP without losing a step.
 //!
-//! `install` records the signal in an atomic flag (the handler does nothing else); the
-//! simulation reads it once per step (`pending`) and the processes of a job agree on it in the
-//! step's max reduction, so every process stops after the same step, which is written and
-//! flushed. A second SIGINT (Ctrl-C twice) ends the process at once.
+//! `install` routes the signals to a flag (the handler does nothing else) and returns a
+//! `StopToken` on it: the command hands the token to its simulation (`Simulation::set_stop`),
+//! which reads it once per step, and the processes of a job agree on it in the step's max
+//! reduction, so every process stops after the same step, which is written and flushed. A
+//! second SIGINT (Ctrl-C twice) ends the process at once.
 
+use crate::simulate::StopToken;
 use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize};
 use std::sync::{Arc, OnceLock};
 
-/// The last signal received (0: none).
-struct Flags {
-    received: Arc<AtomicUsize>,
-}
-
-static FLAGS: OnceLock<Flags> = OnceLock::new();
+/// The last signal received (0: none): the handlers are the process's, installed once.
+static RECEIVED: OnceLock<Arc<AtomicUsize>> = OnceLock::new();
 
 /// Routes SIGTERM, SIGINT and SIGHUP to the flag (signal-hook: the handler only stores the
-/// signal's number). A second SIGINT ends the process at once with status 130.
-pub fn install() {
-    FLAGS.get_or_init(|| {
+/// signal's number) and returns a token on it. A second SIGINT ends the process at once with
+/// status 130.
+pub fn install() -> StopToken {
+    let received = RECEIVED.get_or_init(|| {
         let received = Arc::new(AtomicUsize::new(0));
         let interrupted = Arc::new(AtomicBool::new(false));
         // the order matters: the exit on a second SIGINT checks the flag the first one set
@@ -28,13 +27,9 @@ pub fn install() {
         for sig in [SIGTERM, SIGINT, SIGHUP] {
             let _ = signal_hook::flag::register_usize(sig, received.clone(), sig as usize);
         }
-        Flags { received }
+        received
     });
-}
-
-/// The signal received since `install` (0: none).
-pub fn pending() -> i32 {
-    FLAGS.get().map_or(0, |f| f.received.load(Ordering::SeqCst) as i32)
+    StopToken::from_flag(received.clone())
 }
 
 /// The name of a signal number.
@@ -53,12 +48,15 @@ mod tests {
 
     #[test]
     fn a_signal_is_recorded_not_fatal() {
-        install();
-        assert_eq!(pending(), 0);
+        let token = install();
+        assert_eq!(token.requested(), 0);
         // SAFETY: raising a signal whose handler was installed above.
         unsafe { libc::raise(libc::SIGHUP) };
-        assert_eq!(pending(), libc::SIGHUP);
-        assert_eq!(name(pending()), "SIGHUP");
-        FLAGS.get().unwrap().received.store(0, Ordering::SeqCst);
+        assert_eq!(token.requested(), libc::SIGHUP);
+        assert_eq!(name(token.requested()), "SIGHUP");
+        // a token made before the signal sees it too; a simulation's own token does not
+        assert_eq!(install().requested(), libc::SIGHUP);
+        assert_eq!(StopToken::new().requested(), 0);
+        token.request(0);
     }
 }

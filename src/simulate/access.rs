@@ -125,7 +125,8 @@ impl Simulation {
         self.max_speed
     }
 
-    /// The stop signal some process received before the last step (0: none).
+    /// The stop code (a signal's number) some process's token held before the last step (0:
+    /// none), the same on every process.
     pub fn stop_signal(&self) -> i32 {
         self.stop_signal
     }

@@ -5,6 +5,7 @@
 mod access;
 pub mod contact;
 pub mod distributed;
+mod stop;
 #[cfg(test)]
 mod tests;
 
@@ -25,6 +26,7 @@ use eprop_partition::{LocalNumbering, Plan};
 use rayon::prelude::*;
 
 pub use crate::propagate::integrate::euler::SAFETY;
+pub use stop::StopToken;
 
 /// Largest stable mechanics step of one node (semi-implicit Euler), infinite when undamped
 /// and unsprung.
@@ -96,8 +98,11 @@ pub struct Simulation {
     inactive_nodes: usize,
     /// Operator applications of every step this process advanced.
     applications: Vec<u32>,
-    /// The stop signal some process received before the last step (0: none), agreed by every
-    /// process in the step's reduction (`crate::guard::signals`).
+    /// Read once per step: a stop requested from outside (a signal handler, an embedding
+    /// program; `set_stop`).
+    stop: StopToken,
+    /// The largest stop code any process's token held before the last step (0: none), agreed
+    /// by every process in the step's reduction.
     stop_signal: i32,
     /// The scenario's tools (docs/tools.md).
     pub(crate) tools: Vec<ToolRun>,
@@ -617,6 +622,7 @@ impl Simulation {
             max_speed: 0.0,
             inactive_nodes,
             applications: Vec::new(),
+            stop: StopToken::new(),
             stop_signal: 0,
             setup,
             comm,
@@ -661,6 +667,13 @@ impl Simulation {
         )?;
         self.dt = dt;
         Ok(())
+    }
+
+    /// The token this simulation reads once per step: a request on it (or on any clone) stops
+    /// the run after the step in progress (`stop_signal`). A new simulation's token is never
+    /// requested.
+    pub fn set_stop(&mut self, token: StopToken) {
+        self.stop = token;
     }
 
     /// The loads at time t.
@@ -710,8 +723,8 @@ impl Simulation {
             &mut self.u[..n],
             &mut self.v[..n],
         );
-        // a stop signal rides on the step's reduction, so every process stops after this step
-        let signal = crate::guard::signals::pending() as f64;
+        // a stop request rides on the step's reduction, so every process stops after this step
+        let signal = self.stop.requested() as f64;
         if self.tools.is_empty() {
             let all = self.comm.max_each(&[m2.sqrt(), signal]);
             self.max_speed = all[0];

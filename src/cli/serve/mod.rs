@@ -109,7 +109,7 @@ pub(crate) fn check_live(setup: &Setup) -> Result<()> {
 /// returns the report on rank 0.
 pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOptions) -> Result<Option<ServeReport>> {
     let t0 = Instant::now();
-    crate::guard::signals::install();
+    let stop = crate::guard::signals::install();
     let listener = std::cell::RefCell::new(None);
     // the output claimed as `eprop run` claims it (not an input, one writer, no silent
     // replacement), held to the end of the session
@@ -144,6 +144,7 @@ pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOpti
         next: "serve again".into(),
         t0,
         rank0_scatter_peak: peak,
+        stop,
     };
     let report = serve_simulation(sim, &settings, listener.into_inner(), opts);
     drop(claim);
@@ -201,18 +202,18 @@ fn forget_before(sim: &mut Simulation, t: f64) {
 /// surface (`every`, 0: none). `Some`: the session ended (rank 0 has the message), with the
 /// stop signal that ended it (0: the client or a timeout).
 fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64, every: &mut u64) -> Result<Option<Halt>> {
-    let (got, wanted) = match session {
+    let (got, wanted, signal) = match session {
         Some(s) => {
             let got = s.wait(t);
-            (got, s.stream_every())
+            (got, s.stream_every(), s.stop_requested())
         }
-        None => (Ok(Vec::new()), 0),
+        None => (Ok(Vec::new()), 0, 0),
     };
     let c = sim.comm();
     // head: [0 or 1 (the session ended), samples, the stop signal rank 0 has seen, every]
     let mut head = match &got {
         Ok(samples) => [0.0, samples.len() as f64, 0.0, wanted as f64],
-        Err(_) => [1.0, 0.0, f64::from(crate::guard::signals::pending()), 0.0],
+        Err(_) => [1.0, 0.0, f64::from(signal), 0.0],
     };
     c.broadcast(0, &mut head);
     *every = head[3] as u64;
@@ -434,7 +435,7 @@ fn serve_simulation(
         Some(l) => {
             announce(&l, &opts.listen);
             Some(
-                Session::start(l, ents.clone(), hello, surface.clone(), timeout)
+                Session::start(l, ents.clone(), hello, surface.clone(), timeout, settings.stop.clone())
                     .map_err(|e| anyhow!("eprop serve: cannot start the network thread: {e}"))?,
             )
         }

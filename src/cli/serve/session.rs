@@ -6,6 +6,7 @@
 
 use super::protocol::{self as p, Code, Hello, Message, Stream, Topology, CLIENT_SIZE};
 use crate::discretize::operator::V3;
+use crate::simulate::StopToken;
 use serde::Serialize;
 use std::io::{ErrorKind, Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -151,6 +152,8 @@ pub struct Session {
     warned: bool,
     /// Every how many steps the client wants a frame (0: none), as of the last `wait`.
     every: u64,
+    /// The command's stop (a signal), looked at while waiting for the client.
+    stop: StopToken,
 }
 
 impl Session {
@@ -162,6 +165,7 @@ impl Session {
         hello: Hello,
         surface: Option<Arc<Topology>>,
         timeout: Duration,
+        stop: StopToken,
     ) -> std::io::Result<Session> {
         listener.set_nonblocking(true)?;
         let listen = listener.local_addr()?.to_string();
@@ -207,6 +211,7 @@ impl Session {
             warned: false,
             every: 0,
             waited: Duration::ZERO,
+            stop,
         })
     }
 
@@ -258,7 +263,7 @@ impl Session {
                         cv.notify_all();
                         break Err(msg);
                     }
-                    let sig = crate::guard::signals::pending();
+                    let sig = self.stop.requested();
                     if sig != 0 {
                         let msg = format!(
                             "stopped by {} while waiting for the client's samples at t = {}",
@@ -327,6 +332,11 @@ impl Session {
     /// client is gone), as of the last `wait`.
     pub fn stream_every(&self) -> u64 {
         self.every
+    }
+
+    /// The stop signal the command received (0: none).
+    pub fn stop_requested(&self) -> i32 {
+        self.stop.requested()
     }
 
     /// Ends the session because the run failed (the client gets the error).
