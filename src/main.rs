@@ -468,20 +468,7 @@ enum Shape {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    if cli.verbose > 0 {
-        let level = match cli.verbose {
-            1 => tracing::Level::INFO,
-            2 => tracing::Level::DEBUG,
-            _ => tracing::Level::TRACE,
-        };
-        tracing_subscriber::fmt()
-            .with_max_level(level)
-            .with_writer(std::io::stderr)
-            .with_target(false)
-            .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-            .with_timer(tracing_subscriber::fmt::time::uptime())
-            .init();
-    }
+    eprop::cli::log_to_stderr(cli.verbose);
     let status = match real_main(cli) {
         Ok(()) => 0,
         Err(e) => match e.downcast_ref::<eprop::guard::safety::Agreed>() {

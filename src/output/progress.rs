@@ -3,46 +3,115 @@
 //! `--progress-every` steps or seconds (default every 10 s).
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use std::sync::Mutex;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
+use tracing::field::{Field, Visit};
+use tracing::span::{Attributes, Id};
+use tracing::{Event, Subscriber};
+use tracing_subscriber::layer::{Context, Layer};
+use tracing_subscriber::registry::LookupSpan;
 
-/// A setup that has run this long prints notes of what it does (`setup_note`); a shorter one
-/// prints nothing.
+/// The target of the setup notes: the library says what a long setup does (auto's trial
+/// steps, the multigrid hierarchy) as `tracing` events of this target,
+/// `tracing::info!(target: "eprop::setup", ...)`; `Notes` renders them.
+pub const SETUP: &str = "eprop::setup";
+
+/// A setup that has run this long prints its notes; a shorter one prints nothing.
 pub const SETUP_QUIET_FOR: f64 = 2.0;
 
-static SETUP: Mutex<Option<Instant>> = Mutex::new(None);
-
-fn setup_notes(start: Option<Instant>) {
-    *SETUP.lock().unwrap_or_else(|e| e.into_inner()) = start;
-}
-
 /// The setup notes, on while this lives (`on(Some(start))`: the setup's start; `on(None)`
-/// leaves them off) and off once it is dropped, an error's early return included. A run
+/// leaves them off) and off once it is dropped, an error's early return included: a span of
+/// target `SETUP` entered on this thread, within which `Notes` renders the notes. A run
 /// holds it while it sets up, on the process that prints its progress (rank 0, without -q).
-pub struct SetupNotes;
+pub struct SetupNotes {
+    _span: Option<tracing::span::EnteredSpan>,
+}
 
 impl SetupNotes {
     pub fn on(start: Option<Instant>) -> SetupNotes {
-        setup_notes(start);
-        SetupNotes
+        SetupNotes {
+            _span: start.map(|t0| {
+                let since_ns = t0.elapsed().as_nanos().min(u64::MAX as u128) as u64;
+                tracing::info_span!(target: SETUP, "setup", since_ns).entered()
+            }),
+        }
     }
 }
 
-impl Drop for SetupNotes {
-    fn drop(&mut self) {
-        setup_notes(None);
+/// Where a setup span started (a span extension).
+struct Start(Instant);
+
+/// A `tracing` layer that renders the setup notes: a note within a `SetupNotes` span goes to
+/// stderr as `  setup 12.4s: <note>` once the setup has run `SETUP_QUIET_FOR` seconds (a
+/// batch job's log is otherwise silent until the first step).
+pub struct Notes {
+    write: Arc<dyn Fn(&str) + Send + Sync>,
+}
+
+impl Default for Notes {
+    fn default() -> Notes {
+        Notes::to(|line| eprintln!("{line}"))
     }
 }
 
-/// A note on stderr about a long setup (a batch job's log is otherwise silent until the first
-/// step): `  setup 12.4s: <note>`, when the notes are on and the setup has run for
-/// `SETUP_QUIET_FOR` seconds.
-pub fn setup_note(note: impl FnOnce() -> String) {
-    let start = *SETUP.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(t0) = start {
+impl Notes {
+    /// The notes, each line given to `write`.
+    pub fn to(write: impl Fn(&str) + Send + Sync + 'static) -> Notes {
+        Notes { write: Arc::new(write) }
+    }
+}
+
+/// A field of an event or span: the message, or a count of nanoseconds.
+#[derive(Default)]
+struct Fields {
+    message: String,
+    since_ns: Option<u64>,
+}
+
+impl Visit for Fields {
+    fn record_u64(&mut self, field: &Field, value: u64) {
+        if field.name() == "since_ns" {
+            self.since_ns = Some(value);
+        }
+    }
+    fn record_debug(&mut self, field: &Field, value: &dyn std::fmt::Debug) {
+        if field.name() == "message" {
+            self.message = format!("{value:?}");
+        }
+    }
+}
+
+impl<S: Subscriber + for<'a> LookupSpan<'a>> Layer<S> for Notes {
+    fn on_new_span(&self, attrs: &Attributes<'_>, id: &Id, ctx: Context<'_, S>) {
+        if attrs.metadata().target() != SETUP {
+            return;
+        }
+        let mut f = Fields::default();
+        attrs.record(&mut f);
+        let now = Instant::now();
+        let start = now
+            .checked_sub(Duration::from_nanos(f.since_ns.unwrap_or(0)))
+            .unwrap_or(now);
+        if let Some(span) = ctx.span(id) {
+            span.extensions_mut().insert(Start(start));
+        }
+    }
+
+    fn on_event(&self, event: &Event<'_>, ctx: Context<'_, S>) {
+        if event.metadata().target() != SETUP {
+            return;
+        }
+        let start = ctx
+            .event_scope(event)
+            .and_then(|mut scope| scope.find_map(|span| span.extensions().get::<Start>().map(|s| s.0)));
+        let Some(t0) = start else {
+            return;
+        };
         let s = t0.elapsed().as_secs_f64();
         if s >= SETUP_QUIET_FOR {
-            eprintln!("  setup {}: {}", clock(s), note());
+            let mut f = Fields::default();
+            event.record(&mut f);
+            (self.write)(&format!("  setup {}: {}", clock(s), f.message));
         }
     }
 }
@@ -226,6 +295,33 @@ fn bar(from: u64, to: u64, target: ProgressDrawTarget) -> ProgressBar {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn setup_notes_show_within_a_long_setup_only() {
+        use std::sync::Mutex;
+        use tracing_subscriber::prelude::*;
+        let lines = Arc::new(Mutex::new(Vec::<String>::new()));
+        let seen = lines.clone();
+        let notes = Notes::to(move |l| seen.lock().unwrap().push(l.to_string()));
+        let subscriber = tracing_subscriber::registry().with(notes);
+        tracing::subscriber::with_default(subscriber, || {
+            let note = |k: u32| tracing::info!(target: SETUP, "note {k} of {}", "the setup");
+            note(1); // no setup
+            {
+                let _on = SetupNotes::on(Some(Instant::now()));
+                note(2); // a setup shorter than 2 s
+                tracing::info!("not a note");
+            }
+            {
+                let _off = SetupNotes::on(None);
+                note(3);
+            }
+            let _on = SetupNotes::on(Instant::now().checked_sub(Duration::from_secs(75)));
+            tracing::info!("not a note");
+            note(4);
+        });
+        assert_eq!(*lines.lock().unwrap(), ["  setup 1m15s: note 4 of the setup"]);
+    }
 
     #[test]
     fn the_bar_follows_the_steps() {

@@ -432,23 +432,21 @@ fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: 
         };
     };
     let name = st.plan().integrator;
-    crate::output::progress::setup_note(|| {
-        format!(
-            "auto: measuring {name} over three trial steps under the first loads (the chosen integrator replays them)"
-        )
-    });
+    tracing::info!(
+        target: "eprop::setup",
+        "auto: measuring {name} over three trial steps under the first loads (the chosen integrator replays them)"
+    );
     let t = std::time::Instant::now();
     let at_least = |apps: &[usize]| per_application * least_average(apps, limit.least, q.steps);
     let go_on = |apps: &[usize]| wins(at_least(apps), limit.euler, limit.best);
     match trial_steps(st, cx, &q.sources, &go_on) {
         Ok((rec, _)) if rec.len() < q.sources.len() => {
             let apps: Vec<usize> = rec.iter().map(|r| r.applications).collect();
-            crate::output::progress::setup_note(|| {
-                format!(
-                    "auto: {name}: {apps:?} operator applications in {:.1} s: it cannot win, its trial stops",
-                    t.elapsed().as_secs_f64()
-                )
-            });
+            tracing::info!(
+                target: "eprop::setup",
+                "auto: {name}: {apps:?} operator applications in {:.1} s: it cannot win, its trial stops",
+                t.elapsed().as_secs_f64()
+            );
             Measured {
                 cost: at_least(&apps),
                 trial: None,
@@ -458,15 +456,14 @@ fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: 
         }
         Ok((rec, err)) => {
             let apps = applications(&rec);
-            crate::output::progress::setup_note(|| {
-                format!(
-                    "auto: {name}: {}, {}, {} operator applications in {:.1} s",
-                    apps[0],
-                    apps[1],
-                    apps[2],
-                    t.elapsed().as_secs_f64()
-                )
-            });
+            tracing::info!(
+                target: "eprop::setup",
+                "auto: {name}: {}, {}, {} operator applications in {:.1} s",
+                apps[0],
+                apps[1],
+                apps[2],
+                t.elapsed().as_secs_f64()
+            );
             Measured {
                 cost: per_application * run_average(apps, q.steps),
                 trial: Some((apps, err)),

@@ -724,13 +724,12 @@ impl Multigrid {
             mg.degree,
             t0.elapsed().as_secs_f64()
         );
-        crate::output::progress::setup_note(|| {
-            format!(
-                "multigrid hierarchy {:?} rows, built in {:.1} s",
-                mg.sizes(),
-                t0.elapsed().as_secs_f64()
-            )
-        });
+        tracing::info!(
+            target: "eprop::setup",
+            "multigrid hierarchy {:?} rows, built in {:.1} s",
+            mg.sizes(),
+            t0.elapsed().as_secs_f64()
+        );
         Ok(mg)
     }
 
