@@ -9,7 +9,7 @@ use crate::config::Stop;
 use crate::distribute::parts::GlobalSizes;
 use crate::guard::limits::Budget;
 use crate::guard::plausible::{self, Look, Watch};
-use crate::guard::safety::{self, Agreed, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
+use crate::guard::safety::{self, Agreed, OutputLock, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
 use crate::output::progress::{Every, Progress};
 use crate::output::series::Series;
 use crate::output::summary::{summarize, Summary, Timing};
@@ -55,6 +55,9 @@ pub struct Settings<'a> {
     pub sizes: GlobalSizes,
     /// The collective output's communicator under MPI.
     pub io: Option<&'a SimpleCommunicator>,
+    /// The claim on the output (`safety::OutputLock`) of the process that took it (rank 0):
+    /// a created series' inode is locked too.
+    pub claim: Option<&'a OutputLock>,
     /// Continue the series in the output file (`--restart`).
     pub restart: bool,
     /// The step count came from `--steps`.
@@ -347,7 +350,7 @@ fn steps(
     if let Some(h) = feed.start(sim)? {
         return Err(halted(h, None));
     }
-    let series = Series::start(sim, &s.sizes, s.restart, s.io).map_err(|e| Failure {
+    let series = Series::start(sim, &s.sizes, s.restart, s.io, s.claim).map_err(|e| Failure {
         why: format!("the series could not be created: {}", cause(&e)),
         error: match fresh {
             true if sim.setup().output.file.exists() => {

@@ -104,7 +104,14 @@ pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
 
 /// The right of one run to write its output: held to the end of the run (on rank 0).
 pub struct Claim {
-    _lock: OutputLock,
+    lock: OutputLock,
+}
+
+impl Claim {
+    /// The writer lock of the output.
+    pub fn lock(&self) -> &OutputLock {
+        &self.lock
+    }
 }
 
 /// Reads a scenario and claims its output before reading the mesh and before anything is
@@ -134,7 +141,7 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
         }
     }
     let setup = resolve(scenario, opts)?;
-    Ok((setup, Claim { _lock: lock }))
+    Ok((setup, Claim { lock }))
 }
 
 /// Runs a scenario file on this process alone (`world` None) or on every process of
@@ -157,7 +164,7 @@ pub fn run(path: &Path, opts: &RunOptions, stop: StopToken) -> Result<Summary> {
     let notes = progress::SetupNotes::on((!opts.quiet).then_some(t0));
     let sim = Simulation::new(setup)?;
     drop(notes);
-    let summary = run_simulation(sim, sizes, t0, opts, None, 0, stop)?;
+    let summary = run_simulation(sim, sizes, t0, opts, None, Some(&claim), 0, stop)?;
     drop(claim);
     Ok(summary.expect("one process has the summary"))
 }
@@ -176,7 +183,16 @@ pub fn run_mpi(world: SimpleCommunicator, path: &Path, opts: &RunOptions, stop: 
         Ok(setup)
     })?;
     drop(notes);
-    let summary = run_simulation(b.sim, b.sizes, t0, opts, Some(&b.io_comm), b.rank0_scatter_peak, stop);
+    let summary = run_simulation(
+        b.sim,
+        b.sizes,
+        t0,
+        opts,
+        Some(&b.io_comm),
+        claim.as_ref(),
+        b.rank0_scatter_peak,
+        stop,
+    );
     drop(claim);
     summary
 }
@@ -189,6 +205,7 @@ fn run_simulation(
     t0: Instant,
     opts: &RunOptions,
     io: Option<&SimpleCommunicator>,
+    claim: Option<&Claim>,
     rank0_scatter_peak: u64,
     stop: StopToken,
 ) -> Result<Option<Summary>> {
@@ -201,6 +218,7 @@ fn run_simulation(
     let settings = Settings {
         sizes,
         io,
+        claim: claim.map(Claim::lock),
         restart: opts.restart.is_some(),
         steps_from_cli: opts.steps.is_some(),
         force: opts.force,

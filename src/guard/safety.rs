@@ -121,22 +121,23 @@ pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -
 ///   "eprop lock", the writer's process id and host;
 /// - when the output exists (and once a series is created, `hold_output`), an open-file-
 ///   description lock on the output file itself, which is per device and inode: a writer
-///   through a hard link is refused too.
+///   through a hard link is refused too; this value holds it.
 ///
 /// The lock file is opened without following links, and anything at its path that is not a
 /// regular file holding our lock format is refused, never written nor removed. Released (and
 /// the side file removed) when dropped; the system releases both locks when the process dies.
 pub struct OutputLock {
     path: PathBuf,
+    /// The output's canonical path.
     output: PathBuf,
     file: std::fs::File,
+    /// The output opened and locked by inode (None: it did not exist, or its file system has
+    /// no such locks); replaced when the series creates a new inode (`hold_output`).
+    inode: std::sync::Mutex<Option<std::fs::File>>,
 }
 
 /// First line of every lock file eprop writes.
 const LOCK_MAGIC: &str = "eprop lock";
-
-/// Inode locks held by this process: (canonical output path, the output opened and locked).
-static HOLDS: std::sync::Mutex<Vec<(PathBuf, Option<std::fs::File>)>> = std::sync::Mutex::new(Vec::new());
 
 /// The side file of an output's lock: `<output>.lock` beside the file the path resolves to.
 pub fn lock_path(output: &Path) -> PathBuf {
@@ -197,30 +198,28 @@ fn lock_inode(output: &Path) -> Result<Option<std::fs::File>> {
     }
 }
 
-/// After a claimed output was created (a new file, a new inode): lock its inode too, so a
-/// writer through a hard link made later is refused. A no-op for an output this process has
-/// not claimed.
-pub fn hold_output(output: &Path) {
-    let key = canonical(output).unwrap_or_else(|| output.to_path_buf());
-    let mut holds = HOLDS.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(entry) = holds.iter_mut().find(|(p, _)| *p == key) else {
-        return;
-    };
-    let held = entry
-        .1
-        .as_ref()
-        .and_then(|f| f.metadata().ok())
-        .map(|m| (m.dev(), m.ino()));
-    if held.is_some() && held == identity(output) {
-        return;
-    }
-    match lock_inode(output) {
-        Ok(f) => entry.1 = f,
-        Err(e) => tracing::warn!("{e:#}"),
-    }
-}
-
 impl OutputLock {
+    /// After the output this lock claims was created (a new file, a new inode): lock its
+    /// inode too, so a writer through a hard link made later is refused. A no-op for another
+    /// output than this lock's.
+    pub fn hold_output(&self, output: &Path) {
+        if canonical(output).unwrap_or_else(|| output.to_path_buf()) != self.output {
+            return;
+        }
+        let mut inode = self.inode.lock().unwrap_or_else(|e| e.into_inner());
+        let held = inode
+            .as_ref()
+            .and_then(|f| f.metadata().ok())
+            .map(|m| (m.dev(), m.ino()));
+        if held.is_some() && held == identity(output) {
+            return;
+        }
+        match lock_inode(output) {
+            Ok(f) => *inode = f,
+            Err(e) => tracing::warn!("{e:#}"),
+        }
+    }
+
     /// Takes the lock of `output`, or says which process holds it.
     pub fn take(output: &Path) -> Result<OutputLock> {
         use std::io::{Read, Seek, Write};
@@ -292,15 +291,11 @@ impl OutputLock {
             let _ = f.set_len(0).and_then(|_| f.rewind());
             let _ = write!(f, "{LOCK_MAGIC}\npid {} on {}\n", std::process::id(), host.trim());
             let _ = f.flush();
-            let key = canonical(output).unwrap_or_else(|| output.to_path_buf());
-            HOLDS
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .push((key.clone(), inode));
             return Ok(OutputLock {
                 path,
-                output: key,
+                output: canonical(output).unwrap_or_else(|| output.to_path_buf()),
                 file: f,
+                inode: std::sync::Mutex::new(inode),
             });
         }
         bail!(
@@ -312,10 +307,8 @@ impl OutputLock {
 
 impl Drop for OutputLock {
     fn drop(&mut self) {
-        HOLDS
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .retain(|(p, _)| *p != self.output);
+        // the inode lock first: a run that takes the side file next finds the output free
+        drop(self.inode.get_mut().unwrap_or_else(|e| e.into_inner()).take());
         // removed while still locked (and only while it is still ours): a run that opened it
         // meanwhile sees another inode and takes a new one
         let ours = match (self.file.metadata(), std::fs::symlink_metadata(&self.path)) {

@@ -5,7 +5,7 @@
 use crate::config::{Field, Precision};
 use crate::diagnostics::{log_memory, median};
 use crate::distribute::parts::{Fnv, GlobalSizes};
-use crate::guard::safety::{Agreed, EXIT_ERROR};
+use crate::guard::safety::{Agreed, OutputLock, EXIT_ERROR};
 use crate::simulate::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
@@ -102,12 +102,14 @@ impl Series {
     /// Creates the series of a simulation's `[output]` and writes its static part and the
     /// initial step; with `restart`, reopens the series instead and restores the simulation
     /// to its last complete step. Every process calls (`io`: the collective output's
-    /// communicator under MPI).
+    /// communicator under MPI); `claim`, the lock of the process that claimed the output,
+    /// holds a created file's inode too (`OutputLock::hold_output`).
     pub fn start(
         sim: &mut Simulation,
         sizes: &GlobalSizes,
         restart: bool,
         io: Option<&mpi::topology::SimpleCommunicator>,
+        claim: Option<&OutputLock>,
     ) -> Result<Series> {
         let output = &sim.setup().output;
         let flush = output.flush;
@@ -196,7 +198,9 @@ impl Series {
         let created =
             SeriesWriter::create(&file, layout(sizes), sim.global_mesh(), &spec, io).and_then(|mut writer| {
                 // a new file is a new inode: the writer lock covers its hard links from now on
-                crate::guard::safety::hold_output(&file);
+                if let Some(lock) = claim {
+                    lock.hold_output(&file);
+                }
                 if !sim.tools.is_empty() {
                     writer.add_tools(sim.tools.len())?;
                 }

@@ -132,9 +132,11 @@ pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOpti
             (b.sim, b.sizes, Some(b.io_comm), b.rank0_scatter_peak)
         }
     };
+    let claim = claim.into_inner();
     let settings = Settings {
         sizes,
         io: io_comm.as_ref(),
+        claim: claim.as_ref().map(|c| c.lock()),
         restart: false,
         steps_from_cli: opts.run.steps.is_some(),
         force: opts.run.force,
