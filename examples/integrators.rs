@@ -7,20 +7,26 @@
 //! euler runs EULER_STEPS steps only (it is slow); the others STEPS. REFERENCE: a file of u
 //! after STEPS steps of euler (f64, little-endian, input node order); when EULER_STEPS equals
 //! STEPS the run writes it, otherwise it reads it and prints the relative L2 error of u.
+use eprop::distribute::comm::Comm;
+use eprop::distribute::launch::{launch, start_alone};
 use eprop::propagate::integrate::{Kind, Preconditioner};
 use eprop::simulate::Simulation;
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {
+    // on one process or on every process of an MPI job
+    launch(compare)
+}
+
+fn compare(world: Option<&dyn Comm>) -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().collect();
     let path = std::path::PathBuf::from(&a[1]);
     let steps: usize = a[2].parse()?;
     let euler_steps: usize = a[3].parse()?;
     let reference = a.get(4).map(std::path::PathBuf::from);
-    let mpi = ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE"]
-        .iter()
-        .any(|v| std::env::var_os(v).is_some());
-    let universe = if mpi { mpi::initialize() } else { None };
+    if world.is_none() {
+        start_alone()?; // hypre (amg) takes an MPI communicator
+    }
     let variants = [
         ("euler", Kind::Euler, Preconditioner::Jacobi),
         ("rkl2", Kind::Rkl2, Preconditioner::Jacobi),
@@ -37,8 +43,8 @@ fn main() -> anyhow::Result<()> {
             ];
             eprop::config::Setup::new(eprop::config::Scenario::load_with(&path, &sets)?)
         };
-        let sim = match &universe {
-            Some(u) => eprop::simulate::distributed::build_mpi(u.world(), make)?.sim,
+        let sim = match world {
+            Some(w) => eprop::simulate::distributed::build_mpi(w, make)?.sim,
             None => Simulation::new(make()?)?,
         };
         sims.push(sim);

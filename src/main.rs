@@ -652,9 +652,7 @@ fn real_main(cli: Cli) -> Result<()> {
         } => {
             // one writer: rank 0 builds and writes the operator, the other processes wait
             let report = launch(|world| {
-                eprop::distribute::launch::on_root(world.as_ref(), || {
-                    inspect::export_operator(&scenario, &output, overwrite)
-                })
+                eprop::distribute::launch::on_root(world, || inspect::export_operator(&scenario, &output, overwrite))
             })?;
             if let Some(r) = report {
                 println!("{r}");
@@ -750,9 +748,9 @@ fn bench_boxes(
     overwrite: bool,
 ) -> Result<()> {
     let (root, cases, _lock) = launch(|world| {
-        let root = is_root(world.as_ref());
+        let root = is_root(world);
         // the --json file is claimed before the measurement (rank 0 writes it)
-        let lock = eprop::distribute::launch::on_root(world.as_ref(), || {
+        let lock = eprop::distribute::launch::on_root(world, || {
             json.as_ref()
                 .map(|j| eprop::guard::safety::claim_file(j, "the JSON file (--json)", &[], overwrite))
                 .transpose()

@@ -9,6 +9,7 @@
 
 use crate::config::{Field, Performance, Scenario, Setup};
 use crate::diagnostics::{median, peak_rss};
+use crate::distribute::comm::{Comm, Handle};
 use crate::distribute::parts::GlobalSizes;
 use crate::output::series::{field_blocks, layout, VERSION};
 use crate::simulate::distributed::{build_mpi, Built};
@@ -104,7 +105,6 @@ pub fn box_setup(cells: usize, scheme: &str) -> Result<Setup> {
 pub fn measure(
     mut sim: Simulation,
     sizes: GlobalSizes,
-    io: Option<&mpi::topology::SimpleCommunicator>,
     triad_gbs: f64,
     setup_seconds: f64,
     tmp: &Path,
@@ -187,6 +187,7 @@ pub fn measure(
         float32: false,
         compression: 0,
     };
+    let io = sim.comm().handle().map(Handle::communicator);
     let mut out = SeriesWriter::create(&file, layout(&sizes), sim.global_mesh(), &spec, io)?;
     let mut writes = Vec::new();
     for _ in 0..5 {
@@ -235,7 +236,7 @@ pub fn measure(
 /// Runs every case on this process (or, under MPI, on every process of `world`), computed as
 /// `perf` says.
 pub fn bench(
-    world: Option<mpi::topology::SimpleCommunicator>,
+    world: Option<&dyn Comm>,
     cells: &[usize],
     schemes: &[String],
     perf: Performance,
@@ -246,40 +247,29 @@ pub fn bench(
     // the triad of every process at once, summed (the bandwidth the processes share)
     let triad_gbs = {
         let mine = triad(1 << 24, 5);
-        match &world {
-            Some(w) => {
-                use mpi::collective::{CommunicatorCollectives, SystemOperation};
-                let mut sum = 0.0;
-                w.all_reduce_into(&mine, &mut sum, SystemOperation::sum());
-                sum
-            }
-            None => mine,
-        }
+        world.map_or(mine, |w| w.all_gather(&[mine]).iter().sum())
     };
     for &nc in cells {
         for scheme in schemes {
             let t0 = Instant::now();
-            let case = match &world {
+            let case = match world {
                 None => {
                     let mut setup = box_setup(nc, scheme)?;
                     setup.performance = perf;
                     let sizes = GlobalSizes::of(&setup.mesh);
                     let sim = Simulation::new(setup)?;
                     let s = t0.elapsed().as_secs_f64();
-                    measure(sim, sizes, None, triad_gbs, s, tmp)?
+                    measure(sim, sizes, triad_gbs, s, tmp)?
                 }
                 Some(w) => {
-                    use mpi::topology::Communicator;
-                    let Built {
-                        sim, sizes, io_comm, ..
-                    } = build_mpi(w.duplicate(), || {
+                    let Built { sim, sizes, .. } = build_mpi(w, || {
                         box_setup(nc, scheme).map(|mut s| {
                             s.performance = perf;
                             s
                         })
                     })?;
                     let s = t0.elapsed().as_secs_f64();
-                    measure(sim, sizes, Some(&io_comm), triad_gbs, s, tmp)?
+                    measure(sim, sizes, triad_gbs, s, tmp)?
                 }
             };
             report(&case);

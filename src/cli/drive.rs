@@ -16,7 +16,6 @@ use crate::output::summary::{summarize, Summary, Timing};
 use crate::simulate::{Simulation, StopToken};
 use anyhow::Result;
 use eprop_series::outcome::{dir_of, free_bytes, human_bytes, Cause, WriteFailed};
-use mpi::topology::SimpleCommunicator;
 use std::time::Instant;
 
 /// A feed ends the run before its next step: its message (on rank 0; empty elsewhere) and the
@@ -53,8 +52,6 @@ impl Feed for Batch {}
 /// How a run is driven: what it writes and what its messages advise.
 pub struct Settings<'a> {
     pub sizes: GlobalSizes,
-    /// The collective output's communicator under MPI.
-    pub io: Option<&'a SimpleCommunicator>,
     /// The claim on the output (`safety::OutputLock`) of the process that took it (rank 0):
     /// a created series' inode is locked too.
     pub claim: Option<&'a OutputLock>,
@@ -350,7 +347,7 @@ fn steps(
     if let Some(h) = feed.start(sim)? {
         return Err(halted(h, None));
     }
-    let series = Series::start(sim, &s.sizes, s.restart, s.io, s.claim).map_err(|e| Failure {
+    let series = Series::start(sim, &s.sizes, s.restart, s.claim).map_err(|e| Failure {
         why: format!("the series could not be created: {}", cause(&e)),
         error: match fresh {
             true if sim.setup().output.file.exists() => {

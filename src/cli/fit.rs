@@ -18,14 +18,14 @@
 //! drives its own evaluations and Jacobian without bounds, and argmin has no bounded
 //! Levenberg-Marquardt.
 
+use crate::cli::run::start_mpi_if_needed;
 use crate::config::{Scenario, Setup};
+use crate::distribute::comm::Comm;
 use crate::distribute::launch::is_root;
 use crate::guard::safety::{self, Agreed, Input, EXIT_ERROR, EXIT_STOPPED};
 use crate::simulate::distributed::build_mpi;
 use crate::simulate::{Simulation, StopToken};
 use anyhow::{anyhow, bail, Result};
-use mpi::topology::SimpleCommunicator;
-use mpi::traits::*;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -329,13 +329,12 @@ fn read_curve(path: &Path) -> Result<Curve> {
 }
 
 /// Rank 0's values, made every process's (the same length everywhere after).
-fn broadcast(world: Option<&SimpleCommunicator>, v: &mut Vec<f64>) {
+fn broadcast(world: Option<&dyn Comm>, v: &mut Vec<f64>) {
     if let Some(w) = world {
-        let root = w.process_at_rank(0);
-        let mut n = v.len() as u64;
-        root.broadcast_into(&mut n);
-        v.resize(n as usize, 0.0);
-        root.broadcast_into(&mut v[..]);
+        let mut n = [v.len() as f64];
+        w.broadcast(0, &mut n);
+        v.resize(n[0] as usize, 0.0);
+        w.broadcast(0, v);
     }
 }
 
@@ -420,7 +419,7 @@ type Outcome = std::result::Result<Vec<f64>, String>;
 /// or why there is none (a state that is no longer finite, x beyond the simulated range). A
 /// request on `stop` (a signal) ends it after the step in progress.
 fn evaluate(
-    world: Option<&SimpleCommunicator>,
+    world: Option<&dyn Comm>,
     stop: &StopToken,
     scenario: &Path,
     opts: &FitOptions,
@@ -434,8 +433,12 @@ fn evaluate(
     sets.extend(params.iter().zip(&p).map(|(q, v)| format!("{}={v:?}", q.key)));
     let make = || Setup::new(Scenario::load_with(scenario, &sets)?);
     let mut sim = match world {
-        None => Simulation::new(make()?)?,
-        Some(w) => build_mpi(w.duplicate(), make)?.sim,
+        None => {
+            let setup = make()?;
+            start_mpi_if_needed(&setup)?;
+            Simulation::new(setup)?
+        }
+        Some(w) => build_mpi(w, make)?.sim,
     };
     sim.set_stop(stop.clone());
     let probe = Probe::new(&sim, scenario, curve, opts)?;
@@ -954,12 +957,12 @@ fn plot(prefix: &Path, png: &Path) -> std::result::Result<(), String> {
 
 /// Fits the parameters on this process alone (`world` None) or on every process of `world`;
 /// returns the report on rank 0.
-pub fn fit_on(world: Option<SimpleCommunicator>, scenario: &Path, opts: &FitOptions) -> Result<Option<FitReport>> {
+pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> Result<Option<FitReport>> {
     let stop = crate::guard::signals::install();
     let t0 = Instant::now();
-    let w = world.as_ref();
+    let w = world;
     let root = is_root(w);
-    let processes = w.map_or(1, |w| w.size() as usize);
+    let processes = w.map_or(1, |w| w.size());
     if !(opts.tolerance > 0.0 && opts.tolerance < 1.0) {
         return Err(refused(format!(
             "--tolerance {}: must be between 0 and 1 (relative); fix: e.g. --tolerance 1e-6",

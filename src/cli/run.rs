@@ -3,7 +3,10 @@
 //! scenario's own inputs.
 
 use crate::cli::drive::{self, Batch, Settings};
+use crate::config::integrator::Preconditioner;
 use crate::config::{Fuse, Scenario, Setup, Stop};
+use crate::distribute::comm::Comm;
+use crate::distribute::launch::start_alone;
 use crate::distribute::parts::GlobalSizes;
 use crate::guard::safety::{self, OutputLock};
 use crate::output::progress;
@@ -13,7 +16,6 @@ use crate::output::summary::Summary;
 use crate::simulate::distributed::build_mpi;
 use crate::simulate::{Simulation, StopToken};
 use anyhow::{bail, Result};
-use mpi::topology::SimpleCommunicator;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -144,10 +146,19 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
     Ok((setup, Claim { lock }))
 }
 
+/// Starts MPI in a process alone when its run calls a library that needs it (hypre: the
+/// `amg` preconditioner; `launch::start_alone`).
+pub(crate) fn start_mpi_if_needed(setup: &Setup) -> Result<()> {
+    if setup.integrator.preconditioner == Preconditioner::Amg {
+        start_alone()?;
+    }
+    Ok(())
+}
+
 /// Runs a scenario file on this process alone (`world` None) or on every process of
 /// `world`; returns the summary on the process that prints it. SIGTERM, SIGINT and SIGHUP stop
 /// the run after a complete, written step (`crate::guard::signals`).
-pub fn run_on(world: Option<SimpleCommunicator>, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
+pub fn run_on(world: Option<&dyn Comm>, path: &Path, opts: &RunOptions) -> Result<Option<Summary>> {
     let stop = crate::guard::signals::install();
     match world {
         Some(w) => run_mpi(w, path, opts, stop),
@@ -161,10 +172,11 @@ pub fn run(path: &Path, opts: &RunOptions, stop: StopToken) -> Result<Summary> {
     let t0 = Instant::now();
     let (setup, claim) = prepare_claimed(path, opts)?;
     let sizes = GlobalSizes::of(&setup.mesh);
+    start_mpi_if_needed(&setup)?;
     let notes = progress::SetupNotes::on((!opts.quiet).then_some(t0));
     let sim = Simulation::new(setup)?;
     drop(notes);
-    let summary = run_simulation(sim, sizes, t0, opts, None, Some(&claim), 0, stop)?;
+    let summary = run_simulation(sim, sizes, t0, opts, Some(&claim), 0, stop)?;
     drop(claim);
     Ok(summary.expect("one process has the summary"))
 }
@@ -173,26 +185,17 @@ pub fn run(path: &Path, opts: &RunOptions, stop: StopToken) -> Result<Summary> {
 /// mesh, splits the node graph with METIS and sends every process its part; each process
 /// builds its own geometry and operator, steps its part with halo exchanges and writes its
 /// rows of the output file (collective MPI-IO). Returns the summary on rank 0.
-pub fn run_mpi(world: SimpleCommunicator, path: &Path, opts: &RunOptions, stop: StopToken) -> Result<Option<Summary>> {
+pub fn run_mpi(world: &dyn Comm, path: &Path, opts: &RunOptions, stop: StopToken) -> Result<Option<Summary>> {
     let t0 = Instant::now();
     let mut claim = None;
-    let notes = progress::SetupNotes::on((mpi::traits::Communicator::rank(&world) == 0 && !opts.quiet).then_some(t0));
+    let notes = progress::SetupNotes::on((world.rank() == 0 && !opts.quiet).then_some(t0));
     let b = build_mpi(world, || {
         let (setup, c) = prepare_claimed(path, opts)?;
         claim = Some(c);
         Ok(setup)
     })?;
     drop(notes);
-    let summary = run_simulation(
-        b.sim,
-        b.sizes,
-        t0,
-        opts,
-        Some(&b.io_comm),
-        claim.as_ref(),
-        b.rank0_scatter_peak,
-        stop,
-    );
+    let summary = run_simulation(b.sim, b.sizes, t0, opts, claim.as_ref(), b.rank0_scatter_peak, stop);
     drop(claim);
     summary
 }
@@ -204,7 +207,6 @@ fn run_simulation(
     sizes: GlobalSizes,
     t0: Instant,
     opts: &RunOptions,
-    io: Option<&SimpleCommunicator>,
     claim: Option<&Claim>,
     rank0_scatter_peak: u64,
     stop: StopToken,
@@ -217,7 +219,6 @@ fn run_simulation(
     );
     let settings = Settings {
         sizes,
-        io,
         claim: claim.map(Claim::lock),
         restart: opts.restart.is_some(),
         steps_from_cli: opts.steps.is_some(),

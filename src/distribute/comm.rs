@@ -1,9 +1,14 @@
 //! Collective communication between the processes of a run: reductions, broadcasts, gathers
-//! and the all-to-all of the output scatter. (Point-to-point halo messages are `scatter::Halo`.)
+//! and the all-to-all of the output scatter. (Point-to-point halo messages are `halo::Halo`.)
 //!
 //! `Serial` is the one-process case; `Mpi` uses rsmpi collectives. Every reduction whose
 //! result feeds the computation is exact (max, min, or a fixed-point sum), so the result does
 //! not depend on how many processes there are or how the mesh was split.
+//!
+//! `Comm` is the one communicator the rest of the crate holds. A library that takes an MPI
+//! communicator itself gets it from the `Comm` as an opaque `Handle` (`Comm::handle`: the
+//! series' collective output) or as a C handle (`Comm::raw`: hypre), so that only this module
+//! names MPI's types.
 
 pub trait Comm {
     fn rank(&self) -> usize;
@@ -28,12 +33,54 @@ pub trait Comm {
     fn all_gather_var(&self, x: &[f64]) -> (Vec<f64>, Vec<usize>);
     /// Ends every process after an error on this one.
     fn abort(&self, code: i32) -> !;
-    /// The MPI communicator of these processes, for libraries that take one (None on one
-    /// process without MPI).
-    fn raw_comm(&self) -> Option<mpi::ffi::MPI_Comm> {
+    /// The MPI communicator of these processes, for a library that takes one (the series'
+    /// collective output); None on one process without MPI.
+    fn handle(&self) -> Option<&Handle> {
         None
     }
+    /// The C handle of these processes' communicator, for a C library that takes one
+    /// (hypre): `handle`'s, or for one process without one MPI_COMM_SELF once MPI runs (the
+    /// launcher starts it: `launch::start_alone`); None otherwise.
+    fn raw(&self) -> Option<RawComm> {
+        match self.handle() {
+            Some(h) => Some(h.raw()),
+            None if self.size() == 1 && mpi::environment::is_initialized() => {
+                // SAFETY: MPI runs, so its predefined self communicator is valid
+                Some(RawComm(unsafe { mpi::ffi::RSMPI_COMM_SELF }))
+            }
+            None => None,
+        }
+    }
 }
+
+/// An MPI communicator, opaque: what `Comm::handle` gives a library that takes a
+/// communicator (the series crate's collective output, built on rsmpi).
+pub struct Handle(mpi::topology::SimpleCommunicator);
+
+impl Handle {
+    /// The communicator as rsmpi has it, for a library built on rsmpi (eprop-series).
+    pub fn communicator(&self) -> &mpi::topology::SimpleCommunicator {
+        &self.0
+    }
+
+    /// Its C handle (`MPI_Comm`), for a C library.
+    pub fn raw(&self) -> RawComm {
+        use mpi::raw::AsRaw;
+        RawComm(self.0.as_raw())
+    }
+
+    /// Another communicator of the same processes, whose messages never meet this one's
+    /// (MPI_Comm_dup: every process calls).
+    pub(crate) fn duplicate(&self) -> Handle {
+        Handle(self.0.duplicate())
+    }
+}
+
+/// The C handle of an MPI communicator (`MPI_Comm`), for the declarations of a C library's
+/// functions that take one (hypre's): passed as MPI_Comm itself (a transparent wrapper).
+#[repr(transparent)]
+#[derive(Clone, Copy, Debug)]
+pub struct RawComm(mpi::ffi::MPI_Comm);
 
 /// A 256-bit two's-complement integer (`hi * 2^128 + lo`): the accumulator of `exact_sum`.
 /// Terms are below 2^100 in magnitude, so about 2^155 of them fit: no node count overflows it.
@@ -339,7 +386,7 @@ impl Comm for Serial {
 
 /// Several processes under MPI.
 pub struct Mpi {
-    pub world: mpi::topology::SimpleCommunicator,
+    world: Handle,
 }
 
 use mpi::collective::SystemOperation;
@@ -348,62 +395,77 @@ use mpi::topology::Communicator;
 use mpi::traits::*;
 
 impl Mpi {
-    pub fn new(world: mpi::topology::SimpleCommunicator) -> Mpi {
+    /// The processes of `world` (the launcher's, or a duplicate of it).
+    pub(crate) fn new(world: Handle) -> Mpi {
         Mpi { world }
+    }
+
+    /// The processes of an MPI job: its world communicator.
+    pub(crate) fn of_job(universe: &mpi::environment::Universe) -> Mpi {
+        Mpi::new(Handle(universe.world()))
+    }
+
+    fn comm(&self) -> &mpi::topology::SimpleCommunicator {
+        &self.world.0
+    }
+
+    /// Waits until every process has called.
+    pub(crate) fn barrier(&self) {
+        self.comm().barrier();
     }
 }
 
 impl Comm for Mpi {
     fn rank(&self) -> usize {
-        self.world.rank() as usize
+        self.comm().rank() as usize
     }
     fn size(&self) -> usize {
-        self.world.size() as usize
+        self.comm().size() as usize
     }
     fn all_to_all(&self, send: &[f64], counts: &[usize]) -> Vec<f64> {
         let sc: Vec<i32> = counts.iter().map(|&c| c as i32).collect();
         let mut rc = vec![0i32; sc.len()];
-        self.world.all_to_all_into(&sc[..], &mut rc[..]);
+        self.comm().all_to_all_into(&sc[..], &mut rc[..]);
         let (sd, rd) = (displacements(&sc), displacements(&rc));
         let mut out = vec![0.0; rc.iter().sum::<i32>() as usize];
         {
             let sp = mpi::datatype::Partition::new(send, &sc[..], &sd[..]);
             let mut rp = PartitionMut::new(&mut out[..], &rc[..], &rd[..]);
-            self.world.all_to_all_varcount_into(&sp, &mut rp);
+            self.comm().all_to_all_varcount_into(&sp, &mut rp);
         }
         out
     }
     fn all_gather(&self, x: &[f64]) -> Vec<f64> {
         let mut out = vec![0.0; x.len() * self.size()];
-        self.world.all_gather_into(x, &mut out[..]);
+        self.comm().all_gather_into(x, &mut out[..]);
         out
     }
     fn all_gather_var(&self, x: &[f64]) -> (Vec<f64>, Vec<usize>) {
         let n = i32::try_from(x.len()).expect("a gather of more than 2^31 values");
         let mut counts = vec![0i32; self.size()];
-        self.world.all_gather_into(&n, &mut counts[..]);
+        self.comm().all_gather_into(&n, &mut counts[..]);
         let d = displacements(&counts);
         let mut out = vec![0.0; counts.iter().map(|&c| c as usize).sum()];
         {
             let mut rp = PartitionMut::new(&mut out[..], &counts[..], &d[..]);
-            self.world.all_gather_varcount_into(x, &mut rp);
+            self.comm().all_gather_varcount_into(x, &mut rp);
         }
         (out, counts.iter().map(|&c| c as usize).collect())
     }
     fn max(&self, x: f64) -> f64 {
         let mut y = 0.0;
-        self.world.all_reduce_into(&x, &mut y, SystemOperation::max());
+        self.comm().all_reduce_into(&x, &mut y, SystemOperation::max());
         y
     }
     fn min(&self, x: f64) -> f64 {
         let mut y = 0.0;
-        self.world.all_reduce_into(&x, &mut y, SystemOperation::min());
+        self.comm().all_reduce_into(&x, &mut y, SystemOperation::min());
         y
     }
     fn sum_i128(&self, x: i128) -> i128 {
         let parts = [(x as u128 >> 64) as u64, x as u128 as u64];
         let mut all = vec![0u64; 2 * self.size()];
-        self.world.all_gather_into(&parts[..], &mut all[..]);
+        self.comm().all_gather_into(&parts[..], &mut all[..]);
         all.chunks(2)
             .map(|p| (((p[0] as u128) << 64) | p[1] as u128) as i128)
             .fold(0i128, |a, b| a.wrapping_add(b))
@@ -411,7 +473,7 @@ impl Comm for Mpi {
     fn sum_wide(&self, x: &[Wide]) -> Vec<Wide> {
         let words: Vec<u64> = x.iter().flat_map(|w| w.words()).collect();
         let mut all = vec![0u64; words.len() * self.size()];
-        self.world.all_gather_into(&words[..], &mut all[..]);
+        self.comm().all_gather_into(&words[..], &mut all[..]);
         let mut out = vec![Wide::default(); x.len()];
         for part in all.chunks(words.len().max(1)) {
             for (k, o) in out.iter_mut().enumerate() {
@@ -422,18 +484,17 @@ impl Comm for Mpi {
     }
     fn max_each(&self, x: &[f64]) -> Vec<f64> {
         let mut y = vec![0.0; x.len()];
-        self.world.all_reduce_into(x, &mut y[..], SystemOperation::max());
+        self.comm().all_reduce_into(x, &mut y[..], SystemOperation::max());
         y
     }
     fn broadcast(&self, root: usize, x: &mut [f64]) {
-        self.world.process_at_rank(root as i32).broadcast_into(x);
+        self.comm().process_at_rank(root as i32).broadcast_into(x);
     }
     fn abort(&self, code: i32) -> ! {
-        self.world.abort(code)
+        self.comm().abort(code)
     }
-    fn raw_comm(&self) -> Option<mpi::ffi::MPI_Comm> {
-        use mpi::raw::AsRaw;
-        Some(self.world.as_raw())
+    fn handle(&self) -> Option<&Handle> {
+        Some(&self.world)
     }
 }
 

@@ -7,7 +7,7 @@
 //! `Exchange::progress` between pieces so MPI moves rendezvous-size messages while it works),
 //! and `finish` waits and writes the halo entries. Halo entries are written nowhere else.
 
-use crate::distribute::comm::{displacements, Comm};
+use crate::distribute::comm::{displacements, Comm, Handle};
 use eprop_partition::HaloPattern;
 use mpi::ffi;
 use mpi::raw::AsRaw;
@@ -18,7 +18,7 @@ pub struct Halo {
     pattern: HaloPattern,
     /// A communicator of its own (no message of the exchange can meet another's); none on one
     /// process.
-    comm: Option<mpi::topology::SimpleCommunicator>,
+    comm: Option<Handle>,
     bufs: RefCell<Buffers>,
     waited: Cell<f64>,
 }
@@ -53,7 +53,7 @@ impl Halo {
     }
 
     /// Exchanges along `pattern` over `comm` (which the halo keeps to itself).
-    pub fn new(pattern: HaloPattern, comm: mpi::topology::SimpleCommunicator) -> Halo {
+    pub(crate) fn new(pattern: HaloPattern, comm: Handle) -> Halo {
         Halo {
             pattern,
             comm: Some(comm),
@@ -80,7 +80,7 @@ impl Halo {
         let mut bufs = self.bufs.borrow_mut();
         let nbs = &self.pattern.neighbours;
         let mut reqs = Vec::with_capacity(2 * nbs.len());
-        if let Some(comm) = &self.comm {
+        if let Some(comm) = self.comm.as_ref().map(Handle::communicator) {
             let Buffers { send, recv } = &mut *bufs;
             send.resize_with(nbs.len(), Vec::new);
             recv.resize_with(nbs.len(), Vec::new);
@@ -153,7 +153,7 @@ impl Halo {
             recv_counts.iter().sum::<usize>(),
             "all_to_all_into: receive length"
         );
-        let Some(comm) = &self.comm else {
+        let Some(comm) = self.comm.as_ref().map(Handle::communicator) else {
             out.copy_from_slice(send);
             return;
         };
@@ -170,7 +170,7 @@ impl Halo {
     /// Every process's `x` (`counts[q]` values from process q, known everywhere), in rank
     /// order, into `out` (resized). On one process it is `x` itself.
     pub fn all_gather_into(&self, x: &[f64], counts: &[usize], out: &mut Vec<f64>) {
-        let Some(comm) = &self.comm else {
+        let Some(comm) = self.comm.as_ref().map(Handle::communicator) else {
             out.clear();
             out.extend_from_slice(x);
             return;

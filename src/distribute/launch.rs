@@ -6,10 +6,14 @@
 //! stop by a signal, a failed write, a non-finite state) is printed once and every process
 //! exits with its status; an error on one process prints its message with its rank and ends
 //! every process (MPI_Abort), so a batch job never hangs.
+//!
+//! MPI is started here only: for a job by `launch`, and for a process alone whose run calls a
+//! library that needs it (hypre) by `start_alone`.
 
+use crate::distribute::comm::{Comm, Mpi};
 use crate::distribute::parts::{Collective, ReportedElsewhere};
 use anyhow::{bail, Result};
-use mpi::topology::{Communicator, SimpleCommunicator};
+use std::sync::Mutex;
 
 /// Exit status of an error (bad input, a refusal, non-finite values).
 pub const EXIT_ERROR: u8 = 1;
@@ -53,43 +57,63 @@ pub fn under_mpirun() -> bool {
 }
 
 /// True on the process that prints (rank 0, or the only one).
-pub fn is_root(world: Option<&SimpleCommunicator>) -> bool {
+pub fn is_root(world: Option<&dyn Comm>) -> bool {
     world.is_none_or(|w| w.rank() == 0)
 }
 
 /// Runs `body` on rank 0 only (the one writer of a file), the other processes waiting for it:
 /// rank 0's error becomes every process's (an `Agreed` error with status 1, printed once by
 /// rank 0); rank 0 gets `Some` of its value, the others `None`.
-pub fn on_root<T>(world: Option<&SimpleCommunicator>, body: impl FnOnce() -> Result<T>) -> Result<Option<T>> {
+pub fn on_root<T>(world: Option<&dyn Comm>, body: impl FnOnce() -> Result<T>) -> Result<Option<T>> {
     let root = is_root(world);
     let r = if root { Some(body()) } else { None };
     let Some(w) = world else {
         return r.transpose();
     };
-    use mpi::collective::{CommunicatorCollectives, SystemOperation};
-    let failed = i32::from(matches!(r, Some(Err(_))));
-    let mut any = 0i32;
-    w.all_reduce_into(&failed, &mut any, SystemOperation::max());
+    let any = w.max(f64::from(u8::from(matches!(r, Some(Err(_))))));
     match r {
         Some(Err(e)) => Err(Agreed::error(EXIT_ERROR, format!("{e:#}"))),
-        _ if any > 0 => Err(Agreed::error(EXIT_ERROR, "rank 0 failed")),
+        _ if any > 0.0 => Err(Agreed::error(EXIT_ERROR, "rank 0 failed")),
         r => r.transpose(),
     }
 }
 
+/// MPI started for a process alone (`start_alone`), finalised when its `launch` ends.
+static ALONE: Mutex<Option<mpi::environment::Universe>> = Mutex::new(None);
+
+/// Starts MPI in a process that runs alone (not under mpirun), for a library whose calls need
+/// it (hypre: `Comm::raw` then gives MPI_COMM_SELF); a no-op once MPI runs. The launch that
+/// runs the command finalises it at its end.
+pub fn start_alone() -> Result<()> {
+    if mpi::environment::is_initialized() {
+        return Ok(());
+    }
+    let mut alone = ALONE.lock().unwrap_or_else(|e| e.into_inner());
+    match mpi::initialize() {
+        Some(universe) => {
+            *alone = Some(universe);
+            Ok(())
+        }
+        None => bail!("MPI could not be started for this process"),
+    }
+}
+
 /// Runs `body` on this process alone (`None`), or, under mpirun, on every process with the
-/// world communicator and the job's error policy: under MPI an error never returns here, the
-/// process exits (or the job is aborted) as the policy says.
-pub fn launch<T>(body: impl FnOnce(Option<SimpleCommunicator>) -> Result<T>) -> Result<T> {
+/// job's communicator and error policy: under MPI an error never returns here, the process
+/// exits (or the job is aborted) as the policy says.
+pub fn launch<T>(body: impl FnOnce(Option<&dyn Comm>) -> Result<T>) -> Result<T> {
     if !under_mpirun() {
-        return body(None);
+        let result = body(None);
+        // MPI started for a library of this run (`start_alone`) ends with it
+        drop(ALONE.lock().unwrap_or_else(|e| e.into_inner()).take());
+        return result;
     }
     let Some(universe) = mpi::initialize() else {
         bail!("MPI could not be initialised");
     };
-    let world = universe.world();
-    let (rank, size) = (world.rank() as usize, world.size() as usize);
-    let result = body(Some(world));
+    let world = Mpi::of_job(&universe);
+    let (rank, size) = (world.rank(), world.size());
+    let result = body(Some(&world));
     let err = match result {
         Ok(v) => return Ok(v),
         Err(e) => e,
@@ -102,21 +126,21 @@ pub fn launch<T>(body: impl FnOnce(Option<SimpleCommunicator>) -> Result<T>) -> 
         }
         Ending::Abort(msg) => {
             eprintln!("{msg}");
-            universe.world().abort(1)
+            world.abort(1)
         }
     };
     if eprop_series::outcome::stranded() {
         // a file whose write failed is still open (eprop_series::outcome): finalising MPI
         // would close it collectively and wait forever, so every process, once all have
         // printed, ends here with the agreed status
-        use mpi::collective::CommunicatorCollectives;
-        universe.world().barrier();
+        world.barrier();
         use std::io::Write;
         let _ = std::io::stdout().flush();
         let _ = std::io::stderr().flush();
         // SAFETY: ends the process at once (no destructor, atexit handler or MPI_Finalize)
         unsafe { libc::_exit(status.into()) }
     }
+    drop(world);
     drop(universe);
     std::process::exit(status.into())
 }
@@ -174,7 +198,7 @@ mod tests {
             Ending::Once("stopped by SIGTERM after step 3".into(), 3)
         );
         assert_eq!(ending(&stopped(), 1, 2), Ending::Quiet(3));
-        let full = Agreed::error(crate::guard::safety::EXIT_WRITE, "out.h5: disk full");
+        let full = Agreed::error(EXIT_WRITE, "out.h5: disk full");
         assert_eq!(ending(&full, 0, 2), Ending::Once("error: out.h5: disk full".into(), 4));
         assert_eq!(
             ending(&anyhow!("out.h5: write failed"), 1, 3),

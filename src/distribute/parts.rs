@@ -7,7 +7,9 @@
 
 use crate::config::Setup;
 use crate::diagnostics::log_memory;
-use anyhow::{anyhow, Result};
+use crate::distribute::comm::{Comm, Handle, Mpi};
+use crate::distribute::halo::Halo;
+use anyhow::{anyhow, bail, Result};
 use eprop_io::Mesh;
 use eprop_partition::Plan;
 use serde::{Deserialize, Serialize};
@@ -175,12 +177,10 @@ fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
 /// also the whole mesh. An error of rank 0 before the sends reaches every process: rank 0
 /// returns it as `Collective`, the others `ReportedElsewhere`; an error once sending has
 /// begun is rank 0's alone (the job's policy aborts it, see `launch`).
-pub fn scatter(
-    world: &mpi::topology::SimpleCommunicator,
-    make_setup: impl FnOnce() -> Result<Setup>,
-) -> Result<(Part, Option<Mesh>)> {
+fn scatter(world: &Handle, make_setup: impl FnOnce() -> Result<Setup>) -> Result<(Part, Option<Mesh>)> {
     use mpi::point_to_point::{Destination, Source};
     use mpi::topology::Communicator;
+    let world = world.communicator();
     let (rank, size) = (world.rank() as usize, world.size() as usize);
     if rank != 0 {
         let (msg, _) = world.process_at_rank(0).receive_vec::<u8>();
@@ -222,6 +222,33 @@ pub fn scatter(
     Ok((mine, Some(setup.mesh)))
 }
 
+/// This process's share of a distributed run: its part, the whole mesh on rank 0, and two
+/// communicators of the processes of `world` of its own: one for its simulation's collectives,
+/// one in the halo exchange along its part's pattern.
+pub struct Share {
+    pub part: Part,
+    pub global: Option<Mesh>,
+    pub comm: Box<dyn Comm>,
+    pub halo: Halo,
+}
+
+/// Every process of `world` calls: rank 0 makes the whole-mesh setup and sends every process
+/// its part (`scatter`, with its error policy); each gets its share.
+pub fn share(world: &dyn Comm, make_setup: impl FnOnce() -> Result<Setup>) -> Result<Share> {
+    let Some(world) = world.handle() else {
+        bail!("internal: a distributed build needs the processes of an MPI job");
+    };
+    let comm = Box::new(Mpi::new(world.duplicate()));
+    let halo_comm = world.duplicate();
+    let (part, global) = scatter(world, make_setup)?;
+    let halo = Halo::new(part.plan.pattern.clone(), halo_comm);
+    Ok(Share {
+        part,
+        global,
+        comm,
+        halo,
+    })
+}
 #[cfg(test)]
 mod tests {
     use super::*;

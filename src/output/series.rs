@@ -4,6 +4,7 @@
 
 use crate::config::{Field, Precision};
 use crate::diagnostics::{log_memory, median};
+use crate::distribute::comm::Handle;
 use crate::distribute::parts::{Fnv, GlobalSizes};
 use crate::guard::safety::{Agreed, OutputLock, EXIT_ERROR};
 use crate::simulate::Simulation;
@@ -101,14 +102,13 @@ pub struct Series {
 impl Series {
     /// Creates the series of a simulation's `[output]` and writes its static part and the
     /// initial step; with `restart`, reopens the series instead and restores the simulation
-    /// to its last complete step. Every process calls (`io`: the collective output's
-    /// communicator under MPI); `claim`, the lock of the process that claimed the output,
-    /// holds a created file's inode too (`OutputLock::hold_output`).
+    /// to its last complete step. Every process calls; under MPI they write collectively, on
+    /// the simulation's communicator (`Comm::handle`). `claim`, the lock of the process that
+    /// claimed the output, holds a created file's inode too (`OutputLock::hold_output`).
     pub fn start(
         sim: &mut Simulation,
         sizes: &GlobalSizes,
         restart: bool,
-        io: Option<&mpi::topology::SimpleCommunicator>,
         claim: Option<&OutputLock>,
     ) -> Result<Series> {
         let output = &sim.setup().output;
@@ -161,6 +161,7 @@ impl Series {
             ],
         };
         let file = output.file.clone();
+        let io = sim.comm().handle().map(Handle::communicator);
         if restart {
             let (mut writer, resume) = SeriesWriter::reopen(&file, layout(sizes), &spec, io)?;
             // the norms too: the energy |phi| and max |u| of a component near f64::MAX overflow

@@ -16,16 +16,16 @@ pub mod session;
 pub mod stream;
 
 use crate::cli::drive::{self, Feed, Halt, Settings};
-use crate::cli::run::{prepare_claimed, RunOptions};
+use crate::cli::run::{prepare_claimed, start_mpi_if_needed, RunOptions};
 use crate::config::tables::History;
 use crate::config::{Setup, Trajectory};
 use crate::discretize::operator::V3;
+use crate::distribute::comm::Comm;
 use crate::distribute::parts::GlobalSizes;
 use crate::output::summary::Summary;
 use crate::simulate::distributed::build_mpi;
 use crate::simulate::Simulation;
 use anyhow::{anyhow, bail, Result};
-use mpi::topology::SimpleCommunicator;
 use protocol::{Hello, MAX_LIVE};
 use serde::Serialize;
 use session::{Entities, Frame, Outcome, Session, SessionSummary};
@@ -107,7 +107,7 @@ pub(crate) fn check_live(setup: &Setup) -> Result<()> {
 
 /// Runs a scenario driven by a client on this process alone or on every process of `world`;
 /// returns the report on rank 0.
-pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOptions) -> Result<Option<ServeReport>> {
+pub fn serve_on(world: Option<&dyn Comm>, path: &Path, opts: &ServeOptions) -> Result<Option<ServeReport>> {
     let t0 = Instant::now();
     let stop = crate::guard::signals::install();
     let listener = std::cell::RefCell::new(None);
@@ -121,21 +121,21 @@ pub fn serve_on(world: Option<SimpleCommunicator>, path: &Path, opts: &ServeOpti
         check_live(&setup)?;
         Ok(setup)
     };
-    let (sim, sizes, io_comm, peak) = match world {
+    let (sim, sizes, peak) = match world {
         None => {
             let setup = make()?;
             let sizes = GlobalSizes::of(&setup.mesh);
-            (Simulation::new(setup)?, sizes, None, 0)
+            start_mpi_if_needed(&setup)?;
+            (Simulation::new(setup)?, sizes, 0)
         }
         Some(w) => {
             let b = build_mpi(w, make)?;
-            (b.sim, b.sizes, Some(b.io_comm), b.rank0_scatter_peak)
+            (b.sim, b.sizes, b.rank0_scatter_peak)
         }
     };
     let claim = claim.into_inner();
     let settings = Settings {
         sizes,
-        io: io_comm.as_ref(),
         claim: claim.as_ref().map(|c| c.lock()),
         restart: false,
         steps_from_cli: opts.run.steps.is_some(),

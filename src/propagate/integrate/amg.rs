@@ -10,7 +10,7 @@
 
 use super::Precond;
 use crate::discretize::operator::{Operator, V3};
-use crate::distribute::comm::Comm;
+use crate::distribute::comm::{Comm, RawComm};
 use crate::propagate::Propagation;
 use anyhow::{bail, Result};
 use std::ffi::c_void;
@@ -24,7 +24,7 @@ const HYPRE_PARCSR: HypreInt = 5555;
 extern "C" {
     fn HYPRE_Init() -> HypreInt;
     fn HYPRE_IJMatrixCreate(
-        comm: mpi::ffi::MPI_Comm,
+        comm: RawComm,
         ilower: HypreInt,
         iupper: HypreInt,
         jlower: HypreInt,
@@ -45,7 +45,7 @@ extern "C" {
     fn HYPRE_IJMatrixAssemble(m: Handle) -> HypreInt;
     fn HYPRE_IJMatrixGetObject(m: Handle, obj: *mut Handle) -> HypreInt;
     fn HYPRE_IJMatrixDestroy(m: Handle) -> HypreInt;
-    fn HYPRE_IJVectorCreate(comm: mpi::ffi::MPI_Comm, jlower: HypreInt, jupper: HypreInt, v: *mut Handle) -> HypreInt;
+    fn HYPRE_IJVectorCreate(comm: RawComm, jlower: HypreInt, jupper: HypreInt, v: *mut Handle) -> HypreInt;
     fn HYPRE_IJVectorSetObjectType(v: Handle, t: HypreInt) -> HypreInt;
     fn HYPRE_IJVectorInitialize(v: Handle) -> HypreInt;
     fn HYPRE_IJVectorSetValues(v: Handle, n: HypreInt, idx: *const HypreInt, values: *const c_double) -> HypreInt;
@@ -80,17 +80,12 @@ fn check(code: HypreInt, what: &str) -> Result<()> {
     Ok(())
 }
 
-/// MPI must be running for hypre: under mpirun it is; a run on one process starts it here
-/// (once, and leaves it running to the end of the process).
-fn ensure_mpi() {
+/// Starts hypre, once. MPI must be running: under mpirun it is; a run on one process has the
+/// launcher start it (`launch::start_alone`), and its `Comm` then gives MPI_COMM_SELF.
+fn start_hypre() {
     static STARTED: std::sync::Once = std::sync::Once::new();
     STARTED.call_once(|| {
-        if !mpi::environment::is_initialized() {
-            if let Some(universe) = mpi::initialize() {
-                std::mem::forget(universe);
-            }
-        }
-        // SAFETY: MPI is initialised; called once
+        // SAFETY: MPI is initialised (the caller has a communicator); called once
         unsafe {
             HYPRE_Init();
             if std::env::var_os("OMP_NUM_THREADS").is_none() {
@@ -121,7 +116,10 @@ unsafe impl Send for Amg {}
 impl Amg {
     /// Builds A on this process's free owned rows (`vol` > 0) and sets BoomerAMG up on it.
     pub fn new(prop: &Propagation, vol: &[f64], theta_tau: f64, comm: &dyn Comm) -> Result<Amg> {
-        ensure_mpi();
+        let Some(raw) = comm.raw() else {
+            bail!("the amg preconditioner (hypre) needs MPI, which this process has not started; fix: run under mpirun, or start MPI first (`eprop run` does, as eprop::distribute::launch::start_alone)");
+        };
+        start_hypre();
         let Operator::Compact(c) = &prop.op else {
             bail!("the amg preconditioner needs the compact scheme; fix: use preconditioner = \"jacobi\"");
         };
@@ -142,7 +140,6 @@ impl Amg {
             g[i as usize][0] = (first + k as HypreInt) as f64;
         }
         prop.refresh(&mut g);
-        let raw = comm.raw_comm().unwrap_or(unsafe { mpi::ffi::RSMPI_COMM_SELF });
         let (lo, hi) = (first, first + rows.len() as HypreInt - 1);
         let mut amg = Amg {
             matrix: std::ptr::null_mut(),
