@@ -3,7 +3,7 @@
 //! A force on an organ becomes a directional energy source; the energy spreads through the
 //! volume by a vector Poisson equation, discretised with edge-based median-dual finite
 //! volumes and stepped with explicit Euler (or RKL2 super-steps, or implicit TR-BDF2); the
-//! propagated potential drives damped nodal dynamics. The model is fixed in MODEL.md;
+//! propagated potential drives damped nodal dynamics. The model is fixed in docs/model.md;
 //! ARCHITECTURE.md maps the code.
 
 pub mod cli;

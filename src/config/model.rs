@@ -65,7 +65,7 @@ pub const CONTINUUM: Defaults = Defaults {
     young: 4000.0,
 };
 
-/// The paper's reading: the values of MODEL.md before the continuum reading.
+/// The paper's reading: the paper defaults of docs/model.md section 0.
 pub const PAPER: Defaults = Defaults {
     mass: 1.0,
     damping: 2.0,
@@ -100,7 +100,7 @@ pub struct Model {
     pub reading: Reading,
     #[serde(default)]
     pub scheme: SchemeName,
-    /// The paper scheme's correction term (MODEL.md, eq. 11).
+    /// The paper scheme's correction term (docs/model.md section 3: the paper's eq. 11).
     #[serde(default = "yes")]
     pub paper_correction: bool,
     /// Storage of the compact operator's coefficients.

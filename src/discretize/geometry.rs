@@ -1,4 +1,5 @@
-//! Median-dual geometry on the rest mesh (MODEL.md section 2) and the cell operators built on it.
+//! Median-dual geometry on the rest mesh (docs/model.md section 2) and the cell operators
+//! built on it.
 //!
 //! Everything is assembled row by row: row i visits its incident cells in increasing cell
 //! order and adds that cell's contribution to its own entries only. A cell's numbers are

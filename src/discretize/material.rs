@@ -1,5 +1,6 @@
 //! Materials: per-node constitutive tensor R (symmetric positive definite), mass and damping,
-//! and the 1-D tissue law that turns a contact stress into an energy density (MODEL.md 1, 4).
+//! and the 1-D tissue law that turns a contact stress into an energy density (docs/model.md
+//! sections 1, 4).
 
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};

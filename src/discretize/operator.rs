@@ -1,5 +1,5 @@
 //! The discrete operator L of the vector Poisson equation and its explicit Euler step
-//! (MODEL.md section 3), in the two schemes.
+//! (docs/model.md section 3), in the two schemes.
 //!
 //! Layout: CSR over the rows a process updates (owned nodes), neighbour index (u32, local
 //! numbering, halo nodes after owned ones) and per-pair coefficients; the potential is an

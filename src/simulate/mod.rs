@@ -1,6 +1,7 @@
 //! One simulation on one process's part of the mesh: loads, propagation, mechanics
-//! (MODEL.md 3-6). `Simulation::advance` is one mechanics step: the loads at t_n give the
-//! sources Q and the forces f; the stepper advances the potential over dt; the nodes move.
+//! (docs/model.md sections 3-6). `Simulation::advance` is one mechanics step: the loads at t_n
+//! give the sources Q and the forces f; the stepper advances the potential over dt; the nodes
+//! move.
 
 mod access;
 pub mod contact;
@@ -231,7 +232,7 @@ impl<'a> Flux<'a> {
 /// nodes) and the owned contact nodes with their probe, force and source weights. In the
 /// continuum reading the force weight is 0 (loads push only through their source) and the
 /// source weight is the node's share a_i of the contact area; a load without a patch gets the
-/// length l = sqrt(A_c / pi) of its node's boundary dual area A_c (MODEL.md section 8: a
+/// length l = sqrt(A_c / pi) of its node's boundary dual area A_c (docs/model.md section 8: a
 /// singular source).
 #[allow(clippy::type_complexity)]
 fn resolve_loads(
@@ -419,7 +420,7 @@ fn trial_sources(
     })
 }
 
-/// Semi-implicit Euler on the owned active nodes (MODEL.md section 5):
+/// Semi-implicit Euler on the owned active nodes (docs/model.md section 5):
 /// v += dt/m (f - k_e u + kappa |phi|^(p-1) phi - g v); u += dt v. Returns the largest |v|^2
 /// of the nodes not flagged in `speed_elsewhere` (empty: of every node).
 fn mechanics_step(

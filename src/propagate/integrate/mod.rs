@@ -1,4 +1,4 @@
-//! Time integrators of the propagation (MODEL.md section 3): each advances the potential over
+//! Time integrators of the propagation (docs/model.md section 3): each advances the potential over
 //! one mechanics step dt of the semi-discrete system d(phi)/dt = L phi + Q, with Q held
 //! constant over the step and phi = 0 on the Dirichlet set. A `Stepper` owns its stability
 //! limits and its choice of substeps or stages; the simulation only calls `advance`.

@@ -1,4 +1,4 @@
-//! The largest stable forward Euler substep of an operator (MODEL.md section 3). Other
+//! The largest stable forward Euler substep of an operator (docs/model.md section 3). Other
 //! integrators size their stages from the same spectral bound.
 
 use crate::discretize::operator::{Operator, V3};
