@@ -22,7 +22,9 @@
 //!
 //! Selectors (`box`, `sphere`, ..., `patch`) are one type for the three tables that select
 //! nodes (`select`); checked values and choices shared by sections are in `values`; command-line
-//! overrides (`--set KEY=VALUE`) edit the text before it is parsed (`set`).
+//! overrides (`--set KEY=VALUE`) edit the text before it is parsed (`set`). A `Setup` is
+//! serde-serialisable, so that `distribute::parts` can send each process its part: `wire` holds
+//! the serde forms of the fields serde cannot derive.
 
 mod fixed;
 pub mod integrator;
@@ -39,6 +41,7 @@ pub mod tables;
 mod time;
 mod tools;
 mod values;
+pub(crate) mod wire;
 
 pub use fixed::FixedSet;
 pub use loads::{Load, Push, FORCE_COLUMNS};
@@ -106,7 +109,7 @@ pub struct Scenario {
 /// A scenario's path and text, the form in which it is sent.
 #[derive(Serialize, Deserialize)]
 struct Source {
-    #[serde(with = "crate::distribute::wire::path")]
+    #[serde(with = "crate::config::wire::path")]
     path: PathBuf,
     text: String,
 }
@@ -349,7 +352,7 @@ fn located(at: &str, section: Option<&str>, key: Option<&str>, msg: &str) -> Str
 #[derive(Serialize, Deserialize)]
 pub struct Setup {
     pub scenario: Scenario,
-    #[serde(with = "crate::distribute::wire::mesh")]
+    #[serde(with = "crate::config::wire::mesh")]
     pub mesh: Mesh,
     /// Per node (the mesh's numbering): conductivity tensor, mass, damping, fixed flag.
     pub r: Vec<Tensor>,

@@ -122,7 +122,7 @@ fn fields<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Field>, D::Error> {
 /// `[output]` resolved.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Output {
-    #[serde(with = "crate::distribute::wire::path")]
+    #[serde(with = "crate::config::wire::path")]
     pub file: PathBuf,
     pub every: u64,
     pub fields: Vec<Field>,

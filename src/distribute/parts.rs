@@ -2,7 +2,7 @@
 //! scenario on the whole mesh, splits the node graph (METIS) and, one process at a time,
 //! builds that process's plan, restricts the setup to it (`Setup::restrict`) and sends it;
 //! every other process receives its own. A part travels as postcard's compact binary form
-//! of its serde derive (`Part`; the mesh and paths through `wire`). A one-process run is one
+//! of its serde derive (`Part`; the mesh and paths through `config::wire`). A one-process run is one
 //! part of the same kind, made in place.
 
 use crate::config::Setup;
@@ -31,7 +31,7 @@ impl GlobalSizes {
         mesh.conn.iter().for_each(|&c| h.u64(c as u64));
         mesh.kinds
             .iter()
-            .for_each(|&k| h.u64(crate::distribute::wire::kind_code(k) as u64));
+            .for_each(|&k| h.u64(crate::config::wire::kind_code(k) as u64));
         mesh.node_ids.iter().for_each(|&i| h.u64(i));
         GlobalSizes {
             nodes: mesh.n_nodes(),

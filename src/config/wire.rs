@@ -1,7 +1,8 @@
-//! Serde forms of what a process's part carries and serde cannot derive by itself: the mesh
-//! (a type of `eprop_io`, sent as a mirror of the fields a part needs) and file paths (as
-//! their bytes, so a path that is not UTF-8 arrives unchanged). Used with
-//! `#[serde(with = "crate::distribute::wire::...")]`; `parts` encodes the whole with postcard.
+//! Serde forms of what a `Setup` (a process's part) carries and serde cannot derive by itself:
+//! the mesh (a type of `eprop_io`, sent as a mirror of the fields a part needs) and file paths
+//! (as their bytes, so a path that is not UTF-8 arrives unchanged). Used with
+//! `#[serde(with = "crate::config::wire::...")]`; `distribute::parts` encodes the whole with
+//! postcard.
 
 use eprop_io::CellKind;
 
