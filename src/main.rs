@@ -34,55 +34,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Cmd {
     /// Run a scenario to its stop condition and write the HDF5 series.
-    #[command(long_about = "Run a scenario to its stop condition and write the HDF5 series.\n\n\
-Scenario keys (all but [mesh] file and [time] have defaults). Units: [model] reading = \"continuum\"\n\
-(the default) reads SI units (m, s, N, Pa, kg/m^3) and converts the mesh to metres; \"paper\" is the\n\
-paper's per-node, unit-free reading (its defaults in parentheses). docs/model.md has the table.\n\
-  [mesh]      file = \"organ.msh\"             (relative to the scenario file; .msh .vtk .vtu .ele .mesh)\n\
-              unit = \"m\" | \"cm\" | \"mm\" | \"um\" (the file's coordinates; continuum: unit or scale required),\n\
-              scale = F (metres per file unit, instead of unit), strict = false (refuse inverted cells)\n\
-  [material]  mass = 1060 kg/m^3 (1, per node), damping = 4.118e4 kg/(m^3 s) (2, per node),\n\
-              conductivity = 0.1 m^2/s (0.05) | [rx, ry, rz] | 3x3 table\n\
-  [[material.region]]  box | sphere | halfspace | tag | group, and conductivity / mass / damping\n\
-  [model]     reading = \"continuum\" | \"paper\", scheme = \"compact\" | \"paper\", paper_correction = true,\n\
-              operator_precision = \"float64\" | \"float32\", stiffness = 4e5 N/m^4 (k_e = 1, per node),\n\
-              coupling = 15 1/m (kappa = 1), exponent = 1.0 (p),\n\
-              integrator = \"auto\" | \"euler\" | \"rkl2\" | \"implicit\" (docs/integrators.md)\n\
-  [integrator] accuracy = 1e-3 (rkl2, implicit: relative error per step; inf: no error control),\n\
-              tolerance = 1e-2 of accuracy, preconditioner = \"auto\" | \"jacobi\" | \"multigrid\" | \"amg\", max_iterations = 2000 (implicit);\n\
-              max_stages = 4096 (rkl2)\n\
-  [tissue]    young = 4000 Pa (100), beta = 0.0 (exponential law when > 0)\n\
-  [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |\n\
-              halfspace = {point, normal} | nodes = [ids] | tag = N | group = \"name\"\n\
-  [[load]]    node = ID | nearest = [x,y,z] m | patch = {center, radius} m;\n\
-              force = [fx,fy,fz] N | normal = magnitude N | table = \"forces.csv\" (columns t s, fx, fy, fz N);\n\
-              ramp = [[t0, s0], [t1, s1], ...] (optional scale in time); live = false (eprop serve)\n\
-  [[tool]]    shape = \"sphere\" | \"punch\", radius = R, normal = [nx,ny,nz] (punch: pressing direction);\n\
-              start = [x,y,z] and velocity = [vx,vy,vz] | table = \"path.csv\" (columns t, x, y, z);\n\
-              live = false (eprop serve: the client moves it). See docs/tools.md\n\
-  [time]      steps = N | end = T s | equilibrium = tol m/s;  dt, h s optional (automatic)\n\
-  [output]    file = \"out.h5\" (default: <scenario stem>.h5 beside the scenario), every = 1,\n\
-              fields = [\"displacement\", ...], precision = \"float64\" | \"float32\",\n\
-              compression = 0..9 (gzip), overwrite = false (replace an existing series),\n\
-              flush = 1 s (written steps are flushed, synced and counted at most this far apart\n\
-              and at every end: a crash loses at most that much; 0: every output step)\n\
-  [performance] fuse = \"auto\" | 1..16 (explicit Euler substeps per fused sweep; auto: timed on one\n\
-              process, 1 on several), simd = true (false: the portable kernel, other rounding)\n\n\
-The summary gives the substep h, the steps, the speed, the largest displacement, the contact\n\
-displacement of each load and the state of each tool, and warnings about implausible inputs and\n\
-results. Run under mpirun for several processes; --restart FILE continues an interrupted series\n\
-from its last complete step (tools included).\n\n\
-Safety: an output that is one of the run's inputs is refused; an existing series is replaced\n\
-only with --overwrite, any other existing file never; one run writes a file at a time (a lock,\n\
-<output>.lock, and an inode lock: links to a series being written are refused too); --restart\n\
-refuses a changed scenario, mesh or table; a run whose output would not fit on its disk is refused (--force starts it\n\
-anyway). Parameters whose products overflow or underflow (a load's contact stress and energy\n\
-density, the coupling's push, the continuum source) are refused when the scenario is read (by\n\
-check too); a state that is no longer finite stops the run. SIGTERM, SIGINT and SIGHUP stop the\n\
-run after a complete, written step.\n\
-Exit status: 0 done, 1 error or refusal (or a state that is no longer finite), 2 bad command\n\
-line, 3 stopped by a signal (continue with --restart), 4 the output could not be written\n\
-(disk full: free space, then continue with --restart).")]
+    #[command(long_about = run_help())]
     Run {
         /// Scenario file (TOML)
         scenario: PathBuf,
@@ -420,6 +372,34 @@ Example: eprop export out/cylinder.h5 --surface obj --every 10 -o out/frames/cyl
         overwrite: bool,
     },
 }
+
+/// `eprop run --help`: what it does, every scenario key (`eprop::config::keys`, the one
+/// reference), then what a run reports, refuses and returns.
+fn run_help() -> String {
+    format!(
+        "Run a scenario to its stop condition and write the HDF5 series.\n\n{}\n\n{}",
+        eprop::config::keys::KEYS,
+        RUN_AFTER_KEYS
+    )
+}
+
+/// The end of `eprop run --help`.
+const RUN_AFTER_KEYS: &str =
+    "The summary gives the substep h, the steps, the speed, the largest displacement, the contact\n\
+displacement of each load and the state of each tool, and warnings about implausible inputs and\n\
+results. Run under mpirun for several processes; --restart FILE continues an interrupted series\n\
+from its last complete step (tools included).\n\n\
+Safety: an output that is one of the run's inputs is refused; an existing series is replaced\n\
+only with --overwrite, any other existing file never; one run writes a file at a time (a lock,\n\
+<output>.lock, and an inode lock: links to a series being written are refused too); --restart\n\
+refuses a changed scenario, mesh or table; a run whose output would not fit on its disk is refused (--force starts it\n\
+anyway). Parameters whose products overflow or underflow (a load's contact stress and energy\n\
+density, the coupling's push, the continuum source) are refused when the scenario is read (by\n\
+check too); a state that is no longer finite stops the run. SIGTERM, SIGINT and SIGHUP stop the\n\
+run after a complete, written step.\n\
+Exit status: 0 done, 1 error or refusal (or a state that is no longer finite), 2 bad command\n\
+line, 3 stopped by a signal (continue with --restart), 4 the output could not be written\n\
+(disk full: free space, then continue with --restart).";
 
 #[derive(Clone, Copy, ValueEnum)]
 enum Kind {

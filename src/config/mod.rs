@@ -28,6 +28,7 @@
 
 mod fixed;
 pub mod integrator;
+pub mod keys;
 mod loads;
 mod material;
 mod mesh;
