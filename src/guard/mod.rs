@@ -1,6 +1,7 @@
 //! What keeps a run safe: output claims, the writer lock and agreed exit statuses (`safety`),
 //! checked counts and the output budget (`limits`), plausibility warnings and the non-finite
-//! watch (`plausible`), and signals as a flag the step's reduction carries (`signals`).
+//! watch (`plausible`), and the signal handler, whose flag a command hands its simulations as
+//! a `StopToken` (`signals`).
 
 pub(crate) mod limits;
 pub(crate) mod plausible;
