@@ -85,10 +85,10 @@ static ALONE: Mutex<Option<mpi::environment::Universe>> = Mutex::new(None);
 /// it (hypre: `Comm::raw` then gives MPI_COMM_SELF); a no-op once MPI runs. The launch that
 /// runs the command finalises it at its end.
 pub fn start_alone() -> Result<()> {
+    let mut alone = ALONE.lock().unwrap_or_else(|e| e.into_inner());
     if mpi::environment::is_initialized() {
         return Ok(());
     }
-    let mut alone = ALONE.lock().unwrap_or_else(|e| e.into_inner());
     match mpi::initialize() {
         Some(universe) => {
             *alone = Some(universe);
