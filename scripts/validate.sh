@@ -9,8 +9,9 @@
 # usage: scripts/validate.sh [OUT]     (CELLS=20,20,10 sets eprop's mesh; LENGTH=1 is the metres
 #                                       per eprop length unit: the scenarios are in SI, the
 #                                       continuum reading; 1e-3 for a scenario in mm)
-# The reference needs python3-dolfinx (apt-get install python3-dolfinx; scripts/setup.sh does
-# not install it: only this script needs it, and only to recompute the committed reference).
+# The reference needs python3-dolfinx and python3-gmsh (apt-get install python3-dolfinx
+# python3-gmsh; scripts/setup.sh does not install them: only this script needs them, and only to
+# recompute the committed reference).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-out/validation}
@@ -19,11 +20,11 @@ cells=${CELLS:-20,20,10}
 length=${LENGTH:-1}
 py=/usr/bin/python3
 if [ ! -s "$ref/force_centre.csv" ] || [ "${FE_REFRESH:-0}" = 1 ]; then
-  if ! "$py" -c "import dolfinx" 2>/dev/null; then
-    echo "validate.sh: $ref has no reference and DOLFINx is missing; fix: apt-get install python3-dolfinx" >&2
+  if ! "$py" -c "import dolfinx, gmsh" 2>/dev/null; then
+    echo "validate.sh: $ref has no reference and DOLFINx or gmsh's Python module is missing; fix: apt-get install python3-dolfinx python3-gmsh" >&2
     exit 1
   fi
-  echo "validate.sh: the finite-element reference (a few minutes)"
+  echo "validate.sh: the finite-element reference (about an hour)"
   "$py" scripts/fe_reference.py --out-dir "$ref" --quiet
 fi
 eprop=target/release/eprop
