@@ -55,7 +55,13 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
         qmin = qmin.min(q);
         qmax = qmax.max(q);
     }
-    let r = vec![Tensor::identity() * 0.05; n];
+    let r = crate::discretize::material::Materials::uniform(
+        n,
+        crate::discretize::material::Tissue {
+            r: Tensor::identity() * 0.05,
+            ..crate::config::PAPER_TISSUE
+        },
+    );
     let a = compact_coefficients(mesh, &inc, &dual, &r);
     let active: Vec<bool> = dual.vol.iter().map(|&v| v > 0.0).collect();
     let op = Compact::new(&dual, &a, &active);

@@ -13,7 +13,9 @@ readings and derives the defaults.
               strict = false (refuse inverted cells)
   [material]  mass = 1060 kg/m^3 (1, per node), damping = 4.118e4 kg/(m^3 s) (2, per node),
               conductivity = 0.1 m^2/s (0.05) | [rx, ry, rz] | 3x3 table
-  [[material.region]]  box | sphere | halfspace | tag | group, and conductivity / mass / damping
+  [[material.region]]  box | sphere | halfspace | tag | group, and any of conductivity, mass,
+              damping, young, beta, stiffness, coupling: a tissue of its own where it holds
+              (a later region wins where regions overlap; docs/model.md section 1)
   [model]     reading = "continuum" | "paper", scheme = "compact" | "paper",
               paper_correction = true, operator_precision = "float64" | "float32",
               stiffness = 4e5 N/m^4 (k_e = 1, per node), coupling = 15 1/m (kappa = 1),

@@ -1,10 +1,10 @@
 //! `[material]` and its `[[material.region]]`s: per-node conductivity tensor, mass and damping.
 
 use super::select::{Entry, Keys};
-use super::values::{opt_non_negative, opt_positive, NonNegative, Positive};
-use super::Reading;
+use super::values::{opt_non_negative, opt_positive, Finite, NonNegative, Positive};
 use super::Scenario;
-use crate::discretize::material::{check_spd, Tensor};
+use super::model::Model;
+use crate::discretize::material::{check_spd, Materials, Tensor, Tissue, TissueLaw, MAX_TISSUES};
 use anyhow::Result;
 use eprop_io::Mesh;
 use serde::de::MapAccess;
@@ -119,63 +119,105 @@ fn frame(diagonal: [f64; 3], axes: [[f64; 3]; 3]) -> Result<Tensor, String> {
     Ok(t)
 }
 
-/// The keys of a `[[material.region]]` besides its selector: what it changes.
+/// The keys of a `[[material.region]]` besides its selector: what it changes (a key left out
+/// keeps what the node had: the sections' values, or an earlier region's).
 #[derive(Clone, Debug, Default)]
 pub struct Region {
     pub conductivity: Option<Conductivity>,
     pub mass: Option<f64>,
     pub damping: Option<f64>,
+    /// `[tissue] young` and `beta` of the region's tissue law.
+    pub young: Option<f64>,
+    pub beta: Option<f64>,
+    /// `[model] stiffness` (the pull-back) and `coupling` in the region.
+    pub stiffness: Option<f64>,
+    pub coupling: Option<f64>,
 }
 
 impl Keys for Region {
     const TABLE: &'static str = "material.region";
     const CHOOSES: &'static str = "a material region";
     const SELECTORS: &'static [&'static str] = &["box", "sphere", "halfspace", "tag", "group"];
-    const OWN: &'static [&'static str] = &["conductivity", "mass", "damping"];
+    const OWN: &'static [&'static str] = &[
+        "conductivity",
+        "mass",
+        "damping",
+        "young",
+        "beta",
+        "stiffness",
+        "coupling",
+    ];
     fn read<'de, A: MapAccess<'de>>(&mut self, key: &str, map: &mut A) -> Result<(), A::Error> {
         match key {
             "conductivity" => self.conductivity = Some(map.next_value()?),
             "mass" => self.mass = Some(map.next_value::<Positive>()?.0),
-            _ => self.damping = Some(map.next_value::<NonNegative>()?.0),
+            "damping" => self.damping = Some(map.next_value::<NonNegative>()?.0),
+            "young" => self.young = Some(map.next_value::<Positive>()?.0),
+            "beta" => self.beta = Some(map.next_value::<NonNegative>()?.0),
+            "stiffness" => self.stiffness = Some(map.next_value::<NonNegative>()?.0),
+            _ => self.coupling = Some(map.next_value::<Finite>()?.0),
         }
         Ok(())
     }
 }
 
-/// Per-node material arrays (the mesh's numbering).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Materials {
-    pub r: Vec<Tensor>,
-    pub mass: Vec<f64>,
-    pub damping: Vec<f64>,
+impl Region {
+    /// `t` with this region's keys applied.
+    fn apply(&self, mut t: Tissue) -> Tissue {
+        if let Some(c) = self.conductivity {
+            t.r = c.0;
+        }
+        t.mass = self.mass.unwrap_or(t.mass);
+        t.damping = self.damping.unwrap_or(t.damping);
+        t.law.young = self.young.unwrap_or(t.law.young);
+        t.law.beta = self.beta.unwrap_or(t.law.beta);
+        t.stiffness = self.stiffness.unwrap_or(t.stiffness);
+        t.coupling = self.coupling.unwrap_or(t.coupling);
+        t
+    }
 }
 
-/// The `[material]` values on every node (the reading's defaults where a key is not
-/// written), then each region's on its nodes, in order.
-pub fn resolve(sc: &Scenario, m: &MaterialSec, reading: Reading, mesh: &Mesh) -> Result<Materials> {
+/// The tissue of every node: the sections' values (`[material]`, `[model]` stiffness and
+/// coupling, `[tissue]`; the reading's defaults where a key is not written), then each
+/// region's keys on its nodes, in order (a later region wins where they overlap).
+pub fn resolve(sc: &Scenario, m: &MaterialSec, model: &Model, law: TissueLaw, mesh: &Mesh) -> Result<Materials> {
     let n = mesh.n_nodes();
-    let d = reading.defaults();
-    let conductivity = m.conductivity.map_or(Tensor::identity() * d.conductivity, |c| c.0);
-    let mut r = vec![conductivity; n];
-    let mut mass = vec![m.mass.unwrap_or(d.mass); n];
-    let mut damping = vec![m.damping.unwrap_or(d.damping); n];
-    for reg in &m.region {
+    let d = model.reading.defaults();
+    let base = Tissue {
+        r: m.conductivity.map_or(Tensor::identity() * d.conductivity, |c| c.0),
+        mass: m.mass.unwrap_or(d.mass),
+        damping: m.damping.unwrap_or(d.damping),
+        stiffness: model.stiffness(),
+        coupling: model.coupling(),
+        law,
+    };
+    let mut mat = Materials::uniform(n, base);
+    for (k, reg) in m.region.iter().enumerate() {
         let none = "the region holds no node; fix: check its bounds against the mesh (eprop info MESH)";
         let set = sc.select(&reg.selector, Region::TABLE, mesh, none)?;
-        let w = &reg.with;
+        // the tissue each tissue of the table becomes in this region, made once
+        let mut becomes: Vec<Option<u16>> = vec![None; mat.tissues.len()];
         for i in (0..n).filter(|&i| set[i]) {
-            if let Some(c) = w.conductivity {
-                r[i] = c.0;
-            }
-            if let Some(ms) = w.mass {
-                mass[i] = ms;
-            }
-            if let Some(d) = w.damping {
-                damping[i] = d;
-            }
+            let old = mat.of_node[i] as usize;
+            let new = match becomes[old] {
+                Some(t) => t,
+                None => {
+                    let t = mat.index_of(reg.with.apply(mat.tissues[old])).ok_or_else(|| {
+                        anyhow::anyhow!(
+                            "{}: [[material.region]] {}: the regions make more than {MAX_TISSUES} distinct tissues; fix: use fewer regions, or regions that share their values",
+                            sc.path.display(),
+                            k + 1
+                        )
+                    })?;
+                    becomes.resize(mat.tissues.len(), None);
+                    becomes[old] = Some(t);
+                    t
+                }
+            };
+            mat.of_node[i] = new;
         }
     }
-    Ok(Materials { r, mass, damping })
+    Ok(mat)
 }
 
 #[cfg(test)]

@@ -47,6 +47,21 @@ pub(crate) mod wire;
 pub use fixed::FixedSet;
 pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
+
+/// A tissue of the paper reading's defaults (for tools that need one: `eprop info`'s operator).
+pub const PAPER_TISSUE: crate::discretize::material::Tissue = crate::discretize::material::Tissue {
+    r: crate::discretize::material::Tensor::new(
+        model::PAPER.conductivity, 0.0, 0.0, 0.0, model::PAPER.conductivity, 0.0, 0.0, 0.0, model::PAPER.conductivity,
+    ),
+    mass: model::PAPER.mass,
+    damping: model::PAPER.damping,
+    stiffness: model::PAPER.stiffness,
+    coupling: model::PAPER.coupling,
+    law: TissueLaw {
+        young: model::PAPER.young,
+        beta: 0.0,
+    },
+};
 pub use mesh::{MeshSec, Unit};
 pub use model::{Defaults, IntegratorSec, Model, Reading, Scheme, SchemeName, TissueSec, CONTINUUM, PAPER};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
@@ -56,7 +71,7 @@ pub use time::{steps_to, Stop, Time, TimeSec};
 pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
 pub use values::Precision;
 
-use crate::discretize::material::{Tensor, TissueLaw};
+use crate::discretize::material::{Materials, TissueLaw};
 use anyhow::{anyhow, Result};
 use eprop_io::Mesh;
 use serde::{Deserialize, Serialize};
@@ -355,10 +370,10 @@ pub struct Setup {
     pub scenario: Scenario,
     #[serde(with = "crate::config::wire::mesh")]
     pub mesh: Mesh,
-    /// Per node (the mesh's numbering): conductivity tensor, mass, damping, fixed flag.
-    pub r: Vec<Tensor>,
-    pub mass: Vec<f64>,
-    pub damping: Vec<f64>,
+    /// Each node's tissue (the mesh's numbering): conductivity tensor, mass, damping,
+    /// pull-back, coupling and tissue law.
+    pub materials: Materials,
+    /// Per node: fixed.
     pub fixed: Vec<bool>,
     pub loads: Vec<Load>,
     pub tools: Vec<Tool>,
@@ -384,7 +399,8 @@ impl Setup {
         let (sc, f) = (&scenario, &scenario.file);
         let time = time::resolve(sc, &f.time)?;
         let output = output::resolve(sc);
-        let material::Materials { r, mass, damping } = material::resolve(sc, &f.material, f.model.reading, &mesh)?;
+        let law = f.tissue.law(f.model.reading);
+        let materials = material::resolve(sc, &f.material, &f.model, law, &mesh)?;
         let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         let tools = tools::resolve(sc, &f.tool)?;
@@ -392,13 +408,11 @@ impl Setup {
             tools,
             model: f.model.clone(),
             integrator: f.integrator.settings(f.model.integrator),
-            law: f.tissue.law(f.model.reading),
+            law,
             time,
             output,
             performance: f.performance.resolve(),
-            r,
-            mass,
-            damping,
+            materials,
             fixed,
             loads,
             mesh,
@@ -539,10 +553,13 @@ mod tests {
         ))
         .unwrap();
         let n = s.mesh.n_nodes();
-        assert!(s.mass.iter().all(|&m| m == 2.0) && s.mass.len() == n);
+        let m = &s.materials;
+        assert!((0..n).all(|i| m.at(i).mass == 2.0) && m.n_nodes() == n);
         let upper = (0..n).filter(|&i| s.mesh.points[i][2] >= 2.0 - 1e-9).count();
-        assert_eq!(s.damping.iter().filter(|&&d| d == 3.0).count(), upper);
-        assert_eq!(s.r.iter().filter(|r| r[(0, 0)] == 0.08).count(), upper);
+        assert_eq!((0..n).filter(|&i| m.at(i).damping == 3.0).count(), upper);
+        assert_eq!((0..n).filter(|&i| m.r(i)[(0, 0)] == 0.08).count(), upper);
+        // two tissues: the section's and the region's
+        assert_eq!(m.tissues.len(), 2);
         assert!(s.fixed.iter().any(|&b| b) && s.fixed.len() == n);
         assert_eq!(s.loads.len(), 1);
         assert_eq!(s.model.scheme(), Scheme::Paper { correction: true });

@@ -7,7 +7,7 @@
 //! coefficients a_ij = a_ji hold bitwise, and a row's value never depends on which other rows
 //! are built beside it (the property that makes partitioned runs bitwise identical).
 
-use crate::discretize::material::Tensor;
+use crate::discretize::material::Materials;
 use eprop_io::geom::{add, cell_volume, centroid, det3, dot, loop_area, scale, sub};
 use eprop_io::mesh::{boundary_faces, CellKind, Mesh};
 use nalgebra::{Matrix3, Vector3};
@@ -401,7 +401,7 @@ impl Dual {
 /// Compact-scheme coefficients a_ij of rows `0..n_rows` on the pair graph of `dual`:
 /// sum_j a_ij (u_j - u_i) is the exact flux of R grad u (cell gradients) into the control
 /// volume of i. `r` gives the tensor of every local node; a cell uses the mean of its nodes'.
-pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &[Tensor]) -> Vec<f64> {
+pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Materials) -> Vec<f64> {
     let pts = &mesh.points;
     let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
     let order = visit_order(mesh, dual.n_rows);
@@ -419,7 +419,7 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &[Tens
                 let li = nodes.iter().position(|&x| x as usize == i).unwrap();
                 let mut rc = Matrix3::zeros();
                 for &n in nodes {
-                    rc += r[n as usize];
+                    rc += r.r(n as usize);
                 }
                 rc /= nodes.len() as f64;
                 if kind == CellKind::Tet {

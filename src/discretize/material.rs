@@ -70,3 +70,107 @@ impl TissueLaw {
         }
     }
 }
+
+/// One tissue: a distinct combination of the parameters `[material]`, `[model]`, `[tissue]`
+/// and the `[[material.region]]`s give a node (docs/model.md section 1).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Tissue {
+    /// Conductivity tensor R.
+    pub r: Tensor,
+    pub mass: f64,
+    pub damping: f64,
+    /// The pull-back k (k_e in the paper reading).
+    pub stiffness: f64,
+    /// The coupling kappa.
+    pub coupling: f64,
+    /// Young's modulus and stiffening of the tissue law.
+    pub law: TissueLaw,
+}
+
+impl Tissue {
+    /// Bitwise equality (a tissue's parameters are copied, never computed, so equal tissues
+    /// are equal bit for bit).
+    fn same(&self, o: &Tissue) -> bool {
+        let bits = |t: &Tissue| {
+            let mut v: Vec<u64> = t.r.iter().map(|x| x.to_bits()).collect();
+            v.extend([t.mass, t.damping, t.stiffness, t.coupling, t.law.young, t.law.beta].map(f64::to_bits));
+            v
+        };
+        bits(self) == bits(o)
+    }
+}
+
+/// The tissues of a mesh: a small table of distinct tissues and each node's index into it
+/// (two bytes per node instead of a tensor and five numbers).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Materials {
+    pub tissues: Vec<Tissue>,
+    pub of_node: Vec<u16>,
+}
+
+/// More distinct tissues than a node's index can name.
+pub const MAX_TISSUES: usize = u16::MAX as usize + 1;
+
+impl Materials {
+    /// Every one of `n` nodes of one tissue.
+    pub fn uniform(n: usize, t: Tissue) -> Materials {
+        Materials {
+            tissues: vec![t],
+            of_node: vec![0; n],
+        }
+    }
+
+    /// Node i's tissue.
+    #[inline]
+    pub fn at(&self, i: usize) -> &Tissue {
+        &self.tissues[self.of_node[i] as usize]
+    }
+
+    /// Node i's conductivity tensor.
+    #[inline]
+    pub fn r(&self, i: usize) -> &Tensor {
+        &self.at(i).r
+    }
+
+    pub fn n_nodes(&self) -> usize {
+        self.of_node.len()
+    }
+
+    /// The index of `t` in the table, added when new; None when the table is full.
+    pub fn index_of(&mut self, t: Tissue) -> Option<u16> {
+        if let Some(k) = self.tissues.iter().position(|x| x.same(&t)) {
+            return Some(k as u16);
+        }
+        if self.tissues.len() >= MAX_TISSUES {
+            return None;
+        }
+        self.tissues.push(t);
+        Some((self.tissues.len() - 1) as u16)
+    }
+
+    /// The nodes `ids` (indices into this table's nodes), in that order, with only the
+    /// tissues they use (in the order of first use, so the table does not depend on which
+    /// nodes a process holds beyond them).
+    pub fn pick(&self, ids: &[u32]) -> Materials {
+        let mut map = vec![u32::MAX; self.tissues.len()];
+        let mut out = Materials {
+            tissues: Vec::new(),
+            of_node: Vec::with_capacity(ids.len()),
+        };
+        for &g in ids {
+            let k = self.of_node[g as usize] as usize;
+            if map[k] == u32::MAX {
+                map[k] = out.tissues.len() as u32;
+                out.tissues.push(self.tissues[k]);
+            }
+            out.of_node.push(map[k] as u16);
+        }
+        out
+    }
+
+    /// Whether every node has the same Young's modulus (then it weighs nothing in the
+    /// propagation: docs/model.md section 3).
+    pub fn uniform_young(&self) -> bool {
+        self.tissues.windows(2).all(|w| w[0].law.young.to_bits() == w[1].law.young.to_bits())
+    }
+}

@@ -8,7 +8,7 @@
 //! any thread count. Rows of Dirichlet or inactive nodes are empty and never change.
 
 use crate::discretize::geometry::Dual;
-use crate::discretize::material::Tensor;
+use crate::discretize::material::Materials;
 use eprop_io::geom::{dot, sub};
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -496,7 +496,7 @@ pub struct Paper {
 }
 
 impl Paper {
-    pub fn new(dual: &Dual, points: &[V3], r: &[Tensor], update: &[bool], correction: bool) -> Paper {
+    pub fn new(dual: &Dual, points: &[V3], mat: &Materials, update: &[bool], correction: bool) -> Paper {
         let n = dual.n_rows;
         let mut row_ptr = Vec::with_capacity(n + 1);
         let (mut col, mut s, mut ris, mut rjs, mut e, mut c) = (vec![], vec![], vec![], vec![], vec![], vec![]);
@@ -509,10 +509,11 @@ impl Paper {
                 }
                 let j = dual.col[p] as usize;
                 let sv = Vector3::from(sij);
-                let ri = r[i] * sv;
-                let rj = r[j] * sv;
+                let (r_i, r_j) = (mat.r(i), mat.r(j));
+                let ri = r_i * sv;
+                let rj = r_j * sv;
                 let ev = sub(points[j], points[i]);
-                let rbar = (r[i] + r[j]) * 0.5;
+                let rbar = (r_i + r_j) * 0.5;
                 let re = rbar * Vector3::from(ev);
                 col.push(j as u32);
                 s.push(sij);

@@ -95,9 +95,7 @@ impl Setup {
         Setup {
             scenario: self.scenario.clone(),
             mesh: local_mesh(&self.mesh, plan),
-            r: pick(&self.r, plan),
-            mass: pick(&self.mass, plan),
-            damping: pick(&self.damping, plan),
+            materials: self.materials.pick(&plan.numbering.global),
             fixed: pick(&self.fixed, plan),
             loads: self.loads.clone(),
             tools: self.tools.clone(),
@@ -299,15 +297,12 @@ mod tests {
             (&y.kinds, &y.offsets, &y.conn, &y.cell_tags)
         );
         assert_eq!(x.warnings, y.warnings);
-        assert_eq!(
-            (&a.r, &a.mass, &a.damping, &a.fixed),
-            (&b.r, &b.mass, &b.damping, &b.fixed)
-        );
+        assert_eq!((&a.materials, &a.fixed), (&b.materials, &b.fixed));
         assert_eq!((&a.loads, &a.model, &a.law), (&b.loads, &b.model, &b.law));
         assert_eq!(a.tools, b.tools);
         assert_eq!((&a.time, &a.output), (&b.time, &b.output));
         // the values are the interesting ones, not defaults
-        assert!(a.mass.contains(&3.0) && a.fixed.contains(&false) && a.loads[0].ramp.is_some());
+        assert!(a.materials.tissues.iter().any(|t| t.mass == 3.0) && a.fixed.contains(&false) && a.loads[0].ramp.is_some());
         assert_eq!(a.tools.len(), 1);
     }
 
@@ -360,8 +355,8 @@ mod tests {
                 assert_eq!(s.mesh.points[l], whole.mesh.points[g]);
                 assert_eq!(s.mesh.node_ids[l], whole.mesh.node_ids[g]);
                 assert_eq!(
-                    (s.r[l], s.mass[l], s.damping[l], s.fixed[l]),
-                    (whole.r[g], whole.mass[g], whole.damping[g], whole.fixed[g])
+                    (s.materials.at(l), s.fixed[l]),
+                    (whole.materials.at(g), whole.fixed[g])
                 );
             }
             // every local cell is its global cell, renumbered

@@ -206,10 +206,8 @@ fn speed_scale(sim: &Simulation) -> f64 {
             eprop_io::geom::norm(l.force) * peak
         })
         .fold(0.0f64, f64::max);
-    let n = sim.n_owned();
-    let m = sim
-        .comm()
-        .min(sim.setup().mass[..n].iter().copied().fold(f64::INFINITY, f64::min));
+    let tissues = &sim.setup().materials.tissues;
+    let m = sim.comm().min(tissues.iter().map(|t| t.mass).fold(f64::INFINITY, f64::min));
     f * sim.dt() / m
 }
 

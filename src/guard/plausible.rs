@@ -159,8 +159,8 @@ pub fn scale_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
             short(k)
         ));
     }
-    if let Some(r) = st.r.first() {
-        let cond = r.trace() / 3.0;
+    if let Some(t) = st.materials.tissues.first() {
+        let cond = t.r.trace() / 3.0;
         let (t, t0) = (diag * diag / cond, diag * diag / d.conductivity);
         if far(t, t0) {
             out.push(format!(

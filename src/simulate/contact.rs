@@ -236,7 +236,7 @@ impl ToolRun {
         t: f64,
         n: &Nodes,
         law: &TissueLaw,
-        conductivity: Option<&[crate::discretize::material::Tensor]>,
+        conductivity: Option<&crate::discretize::material::Materials>,
         q: &mut Vec<(u32, V3)>,
     ) {
         let c = self.tool.path.at(t);
@@ -247,7 +247,7 @@ impl ToolRun {
             let a = norm(ar);
             let d_cond = conductivity.map(|r| {
                 let d = nalgebra::Vector3::new(ar[0] / a, ar[1] / a, ar[2] / a);
-                (d.transpose() * r[i as usize] * d)[(0, 0)]
+                (d.transpose() * r.r(i as usize) * d)[(0, 0)]
             });
             let m = contact_source(law.energy_density(p), a, n.vol[i as usize], rho, d_cond);
             q.push((i, scale(ar, -m / a)));
@@ -375,7 +375,7 @@ pub fn planned_sources(
     steps: u64,
     n: &Nodes,
     law: &TissueLaw,
-    conductivity: Option<&[crate::discretize::material::Tensor]>,
+    conductivity: Option<&crate::discretize::material::Materials>,
     mut stop: impl FnMut(u64, &[(u32, V3)]) -> bool,
 ) -> Option<Vec<Vec<(u32, V3)>>> {
     if tools.iter().any(|t| t.tool.live) {

@@ -116,7 +116,7 @@ pub struct Simulation {
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
 /// faces before its coefficients are computed and takes the pair columns over).
 fn build_operator(setup: &Setup, inc: &Incidence, dual: &mut Dual, active: &[bool], n_rows: usize) -> Operator {
-    let (mesh, r) = (&setup.mesh, &setup.r);
+    let (mesh, r) = (&setup.mesh, &setup.materials);
     match setup.model.scheme() {
         Scheme::Compact => {
             dual.release_pairs(); // S_ij are not needed by compact: free them first
@@ -139,7 +139,10 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
     let dt_bound = comm.min(
         (0..n_owned)
             .filter(|&i| active[i])
-            .map(|i| dt_bound_node(setup.mass[i], setup.damping[i], setup.model.stiffness()))
+            .map(|i| {
+                let t = setup.materials.at(i);
+                dt_bound_node(t.mass, t.damping, t.stiffness)
+            })
             .fold(f64::INFINITY, f64::min),
     );
     let path = setup.scenario.path.display();
@@ -217,14 +220,14 @@ pub fn flux_source(d_cond: f64, length: f64, q: f64, area: f64, vol: f64) -> f64
 /// tensors and control volumes (local numbering).
 #[derive(Clone, Copy)]
 struct Flux<'a> {
-    r: &'a [crate::discretize::material::Tensor],
+    r: &'a crate::discretize::material::Materials,
     vol: &'a [f64],
 }
 
 impl<'a> Flux<'a> {
     /// Some in the continuum reading.
     fn of(setup: &'a Setup, vol: &'a [f64]) -> Option<Flux<'a>> {
-        (setup.model.reading == Reading::Continuum).then_some(Flux { r: &setup.r, vol })
+        (setup.model.reading == Reading::Continuum).then_some(Flux { r: &setup.materials, vol })
     }
 }
 
@@ -332,7 +335,7 @@ fn load_sources(
             (Some(fx), Some(length)) => {
                 let d = scale(a.force, 1.0 / fn_);
                 q.extend(mine.iter().map(|&(i, _, _, area)| {
-                    let r = &fx.r[i as usize];
+                    let r = fx.r.r(i as usize);
                     let rd = r * nalgebra::Vector3::from(d);
                     let d_cond = d[0] * rd[0] + d[1] * rd[1] + d[2] * rd[2];
                     let s = flux_source(d_cond, length, a.q, area, fx.vol[i as usize]);
@@ -386,7 +389,7 @@ fn trial_sources(
     let mut first = pushes;
     if !tools.is_empty() {
         // every process plans to its own first pressed step (or the search's end) and two more
-        let conductivity = (setup.model.reading == Reading::Continuum).then_some(&setup.r[..]);
+        let conductivity = (setup.model.reading == Reading::Continuum).then_some(&setup.materials);
         let limit = pushes.map_or(TRIAL_SEARCH, |k| k + 1);
         let mut mine = None;
         planned = contact::planned_sources(tools, dt, limit + 2, nodes, &setup.law, conductivity, |k, q| {
@@ -433,8 +436,7 @@ fn mechanics_step(
     u: &mut [V3],
     v: &mut [V3],
 ) -> f64 {
-    let (k, kappa, p) = (setup.model.stiffness(), setup.model.coupling(), setup.model.exponent);
-    let (mass, damp) = (&setup.mass, &setup.damping);
+    let (mat, p) = (&setup.materials, setup.model.exponent);
     const CH: usize = 4096;
     u.par_chunks_mut(CH)
         .zip(v.par_chunks_mut(CH))
@@ -447,6 +449,8 @@ fn mechanics_step(
                     continue;
                 }
                 let ph = phi[i];
+                let t = mat.at(i);
+                let (k, kappa) = (t.stiffness, t.coupling);
                 // kappa |phi|^(p-1) phi; for p = 1 simply kappa phi
                 let push = if p == 1.0 {
                     kappa
@@ -458,7 +462,7 @@ fn mechanics_step(
                         0.0
                     }
                 };
-                let (inv_m, g, f) = (1.0 / mass[i], damp[i], force[i]);
+                let (inv_m, g, f) = (1.0 / t.mass, t.damping, force[i]);
                 for d in 0..3 {
                     let a = (f[d] - k * u[d] + push * ph[d] - g * v[d]) * inv_m;
                     v[d] += dt * a;
@@ -508,7 +512,7 @@ impl Simulation {
             self.mesh(),
             op,
             &self.dual.vol,
-            &self.setup.r,
+            &self.setup.materials,
             &|c| ids.map(|m| m.cell_id(c)).unwrap_or(c as u64 + 1),
         ))
     }
@@ -708,7 +712,7 @@ impl Simulation {
         if !self.tools.is_empty() {
             let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
             for t in &mut self.tools {
-                let conductivity = (self.setup.model.reading == Reading::Continuum).then_some(&self.setup.r[..]);
+                let conductivity = (self.setup.model.reading == Reading::Continuum).then_some(&self.setup.materials);
                 t.sources(self.time, &nodes, &self.setup.law, conductivity, &mut q);
             }
         }

@@ -6,7 +6,7 @@
 //! to repair.
 
 use crate::discretize::geometry::tet_gradients;
-use crate::discretize::material::Tensor;
+use crate::discretize::material::{Materials, Tensor};
 use crate::discretize::operator::Compact;
 use eprop_io::geom::cell_quality;
 use eprop_io::{CellKind, Mesh};
@@ -117,7 +117,7 @@ pub fn median_bound(op: &Compact, n_owned: usize, comm: &dyn crate::distribute::
 /// Stiffness of `op` on `mesh` (the operator's rows are the mesh's first nodes, in its
 /// numbering); `vol` the control volumes and `r` the conductivity of every node; `cell_id`
 /// the file's id of a cell.
-pub fn analyse(mesh: &Mesh, op: &Compact, vol: &[f64], r: &[Tensor], cell_id: &dyn Fn(usize) -> u64) -> Stiffness {
+pub fn analyse(mesh: &Mesh, op: &Compact, vol: &[f64], r: &Materials, cell_id: &dyn Fn(usize) -> u64) -> Stiffness {
     let g = row_bounds(op);
     let med = median_positive(&g);
     let nodes = g.iter().filter(|&&x| x > 0.0).count();
@@ -185,7 +185,7 @@ pub fn analyse(mesh: &Mesh, op: &Compact, vol: &[f64], r: &[Tensor], cell_id: &d
 /// A cell's weight in row `i` (its local node `li`): sum over its other nodes k of
 /// |a_ik^cell| = |V grad N_i . R grad N_k| for tetrahedra; for other kinds, 1 - quality (the
 /// flattest incident cell).
-fn cell_weight(mesh: &Mesh, c: usize, li: usize, r: &[Tensor]) -> f64 {
+fn cell_weight(mesh: &Mesh, c: usize, li: usize, r: &Materials) -> f64 {
     let kind = mesh.kinds[c];
     let nodes = mesh.cell(c);
     if kind != CellKind::Tet {
@@ -194,7 +194,7 @@ fn cell_weight(mesh: &Mesh, c: usize, li: usize, r: &[Tensor]) -> f64 {
     let (gr, v) = tet_gradients(nodes, &mesh.points);
     let mut rc = Tensor::zeros();
     for &n in nodes {
-        rc += r[n as usize];
+        rc += r.r(n as usize);
     }
     rc /= 4.0;
     let gi = rc * Vector3::from(gr[li]);
@@ -298,7 +298,13 @@ mod tests {
         let before = {
             let inc = Incidence::new(&mesh);
             let dual = Dual::build(&mesh, &inc, n, None);
-            let r = vec![Tensor::identity(); n];
+            let r = Materials::uniform(
+                n,
+                crate::discretize::material::Tissue {
+                    r: Tensor::identity(),
+                    ..crate::config::PAPER_TISSUE
+                },
+            );
             let a = compact_coefficients(&mesh, &inc, &dual, &r);
             let op = Compact::new(&dual, &a, &vec![true; n]);
             analyse(&mesh, &op, &dual.vol, &r, &|c| c as u64 + 1)
@@ -309,7 +315,13 @@ mod tests {
         mesh.points[centre][2] += 0.24;
         let inc = Incidence::new(&mesh);
         let dual = Dual::build(&mesh, &inc, n, None);
-        let r = vec![Tensor::identity(); n];
+        let r = Materials::uniform(
+                n,
+                crate::discretize::material::Tissue {
+                    r: Tensor::identity(),
+                    ..crate::config::PAPER_TISSUE
+                },
+            );
         let a = compact_coefficients(&mesh, &inc, &dual, &r);
         let op = Compact::new(&dual, &a, &vec![true; n]);
         let s = analyse(&mesh, &op, &dual.vol, &r, &|c| c as u64 + 100);
