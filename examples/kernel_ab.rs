@@ -56,7 +56,7 @@ fn main() -> anyhow::Result<()> {
     let band = |c: &Compact| {
         (0..n)
             .flat_map(|i| {
-                c.col[c.row_ptr[i] as usize..c.row_ptr[i + 1] as usize]
+                c.col()[c.coefficients().row(i)]
                     .iter()
                     .map(move |&j| i.abs_diff(j as usize))
             })
@@ -73,10 +73,10 @@ fn main() -> anyhow::Result<()> {
         let w = eprop::propagate::wavefront::Wavefront::new(&rcm, Layout::serial(n), 2);
         let mut lags: Vec<u32> = w.deep[1].iter().map(|s| s.need - s.start).collect();
         lags.sort_unstable();
-        let empty = (0..n).filter(|&i| rcm.row_ptr[i] == rcm.row_ptr[i + 1]).count();
+        let empty = (0..n).filter(|&i| rcm.coefficients().row(i).is_empty()).count();
         println!(
             "pairs per row {:.2}, empty rows {empty}, segment lag (RCM) median {} p90 {} max {}",
-            rcm.col.len() as f64 / n as f64,
+            rcm.col().len() as f64 / n as f64,
             lags[lags.len() / 2],
             lags[lags.len() * 9 / 10],
             lags[lags.len() - 1]
@@ -84,7 +84,7 @@ fn main() -> anyhow::Result<()> {
     }
     let prop = |c: Compact| Propagation::new(Operator::Compact(c), Halo::serial(), Layout::serial(n), Fuse::Auto);
     let id: Vec<u32> = (0..n as u32).collect();
-    let f64_coef = morton.coef32.is_empty();
+    let f64_coef = !morton.is_f32();
     // (name, order: 0 Morton 1 RCM, float32 coefficients, substeps per sweep (0: chosen by
     // the tuner, as in a run), the vector kernel (where the CPU has it)
     let mut spec: Vec<(&str, u8, bool, usize, bool)> = vec![

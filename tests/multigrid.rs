@@ -7,9 +7,10 @@ mod common;
 use common::sim;
 use eprop::discretize::operator::V3;
 use eprop::distribute::comm::Serial;
+use eprop::linalg::multigrid::Multigrid;
+use eprop::linalg::Precond;
 use eprop::propagate::integrate::implicit::THETA;
-use eprop::propagate::integrate::multigrid::Multigrid;
-use eprop::propagate::integrate::{Implicit, Precond, Preconditioner, Settings, Stepper};
+use eprop::propagate::integrate::{Implicit, Preconditioner, Settings, Stepper};
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
 
