@@ -475,4 +475,25 @@ mod tests {
         }
         assert_eq!(a.transpose().transpose(), a);
     }
+
+    #[test]
+    fn a_precision_chosen_at_run_time_reads_as_its_values() {
+        let a = sample(6, 4, 3);
+        let f32s = AnyCsr::F64(a.clone()).into_f32();
+        assert!(f32s.is_f32() && f32s.n_rows() == 6 && f32s.n_cols() == 4);
+        for i in 0..6 {
+            assert_eq!(f32s.row(i), a.row(i));
+            for p in a.row(i) {
+                assert_eq!(f32s.value(p), a.val[p] as f32 as f64);
+                assert_eq!(f32s.col()[p], a.col[p]);
+            }
+        }
+        // the same pattern with other values; the identity leaves three columns alone
+        let w = f32s.with_values(vec![2.0f64; a.nnz()]);
+        assert_eq!((w.ptr.clone(), w.col.clone()), (a.ptr.clone(), a.col.clone()));
+        let x: Vec<V3> = (0..5).map(|i| [i as f64, -(i as f64), 0.5]).collect();
+        let mut y = vec![[7.0; 3]; 5];
+        Csr::<f32>::identity(5).spmv(&x, &mut y);
+        assert_eq!(y, x);
+    }
 }
