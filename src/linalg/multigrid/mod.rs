@@ -204,28 +204,23 @@ impl Level {
     /// A = V + c K, its inverse diagonal and Chebyshev interval.
     fn combine(&mut self, c: f64) {
         let n = self.n();
+        let k: &Csr<f64> = &self.k;
         self.a = match &self.v {
-            Mass::Full(v) => v.iter().zip(self.k.val.iter()).map(|(v, k)| v + c * k).collect(),
+            Mass::Full(v) => v.iter().zip(k.val.iter()).map(|(v, k)| v + c * k).collect(),
             // the same sums: 0 + c k off the diagonal
-            Mass::Diagonal(d) => {
-                let (col, k) = (&self.k.col, &self.k.val);
-                (0..n)
-                    .flat_map(|i| {
-                        self.k.row(i).map(move |p| {
-                            let v = if col[p] as usize == i { d[i] } else { 0.0 };
-                            v + c * k[p]
-                        })
+            Mass::Diagonal(d) => (0..n)
+                .flat_map(|i| {
+                    k.row(i).map(move |p| {
+                        let v = if k.col[p] as usize == i { d[i] } else { 0.0 };
+                        v + c * k.val[p]
                     })
-                    .collect()
-            }
+                })
+                .collect(),
         };
+        let a = &self.a;
         self.dinv = (0..n)
             .map(|i| {
-                let d = self
-                    .k
-                    .row(i)
-                    .find(|&p| self.k.col[p] as usize == i)
-                    .map_or(0.0, |p| self.a[p]);
+                let d = k.row(i).find(|&p| k.col[p] as usize == i).map_or(0.0, |p| a[p]);
                 if d > 0.0 {
                     1.0 / d
                 } else {
@@ -238,9 +233,9 @@ impl Level {
         // (conjugate gradients then stop early on a wrong answer): hi is at least the
         // Gershgorin bound max_i sum_j |a_ij| / a_ii, which no eigenvalue exceeds; the power
         // iteration (from a smooth start it underestimates) sets the bottom of the interval.
-        let lam = lambda_max(&self.k.ptr, &self.k.col, &self.a, &self.dinv);
+        let lam = lambda_max(&k.ptr, &k.col, &self.a, &self.dinv);
         let gershgorin = (0..n)
-            .map(|i| self.dinv[i] * self.k.row(i).map(|p| self.a[p].abs()).sum::<f64>())
+            .map(|i| self.dinv[i] * k.row(i).map(|p| self.a[p].abs()).sum::<f64>())
             .fold(0.0, f64::max);
         // (1 + 1e-6): the cycle reads A rounded to f32 (a third fewer bytes; still a fixed
         // symmetric operator), whose bound may lie 1e-7 above this one
@@ -723,10 +718,10 @@ impl<T: Send + Sync> Multigrid<T> {
         // sweep writes the next iterate, and the iterates rotate (no separate update pass)
         let mut first = zero;
         if zero {
-            let dinv = &self.dinv0;
-            for i in 0..self.owned {
-                let w = dinv[i] / theta;
-                self.x0[i] = [b[i][0] * w, b[i][1] * w, b[i][2] * w];
+            let x0 = &mut self.x0[..self.owned];
+            for ((x, b), d) in x0.iter_mut().zip(b).zip(&self.dinv0[..]) {
+                let w = d / theta;
+                *x = [b[0] * w, b[1] * w, b[2] * w];
             }
         } else {
             self.sweep0(prop, b, 0.0, 1.0 / theta, false);
