@@ -189,5 +189,5 @@ fn the_automatic_preconditioner_takes_multigrid_only_where_jacobi_iterates_long(
     let gid = s.gid().to_vec();
     let it = st.trial(&mut s.into_propagation(), &gid, &Serial).unwrap();
     assert_eq!(st.preconditioner_name(), "jacobi", "{}", st.preconditioner_phrase(it));
-    assert!(it < eprop::propagate::integrate::implicit::MULTIGRID_FROM);
+    assert!(it < eprop::propagate::integrate::solver::MULTIGRID_FROM);
 }

@@ -81,9 +81,8 @@ pub trait Precond<S: Sweep>: Send {
     fn inverse_diagonal(&self) -> Option<&[f64]> {
         None
     }
-    /// The cost of one application in forward Euler substeps beyond the conjugate-gradient
-    /// iteration's own (`propagate::integrate::choose::CG_COST`; a diagonal one is fused into
-    /// it: 0).
+    /// The cost of one application in forward Euler substeps (the integrators' unit of work)
+    /// beyond the conjugate-gradient iteration's own (a diagonal one is fused into it: 0).
     fn cost(&self) -> f64 {
         0.0
     }

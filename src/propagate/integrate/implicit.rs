@@ -21,8 +21,6 @@ use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::{bail, Result};
 
-pub use super::solver::{MULTIGRID_FROM, MULTIGRID_MARGIN};
-
 pub const GAMMA: f64 = 2.0 - std::f64::consts::SQRT_2;
 /// theta = gamma / 2 = 1 - 1/sqrt 2: the implicit weight of both stages.
 pub const THETA: f64 = 1.0 - std::f64::consts::FRAC_1_SQRT_2;

@@ -234,6 +234,7 @@ impl Solver {
         };
         let path = &self.path;
         match f {
+            // (NotDefinite is `first_iterate`'s alone)
             Failure::NonFinite | Failure::NotDefinite { .. } => anyhow!(
                 "{path}: implicit: {what} produced a non-finite residual; fix: check the scenario's conductivity and dt (eprop check), or use [model] integrator = \"rkl2\""
             ),
