@@ -2,7 +2,7 @@
 //!
 //! hypre is used when its headers are found (`HYPRE_DIR/include`, else `/usr/include/hypre`,
 //! Debian's libhypre-dev) and its integer type is 32 bits (the declarations in
-//! `src/propagate/integrate/amg.rs` use C `int`); `EPROP_HYPRE=0` builds without it. Without
+//! `src/linalg/amg.rs` use C `int`); `EPROP_HYPRE=0` builds without it. Without
 //! hypre, `[integrator] preconditioner = "amg"` is refused with a message that says so.
 
 use std::path::PathBuf;

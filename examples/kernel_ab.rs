@@ -53,38 +53,16 @@ fn main() -> anyhow::Result<()> {
     let new_of = perm(&key);
     let morton = &base.permuted(&mnew_of);
     let rcm = base.permuted(&new_of);
-    let band = |c: &Compact| {
-        (0..n)
-            .flat_map(|i| {
-                c.col[c.row_ptr[i] as usize..c.row_ptr[i + 1] as usize]
-                    .iter()
-                    .map(move |&j| i.abs_diff(j as usize))
-            })
-            .max()
-            .unwrap_or(0)
-    };
     println!(
         "{n} nodes, {scheme}, {} substeps per mechanics step; bandwidth Morton {} RCM {} (RCM order {t_rcm:.2} s)",
         sim.step_plan().per_step,
         band(morton),
         band(&rcm)
     );
-    {
-        let w = eprop::propagate::wavefront::Wavefront::new(&rcm, Layout::serial(n), 2);
-        let mut lags: Vec<u32> = w.deep[1].iter().map(|s| s.need - s.start).collect();
-        lags.sort_unstable();
-        let empty = (0..n).filter(|&i| rcm.row_ptr[i] == rcm.row_ptr[i + 1]).count();
-        println!(
-            "pairs per row {:.2}, empty rows {empty}, segment lag (RCM) median {} p90 {} max {}",
-            rcm.col.len() as f64 / n as f64,
-            lags[lags.len() / 2],
-            lags[lags.len() * 9 / 10],
-            lags[lags.len() - 1]
-        );
-    }
+    print_shape(&rcm);
     let prop = |c: Compact| Propagation::new(Operator::Compact(c), Halo::serial(), Layout::serial(n), Fuse::Auto);
     let id: Vec<u32> = (0..n as u32).collect();
-    let f64_coef = morton.coef32.is_empty();
+    let f64_coef = !morton.is_f32();
     // (name, order: 0 Morton 1 RCM, float32 coefficients, substeps per sweep (0: chosen by
     // the tuner, as in a run), the vector kernel (where the CPU has it)
     let mut spec: Vec<(&str, u8, bool, usize, bool)> = vec![
@@ -169,4 +147,33 @@ fn main() -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The largest distance between a row and a neighbour's index.
+fn band(c: &Compact) -> usize {
+    let n = c.row_ptr().len() - 1;
+    (0..n)
+        .flat_map(|i| {
+            c.col()[c.coefficients().row(i)]
+                .iter()
+                .map(move |&j| i.abs_diff(j as usize))
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+/// Pairs per row, empty rows and the lags of a fused sweep's second level in the order of `rcm`.
+fn print_shape(rcm: &Compact) {
+    let n = rcm.row_ptr().len() - 1;
+    let w = eprop::propagate::wavefront::Wavefront::new(rcm, Layout::serial(n), 2);
+    let mut lags: Vec<u32> = w.deep[1].iter().map(|s| s.need - s.start).collect();
+    lags.sort_unstable();
+    let empty = (0..n).filter(|&i| rcm.coefficients().row(i).is_empty()).count();
+    println!(
+        "pairs per row {:.2}, empty rows {empty}, segment lag (RCM) median {} p90 {} max {}",
+        rcm.col().len() as f64 / n as f64,
+        lags[lags.len() / 2],
+        lags[lags.len() * 9 / 10],
+        lags[lags.len() - 1]
+    );
 }

@@ -2,8 +2,8 @@
 //! iterations of, on a scenario's mesh and mechanics step: ms per V-cycle (three components),
 //! per operator application, and the hierarchy's sizes. Median of interleaved repetitions.
 //!   cargo run --release --example multigrid -- SCENARIO [SECONDS]
-use eprop::propagate::integrate::multigrid::Multigrid;
-use eprop::propagate::integrate::Precond;
+use eprop::linalg::multigrid::Multigrid;
+use eprop::linalg::Precond;
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {

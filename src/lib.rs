@@ -12,6 +12,7 @@ pub(crate) mod diagnostics;
 pub mod discretize;
 pub mod distribute;
 pub mod guard;
+pub mod linalg;
 pub(crate) mod output;
 pub mod propagate;
 pub mod simulate;

@@ -307,10 +307,10 @@ fn direct(s: &Simulation, q: &[(u32, V3)]) -> Vec<V3> {
         for i in 0..n {
             let mut acc = [0.0; 3];
             if active[i] {
-                for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
-                    let j = op.col[p] as usize;
+                for p in op.coefficients().row(i) {
+                    let j = op.col()[p] as usize;
                     for d in 0..3 {
-                        acc[d] += op.coef[p] * vol[i] * (x[j][d] - x[i][d]);
+                        acc[d] += op.c(p) * vol[i] * (x[j][d] - x[i][d]);
                     }
                 }
             }

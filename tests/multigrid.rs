@@ -7,9 +7,10 @@ mod common;
 use common::sim;
 use eprop::discretize::operator::V3;
 use eprop::distribute::comm::Serial;
+use eprop::linalg::multigrid::Multigrid;
+use eprop::linalg::Precond;
 use eprop::propagate::integrate::implicit::THETA;
-use eprop::propagate::integrate::multigrid::Multigrid;
-use eprop::propagate::integrate::{Implicit, Precond, Preconditioner, Settings, Stepper};
+use eprop::propagate::integrate::{Implicit, Preconditioner, Settings, Stepper};
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
 
@@ -188,5 +189,5 @@ fn the_automatic_preconditioner_takes_multigrid_only_where_jacobi_iterates_long(
     let gid = s.gid().to_vec();
     let it = st.trial(&mut s.into_propagation(), &gid, &Serial).unwrap();
     assert_eq!(st.preconditioner_name(), "jacobi", "{}", st.preconditioner_phrase(it));
-    assert!(it < eprop::propagate::integrate::implicit::MULTIGRID_FROM);
+    assert!(it < eprop::propagate::integrate::solver::MULTIGRID_FROM);
 }

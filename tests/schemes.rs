@@ -276,10 +276,10 @@ fn steady_state_matches_a_direct_solve() {
     let apply = |x: &[f64], y: &mut [f64]| {
         for (k, &i) in free.iter().enumerate() {
             let mut acc = 0.0;
-            for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
-                let j = op.col[p] as usize;
+            for p in op.coefficients().row(i) {
+                let j = op.col()[p] as usize;
                 let xj = if pos[j] == usize::MAX { 0.0 } else { x[pos[j]] };
-                acc += op.coef[p] * vol[i] * (xj - x[k]);
+                acc += op.c(p) * vol[i] * (xj - x[k]);
             }
             y[k] = -acc;
         }
@@ -335,8 +335,8 @@ fn vector_and_portable_kernels_agree() {
         (0..rows)
             .map(|i| {
                 let mut l = [0.0; 3];
-                for p in c.row_ptr[i] as usize..c.row_ptr[i + 1] as usize {
-                    let j = c.col[p] as usize;
+                for p in c.coefficients().row(i) {
+                    let j = c.col()[p] as usize;
                     for d in 0..3 {
                         l[d] += c.c(p) * (x[j][d] - x[i][d]);
                     }

@@ -210,7 +210,7 @@ pub fn measure(
         nodes: n,
         cells: sizes.cells,
         scheme: match &sim.prop.op {
-            crate::discretize::operator::Operator::Compact(c) if !c.coef32.is_empty() => "compact32".to_string(),
+            crate::discretize::operator::Operator::Compact(c) if c.is_f32() => "compact32".to_string(),
             _ => crate::simulate::scheme_name(sim.setup().model.scheme()).to_string(),
         },
         processes: sim.comm().size(),

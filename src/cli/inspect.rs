@@ -37,7 +37,7 @@ pub struct MeshInfo {
     pub max_quality: f64,
     pub stable_h_r005: f64,
     /// Which nodes and cells set the stable substep (conductivity 0.05).
-    pub stiffness: crate::propagate::integrate::stiffness::Stiffness,
+    pub stiffness: crate::discretize::quality::Stiffness,
     pub unreferenced_nodes: usize,
     pub warnings: Vec<String>,
 }
@@ -66,7 +66,7 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
     let active: Vec<bool> = dual.vol.iter().map(|&v| v > 0.0).collect();
     let op = Compact::new(&dual, &a, &active);
     let g = op.gershgorin();
-    let stiffness = crate::propagate::integrate::stiffness::analyse(mesh, &op, &dual.vol, &r, &|c| mesh.cell_id(c));
+    let stiffness = crate::discretize::quality::analyse(mesh, &op, &dual.vol, &r, &|c| mesh.cell_id(c));
     let (lo, hi) = mesh.bounds();
     let unref = dual.vol.iter().filter(|&&v| v <= 0.0).count();
     let mut warnings = mesh.warnings.clone();
@@ -264,7 +264,7 @@ pub struct CheckReport {
     /// What `substeps` counts, with its unit ("4 substeps", "14 stages").
     pub per_step: String,
     /// Which nodes and cells set the Euler substep (compact scheme).
-    pub stiffness: Option<crate::propagate::integrate::stiffness::Stiffness>,
+    pub stiffness: Option<crate::discretize::quality::Stiffness>,
     pub h: f64,
     pub h_bound: f64,
     pub dt: f64,
@@ -453,7 +453,7 @@ pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<
     let mut rows: Vec<Vec<(i64, f64)>> = vec![vec![]; n];
     for i in 0..n {
         let g = sim.gid()[i] as usize;
-        let r = op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize;
+        let r = op.coefficients().row(i);
         if r.is_empty() {
             continue;
         }
@@ -461,7 +461,7 @@ pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<
         let mut row: Vec<(i64, f64)> = r
             .map(|p| {
                 diag -= op.c(p);
-                (sim.gid()[op.col[p] as usize] as i64, op.c(p))
+                (sim.gid()[op.col()[p] as usize] as i64, op.c(p))
             })
             .collect();
         row.push((g as i64, diag));

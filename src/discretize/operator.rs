@@ -1,32 +1,30 @@
 //! The discrete operator L of the vector Poisson equation and its explicit Euler step
 //! (docs/model.md section 3), in the two schemes.
 //!
-//! Layout: CSR over the rows a process updates (owned nodes), neighbour index (u32, local
-//! numbering, halo nodes after owned ones) and per-pair coefficients; the potential is an
-//! array of 3-vectors so one gather fetches all three components. A row is a fixed-order sum
+//! Layout: CSR (`linalg::csr`) over the rows a process updates (owned nodes), neighbour index
+//! (u32, local numbering, halo nodes after owned ones) and per-pair coefficients; the
+//! potential is an array of 3-vectors so one gather fetches all three components. A row is a fixed-order sum
 //! over its neighbours (sorted by global id): no atomics, the same bits on any partition and
 //! any thread count. Rows of Dirichlet or inactive nodes are empty and never change.
 
 use crate::discretize::geometry::Dual;
 use crate::discretize::material::Materials;
+use crate::linalg::csr::{AnyCsr, Csr, Scalar};
 use eprop_io::geom::{dot, sub};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-pub type V3 = [f64; 3];
+pub use crate::linalg::V3;
 
 /// Rows per rayon task: large enough to amortise scheduling, small enough to balance.
 const CHUNK: usize = 2048;
 
 /// `compact` scheme: (L u)_i = sum_j c_ij (u_j - u_i), c_ij = a_ij / V_i.
+#[derive(Clone)]
 pub struct Compact {
-    pub row_ptr: Vec<u32>,
-    pub col: Vec<u32>,
-    /// c_ij in float64, or empty when stored in float32 (`coef32`).
-    pub coef: Vec<f64>,
-    pub coef32: Vec<f32>,
-    /// One more than the largest neighbour index: the potential must be at least this long.
-    pub n_cols: usize,
+    /// c_ij on the stored pairs, in float64 or float32 (`into_f32`); its `n_cols`, one more
+    /// than the largest neighbour index, is the least length of the potential.
+    coef: AnyCsr,
     /// Which kernel the step runs (`Kernel::default()`: the fastest this CPU has; `kernel`,
     /// `set_kernel`).
     pub(crate) kernel: Kernel,
@@ -76,13 +74,54 @@ impl Compact {
         col.shrink_to_fit();
         a.shrink_to_fit();
         let n_cols = col.iter().map(|&j| j as usize + 1).max().unwrap_or(0).max(n_rows);
-        Compact {
-            row_ptr: ptr,
-            col,
-            coef: a,
-            coef32: vec![],
+        Compact::from_csr(AnyCsr::F64(Csr {
             n_cols,
+            ptr,
+            col,
+            val: a,
+        }))
+    }
+
+    /// The operator of the coefficients `coef` (the potential must be at least `n_cols` long),
+    /// with the default kernel.
+    pub fn from_csr(coef: AnyCsr) -> Compact {
+        Compact {
+            coef,
             kernel: Kernel::default(),
+        }
+    }
+
+    /// The coefficients c_ij.
+    pub fn coefficients(&self) -> &AnyCsr {
+        &self.coef
+    }
+
+    /// The row pointers: row i's pairs are `row_ptr()[i]..row_ptr()[i + 1]`.
+    pub fn row_ptr(&self) -> &[u32] {
+        self.coef.ptr()
+    }
+
+    /// The neighbour (local index) of each stored pair.
+    pub fn col(&self) -> &[u32] {
+        self.coef.col()
+    }
+
+    /// One more than the largest neighbour index: the potential must be at least this long.
+    pub fn n_cols(&self) -> usize {
+        self.coef.n_cols()
+    }
+
+    /// Whether the coefficients are stored in float32.
+    pub fn is_f32(&self) -> bool {
+        self.coef.is_f32()
+    }
+
+    /// The same pattern with the coefficient `c[p]` on pair p in float32, and this kernel (a
+    /// preconditioner's own operator).
+    pub fn with_f32(&self, c: Vec<f32>) -> Compact {
+        Compact {
+            coef: AnyCsr::F32(self.coef.with_values(c)),
+            kernel: self.kernel,
         }
     }
 
@@ -106,10 +145,11 @@ impl Compact {
 
     /// Stores the coefficients in float32 (a third fewer bytes per substep; the rounded
     /// coefficients define the operator, so results stay deterministic).
-    pub fn into_f32(mut self) -> Compact {
-        self.coef32 = self.coef.iter().map(|&c| c as f32).collect();
-        self.coef = vec![];
-        self
+    pub fn into_f32(self) -> Compact {
+        Compact {
+            coef: self.coef.into_f32(),
+            kernel: self.kernel,
+        }
     }
 
     #[inline(always)]
@@ -120,32 +160,27 @@ impl Compact {
     /// (L x)_i with x given flat, `S` values per node (the first three are the potential).
     #[inline(always)]
     fn row_s<const S: usize>(&self, i: usize, x: &[f64]) -> V3 {
-        if self.coef32.is_empty() {
-            self.row_with::<_, S>(&self.coef, i, x)
-        } else {
-            self.row_with::<_, S>(&self.coef32, i, x)
+        match &self.coef {
+            AnyCsr::F64(a) => Self::row_with::<_, S>(a, i, x),
+            AnyCsr::F32(a) => Self::row_with::<_, S>(a, i, x),
         }
     }
 
     /// The coefficient of stored pair p.
     pub fn c(&self, p: usize) -> f64 {
-        if self.coef32.is_empty() {
-            self.coef[p]
-        } else {
-            self.coef32[p] as f64
-        }
+        self.coef.value(p)
     }
 
     /// (L x)_i. Pairs are taken two at a time into two partial sums (a fixed order, so
     /// the same bits on any partition): one chain of dependent additions per sum would
     /// otherwise bound the speed by the add latency instead of the memory bandwidth.
     #[inline(always)]
-    fn row_with<C: Copy + Into<f64>, const S: usize>(&self, coef: &[C], i: usize, x: &[f64]) -> V3 {
-        let (s, e) = (self.row_ptr[i] as usize, self.row_ptr[i + 1] as usize);
+    fn row_with<C: Scalar, const S: usize>(a: &Csr<C>, i: usize, x: &[f64]) -> V3 {
+        let (s, e) = (a.ptr[i] as usize, a.ptr[i + 1] as usize);
         let at = |j: usize| [x[S * j], x[S * j + 1], x[S * j + 2]];
         let xi = at(i);
-        let cols = &self.col[s..e];
-        let coef = &coef[s..e];
+        let cols = &a.col[s..e];
+        let coef = &a.val[s..e];
         let mut a = [0.0; 3];
         let mut b = [0.0; 3];
         let pairs = cols.len() / 2;
@@ -178,10 +213,9 @@ impl Compact {
             // SAFETY: the CPU has AVX2 and FMA (`simd_available`), every column index is below
             // `n_cols` and `x` holds at least that many nodes (checked by the caller).
             unsafe {
-                if self.coef32.is_empty() {
-                    avx::step_rows::<_, SI, SO>(&self.row_ptr, &self.col, &self.coef, x, y, h, start)
-                } else {
-                    avx::step_rows::<_, SI, SO>(&self.row_ptr, &self.col, &self.coef32, x, y, h, start)
+                match &self.coef {
+                    AnyCsr::F64(a) => avx::step_rows::<_, SI, SO>(&a.ptr, &a.col, &a.val, x, y, h, start),
+                    AnyCsr::F32(a) => avx::step_rows::<_, SI, SO>(&a.ptr, &a.col, &a.val, x, y, h, start),
                 }
             }
             return true;
@@ -205,11 +239,11 @@ impl Compact {
     pub fn step_strided<const SI: usize, const SO: usize>(&self, x: &[f64], y: &mut [f64], h: f64, start: usize) {
         const { assert!((SI == 3 || SI == 4) && (SO == 3 || SO == 4)) };
         assert!(
-            x.len() >= SI * self.n_cols,
+            x.len() >= SI * self.n_cols(),
             "potential shorter than the operator's columns"
         );
         assert!(
-            y.len().is_multiple_of(SO) && self.row_ptr.len() > start + y.len() / SO,
+            y.len().is_multiple_of(SO) && self.row_ptr().len() > start + y.len() / SO,
             "rows out of range"
         );
         if self.vector_step::<SI, SO>(x, y, h, start) {
@@ -230,31 +264,12 @@ impl Compact {
     /// The same operator with its rows and columns renumbered: old index i becomes `new_of[i]`
     /// (a permutation of `0..n_cols`); each row keeps the order of its pairs, so its bits.
     pub fn permuted(&self, new_of: &[u32]) -> Compact {
-        let n = self.row_ptr.len() - 1;
-        assert_eq!(new_of.len(), n, "one new index per row");
-        let mut old_of = vec![0u32; n];
-        for (i, &r) in new_of.iter().enumerate() {
-            old_of[r as usize] = i as u32;
-        }
-        let mut row_ptr = Vec::with_capacity(n + 1);
-        row_ptr.push(0u32);
-        let (mut col, mut coef, mut coef32) = (vec![], vec![], vec![]);
-        for &i in &old_of {
-            let r = self.row_ptr[i as usize] as usize..self.row_ptr[i as usize + 1] as usize;
-            col.extend(self.col[r.clone()].iter().map(|&j| new_of[j as usize]));
-            if self.coef32.is_empty() {
-                coef.extend_from_slice(&self.coef[r]);
-            } else {
-                coef32.extend_from_slice(&self.coef32[r]);
-            }
-            row_ptr.push(col.len() as u32);
-        }
+        let coef = match &self.coef {
+            AnyCsr::F64(a) => AnyCsr::F64(permuted(a, new_of)),
+            AnyCsr::F32(a) => AnyCsr::F32(permuted(a, new_of)),
+        };
         Compact {
-            row_ptr,
-            col,
             coef,
-            coef32,
-            n_cols: self.n_cols,
             kernel: self.kernel,
         }
     }
@@ -271,10 +286,9 @@ impl Compact {
         if self.kernel.vector && simd_available() {
             // SAFETY: as in `vector_step`
             unsafe {
-                if self.coef32.is_empty() {
-                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef, x, y, start, acc, f)
-                } else {
-                    avx_u::update_rows(&self.row_ptr, &self.col, &self.coef32, x, y, start, acc, f)
+                match &self.coef {
+                    AnyCsr::F64(a) => avx_u::update_rows(&a.ptr, &a.col, &a.val, x, y, start, acc, f),
+                    AnyCsr::F32(a) => avx_u::update_rows(&a.ptr, &a.col, &a.val, x, y, start, acc, f),
                 }
             }
             return true;
@@ -285,14 +299,44 @@ impl Compact {
 
     /// Gershgorin bound of the spectral radius of L.
     pub fn gershgorin(&self) -> f64 {
-        (0..self.row_ptr.len() - 1)
+        self.row_bounds().into_iter().fold(0.0, f64::max)
+    }
+
+    /// The Gershgorin bound of every row, |sum_j c_ij| + sum_j |c_ij| (0 for empty rows).
+    pub fn row_bounds(&self) -> Vec<f64> {
+        (0..self.coef.n_rows())
             .map(|i| {
-                let r = self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize;
+                let r = self.coef.row(i);
                 let sum: f64 = r.clone().map(|p| self.c(p)).sum();
                 let abs: f64 = r.map(|p| self.c(p).abs()).sum();
                 sum.abs() + abs
             })
-            .fold(0.0, f64::max)
+            .collect()
+    }
+}
+
+/// `a` with its rows and columns renumbered (`Compact::permuted`).
+fn permuted<C: Scalar>(a: &Csr<C>, new_of: &[u32]) -> Csr<C> {
+    let n = a.n_rows();
+    assert_eq!(new_of.len(), n, "one new index per row");
+    let mut old_of = vec![0u32; n];
+    for (i, &r) in new_of.iter().enumerate() {
+        old_of[r as usize] = i as u32;
+    }
+    let mut ptr = Vec::with_capacity(n + 1);
+    ptr.push(0u32);
+    let (mut col, mut val) = (vec![], vec![]);
+    for &i in &old_of {
+        let r = a.row(i as usize);
+        col.extend(a.col[r.clone()].iter().map(|&j| new_of[j as usize]));
+        val.extend_from_slice(&a.val[r]);
+        ptr.push(col.len() as u32);
+    }
+    Csr {
+        n_cols: a.n_cols,
+        ptr,
+        col,
+        val,
     }
 }
 
@@ -479,6 +523,7 @@ mod avx_update {
 use avx_update as avx_u;
 
 /// `paper` scheme: nodal Green-Gauss gradients, averaged flux, optional edge correction.
+#[derive(Clone)]
 pub struct Paper {
     pub row_ptr: Vec<u32>,
     pub col: Vec<u32>,
@@ -600,6 +645,7 @@ impl Paper {
 }
 
 /// Either scheme.
+#[derive(Clone)]
 pub enum Operator {
     Compact(Compact),
     Paper(Paper),
@@ -608,7 +654,7 @@ pub enum Operator {
 impl Operator {
     pub fn n_rows(&self) -> usize {
         match self {
-            Operator::Compact(c) => c.row_ptr.len() - 1,
+            Operator::Compact(c) => c.row_ptr().len() - 1,
             Operator::Paper(p) => p.row_ptr.len() - 1,
         }
     }
@@ -621,8 +667,8 @@ impl Operator {
     pub fn stream_bytes_rows(&self, n: usize) -> usize {
         match self {
             Operator::Compact(c) => {
-                let pairs = c.row_ptr[n] as usize;
-                let cb = if c.coef32.is_empty() { 8 } else { 4 };
+                let pairs = c.row_ptr()[n] as usize;
+                let cb = if c.is_f32() { 4 } else { 8 };
                 (n + 1) * 4 + pairs * (4 + cb) + n * 48
             }
             Operator::Paper(p) => {
@@ -692,7 +738,7 @@ impl Operator {
     {
         let start = range.start;
         if let Operator::Compact(c) = self {
-            assert!(x.len() >= c.n_cols, "potential shorter than the operator's columns");
+            assert!(x.len() >= c.n_cols(), "potential shorter than the operator's columns");
         }
         y[range]
             .par_chunks_mut(CHUNK)
@@ -723,7 +769,7 @@ impl Operator {
         let start = range.start;
         if let Operator::Compact(c) = self {
             // the vector kernel reads x without bounds checks: every index is below n_cols
-            assert!(x.len() >= c.n_cols, "potential shorter than the operator's columns");
+            assert!(x.len() >= c.n_cols(), "potential shorter than the operator's columns");
         }
         y[range]
             .par_chunks_mut(CHUNK)

@@ -10,6 +10,8 @@ use crate::config::Fuse;
 use crate::discretize::operator::{Operator, V3};
 use crate::distribute::field::NodeField;
 use crate::distribute::halo::{Exchange, Halo};
+use crate::linalg::csr::AnyCsr;
+use crate::linalg::Sweep;
 use crate::propagate::wavefront::{drive, Wavefront};
 use eprop_partition::Layout;
 use std::ops::Range;
@@ -377,6 +379,54 @@ impl Propagation {
     }
 }
 
+/// The propagation as the linear solvers see it (`linalg::Sweep`): its sweeps, and the
+/// compact operator's coefficients and pattern.
+impl Sweep for Propagation {
+    type Twin = Operator;
+
+    fn layout(&self) -> Layout {
+        self.layout
+    }
+
+    fn halo(&self) -> &Halo {
+        &self.halo
+    }
+
+    fn coefficients(&self) -> Option<&AnyCsr> {
+        match &self.op {
+            Operator::Compact(c) => Some(c.coefficients()),
+            Operator::Paper(_) => None,
+        }
+    }
+
+    fn twin(&self, w: Vec<f32>) -> Operator {
+        let Operator::Compact(c) = &self.op else {
+            panic!("an operator of the compact scheme's pattern needs the compact scheme")
+        };
+        Operator::Compact(c.with_f32(w))
+    }
+
+    fn fold_to<A, F, C>(&mut self, x: &mut NodeField<V3>, y: &mut [V3], f: F, combine: C) -> A
+    where
+        A: Default + Send,
+        F: Fn(&mut A, usize, V3, V3, &mut V3) + Sync,
+        C: Fn(A, A) -> A + Sync,
+    {
+        Propagation::fold_to(self, x, y, f, combine)
+    }
+
+    fn update_with<F>(&mut self, op: &Operator, x: &mut NodeField<V3>, y: &mut [V3], f: F)
+    where
+        F: Fn(usize, V3, V3, &mut V3) + Sync,
+    {
+        Propagation::update_with(self, op, x, y, f)
+    }
+
+    fn refresh(&self, x: &mut NodeField<V3>) {
+        Propagation::refresh(self, x)
+    }
+}
+
 /// Level l of a fused sweep of d levels on the rows r, then the sources of those rows: level l
 /// reads level l - 1 (level 0: phi) and writes `levels[l - 1]` (four values per node), the
 /// last level writes `next`.
@@ -488,7 +538,7 @@ mod tests {
         let Operator::Compact(c) = &sim.prop.op else {
             unreachable!()
         };
-        let id: Vec<u32> = (0..c.row_ptr.len() as u32 - 1).collect();
+        let id: Vec<u32> = (0..c.row_ptr().len() as u32 - 1).collect();
         (c.permuted(&id), h)
     }
 
@@ -524,7 +574,7 @@ mod tests {
 
     fn fused_bitwise() {
         let (c, h) = box_operator(7);
-        let n = c.row_ptr.len() - 1;
+        let n = c.row_ptr().len() - 1;
         // RCM order too: the fronts stay close there
         let mesh = eprop_io::generate::box_mesh([1.0; 3], [7; 3], eprop_io::generate::BoxCells::Tet).unwrap();
         let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);

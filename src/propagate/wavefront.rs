@@ -93,7 +93,8 @@ impl Wavefront {
     /// every interior row; level l's, the rows of level l - 1's whose every neighbour is in it.
     pub fn new(c: &Compact, layout: Layout, depth: usize) -> Wavefront {
         let ni = layout.n_interior;
-        let cols = |i: usize| &c.col[c.row_ptr[i] as usize..c.row_ptr[i + 1] as usize];
+        let (ptr, col) = (c.row_ptr(), c.col());
+        let cols = |i: usize| &col[ptr[i] as usize..ptr[i + 1] as usize];
         let need: Vec<u32> = (0..ni)
             .map(|i| cols(i).iter().copied().max().unwrap_or(0).max(i as u32))
             .collect();
@@ -171,15 +172,13 @@ mod tests {
             col.push(i as u32 + 1);
             row_ptr.push(col.len() as u32);
         }
-        let coef = vec![1.0; col.len()];
-        let c = Compact {
-            row_ptr,
-            col,
-            coef,
-            coef32: vec![],
+        let val = vec![1.0; col.len()];
+        let c = Compact::from_csr(crate::linalg::csr::AnyCsr::F64(crate::linalg::csr::Csr {
             n_cols: n + 1,
-            kernel: Default::default(),
-        };
+            ptr: row_ptr,
+            col,
+            val,
+        }));
         let layout = Layout {
             n_interior: 8,
             n_owned: 10,

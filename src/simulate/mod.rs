@@ -499,7 +499,7 @@ pub fn locality_keys(m: &Mesh) -> Vec<u64> {
 impl Simulation {
     /// The stiffness of the compact operator on one process (`eprop check`); None for the
     /// paper scheme or a distributed simulation.
-    pub fn stiffness(&self) -> Option<crate::propagate::integrate::stiffness::Stiffness> {
+    pub fn stiffness(&self) -> Option<crate::discretize::quality::Stiffness> {
         let Operator::Compact(op) = &self.prop.op else {
             return None;
         };
@@ -508,7 +508,7 @@ impl Simulation {
         }
         // one process: the local cells are the mesh's cells in their order
         let ids = self.global.as_ref();
-        Some(crate::propagate::integrate::stiffness::analyse(
+        Some(crate::discretize::quality::analyse(
             self.mesh(),
             op,
             &self.dual.vol,

@@ -154,7 +154,7 @@ fn rkl2_supersteps(dt: f64, h_median: f64) -> usize {
 fn median_h(prop: &Propagation, comm: &dyn Comm) -> f64 {
     match &prop.op {
         crate::discretize::operator::Operator::Compact(c) => {
-            let g = super::stiffness::median_bound(c, prop.layout().n_owned, comm);
+            let g = crate::discretize::quality::median_bound(c, prop.layout().n_owned, comm);
             if g > 0.0 {
                 2.0 / g
             } else {
@@ -541,146 +541,10 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
     if cx.user_h.is_some() {
         return euler(cx, "auto: the scenario sets the Euler substep h".into());
     }
-    let layout = cx.prop.layout();
-    let substeps = if cx.h_bound.is_finite() {
-        (cx.dt / (SAFETY * cx.h_bound)).ceil().max(1.0)
-    } else {
-        1.0
-    };
-    let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
-    let st = stages_for(cx.dt / n as f64, cx.h_bound);
-    let controlled = s.accuracy.is_finite();
-    let doubling = if controlled { DOUBLING } else { 1.0 };
-    let measured = controlled && cx.trial.is_some();
-    // rkl2: the stability model's cost; a candidate when its super-steps alone (without the
-    // doubling, which the trial measures with the levels the control takes) beat euler
-    let rkl2_model = doubling * STAGE_COST * st.saturating_mul(n) as f64;
-    let mut rkl2 = None;
-    if st.saturating_mul(n) <= s.max_stages && rkl2_model / doubling < substeps {
-        let mut r = Rkl2::new(cx.h_bound, cx.dt, n, s.max_stages, layout, cx.path, String::new())?;
-        r.set_accuracy(s.accuracy);
-        rkl2 = Some(r);
-    }
-    let rkl2_bound = if measured {
-        2.0 * STAGE_COST * stages_for(cx.dt, cx.h_bound).min(st.saturating_mul(n)) as f64
-    } else {
-        rkl2_model
-    };
-    // implicit costs at least one iteration per stage: a trial solve only where it can win
-    let floor = CG_COST * (2.0 * 3.0 + 1.0);
-    let mut imp = None;
-    if floor * MARGIN < substeps {
-        let mut i = implicit(cx, 0, String::new())?;
-        if let Ok(it) = i.trial(cx.prop, cx.gid, cx.comm) {
-            i.set_accuracy(s.accuracy);
-            imp = Some((i, it));
-        }
-    }
-    let imp_model = imp
-        .as_ref()
-        .map(|(i, it)| i.cost_of(controlled_applications(*it, controlled)));
-    let imp_bound = imp
-        .as_ref()
-        .zip(imp_model)
-        .map(|((i, _), m)| if measured { i.cost_of(LEAST_CONTROLLED) } else { m });
-    // measure in the order of the models (a guess); the second only where it can still win,
-    // and each trial only while it can
-    let mut best = (Kind::Euler, substeps);
-    let (mut rkl2_m, mut imp_m): (Option<Measured>, Option<Measured>) = (None, None);
-    let order = match imp_model {
-        Some(m) if m < rkl2_model => [Kind::Implicit, Kind::Rkl2],
-        _ => [Kind::Rkl2, Kind::Implicit],
-    };
-    for kind in order {
-        if kind == Kind::Rkl2 {
-            if let Some(r) = rkl2.as_mut() {
-                let least = rkl2_bound / STAGE_COST;
-                rkl2_m = consider(r, cx, kind, rkl2_model, STAGE_COST, rkl2_bound, least, &mut best);
-                r.restart_count();
-            }
-        } else if let Some((i, _)) = imp.as_mut() {
-            let (model, bound) = (imp_model.unwrap_or(f64::INFINITY), imp_bound.unwrap_or(f64::INFINITY));
-            let per = i.cost_of(1);
-            imp_m = consider(i, cx, kind, model, per, bound, LEAST_CONTROLLED as f64, &mut best);
-            i.restart_count();
-        }
-    }
-    let predicted = |t: &Option<([usize; 3], f64)>| match t {
-        Some((_, e)) => format!(", predicted error {e:.1e}"),
-        None => String::new(),
-    };
+    let mut c = Candidates::new(cx)?;
+    let best = c.measure(cx);
     let steps = cx.trial.as_ref().map(|q| q.steps).unwrap_or(None);
-    let in_trial = |what: &str, t: &Option<([usize; 3], f64)>, open: &str, close: &str| match t {
-        Some((a, _)) => format!(
-            "{open}{what} in three trial steps {}, {}, {}, {}{close}",
-            a[0],
-            a[1],
-            a[2],
-            over(steps)
-        ),
-        None => String::new(),
-    };
-    let rkl2_text = match (&rkl2, &rkl2_m) {
-        (Some(_), Some(m)) if m.trial.is_some() => format!(
-            ", rkl2 ~{:.0} stages{} (~{} substeps{})",
-            m.cost / STAGE_COST,
-            in_trial("stages", &m.trial, " (", ")"),
-            count(m.cost),
-            predicted(&m.trial)
-        ),
-        (
-            Some(_),
-            Some(Measured {
-                stopped: Some(a), cost, ..
-            }),
-        ) => format!(
-            ", rkl2 at least ~{} substeps (its trial stopped after {a:?} stages, {}: it cannot win)",
-            count(*cost),
-            over(steps)
-        ),
-        (Some(_), Some(m)) => format!(
-            ", rkl2 {} stages (~{} substeps)",
-            count(st.saturating_mul(n) as f64),
-            count(m.cost)
-        ),
-        (Some(_), None) if measured => format!(
-            ", rkl2 at least ~{} substeps (not tried: it cannot win)",
-            count(rkl2_bound)
-        ),
-        _ => format!(
-            ", rkl2 {} stages (~{} substeps)",
-            count(st.saturating_mul(n) as f64),
-            count(rkl2_model)
-        ),
-    };
-    let imp_text = match (&imp, &imp_m) {
-        (Some((i, it)), Some(Measured { stopped: Some(a), cost, .. })) => format!(
-            ", implicit ({}) at least ~{cost:.0} substeps ({it} iterations per solve in a trial; its trial stopped after {a:?} applications, {}: it cannot win)",
-            i.preconditioner_name(),
-            over(steps)
-        ),
-        (Some((i, it)), Some(m)) => format!(
-            ", implicit ({}) ~{:.0} applications ({it} iterations per solve in a trial{}; ~{:.0} substeps{})",
-            i.preconditioner_name(),
-            m.cost / i.cost_of(1),
-            in_trial("applications", &m.trial, "; ", ""),
-            m.cost,
-            predicted(&m.trial)
-        ),
-        (Some((i, it)), None) if measured => format!(
-            ", implicit ({}) at least ~{:.0} substeps ({it} iterations per solve in a trial; not tried further: it cannot win)",
-            i.preconditioner_name(),
-            imp_bound.unwrap_or(f64::INFINITY)
-        ),
-        (Some((i, it)), None) => format!(
-            ", implicit ({}) ~{} applications ({it} iterations per solve in a trial; ~{:.0} substeps)",
-            i.preconditioner_name(),
-            controlled_applications(*it, controlled),
-            imp_model.unwrap_or(f64::INFINITY)
-        ),
-        (None, _) => String::new(),
-    };
-    let others = format!("per step euler {} substeps{rkl2_text}{imp_text}", count(substeps));
+    let others = c.describe(steps);
     // the chosen one replays its trial steps where the run repeats them
     let replay = |st: Box<dyn Stepper>, rec: Option<Vec<Recorded>>| -> Box<dyn Stepper> {
         match (rec, cx.trial.clone()) {
@@ -688,18 +552,18 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             _ => st,
         }
     };
-    match best.0 {
+    match best {
         Kind::Rkl2 => {
-            let mut r = rkl2.expect("rkl2 was built");
+            let mut r = c.rkl2.expect("rkl2 was built");
             r.set_why(format!(
                 "auto: rkl2 is the cheapest: {others}; {}",
                 accuracy_phrase(s.accuracy)
             ));
-            Ok(replay(Box::new(r), rkl2_m.and_then(|m| m.record)))
+            Ok(replay(Box::new(r), c.rkl2_m.and_then(|m| m.record)))
         }
         Kind::Implicit => {
-            let (mut i, it) = imp.expect("implicit was tried");
-            let m = imp_m.expect("implicit was measured");
+            let (mut i, it) = c.imp.expect("implicit was tried");
+            let m = c.imp_m.expect("implicit was measured");
             let apps = m.cost / i.cost_of(1);
             i.set_plan(
                 apps.round() as usize,
@@ -719,6 +583,200 @@ fn auto(cx: &mut Context) -> Result<Box<dyn Stepper>> {
                 s.accuracy
             ),
         ),
+    }
+}
+
+/// What `auto` weighs against euler's `substeps` per step: rkl2 (`n` super-steps of `st`
+/// stages) and implicit (with its trial's iterations per solve), each with the cost its model
+/// predicts, the bound below which no step goes, and what its trial steps measured.
+struct Candidates {
+    substeps: f64,
+    n: usize,
+    st: usize,
+    controlled: bool,
+    /// whether the candidates are measured on trial steps (error control and a first push)
+    measured: bool,
+    rkl2: Option<Rkl2>,
+    rkl2_model: f64,
+    rkl2_bound: f64,
+    rkl2_m: Option<Measured>,
+    imp: Option<(Implicit, usize)>,
+    imp_model: Option<f64>,
+    imp_bound: Option<f64>,
+    imp_m: Option<Measured>,
+}
+
+impl Candidates {
+    /// The candidates of the compact scheme, their models and bounds (implicit after a trial
+    /// solve, where it can win).
+    fn new(cx: &mut Context) -> Result<Candidates> {
+        let s = cx.settings;
+        let layout = cx.prop.layout();
+        let substeps = if cx.h_bound.is_finite() {
+            (cx.dt / (SAFETY * cx.h_bound)).ceil().max(1.0)
+        } else {
+            1.0
+        };
+        let n = rkl2_supersteps(cx.dt, median_h(cx.prop, cx.comm));
+        let st = stages_for(cx.dt / n as f64, cx.h_bound);
+        let controlled = s.accuracy.is_finite();
+        let doubling = if controlled { DOUBLING } else { 1.0 };
+        let measured = controlled && cx.trial.is_some();
+        // rkl2: the stability model's cost; a candidate when its super-steps alone (without the
+        // doubling, which the trial measures with the levels the control takes) beat euler
+        let rkl2_model = doubling * STAGE_COST * st.saturating_mul(n) as f64;
+        let mut rkl2 = None;
+        if st.saturating_mul(n) <= s.max_stages && rkl2_model / doubling < substeps {
+            let mut r = Rkl2::new(cx.h_bound, cx.dt, n, s.max_stages, layout, cx.path, String::new())?;
+            r.set_accuracy(s.accuracy);
+            rkl2 = Some(r);
+        }
+        let rkl2_bound = if measured {
+            2.0 * STAGE_COST * stages_for(cx.dt, cx.h_bound).min(st.saturating_mul(n)) as f64
+        } else {
+            rkl2_model
+        };
+        // implicit costs at least one iteration per stage: a trial solve only where it can win
+        let floor = CG_COST * (2.0 * 3.0 + 1.0);
+        let mut imp = None;
+        if floor * MARGIN < substeps {
+            let mut i = implicit(cx, 0, String::new())?;
+            if let Ok(it) = i.trial(cx.prop, cx.gid, cx.comm) {
+                i.set_accuracy(s.accuracy);
+                imp = Some((i, it));
+            }
+        }
+        let imp_model = imp
+            .as_ref()
+            .map(|(i, it)| i.cost_of(controlled_applications(*it, controlled)));
+        let imp_bound = imp
+            .as_ref()
+            .zip(imp_model)
+            .map(|((i, _), m)| if measured { i.cost_of(LEAST_CONTROLLED) } else { m });
+        Ok(Candidates {
+            substeps,
+            n,
+            st,
+            controlled,
+            measured,
+            rkl2,
+            rkl2_model,
+            rkl2_bound,
+            rkl2_m: None,
+            imp,
+            imp_model,
+            imp_bound,
+            imp_m: None,
+        })
+    }
+
+    /// Measures the candidates in the order of their models (a guess), the second only where
+    /// it can still win, and each trial only while it can; returns the cheapest integrator.
+    fn measure(&mut self, cx: &mut Context) -> Kind {
+        let mut best = (Kind::Euler, self.substeps);
+        let order = match self.imp_model {
+            Some(m) if m < self.rkl2_model => [Kind::Implicit, Kind::Rkl2],
+            _ => [Kind::Rkl2, Kind::Implicit],
+        };
+        for kind in order {
+            if kind == Kind::Rkl2 {
+                if let Some(r) = self.rkl2.as_mut() {
+                    let (model, bound) = (self.rkl2_model, self.rkl2_bound);
+                    let least = bound / STAGE_COST;
+                    self.rkl2_m = consider(r, cx, kind, model, STAGE_COST, bound, least, &mut best);
+                    r.restart_count();
+                }
+            } else if let Some((i, _)) = self.imp.as_mut() {
+                let (model, bound) = (
+                    self.imp_model.unwrap_or(f64::INFINITY),
+                    self.imp_bound.unwrap_or(f64::INFINITY),
+                );
+                let per = i.cost_of(1);
+                self.imp_m = consider(i, cx, kind, model, per, bound, LEAST_CONTROLLED as f64, &mut best);
+                i.restart_count();
+            }
+        }
+        best.0
+    }
+
+    /// Every candidate's cost per step in words (a run of `steps` steps).
+    fn describe(&self, steps: Option<u64>) -> String {
+        let (st, n, measured) = (self.st, self.n, self.measured);
+        let predicted = |t: &Option<([usize; 3], f64)>| match t {
+            Some((_, e)) => format!(", predicted error {e:.1e}"),
+            None => String::new(),
+        };
+        let in_trial = |what: &str, t: &Option<([usize; 3], f64)>, open: &str, close: &str| match t {
+            Some((a, _)) => format!(
+                "{open}{what} in three trial steps {}, {}, {}, {}{close}",
+                a[0],
+                a[1],
+                a[2],
+                over(steps)
+            ),
+            None => String::new(),
+        };
+        let rkl2_text = match (&self.rkl2, &self.rkl2_m) {
+            (Some(_), Some(m)) if m.trial.is_some() => format!(
+                ", rkl2 ~{:.0} stages{} (~{} substeps{})",
+                m.cost / STAGE_COST,
+                in_trial("stages", &m.trial, " (", ")"),
+                count(m.cost),
+                predicted(&m.trial)
+            ),
+            (
+                Some(_),
+                Some(Measured {
+                    stopped: Some(a), cost, ..
+                }),
+            ) => format!(
+                ", rkl2 at least ~{} substeps (its trial stopped after {a:?} stages, {}: it cannot win)",
+                count(*cost),
+                over(steps)
+            ),
+            (Some(_), Some(m)) => format!(
+                ", rkl2 {} stages (~{} substeps)",
+                count(st.saturating_mul(n) as f64),
+                count(m.cost)
+            ),
+            (Some(_), None) if measured => format!(
+                ", rkl2 at least ~{} substeps (not tried: it cannot win)",
+                count(self.rkl2_bound)
+            ),
+            _ => format!(
+                ", rkl2 {} stages (~{} substeps)",
+                count(st.saturating_mul(n) as f64),
+                count(self.rkl2_model)
+            ),
+        };
+        let imp_text = match (&self.imp, &self.imp_m) {
+            (Some((i, it)), Some(Measured { stopped: Some(a), cost, .. })) => format!(
+                ", implicit ({}) at least ~{cost:.0} substeps ({it} iterations per solve in a trial; its trial stopped after {a:?} applications, {}: it cannot win)",
+                i.preconditioner_name(),
+                over(steps)
+            ),
+            (Some((i, it)), Some(m)) => format!(
+                ", implicit ({}) ~{:.0} applications ({it} iterations per solve in a trial{}; ~{:.0} substeps{})",
+                i.preconditioner_name(),
+                m.cost / i.cost_of(1),
+                in_trial("applications", &m.trial, "; ", ""),
+                m.cost,
+                predicted(&m.trial)
+            ),
+            (Some((i, it)), None) if measured => format!(
+                ", implicit ({}) at least ~{:.0} substeps ({it} iterations per solve in a trial; not tried further: it cannot win)",
+                i.preconditioner_name(),
+                self.imp_bound.unwrap_or(f64::INFINITY)
+            ),
+            (Some((i, it)), None) => format!(
+                ", implicit ({}) ~{} applications ({it} iterations per solve in a trial; ~{:.0} substeps)",
+                i.preconditioner_name(),
+                controlled_applications(*it, self.controlled),
+                self.imp_model.unwrap_or(f64::INFINITY)
+            ),
+            (None, _) => String::new(),
+        };
+        format!("per step euler {} substeps{rkl2_text}{imp_text}", count(self.substeps))
     }
 }
 

@@ -7,15 +7,12 @@
 //! `implicit` (TR-BDF2 with preconditioned conjugate gradients) and the `auto` choice between
 //! them (`choose`); docs/integrators.md gives their equations.
 
-#[cfg(eprop_hypre)]
-pub mod amg;
 pub mod choose;
 pub mod euler;
 pub mod implicit;
-pub mod multigrid;
 pub mod rkl2;
+pub mod solver;
 pub mod stability;
-pub mod stiffness;
 
 use crate::discretize::operator::V3;
 use crate::distribute::comm::Comm;
@@ -202,27 +199,124 @@ impl Control {
     }
 }
 
-/// A preconditioner M ~ A^-1 of the implicit solves, applied to the owned rows.
-pub trait Precond: Send {
-    /// z = M r on the owned rows (three components). Every process calls it at the same
-    /// point (a preconditioner may sweep `prop`'s operator, exchanging its halo).
-    fn apply(&mut self, prop: &mut Propagation, r: &[V3], z: &mut [V3]);
-    /// The inverse diagonal when M is diagonal (the solver fuses it into its vector update).
-    fn inverse_diagonal(&self) -> Option<&[f64]> {
-        None
+/// What an error-controlled stepper (rkl2, implicit) keeps of its control between mechanics
+/// steps: the accuracy, the mechanics steps taken (for messages) and what the last one did.
+#[derive(Clone, Debug)]
+pub struct ErrorState {
+    /// The relative error per mechanics step (infinite: no control, no estimate).
+    pub accuracy: f64,
+    /// The share of the accuracy the estimate is held to (1: all of it).
+    share: f64,
+    /// Mechanics steps taken.
+    pub step: u64,
+    /// Sub-steps of the last mechanics step: (accepted, rejected).
+    pub substeps: (usize, usize),
+    /// The estimated relative error of the last mechanics step (sum over its sub-steps).
+    pub error: f64,
+}
+
+impl ErrorState {
+    /// No error control yet (`accuracy` infinite); the estimate is to be held to `share` of
+    /// the accuracy once it is set.
+    pub fn new(share: f64) -> ErrorState {
+        ErrorState {
+            accuracy: f64::INFINITY,
+            share,
+            step: 0,
+            substeps: (0, 0),
+            error: 0.0,
+        }
     }
-    /// The cost of one application in forward Euler substeps beyond the conjugate-gradient
-    /// iteration's own (`choose::CG_COST`; a diagonal one is fused into it: 0).
-    fn cost(&self) -> f64 {
-        0.0
+
+    /// Whether the error is controlled (a finite accuracy).
+    pub fn on(&self) -> bool {
+        self.accuracy.is_finite()
     }
-    /// Frees the work buffers while the preconditioner of another sub-step length runs (the
-    /// next `apply` allocates them again).
-    fn release(&mut self) {}
-    /// The preconditioner of the same operator with another theta tau, made from this one
-    /// more cheaply than anew (None: build it anew).
-    fn derive(&self, _theta_tau: f64) -> Option<anyhow::Result<Box<dyn Precond>>> {
-        None
+
+    /// The last step's estimated error where the error is controlled (`Stepper::last_error`).
+    pub fn last_error(&self) -> Option<f64> {
+        self.on().then_some(self.error)
+    }
+
+    /// A step replayed with its estimated error (`Stepper::replayed`).
+    pub fn replayed(&mut self, error: Option<f64>) {
+        self.step += 1;
+        self.error = error.unwrap_or(0.0);
+    }
+
+    /// The sub-steps of a mechanics step from `level` (sub-steps of dt / 2^level), the
+    /// estimate of order `p` in the sub-step.
+    pub fn begin(&self, level: u32, p: f64) -> SubSteps {
+        SubSteps {
+            control: Control::new(level, p),
+            floor: 0.0,
+            share: self.share,
+            accuracy: self.accuracy,
+            accepted: 0,
+            rejected: 0,
+            error: 0.0,
+        }
+    }
+
+    /// Keeps what the mechanics step's sub-steps did.
+    pub fn end(&mut self, s: &SubSteps) {
+        self.substeps = (s.accepted, s.rejected);
+        self.error = s.error;
+    }
+}
+
+/// One mechanics step's sub-steps under error control (`ErrorState::begin`): the levels
+/// (`Control`), the floor under the norm of phi and what was accepted.
+pub struct SubSteps {
+    pub control: Control,
+    /// Set by the first attempt: from phi = 0 the first sub-steps see a tiny phi, against which
+    /// nothing short is accurate.
+    floor: f64,
+    /// The estimate is held to share times accuracy (`ErrorState`).
+    share: f64,
+    accuracy: f64,
+    accepted: usize,
+    rejected: usize,
+    /// The sum of the accepted sub-steps' estimated errors.
+    error: f64,
+}
+
+impl SubSteps {
+    /// A sub-step's error over its tolerance, from exact sums of squares over every process
+    /// (`squares`) of the error estimate and of phi at the sub-step's start and end:
+    /// ||e|| / (share accuracy max(||phi_start||, ||phi_end||, floor)), 0 where the error is at
+    /// roundoff. Returns the ratio, ||e|| and the scale it was measured against.
+    pub fn ratio(&mut self, [ee, s0, s1]: [f64; 3]) -> (f64, f64, f64) {
+        let scale = s0.max(s1).sqrt().max(self.floor);
+        if self.floor == 0.0 {
+            self.floor = scale;
+        }
+        let err = ee.sqrt();
+        let ratio = if err <= ROUNDOFF * scale {
+            0.0
+        } else {
+            err / (self.share * self.accuracy * scale)
+        };
+        (ratio, err, scale)
+    }
+
+    /// After a sub-step of error ratio `ratio`: whether it is accepted (else the caller takes
+    /// phi back to the sub-step's start); the control moves on.
+    pub fn after(&mut self, ratio: f64) -> bool {
+        let added = ratio * self.share * self.accuracy;
+        let accepted = self.control.after(ratio);
+        if accepted {
+            self.accepted += 1;
+            self.error += added;
+        } else {
+            self.rejected += 1;
+        }
+        accepted
+    }
+
+    /// Sub-steps accepted and rejected so far.
+    pub fn counts(&self) -> (usize, usize) {
+        (self.accepted, self.rejected)
     }
 }
 

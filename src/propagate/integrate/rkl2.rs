@@ -13,7 +13,7 @@
 //! gamma~j = -a_(j-1) mu~j. A steady state M(phi) = 0 is a fixed point of every stage.
 
 use super::euler::SAFETY;
-use super::{StepPlan, StepStats, Stepper};
+use super::{ErrorState, StepPlan, StepStats, Stepper};
 use crate::discretize::operator::V3;
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
@@ -109,9 +109,9 @@ pub struct Rkl2 {
     m0: NodeField<V3>,
     ya: NodeField<V3>,
     yb: NodeField<V3>,
-    /// The relative error per mechanics step (infinite: `supersteps` super-steps of the
-    /// stability bound's stages, no estimate), the Euler bound and the first level tried.
-    accuracy: f64,
+    /// The error control (an infinite accuracy: `supersteps` super-steps of the stability
+    /// bound's stages, no estimate), the Euler bound and the first level tried.
+    errors: ErrorState,
     h_bound: f64,
     start_level: u32,
     /// Owned values at the start of a super-step and of its single-step result (the step
@@ -119,11 +119,6 @@ pub struct Rkl2 {
     start: Vec<V3>,
     full: Vec<V3>,
     path: String,
-    step: u64,
-    /// Sub-steps of the last mechanics step: (accepted, rejected).
-    pub substeps: (usize, usize),
-    /// The estimated relative error of the last mechanics step (sum over its sub-steps).
-    pub error: f64,
 }
 
 impl Rkl2 {
@@ -158,15 +153,12 @@ impl Rkl2 {
         let z = || NodeField::filled(layout, [0.0; 3]);
         let start_level = (supersteps as f64).log2().ceil() as u32;
         Ok(Rkl2 {
-            accuracy: f64::INFINITY,
+            errors: ErrorState::new(DOUBLING_SHARE),
             h_bound,
             start_level,
             start: Vec::new(),
             full: Vec::new(),
             path: path.to_string(),
-            step: 0,
-            substeps: (0, 0),
-            error: 0.0,
             plan: StepPlan {
                 integrator: super::Kind::Rkl2,
                 dt,
@@ -190,14 +182,14 @@ impl Rkl2 {
 
     /// Numbers the next step 1 again (after the automatic choice's trial steps).
     pub fn restart_count(&mut self) {
-        self.step = 0;
+        self.errors.step = 0;
     }
 
     /// Turns the error control on: super-steps of dt / 2^k (from the level of the super-step
     /// count given to `new`), as many as `accuracy` (the relative error per mechanics step)
     /// needs, each checked by step doubling (`Control`).
     pub fn set_accuracy(&mut self, accuracy: f64) {
-        self.accuracy = accuracy;
+        self.errors.accuracy = accuracy;
         if accuracy.is_finite() {
             let n = self.y0.layout().n_owned;
             self.start = vec![[0.0; 3]; n];
@@ -225,20 +217,18 @@ impl Rkl2 {
     /// process. Returns the operator applications.
     fn controlled(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<usize> {
         let n = prop.layout().n_owned;
-        let mut c = super::Control::new(self.start_level, 3.0);
-        let (mut apps, mut accepted, mut rejected) = (0usize, 0, 0);
-        let mut error = 0.0;
-        // the first attempt of the mechanics step sets a floor under the norm of phi (from
-        // phi = 0 the first super-steps see a tiny phi, against which nothing is accurate)
-        let mut floor = 0.0f64;
-        while !c.done() {
+        let mut sub = self.errors.begin(self.start_level, 3.0);
+        let mut apps = 0usize;
+        let (step, accuracy) = (self.errors.step, self.errors.accuracy);
+        while !sub.control.done() {
+            let c = &sub.control;
             if c.level > super::MAX_LEVEL {
                 bail!(
                     "{}: rkl2: step {} needs super-steps shorter than dt / 2^{} to keep [integrator] accuracy = {:e}; fix: loosen accuracy, or use [model] integrator = \"implicit\", or lower dt",
                     self.path,
-                    self.step + 1,
+                    step + 1,
                     super::MAX_LEVEL,
-                    self.accuracy
+                    accuracy
                 );
             }
             let tau = self.plan.dt * c.fraction();
@@ -247,9 +237,9 @@ impl Rkl2 {
                 bail!(
                     "{}: rkl2: step {} needs more than {} stages to keep [integrator] accuracy = {:e}; fix: use [model] integrator = \"implicit\", or loosen accuracy, or lower dt",
                     self.path,
-                    self.step + 1,
+                    step + 1,
                     super::MAX_SUBSTEPS,
-                    self.accuracy
+                    accuracy
                 );
             }
             self.start.copy_from_slice(&prop.phi[..n]);
@@ -262,39 +252,24 @@ impl Rkl2 {
             self.superstep(prop, q, tau / 2.0);
             apps += one + 2 * half;
             let (p0, p1, f) = (&self.start[..], &prop.phi[..n], &self.full[..]);
-            let [ee, s0, s1] = super::squares(comm, n, |i| {
+            let (ratio, err, scale) = sub.ratio(super::squares(comm, n, |i| {
                 [std::array::from_fn(|d| (p1[i][d] - f[i][d]) / 3.0), p0[i], p1[i]]
-            });
-            let scale = s0.max(s1).sqrt().max(floor);
-            if floor == 0.0 {
-                floor = scale;
-            }
-            let err = ee.sqrt();
-            let ratio = if err <= super::ROUNDOFF * scale {
-                0.0
-            } else {
-                err / (DOUBLING_SHARE * self.accuracy * scale)
-            };
+            }));
             tracing::trace!(
                 "rkl2 step {} level {} pos {} stages {one}/{half} err {err:.3e} scale {scale:.3e} ratio {ratio:.3e}",
-                self.step + 1,
-                c.level,
-                c.pos
+                step + 1,
+                sub.control.level,
+                sub.control.pos
             );
-            let added = ratio * DOUBLING_SHARE * self.accuracy;
-            if c.after(ratio) {
-                accepted += 1;
-                error += added;
-            } else {
-                rejected += 1;
+            if !sub.after(ratio) {
                 prop.phi[..n].copy_from_slice(&self.start);
             }
         }
-        self.substeps = (accepted, rejected);
-        self.error = error;
+        self.errors.end(&sub);
+        let (accepted, rejected) = sub.counts();
         tracing::debug!(
             "rkl2 step {}: {accepted} super-steps (doubled), {rejected} rejected",
-            self.step + 1
+            step + 1
         );
         Ok(apps)
     }
@@ -357,23 +332,22 @@ impl Stepper for Rkl2 {
         &self.plan
     }
     fn last_error(&self) -> Option<f64> {
-        self.accuracy.is_finite().then_some(self.error)
+        self.errors.last_error()
     }
     fn replayed(&mut self, error: Option<f64>) {
-        self.step += 1;
-        self.error = error.unwrap_or(0.0);
+        self.errors.replayed(error)
     }
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<StepStats> {
-        if self.accuracy.is_finite() {
+        if self.errors.on() {
             let applications = self.controlled(prop, q, comm)?;
-            self.step += 1;
+            self.errors.step += 1;
             return Ok(StepStats { applications });
         }
         let tau = self.plan.dt / self.supersteps as f64;
         for _ in 0..self.supersteps {
             self.superstep(prop, q, tau);
         }
-        self.step += 1;
+        self.errors.step += 1;
         Ok(StepStats {
             applications: self.plan.per_step,
         })

@@ -6,7 +6,7 @@
 //! The TR-BDF2 matrix is A = V + c K with V the control volumes, K = -W the (positive)
 //! diffusion matrix and c = theta tau. One scalar hierarchy serves the three components:
 //! - level 0 is the solver's own A on every process (its pattern swept with the halo
-//!   exchange, `Propagation::update_with`, on weights w_ij = -K_ij in f32): its smoothing
+//!   exchange, `Sweep::update_with`, on weights w_ij = -K_ij in f32): its smoothing
 //!   couples the processes;
 //! - the coarse levels are global and the same on every process: at setup every process
 //!   gathers the free rows of K (global ids, `Comm::all_gather_var`) and builds the whole
@@ -34,16 +34,16 @@
 //! coarse cycle; setup gathers the whole fine matrix on every process (docs/integrators.md).
 
 pub mod aggregate;
-pub mod csr;
+mod gather;
+mod plan;
 
-use super::Precond;
-use crate::discretize::operator::{Compact, Operator, V3};
+use super::csr::{self, Csr};
+use super::{Precond, Sweep, V3};
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
 use crate::distribute::halo::Halo;
-use crate::propagate::Propagation;
 use anyhow::{bail, Result};
-use csr::{Csr, Transfer};
+use plan::Plan;
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -68,12 +68,12 @@ pub const DEGREE: usize = 2;
 /// share them (`Precond::derive`).
 #[derive(Clone)]
 struct Level {
-    ptr: Arc<Vec<usize>>,
-    col: Arc<Vec<u32>>,
+    /// K on the level's pattern, which V and A share (rows' columns ascending, with the
+    /// diagonal)
+    k: Arc<Csr<f64>>,
     /// V on the pattern, or only its diagonal where V is diagonal (level 0: the control
     /// volumes), whose off-diagonal entries are zeros
     v: Mass,
-    k: Arc<Vec<f64>>,
     /// A = V + c K (what the bounds and the coarsest factor use) and rounded to f32 (what the
     /// cycle reads); neither kept for a level that only serves its bounds
     a: Vec<f64>,
@@ -90,8 +90,8 @@ struct Level {
     hi: f64,
     /// prolongator to this level from the next coarser one and its transpose (empty on the
     /// coarsest level)
-    p: Arc<Transfer>,
-    r: Arc<Transfer>,
+    p: Arc<Csr<f32>>,
+    r: Arc<Csr<f32>>,
     x: Vec<V3>,
     b: Vec<V3>,
     t: Vec<V3>,
@@ -117,19 +117,19 @@ struct Own {
 
 impl Level {
     fn n(&self) -> usize {
-        self.ptr.len() - 1
+        self.k.n_rows()
     }
 
     /// The level of K and V (rows' columns ascending): one pattern holding both, with the
     /// diagonal.
-    fn new(k: &Csr, v: &Csr) -> Level {
+    fn new(k: &Csr<f64>, v: &Csr<f64>) -> Level {
         let n = k.n_rows();
         let mut ptr = Vec::with_capacity(n + 1);
-        ptr.push(0);
+        ptr.push(0u32);
         let (mut col, mut kv, mut vv) = (vec![], vec![], vec![]);
         for i in 0..n {
-            let (mut p, pe) = (k.ptr[i], k.ptr[i + 1]);
-            let (mut q, qe) = (v.ptr[i], v.ptr[i + 1]);
+            let (mut p, pe) = (k.ptr[i] as usize, k.ptr[i + 1] as usize);
+            let (mut q, qe) = (v.ptr[i] as usize, v.ptr[i + 1] as usize);
             let mut diag = false;
             while p < pe || q < qe {
                 let jk = if p < pe { k.col[p] } else { u32::MAX };
@@ -158,16 +158,16 @@ impl Level {
                 kv.push(0.0);
                 vv.push(0.0);
             }
-            ptr.push(col.len());
+            ptr.push(u32::try_from(col.len()).expect("a level of fewer than 2^32 entries"));
         }
         let z = vec![[0.0; 3]; n];
         // a diagonal V keeps its diagonal alone (the pattern's other entries hold zeros)
-        let diagonal = (0..n).all(|i| (v.ptr[i]..v.ptr[i + 1]).all(|q| v.col[q] as usize == i));
+        let diagonal = (0..n).all(|i| v.row(i).all(|q| v.col[q] as usize == i));
         let v = if diagonal {
             Mass::Diagonal(Arc::new(
                 (0..n)
                     .map(|i| {
-                        (ptr[i]..ptr[i + 1])
+                        (ptr[i] as usize..ptr[i + 1] as usize)
                             .find(|&p| col[p] as usize == i)
                             .map_or(0.0, |p| vv[p])
                     })
@@ -184,10 +184,13 @@ impl Level {
             send: vec![],
             recv: vec![],
             dinv: vec![0.0; n],
-            ptr: Arc::new(ptr),
-            col: Arc::new(col),
+            k: Arc::new(Csr {
+                n_cols: n,
+                ptr,
+                col,
+                val: kv,
+            }),
             v,
-            k: Arc::new(kv),
             lo: 0.0,
             hi: 0.0,
             p: Arc::default(),
@@ -201,26 +204,23 @@ impl Level {
     /// A = V + c K, its inverse diagonal and Chebyshev interval.
     fn combine(&mut self, c: f64) {
         let n = self.n();
+        let k: &Csr<f64> = &self.k;
         self.a = match &self.v {
-            Mass::Full(v) => v.iter().zip(self.k.iter()).map(|(v, k)| v + c * k).collect(),
+            Mass::Full(v) => v.iter().zip(k.val.iter()).map(|(v, k)| v + c * k).collect(),
             // the same sums: 0 + c k off the diagonal
-            Mass::Diagonal(d) => {
-                let (ptr, col, k) = (&self.ptr, &self.col, &self.k);
-                (0..n)
-                    .flat_map(|i| {
-                        (ptr[i]..ptr[i + 1]).map(move |p| {
-                            let v = if col[p] as usize == i { d[i] } else { 0.0 };
-                            v + c * k[p]
-                        })
+            Mass::Diagonal(d) => (0..n)
+                .flat_map(|i| {
+                    k.row(i).map(move |p| {
+                        let v = if k.col[p] as usize == i { d[i] } else { 0.0 };
+                        v + c * k.val[p]
                     })
-                    .collect()
-            }
+                })
+                .collect(),
         };
+        let a = &self.a;
         self.dinv = (0..n)
             .map(|i| {
-                let d = (self.ptr[i]..self.ptr[i + 1])
-                    .find(|&p| self.col[p] as usize == i)
-                    .map_or(0.0, |p| self.a[p]);
+                let d = k.row(i).find(|&p| k.col[p] as usize == i).map_or(0.0, |p| a[p]);
                 if d > 0.0 {
                     1.0 / d
                 } else {
@@ -233,9 +233,9 @@ impl Level {
         // (conjugate gradients then stop early on a wrong answer): hi is at least the
         // Gershgorin bound max_i sum_j |a_ij| / a_ii, which no eigenvalue exceeds; the power
         // iteration (from a smooth start it underestimates) sets the bottom of the interval.
-        let lam = lambda_max(&self.ptr, &self.col, &self.a, &self.dinv);
+        let lam = lambda_max(&k.ptr, &k.col, &self.a, &self.dinv);
         let gershgorin = (0..n)
-            .map(|i| self.dinv[i] * (self.ptr[i]..self.ptr[i + 1]).map(|p| self.a[p].abs()).sum::<f64>())
+            .map(|i| self.dinv[i] * k.row(i).map(|p| self.a[p].abs()).sum::<f64>())
             .fold(0.0, f64::max);
         // (1 + 1e-6): the cycle reads A rounded to f32 (a third fewer bytes; still a fixed
         // symmetric operator), whose bound may lie 1e-7 above this one
@@ -283,8 +283,8 @@ impl Level {
         match self.own.clone() {
             None => {
                 csr::cheb_update(
-                    &self.ptr,
-                    &self.col,
+                    &self.k.ptr,
+                    &self.k.col,
                     &self.a32,
                     &self.dinv,
                     &self.x,
@@ -298,8 +298,8 @@ impl Level {
             Some(own) => {
                 csr::cheb_step_rows(
                     &own.rows,
-                    &self.ptr,
-                    &self.col,
+                    &self.k.ptr,
+                    &self.k.col,
                     &self.a32,
                     &self.dinv,
                     &mut self.x,
@@ -316,12 +316,12 @@ impl Level {
     /// t = b - A x: on every row, or on this process's rows and then gathered.
     fn residual(&mut self, halo: &Halo) {
         match self.own.clone() {
-            None => csr::residual(&self.ptr, &self.col, &self.a32, &self.x, &self.b, &mut self.t),
+            None => csr::residual(&self.k.ptr, &self.k.col, &self.a32, &self.x, &self.b, &mut self.t),
             Some(own) => {
                 csr::residual_rows(
                     &own.rows,
-                    &self.ptr,
-                    &self.col,
+                    &self.k.ptr,
+                    &self.k.col,
                     &self.a32,
                     &self.x,
                     &self.b,
@@ -352,7 +352,7 @@ fn scatter(order: &[u32], gathered: &[f64], v: &mut [V3]) {
 
 /// The largest eigenvalue of D^-1 M (M symmetric, D > 0 its diagonal) by power iteration
 /// from a fixed start, summed in order.
-fn lambda_max(ptr: &[usize], col: &[u32], val: &[f64], dinv: &[f64]) -> f64 {
+fn lambda_max(ptr: &[u32], col: &[u32], val: &[f64], dinv: &[f64]) -> f64 {
     let n = dinv.len();
     if n == 0 {
         return 0.0;
@@ -368,7 +368,12 @@ fn lambda_max(ptr: &[usize], col: &[u32], val: &[f64], dinv: &[f64]) -> f64 {
         let y: Vec<f64> = (0..n)
             .into_par_iter()
             .with_min_len(4096)
-            .map(|i| dinv[i] * (ptr[i]..ptr[i + 1]).map(|p| val[p] * x[col[p] as usize]).sum::<f64>())
+            .map(|i| {
+                dinv[i]
+                    * (ptr[i] as usize..ptr[i + 1] as usize)
+                        .map(|p| val[p] * x[col[p] as usize])
+                        .sum::<f64>()
+            })
             .collect();
         let ny = norm(&y);
         lam = ny / nx;
@@ -389,31 +394,11 @@ enum Coarse {
     Smooth,
 }
 
-/// The restriction from level 0 to the first coarse level over the processes: every coarse
-/// row has one owner, which sums it from the fine residuals of its support in global order
-/// (other processes' residuals received behind its own); then every process gathers the
-/// whole coarse vector. The same bits on any process count.
-#[derive(Default)]
-struct Plan {
-    /// per process q: the owned rows whose residual q needs (ascending global id)
-    send: Vec<Vec<u32>>,
-    /// values sent to and received from each process (three per row; none to itself)
-    send_counts: Vec<usize>,
-    recv_counts: Vec<usize>,
-    /// the residual's length here: the owned rows, then those received, in arrival order
-    residual_len: usize,
-    /// the rows of R = P^T this process sums, over the residual's positions
-    r: Transfer,
-    /// coarse values gathered from each process (three per row) and the coarse row of each,
-    /// in arrival order
-    coarse_counts: Vec<usize>,
-    order: Vec<u32>,
-}
-
 /// The smoothed-aggregation hierarchy (a `Precond`): level 0 on this process's rows, the
-/// coarse levels global and the same on every process.
+/// coarse levels global and the same on every process; `T` the level-0 sweeps' operator
+/// (`Sweep::Twin`).
 #[derive(Clone)]
-pub struct Multigrid {
+pub struct Multigrid<T> {
     /// the global free row (index among the free rows in global id order) of each owned row,
     /// u32::MAX where it does not move
     free_of: Arc<Vec<u32>>,
@@ -423,13 +408,13 @@ pub struct Multigrid {
     /// smoother, its size the work estimate
     fine: Level,
     /// the level-0 sweeps' operator: the weights w_ij = V_i c_ij made exactly symmetric, in
-    /// f32, on the solver's pattern (`Propagation::update_with`)
-    sweep_op: Arc<Operator>,
+    /// f32, on the solver's pattern (`Sweep::update_with`)
+    sweep_op: Arc<T>,
     /// V_i of the owned rows (0 on rows that do not move) and the inverse diagonal of A
     vol: Arc<Vec<f64>>,
     dinv0: Vec<f64>,
     /// prolongator from levels[0] to the owned rows
-    p0: Arc<Transfer>,
+    p0: Arc<Csr<f32>>,
     /// the restriction's communication and rows, and its buffers
     plan: Arc<Plan>,
     send_buf: Vec<f64>,
@@ -458,186 +443,25 @@ pub struct Multigrid {
     p_nnz: usize,
 }
 
-/// One free row gathered from its process: global id, process, V_i, and where its pairs
-/// (global id of j, V_i c_ij), ascending in j, start in the gathered values and how many.
-struct Row {
-    gid: u64,
-    rank: u32,
-    vol: f64,
-    at: usize,
-    len: usize,
-}
-
-impl Multigrid {
+impl<T: Send + Sync> Multigrid<T> {
     /// The hierarchy of A = V - theta tau W on the free rows (`vol` > 0, owned rows) of
-    /// `prop`'s compact operator over every process of `comm`; `gid` numbers the local nodes
+    /// `s`'s compact operator over every process of `comm`; `gid` numbers the local nodes
     /// (owned, then halo). The coarse levels are built from the global matrix, its rows in an
     /// order computed from global ids, on every process alike, so the preconditioner does not
-    /// depend on the partition.
-    pub fn new(prop: &Propagation, vol: &[f64], gid: &[u64], theta_tau: f64, comm: &dyn Comm) -> Result<Multigrid> {
+    /// depend on the partition. Three steps: the global matrix gathered (`gather`), the
+    /// hierarchy built from it (`hierarchy`), the restriction's plan over the processes
+    /// (`plan`).
+    pub fn new<S: Sweep<Twin = T>>(s: &S, vol: &[f64], gid: &[u64], theta_tau: f64, comm: &dyn Comm) -> Result<Self> {
         let t0 = std::time::Instant::now();
-        let Operator::Compact(op) = &prop.op else {
+        let Some(op) = s.coefficients() else {
             bail!("the multigrid preconditioner needs the compact scheme; fix: use [integrator] preconditioner = \"jacobi\"");
         };
         let n = vol.len();
         let (me, size) = (comm.rank(), comm.size());
-        // this process's free rows, gathered on every process
-        let mut send = vec![];
-        let mut row: Vec<(u64, f64)> = vec![];
-        for i in 0..n {
-            if !(vol[i] > 0.0) {
-                continue;
-            }
-            row.clear();
-            for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
-                row.push((gid[op.col[p] as usize], vol[i] * op.c(p)));
-            }
-            row.sort_by_key(|e| e.0);
-            send.extend_from_slice(&[gid[i] as f64, vol[i], row.len() as f64]);
-            for &(g, a) in &row {
-                send.extend_from_slice(&[g as f64, a]);
-            }
-        }
-        let (all, counts) = comm.all_gather_var(&send);
-        drop(send);
-        let mut rows = vec![];
-        let mut at = 0;
-        for (q, &c) in counts.iter().enumerate() {
-            let end = at + c;
-            while at < end {
-                let len = all[at + 2] as usize;
-                rows.push(Row {
-                    gid: all[at] as u64,
-                    rank: q as u32,
-                    vol: all[at + 1],
-                    at: at + 3,
-                    len,
-                });
-                at += 3 + 2 * len;
-            }
-        }
-        rows.sort_by_key(|r| r.gid);
+        let g = gather::gather(op, vol, gid, comm);
+        let sweep_op = s.twin(gather::sweep_weights(op, vol, gid, &g));
+        let gather::Gathered { rows, k, free } = g;
         let m = rows.len();
-        let span = rows
-            .iter()
-            .flat_map(|r| std::iter::once(r.gid).chain((0..r.len).map(|k| all[r.at + 2 * k] as u64)))
-            .max()
-            .map_or(0, |g| g as usize + 1);
-        let mut free = vec![u32::MAX; span];
-        for (k, r) in rows.iter().enumerate() {
-            free[r.gid as usize] = k as u32;
-        }
-        // K = -W: K_ij = -(V_i c_ij + V_j c_ji) / 2 between free rows (exactly symmetric),
-        // K_ii = V_i sum_j c_ij over every neighbour in global order (as A's diagonal)
-        let pair = |r: &Row, k: usize| (all[r.at + 2 * k] as u64, all[r.at + 2 * k + 1]);
-        let back = |r: &Row, g: u64| {
-            let (mut lo, mut hi) = (0, r.len);
-            while lo < hi {
-                let mid = (lo + hi) / 2;
-                match pair(r, mid).0.cmp(&g) {
-                    std::cmp::Ordering::Less => lo = mid + 1,
-                    std::cmp::Ordering::Greater => hi = mid,
-                    std::cmp::Ordering::Equal => return Some(pair(r, mid).1),
-                }
-            }
-            None
-        };
-        let built: Vec<Vec<(u32, f64)>> = rows
-            .par_iter()
-            .enumerate()
-            .with_min_len(1024)
-            .map(|(k, r)| {
-                let mut out = Vec::with_capacity(r.len + 1);
-                let mut diag = 0.0;
-                for e in 0..r.len {
-                    let (g, a) = pair(r, e);
-                    diag += a;
-                    let j = free[g as usize];
-                    if j != u32::MAX && j as usize != k {
-                        let b = back(&rows[j as usize], r.gid).unwrap_or(a);
-                        out.push((j, -0.5 * (a + b)));
-                    }
-                }
-                let at = out.partition_point(|e| (e.0 as usize) < k);
-                out.insert(at, (k as u32, diag));
-                out
-            })
-            .collect();
-        drop(all);
-        // the free rows renumbered in reverse Cuthill-McKee order of K's graph, from global ids
-        // (the same on every process): aggregates grown in an order with locality (on the
-        // 100^3 box 10 iterations per solve against 13 in the mesh's own order)
-        let (rows, k, free) = {
-            let mut xadj = Vec::with_capacity(m + 1);
-            xadj.push(0);
-            let mut adj = vec![];
-            for (k, r) in built.iter().enumerate() {
-                adj.extend(r.iter().filter(|e| e.0 as usize != k).map(|e| e.0));
-                xadj.push(adj.len());
-            }
-            let order = eprop_partition::rcm_order(&xadj, &adj);
-            drop((xadj, adj));
-            let mut new_of = vec![0u32; m];
-            for (k, &o) in order.iter().enumerate() {
-                new_of[o as usize] = k as u32;
-            }
-            let mut slots: Vec<Option<Row>> = rows.into_iter().map(Some).collect();
-            let rows: Vec<Row> = order
-                .iter()
-                .map(|&o| slots[o as usize].take().expect("a permutation"))
-                .collect();
-            // K in the new numbering, its rows' columns ascending
-            let mut k = Csr {
-                n_cols: m,
-                ptr: Vec::with_capacity(m + 1),
-                col: Vec::with_capacity(built.iter().map(Vec::len).sum()),
-                val: vec![],
-            };
-            k.ptr.push(0);
-            let mut r: Vec<(u32, f64)> = vec![];
-            for &o in &order {
-                r.clear();
-                r.extend(built[o as usize].iter().map(|&(j, v)| (new_of[j as usize], v)));
-                r.sort_by_key(|e| e.0);
-                for &(j, v) in &r {
-                    k.col.push(j);
-                    k.val.push(v);
-                }
-                k.ptr.push(k.col.len());
-            }
-            drop(built);
-            for (k, r) in rows.iter().enumerate() {
-                free[r.gid as usize] = k as u32;
-            }
-            (rows, k, free)
-        };
-        // level 0's own copy of the operator for the smoothing sweeps: the weights
-        // w_ij = -K_ij (exactly symmetric; V_i c_ij towards nodes that do not move) in f32, so
-        // that a sweep reads fewer bytes and the cycle stays a symmetric operator
-        let mut w32 = vec![0.0f32; op.col.len()];
-        for i in 0..n {
-            if !(vol[i] > 0.0) {
-                continue;
-            }
-            let row = free[gid[i] as usize] as usize;
-            let (cols, vals) = (&k.col[k.ptr[row]..k.ptr[row + 1]], &k.val[k.ptr[row]..k.ptr[row + 1]]);
-            for p in op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize {
-                let j = free.get(gid[op.col[p] as usize] as usize).copied().unwrap_or(u32::MAX);
-                let w = match cols.binary_search(&j) {
-                    Ok(at) if j != u32::MAX => -vals[at],
-                    _ => vol[i] * op.c(p),
-                };
-                w32[p] = w as f32;
-            }
-        }
-        let sweep_op = Operator::Compact(Compact {
-            row_ptr: op.row_ptr.clone(),
-            col: op.col.clone(),
-            coef: vec![],
-            coef32: w32,
-            n_cols: op.n_cols,
-            kernel: op.kernel,
-        });
         let v: Vec<f64> = rows.iter().map(|r| r.vol).collect();
         let mut levels = Self::hierarchy(k, &v);
         let coarsened = levels.len() >= 2;
@@ -647,7 +471,7 @@ impl Multigrid {
             (fine, p, r)
         } else {
             // no coarsening: the fine level itself is the coarse problem
-            let id = Arc::new(Transfer::identity(m));
+            let id = Arc::new(Csr::identity(m));
             (levels[0].clone(), id.clone(), id)
         };
         // only the fine level's bounds are used: no work vectors, no A kept
@@ -657,7 +481,8 @@ impl Multigrid {
             .map(|i| if vol[i] > 0.0 { free[gid[i] as usize] } else { u32::MAX })
             .collect();
         // P's rows of the owned nodes
-        let mut p0 = Transfer {
+        let mut p0 = Csr {
+            n_cols: p.n_cols,
             ptr: Vec::with_capacity(n + 1),
             col: vec![],
             val: vec![],
@@ -665,25 +490,18 @@ impl Multigrid {
         p0.ptr.push(0);
         for &k in &free_of {
             if k != u32::MAX {
-                let s = p.ptr[k as usize]..p.ptr[k as usize + 1];
+                let s = p.row(k as usize);
                 p0.col.extend_from_slice(&p.col[s.clone()]);
                 p0.val.extend_from_slice(&p.val[s]);
             }
-            p0.ptr.push(p0.col.len());
+            p0.ptr.push(p0.col.len() as u32);
         }
-        let plan = Self::plan(&r, &rows, &free_of, me, size);
+        let plan = Plan::new(&r, &rows, &free_of, me, size);
         drop(r);
-        // on several processes the first coarse level is split by the restriction's owners
-        // (each computes its rows of the smoothing and the residual, then all gather them);
+        // on several processes the first coarse level is split by the restriction's owners;
         // the coarser ones are small and every process runs them whole
         if size > 1 && coarsened && levels.len() > 1 {
-            let first: usize = plan.coarse_counts[..me].iter().sum::<usize>() / 3;
-            let mine = plan.coarse_counts[me] / 3;
-            levels[0].own = Some(Arc::new(Own {
-                rows: plan.order[first..first + mine].to_vec(),
-                counts: plan.coarse_counts.clone(),
-                order: plan.order.clone(),
-            }));
+            levels[0].own = Some(Arc::new(plan.own(me)));
         }
         let degree = DEGREE;
         let total = comm.sum_i128(n as i128).max(1) as f64;
@@ -733,108 +551,13 @@ impl Multigrid {
         Ok(mg)
     }
 
-    /// The restriction's plan on process `me` of `size` from the global restriction `r` = P^T
-    /// (columns: the free rows `rows` in global order): a coarse row belongs to the process of
-    /// its largest entry's fine row (the first of equal ones).
-    fn plan(r: &Transfer, rows: &[Row], free_of: &[u32], me: usize, size: usize) -> Plan {
-        let nc = r.n_rows();
-        let owner: Vec<u32> = (0..nc)
-            .map(|a| {
-                let mut best = (f32::NEG_INFINITY, None);
-                for q in r.ptr[a]..r.ptr[a + 1] {
-                    if r.val[q] > best.0 {
-                        best = (r.val[q], Some(r.col[q]));
-                    }
-                }
-                best.1.map_or(0, |i| rows[i as usize].rank)
-            })
-            .collect();
-        let mut order = vec![];
-        let mut coarse_counts = vec![0; size];
-        for q in 0..size {
-            for a in 0..nc {
-                if owner[a] as usize == q {
-                    order.push(a as u32);
-                    coarse_counts[q] += 3;
-                }
-            }
-        }
-        // the fine rows this process's coarse rows read, ascending, and their positions
-        // where each fine row's residual is: an owned row at its local index, another
-        // process's at n + its place in arrival order (process order, then global order)
-        let n = free_of.len();
-        let mut pos = vec![u32::MAX; rows.len()];
-        for (l, &k) in free_of.iter().enumerate() {
-            if k != u32::MAX {
-                pos[k as usize] = l as u32;
-            }
-        }
-        let mut foreign = vec![];
-        let mut seen = vec![false; rows.len()];
-        for a in (0..nc).filter(|&a| owner[a] as usize == me) {
-            for q in r.ptr[a]..r.ptr[a + 1] {
-                let i = r.col[q] as usize;
-                if rows[i].rank as usize != me && !seen[i] {
-                    seen[i] = true;
-                    foreign.push(i as u32);
-                }
-            }
-        }
-        foreign.sort_unstable_by_key(|&i| (rows[i as usize].rank, i));
-        let mut recv_counts = vec![0; size];
-        for (k, &i) in foreign.iter().enumerate() {
-            pos[i as usize] = (n + k) as u32;
-            recv_counts[rows[i as usize].rank as usize] += 3;
-        }
-        let mut mine = Transfer {
-            ptr: vec![0],
-            col: vec![],
-            val: vec![],
-        };
-        for a in (0..nc).filter(|&a| owner[a] as usize == me) {
-            for q in r.ptr[a]..r.ptr[a + 1] {
-                mine.col.push(pos[r.col[q] as usize]);
-                mine.val.push(r.val[q]);
-            }
-            mine.ptr.push(mine.col.len());
-        }
-        // what the other processes' coarse rows read of this process's rows
-        let mut wanted: Vec<Vec<u32>> = vec![vec![]; size];
-        for a in (0..nc).filter(|&a| owner[a] as usize != me) {
-            for q in r.ptr[a]..r.ptr[a + 1] {
-                let i = r.col[q] as usize;
-                if rows[i].rank as usize == me {
-                    wanted[owner[a] as usize].push(i as u32);
-                }
-            }
-        }
-        let send: Vec<Vec<u32>> = wanted
-            .into_iter()
-            .map(|mut w| {
-                w.sort_unstable();
-                w.dedup();
-                w.into_iter().map(|i| pos[i as usize]).collect()
-            })
-            .collect();
-        let send_counts = send.iter().map(|s| 3 * s.len()).collect();
-        Plan {
-            send,
-            send_counts,
-            recv_counts,
-            residual_len: n + foreign.len(),
-            r: mine,
-            coarse_counts,
-            order,
-        }
-    }
-
     /// The levels of A = diag(v) + c K (K symmetric, rows' columns ascending with the
     /// diagonal stored), from level 0 to the coarsest; their coefficients are not yet set.
-    fn hierarchy(k: Csr, v: &[f64]) -> Vec<Level> {
+    fn hierarchy(k: Csr<f64>, v: &[f64]) -> Vec<Level> {
         let n = k.n_rows();
         let mut vm = Csr {
             n_cols: n,
-            ptr: (0..=n).collect(),
+            ptr: (0..=n as u32).collect(),
             col: (0..n as u32).collect(),
             val: v.to_vec(),
         };
@@ -861,7 +584,7 @@ impl Multigrid {
             let omega = if lam > 0.0 { 4.0 / (3.0 * lam) } else { 0.0 };
             let mut s = kf;
             for i in 0..n {
-                for p in s.ptr[i]..s.ptr[i + 1] {
+                for p in s.row(i) {
                     let delta = if s.col[p] as usize == i { 1.0 } else { 0.0 };
                     s.val[p] = delta - omega * dinv[i] * s.val[p];
                 }
@@ -870,8 +593,8 @@ impl Multigrid {
             let r = p.transpose();
             let kc = r.matmul(&k.matmul(&p));
             let vc = r.matmul(&vm.matmul(&p));
-            level.p = Arc::new(Transfer::from(&p));
-            level.r = Arc::new(Transfer::from(&r));
+            level.p = Arc::new(p.to());
+            level.r = Arc::new(r.to());
             levels.push(level);
             k = kc;
             vm = vc;
@@ -897,8 +620,8 @@ impl Multigrid {
         self.coarse = if n <= DENSE_MAX {
             let mut f = vec![0.0; n * n];
             for i in 0..n {
-                for p in last.ptr[i]..last.ptr[i + 1] {
-                    f[i * n + last.col[p] as usize] = last.a[p];
+                for p in last.k.row(i) {
+                    f[i * n + last.k.col[p] as usize] = last.a[p];
                 }
             }
             for j in 0..n {
@@ -951,9 +674,9 @@ impl Multigrid {
 
     /// Stored entries of all levels' matrices over level 0's (operator complexity).
     pub fn complexity(&self) -> f64 {
-        let n0 = self.fine.col.len().max(1);
+        let n0 = self.fine.k.nnz().max(1);
         let coarse: usize = if self.coarsened {
-            self.levels.iter().map(|l| l.col.len()).sum()
+            self.levels.iter().map(|l| l.k.nnz()).sum()
         } else {
             0
         };
@@ -964,16 +687,16 @@ impl Multigrid {
     /// 2 degree sweeps (one from zero being cheaper, the residual makes up for it), each
     /// coarse level's too and the transfers, and the coarsest solve.
     pub fn cycle_work(&self) -> f64 {
-        let n0 = self.fine.col.len().max(1) as f64;
+        let n0 = self.fine.k.nnz().max(1) as f64;
         let mut w = (2 * self.degree) as f64 * n0 + 2.0 * self.p_nnz as f64;
         let last = self.levels.len() - 1;
         for (i, l) in self.levels.iter().enumerate() {
             if i < last {
-                w += (2 * self.degree) as f64 * l.col.len() as f64 + 2.0 * l.p.nnz() as f64;
+                w += (2 * self.degree) as f64 * l.k.nnz() as f64 + 2.0 * l.p.nnz() as f64;
             } else {
                 w += match self.coarse {
                     Coarse::Dense(_) => (l.n() * l.n()) as f64,
-                    Coarse::Smooth => (4 * self.degree) as f64 * l.col.len() as f64,
+                    Coarse::Smooth => (4 * self.degree) as f64 * l.k.nnz() as f64,
                 };
             }
         }
@@ -982,7 +705,7 @@ impl Multigrid {
 
     /// Chebyshev smoothing of A x0 = b on level 0 with the solver's operator (every process
     /// takes part: each sweep exchanges the halo of x0).
-    fn smooth0(&mut self, prop: &mut Propagation, b: &[V3], zero: bool) {
+    fn smooth0<S: Sweep<Twin = T>>(&mut self, prop: &mut S, b: &[V3], zero: bool) {
         let (lo, hi) = (self.fine.lo, self.fine.hi);
         let theta = 0.5 * (hi + lo);
         let delta = 0.5 * (hi - lo);
@@ -994,10 +717,10 @@ impl Multigrid {
         // sweep writes the next iterate, and the iterates rotate (no separate update pass)
         let mut first = zero;
         if zero {
-            let dinv = &self.dinv0;
-            for i in 0..self.owned {
-                let w = dinv[i] / theta;
-                self.x0[i] = [b[i][0] * w, b[i][1] * w, b[i][2] * w];
+            let x0 = &mut self.x0[..self.owned];
+            for ((x, b), d) in x0.iter_mut().zip(b).zip(&self.dinv0[..]) {
+                let w = d / theta;
+                *x = [b[0] * w, b[1] * w, b[2] * w];
             }
         } else {
             self.sweep0(prop, b, 0.0, 1.0 / theta, false);
@@ -1012,7 +735,7 @@ impl Multigrid {
 
     /// One Chebyshev sweep of level 0: x1 = x0 + alpha (x0 - xp) + beta D^-1 (b - A x0) (xp
     /// taken as 0 when `from_zero`), then (xp, x0, x1) <- (x0, x1, xp).
-    fn sweep0(&mut self, prop: &mut Propagation, b: &[V3], alpha: f64, beta: f64, from_zero: bool) {
+    fn sweep0<S: Sweep<Twin = T>>(&mut self, prop: &mut S, b: &[V3], alpha: f64, beta: f64, from_zero: bool) {
         let n = self.owned;
         let c = self.coefficient;
         let Multigrid {
@@ -1046,7 +769,7 @@ impl Multigrid {
             let lv = &mut fine[l];
             lv.smooth(deg, true, halo);
             lv.residual(halo);
-            csr::spmv(&lv.r.ptr, &lv.r.col, &lv.r.val, &lv.t, &mut coarse[0].b);
+            lv.r.spmv(&lv.t, &mut coarse[0].b);
         }
         let lv = &mut self.levels[last];
         match &self.coarse {
@@ -1083,14 +806,14 @@ impl Multigrid {
         for l in (0..last).rev() {
             let (fine, coarse) = self.levels.split_at_mut(l + 1);
             let lv = &mut fine[l];
-            csr::spmv_add(&lv.p.ptr, &lv.p.col, &lv.p.val, &coarse[0].x, &mut lv.x);
+            lv.p.spmv_add(&coarse[0].x, &mut lv.x);
             lv.smooth(deg, false, halo);
         }
     }
 }
 
-impl Precond for Multigrid {
-    fn apply(&mut self, prop: &mut Propagation, r: &[V3], z: &mut [V3]) {
+impl<S: Sweep<Twin = T>, T: Send + Sync + Clone + 'static> Precond<S> for Multigrid<T> {
+    fn apply(&mut self, prop: &mut S, r: &[V3], z: &mut [V3]) {
         let n = self.owned;
         if self.x0.is_empty() {
             // not made yet, or released: every application writes these before it reads them
@@ -1121,24 +844,18 @@ impl Precond for Multigrid {
                 self.send_buf.extend_from_slice(&self.t0[l as usize]);
             }
         }
-        prop.halo.all_to_all_into(
+        prop.halo().all_to_all_into(
             &self.send_buf,
             &plan.send_counts,
             &plan.recv_counts,
             self.t0[n..].as_flattened_mut(),
         );
-        csr::spmv(&plan.r.ptr, &plan.r.col, &plan.r.val, &self.t0, &mut self.mine);
-        prop.halo
+        plan.r.spmv(&self.t0, &mut self.mine);
+        prop.halo()
             .all_gather_into(self.mine.as_flattened(), &plan.coarse_counts, &mut self.recv_buf);
         scatter(&plan.order, &self.recv_buf, &mut self.levels[0].b);
-        self.cycle(&prop.halo);
-        csr::spmv_add(
-            &self.p0.ptr,
-            &self.p0.col,
-            &self.p0.val,
-            &self.levels[0].x,
-            &mut self.x0[..n],
-        );
+        self.cycle(prop.halo());
+        self.p0.spmv_add(&self.levels[0].x, &mut self.x0[..n]);
         self.smooth0(prop, r, false);
         z.copy_from_slice(&self.x0[..n]);
     }
@@ -1153,8 +870,11 @@ impl Precond for Multigrid {
     }
     /// The hierarchy for another theta tau: the same aggregates, transfers and Galerkin
     /// products (shared), recombined (`set_coefficient`: the same bits as one built for it).
-    fn derive(&self, theta_tau: f64) -> Option<Result<Box<dyn Precond>>> {
+    fn derive(&self, theta_tau: f64) -> Option<Result<Box<dyn Precond<S>>>> {
         let mut m = self.clone();
-        Some(m.set_coefficient(theta_tau).map(|()| Box::new(m) as Box<dyn Precond>))
+        Some(
+            m.set_coefficient(theta_tau)
+                .map(|()| Box::new(m) as Box<dyn Precond<S>>),
+        )
     }
 }

@@ -8,10 +8,8 @@
 //! follow the partition), so results agree across process counts to the solver tolerance,
 //! not bitwise. Jacobi is the deterministic default.
 
-use super::Precond;
-use crate::discretize::operator::{Operator, V3};
+use super::{Precond, Sweep, V3};
 use crate::distribute::comm::{Comm, RawComm};
-use crate::propagate::Propagation;
 use anyhow::{bail, Result};
 use std::ffi::c_void;
 use std::os::raw::{c_double, c_int};
@@ -115,12 +113,12 @@ unsafe impl Send for Amg {}
 
 impl Amg {
     /// Builds A on this process's free owned rows (`vol` > 0) and sets BoomerAMG up on it.
-    pub fn new(prop: &Propagation, vol: &[f64], theta_tau: f64, comm: &dyn Comm) -> Result<Amg> {
+    pub fn new<S: Sweep>(prop: &S, vol: &[f64], theta_tau: f64, comm: &dyn Comm) -> Result<Amg> {
         let Some(raw) = comm.raw() else {
             bail!("the amg preconditioner (hypre) needs MPI, which this process has not started; fix: run under mpirun, or start MPI first (`eprop run` does, as eprop::distribute::launch::start_alone)");
         };
         start_hypre();
-        let Operator::Compact(c) = &prop.op else {
+        let Some(c) = prop.coefficients() else {
             bail!("the amg preconditioner needs the compact scheme; fix: use preconditioner = \"jacobi\"");
         };
         let n = vol.len();
@@ -166,7 +164,7 @@ impl Amg {
             let sizes: Vec<HypreInt> = amg
                 .rows
                 .iter()
-                .map(|&i| (c.row_ptr[i as usize + 1] - c.row_ptr[i as usize] + 1) as HypreInt)
+                .map(|&i| (c.ptr()[i as usize + 1] - c.ptr()[i as usize] + 1) as HypreInt)
                 .collect();
             check(
                 HYPRE_IJMatrixSetRowSizes(amg.matrix, sizes.as_ptr()),
@@ -180,10 +178,10 @@ impl Amg {
                 vals.clear();
                 let v = vol[i];
                 let mut diag = v;
-                for p in c.row_ptr[i] as usize..c.row_ptr[i + 1] as usize {
-                    let cij = c.c(p);
+                for p in c.row(i) {
+                    let cij = c.value(p);
                     diag += theta_tau * v * cij;
-                    let gj = g[c.col[p] as usize][0];
+                    let gj = g[c.col()[p] as usize][0];
                     if gj >= 0.0 {
                         cols.push(gj as HypreInt);
                         vals.push(-theta_tau * v * cij);
@@ -233,8 +231,8 @@ impl Amg {
     }
 }
 
-impl Precond for Amg {
-    fn apply(&mut self, _: &mut Propagation, r: &[V3], z: &mut [V3]) {
+impl<S: Sweep> Precond<S> for Amg {
+    fn apply(&mut self, _: &mut S, r: &[V3], z: &mut [V3]) {
         let m = self.rows.len() as HypreInt;
         for d in 0..3 {
             for (k, &i) in self.rows.iter().enumerate() {

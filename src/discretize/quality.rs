@@ -1,13 +1,15 @@
-//! Which part of a mesh sets forward Euler's substep: per-node Gershgorin bounds of the
-//! compact operator, their median, the nodes far above it, and for the stiffest nodes the
-//! cell that contributes most to their row (on real organ meshes: slivers, flat tetrahedra
-//! with a dihedral angle near 180 degrees, whose coefficients a_ij are large against the
-//! control volume). `eprop info` and `eprop check` print it so that a user knows which cells
-//! to repair.
+//! The mesh-quality report of the compact operator: which part of a mesh sets forward
+//! Euler's substep. Per-node Gershgorin bounds of the operator, their median, the nodes far
+//! above it, and for the stiffest nodes the cell that contributes most to their row (on real
+//! organ meshes: slivers, flat tetrahedra with a dihedral angle near 180 degrees, whose
+//! coefficients a_ij are large against the control volume). `eprop info` and `eprop check`
+//! print it so that a user knows which cells to repair; the median over every process
+//! (`median_bound`) sizes rkl2's super-steps.
 
 use crate::discretize::geometry::tet_gradients;
 use crate::discretize::material::{Materials, Tensor};
 use crate::discretize::operator::Compact;
+use crate::distribute::comm::Comm;
 use eprop_io::geom::cell_quality;
 use eprop_io::{CellKind, Mesh};
 use nalgebra::Vector3;
@@ -60,18 +62,6 @@ pub struct Stiffness {
     pub stiffest: Vec<StiffNode>,
 }
 
-/// Gershgorin bound of every row of `op` (0 for empty rows).
-pub fn row_bounds(op: &Compact) -> Vec<f64> {
-    (0..op.row_ptr.len() - 1)
-        .map(|i| {
-            let r = op.row_ptr[i] as usize..op.row_ptr[i + 1] as usize;
-            let sum: f64 = r.clone().map(|p| op.c(p)).sum();
-            let abs: f64 = r.map(|p| op.c(p).abs()).sum();
-            sum.abs() + abs
-        })
-        .collect()
-}
-
 /// The median of the positive values (0 when there is none).
 pub fn median_positive(g: &[f64]) -> f64 {
     let mut v: Vec<f64> = g.iter().copied().filter(|&x| x > 0.0).collect();
@@ -84,8 +74,8 @@ pub fn median_positive(g: &[f64]) -> f64 {
 
 /// The median of the Gershgorin bounds of the owned rows `0..n_owned` over every process
 /// (empty rows left out): a bisection on the value with exact counts, so the same on any number of processes.
-pub fn median_bound(op: &Compact, n_owned: usize, comm: &dyn crate::distribute::comm::Comm) -> f64 {
-    let mut g = row_bounds(op);
+pub fn median_bound(op: &Compact, n_owned: usize, comm: &dyn Comm) -> f64 {
+    let mut g = op.row_bounds();
     g.truncate(n_owned);
     g.retain(|&x| x > 0.0);
     let total = comm.sum_i128(g.len() as i128);
@@ -118,7 +108,7 @@ pub fn median_bound(op: &Compact, n_owned: usize, comm: &dyn crate::distribute::
 /// numbering); `vol` the control volumes and `r` the conductivity of every node; `cell_id`
 /// the file's id of a cell.
 pub fn analyse(mesh: &Mesh, op: &Compact, vol: &[f64], r: &Materials, cell_id: &dyn Fn(usize) -> u64) -> Stiffness {
-    let g = row_bounds(op);
+    let g = op.row_bounds();
     let med = median_positive(&g);
     let nodes = g.iter().filter(|&&x| x > 0.0).count();
     let far_above = g.iter().filter(|&&x| x > FAR * med).count();

@@ -2,7 +2,7 @@
 //! graph of strong connections of a symmetric matrix: nodes are visited in index order, so
 //! the aggregates depend on the matrix and the numbering only.
 
-use super::csr::Csr;
+use crate::linalg::csr::Csr;
 
 /// Not yet in an aggregate.
 const NONE: u32 = u32::MAX;
@@ -19,14 +19,14 @@ fn strong(k_ij: f64, d_i: f64, d_j: f64, eps: f64) -> bool {
 /// 3. nodes still left over form aggregates with their free strong neighbours (alone if none).
 ///
 /// Every node is in exactly one aggregate and no aggregate is empty.
-pub fn aggregate(k: &Csr, eps: f64) -> (Vec<u32>, usize) {
+pub fn aggregate(k: &Csr<f64>, eps: f64) -> (Vec<u32>, usize) {
     let n = k.n_rows();
     let d = k.diagonal();
     let mut agg = vec![NONE; n];
     let mut count = 0u32;
     let d = &d;
     let strong_of = |i: usize| {
-        (k.ptr[i]..k.ptr[i + 1])
+        k.row(i)
             .map(move |p| (k.col[p] as usize, k.val[p]))
             .filter(move |&(j, v)| j != i && strong(v, d[i], d[j], eps))
     };
@@ -87,7 +87,7 @@ pub fn aggregate(k: &Csr, eps: f64) -> (Vec<u32>, usize) {
 /// The filtered matrix of the prolongator smoothing (Vanek, Mandel and Brezina 1996): the
 /// diagonal and the strong connections of `k`, each row's weak entries added to its diagonal
 /// (so row sums stay), in the order of the row's entries.
-pub fn filtered(k: &Csr, eps: f64) -> Csr {
+pub fn filtered(k: &Csr<f64>, eps: f64) -> Csr<f64> {
     let n = k.n_rows();
     let d = k.diagonal();
     let mut f = Csr {
@@ -100,7 +100,7 @@ pub fn filtered(k: &Csr, eps: f64) -> Csr {
     for i in 0..n {
         let mut weak = 0.0;
         let mut at = None;
-        for p in k.ptr[i]..k.ptr[i + 1] {
+        for p in k.row(i) {
             let j = k.col[p] as usize;
             if j == i {
                 at = Some(f.col.len());
@@ -114,16 +114,16 @@ pub fn filtered(k: &Csr, eps: f64) -> Csr {
         if let Some(a) = at {
             f.val[a] += weak;
         }
-        f.ptr.push(f.col.len());
+        f.ptr.push(f.col.len() as u32);
     }
     f
 }
 
 /// The tentative prolongator: P_ia = 1 where node i is in aggregate a.
-pub fn tentative(agg: &[u32], n_agg: usize) -> Csr {
+pub fn tentative(agg: &[u32], n_agg: usize) -> Csr<f64> {
     Csr {
         n_cols: n_agg,
-        ptr: (0..=agg.len()).collect(),
+        ptr: (0..=agg.len() as u32).collect(),
         col: agg.to_vec(),
         val: vec![1.0; agg.len()],
     }
@@ -135,7 +135,7 @@ mod tests {
 
     /// The 7-point Laplacian of an n^3 grid (Dirichlet outside), rows in lexicographic order,
     /// and one with some rows decoupled (no strong neighbours) and a weak coupling.
-    fn grid(n: usize) -> Csr {
+    fn grid(n: usize) -> Csr<f64> {
         let id = |x: usize, y: usize, z: usize| (x * n + y) * n + z;
         let mut ptr = vec![0];
         let (mut col, mut val) = (vec![], vec![]);
@@ -156,7 +156,7 @@ mod tests {
                         col.push(j as u32);
                         val.push(v);
                     }
-                    ptr.push(col.len());
+                    ptr.push(col.len() as u32);
                 }
             }
         }
