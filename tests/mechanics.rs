@@ -82,7 +82,7 @@ fn paper_figure_5_nonlinear_in_force_and_falling_with_damping() {
 
 #[test]
 fn exponential_tissue_law_stores_less_energy_than_linear_at_the_same_stress() {
-    use eprop::discretize::material::TissueLaw;
+    use eprop::config::tissue::TissueLaw;
     let lin = TissueLaw {
         young: 100.0,
         beta: 0.0,

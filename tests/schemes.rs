@@ -4,8 +4,8 @@
 mod common;
 
 use common::{max_abs, sim};
+use eprop::config::tissue::Tensor;
 use eprop::discretize::geometry::{compact_coefficients, Dual, Incidence};
-use eprop::discretize::material::Tensor;
 use eprop::discretize::operator::Operator;
 use eprop::propagate::integrate::stability::hash_unit;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};

@@ -5,7 +5,7 @@
 
 mod common;
 
-use eprop::discretize::material::TissueLaw;
+use eprop::config::tissue::TissueLaw;
 use eprop::simulate::contact::{self, ToolState};
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};

@@ -3,10 +3,10 @@
 //! `eprop export-operator` (the compact operator as a CSR matrix).
 
 use crate::cli::run::{prepare, RunOptions};
+use crate::config::tissue::Tensor;
 use crate::config::{Scenario, Setup};
 use crate::diagnostics::{fixed, peak_rss};
 use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
-use crate::discretize::material::Tensor;
 use crate::discretize::operator::{Compact, Operator};
 use crate::guard::limits::Budget;
 use crate::simulate::{scheme_name, Simulation, SAFETY};
@@ -55,9 +55,9 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
         qmin = qmin.min(q);
         qmax = qmax.max(q);
     }
-    let r = crate::discretize::material::Materials::uniform(
+    let r = crate::config::tissue::Materials::uniform(
         n,
-        crate::discretize::material::Tissue {
+        crate::config::tissue::Tissue {
             r: Tensor::identity() * 0.05,
             ..crate::config::PAPER_TISSUE
         },

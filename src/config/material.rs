@@ -1,10 +1,10 @@
 //! `[material]` and its `[[material.region]]`s: per-node conductivity tensor, mass and damping.
 
+use super::model::Model;
 use super::select::{Entry, Keys};
 use super::values::{opt_non_negative, opt_positive, Finite, NonNegative, Positive};
 use super::Scenario;
-use super::model::Model;
-use crate::discretize::material::{check_spd, Materials, Tensor, Tissue, TissueLaw, MAX_TISSUES};
+use crate::config::tissue::{check_spd, Materials, Tensor, Tissue, TissueLaw, MAX_TISSUES};
 use anyhow::Result;
 use eprop_io::Mesh;
 use serde::de::MapAccess;

@@ -40,6 +40,7 @@ mod select;
 pub mod set;
 pub mod tables;
 mod time;
+pub mod tissue;
 mod tools;
 mod values;
 pub(crate) mod wire;
@@ -49,9 +50,17 @@ pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
 
 /// A tissue of the paper reading's defaults (for tools that need one: `eprop info`'s operator).
-pub const PAPER_TISSUE: crate::discretize::material::Tissue = crate::discretize::material::Tissue {
-    r: crate::discretize::material::Tensor::new(
-        model::PAPER.conductivity, 0.0, 0.0, 0.0, model::PAPER.conductivity, 0.0, 0.0, 0.0, model::PAPER.conductivity,
+pub const PAPER_TISSUE: crate::config::tissue::Tissue = crate::config::tissue::Tissue {
+    r: crate::config::tissue::Tensor::new(
+        model::PAPER.conductivity,
+        0.0,
+        0.0,
+        0.0,
+        model::PAPER.conductivity,
+        0.0,
+        0.0,
+        0.0,
+        model::PAPER.conductivity,
     ),
     mass: model::PAPER.mass,
     damping: model::PAPER.damping,
@@ -71,7 +80,7 @@ pub use time::{steps_to, Stop, Time, TimeSec};
 pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
 pub use values::Precision;
 
-use crate::discretize::material::{Materials, TissueLaw};
+use crate::config::tissue::{Materials, TissueLaw};
 use anyhow::{anyhow, Result};
 use eprop_io::Mesh;
 use serde::{Deserialize, Serialize};

@@ -9,7 +9,7 @@
 
 use super::values::{non_negative, one, opt_finite, opt_non_negative, opt_positive, positive, yes, Precision};
 use crate::config::integrator::{self, Kind, Preconditioner, Settings};
-use crate::discretize::material::TissueLaw;
+use crate::config::tissue::TissueLaw;
 use serde::{de::Error, Deserialize, Deserializer, Serialize};
 
 /// The scheme of the propagation operator, as the scenario spells it.

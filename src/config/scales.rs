@@ -155,7 +155,12 @@ pub fn check(setup: &Setup) -> Result<()> {
         }
         if continuum {
             // the flux source (D / l) q a / V, with l, a / V and its inverse of the node spacing
-            let d = setup.materials.tissues.iter().map(|t| t.r.trace() / 3.0).fold(f64::INFINITY, f64::min);
+            let d = setup
+                .materials
+                .tissues
+                .iter()
+                .map(|t| t.r.trace() / 3.0)
+                .fold(f64::INFINITY, f64::min);
             let lg_source = d.log10() + lg_q - 2.0 * lg_ell;
             if d > 0.0 && lg_source < tiny {
                 return refuse(

@@ -7,7 +7,7 @@
 //! coefficients a_ij = a_ji hold bitwise, and a row's value never depends on which other rows
 //! are built beside it (the property that makes partitioned runs bitwise identical).
 
-use crate::discretize::material::Materials;
+use crate::config::tissue::Materials;
 use eprop_io::geom::{add, cell_volume, centroid, det3, dot, loop_area, scale, sub};
 use eprop_io::mesh::{boundary_faces, CellKind, Mesh};
 use nalgebra::{Matrix3, Vector3};

@@ -7,8 +7,8 @@
 //! over its neighbours (sorted by global id): no atomics, the same bits on any partition and
 //! any thread count. Rows of Dirichlet or inactive nodes are empty and never change.
 
+use crate::config::tissue::Materials;
 use crate::discretize::geometry::Dual;
-use crate::discretize::material::Materials;
 use crate::linalg::csr::{AnyCsr, Csr, Scalar};
 use eprop_io::geom::{dot, sub};
 use nalgebra::Vector3;

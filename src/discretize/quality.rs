@@ -3,13 +3,11 @@
 //! above it, and for the stiffest nodes the cell that contributes most to their row (on real
 //! organ meshes: slivers, flat tetrahedra with a dihedral angle near 180 degrees, whose
 //! coefficients a_ij are large against the control volume). `eprop info` and `eprop check`
-//! print it so that a user knows which cells to repair; the median over every process
-//! (`median_bound`) sizes rkl2's super-steps.
+//! print it so that a user knows which cells to repair.
 
+use crate::config::tissue::{Materials, Tensor};
 use crate::discretize::geometry::tet_gradients;
-use crate::discretize::material::{Materials, Tensor};
 use crate::discretize::operator::Compact;
-use crate::distribute::comm::Comm;
 use eprop_io::geom::cell_quality;
 use eprop_io::{CellKind, Mesh};
 use nalgebra::Vector3;
@@ -70,38 +68,6 @@ pub fn median_positive(g: &[f64]) -> f64 {
     }
     let k = v.len() / 2;
     *v.select_nth_unstable_by(k, f64::total_cmp).1
-}
-
-/// The median of the Gershgorin bounds of the owned rows `0..n_owned` over every process
-/// (empty rows left out): a bisection on the value with exact counts, so the same on any number of processes.
-pub fn median_bound(op: &Compact, n_owned: usize, comm: &dyn Comm) -> f64 {
-    let mut g = op.row_bounds();
-    g.truncate(n_owned);
-    g.retain(|&x| x > 0.0);
-    let total = comm.sum_i128(g.len() as i128);
-    if total == 0 {
-        return 0.0;
-    }
-    let (mut lo, mut hi) = (
-        comm.min(g.iter().copied().fold(f64::INFINITY, f64::min)),
-        comm.max(g.iter().copied().fold(0.0, f64::max)),
-    );
-    // the smallest value v with count(g <= v) > total / 2 (the element at index total / 2 in
-    // increasing order, as `median_positive`), to 1e-15 relative
-    let want = total / 2 + 1;
-    for _ in 0..200 {
-        if hi <= lo * (1.0 + 1e-15) {
-            break;
-        }
-        let mid = (lo * hi).sqrt().clamp(lo, hi);
-        let below = comm.sum_i128(g.iter().filter(|&&x| x <= mid).count() as i128);
-        if below >= want {
-            hi = mid;
-        } else {
-            lo = mid;
-        }
-    }
-    hi
 }
 
 /// Stiffness of `op` on `mesh` (the operator's rows are the mesh's first nodes, in its
@@ -290,7 +256,7 @@ mod tests {
             let dual = Dual::build(&mesh, &inc, n, None);
             let r = Materials::uniform(
                 n,
-                crate::discretize::material::Tissue {
+                crate::config::tissue::Tissue {
                     r: Tensor::identity(),
                     ..crate::config::PAPER_TISSUE
                 },
@@ -306,12 +272,12 @@ mod tests {
         let inc = Incidence::new(&mesh);
         let dual = Dual::build(&mesh, &inc, n, None);
         let r = Materials::uniform(
-                n,
-                crate::discretize::material::Tissue {
-                    r: Tensor::identity(),
-                    ..crate::config::PAPER_TISSUE
-                },
-            );
+            n,
+            crate::config::tissue::Tissue {
+                r: Tensor::identity(),
+                ..crate::config::PAPER_TISSUE
+            },
+        );
         let a = compact_coefficients(&mesh, &inc, &dual, &r);
         let op = Compact::new(&dual, &a, &vec![true; n]);
         let s = analyse(&mesh, &op, &dual.vol, &r, &|c| c as u64 + 100);
@@ -330,7 +296,7 @@ mod tests {
         assert!(!before.describe(12).contains("repair the cells"));
         assert_eq!(s.needs_repair(), worst.ratio > FAR || s.far_above > 0);
         assert_eq!(s.needs_repair(), s.describe(12).contains("repair the cells named below to raise the substep: remesh with a quality bound, `tetgen -q`, or improve them with gmsh's optimiser, `gmsh -3 -optimize` or `-optimize_netgen`"), "{}", s.describe(12));
-        let med = median_bound(&op, n, &crate::distribute::comm::Serial);
+        let med = crate::propagate::integrate::stability::median_bound(&op, n, &crate::distribute::comm::Serial);
         assert!(
             (med - 2.0 / s.median_h).abs() <= 1e-12 * med,
             "{med} {}",

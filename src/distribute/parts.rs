@@ -302,7 +302,9 @@ mod tests {
         assert_eq!(a.tools, b.tools);
         assert_eq!((&a.time, &a.output), (&b.time, &b.output));
         // the values are the interesting ones, not defaults
-        assert!(a.materials.tissues.iter().any(|t| t.mass == 3.0) && a.fixed.contains(&false) && a.loads[0].ramp.is_some());
+        assert!(
+            a.materials.tissues.iter().any(|t| t.mass == 3.0) && a.fixed.contains(&false) && a.loads[0].ramp.is_some()
+        );
         assert_eq!(a.tools.len(), 1);
     }
 
@@ -354,10 +356,7 @@ mod tests {
                 let g = g as usize;
                 assert_eq!(s.mesh.points[l], whole.mesh.points[g]);
                 assert_eq!(s.mesh.node_ids[l], whole.mesh.node_ids[g]);
-                assert_eq!(
-                    (s.materials.at(l), s.fixed[l]),
-                    (whole.materials.at(g), whole.fixed[g])
-                );
+                assert_eq!((s.materials.at(l), s.fixed[l]), (whole.materials.at(g), whole.fixed[g]));
             }
             // every local cell is its global cell, renumbered
             for (lc, &gc) in plan.cells.iter().enumerate() {

@@ -207,7 +207,9 @@ fn speed_scale(sim: &Simulation) -> f64 {
         })
         .fold(0.0f64, f64::max);
     let tissues = &sim.setup().materials.tissues;
-    let m = sim.comm().min(tissues.iter().map(|t| t.mass).fold(f64::INFINITY, f64::min));
+    let m = sim
+        .comm()
+        .min(tissues.iter().map(|t| t.mass).fold(f64::INFINITY, f64::min));
     f * sim.dt() / m
 }
 

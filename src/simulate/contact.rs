@@ -12,8 +12,8 @@
 //! its own state) and the tool's position, so the contact set, the pressures and their sums
 //! are the same on any number of processes.
 
+use crate::config::tissue::TissueLaw;
 use crate::config::{Shape, Tool, Trajectory};
-use crate::discretize::material::TissueLaw;
 use crate::discretize::operator::V3;
 use crate::distribute::comm::{exact_sums, Comm};
 use eprop_io::geom::{dot, norm, scale, sub};
@@ -236,7 +236,7 @@ impl ToolRun {
         t: f64,
         n: &Nodes,
         law: &TissueLaw,
-        conductivity: Option<&crate::discretize::material::Materials>,
+        conductivity: Option<&crate::config::tissue::Materials>,
         q: &mut Vec<(u32, V3)>,
     ) {
         let c = self.tool.path.at(t);
@@ -375,7 +375,7 @@ pub fn planned_sources(
     steps: u64,
     n: &Nodes,
     law: &TissueLaw,
-    conductivity: Option<&crate::discretize::material::Materials>,
+    conductivity: Option<&crate::config::tissue::Materials>,
     mut stop: impl FnMut(u64, &[(u32, V3)]) -> bool,
 ) -> Option<Vec<Vec<(u32, V3)>>> {
     if tools.iter().any(|t| t.tool.live) {

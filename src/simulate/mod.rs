@@ -220,14 +220,17 @@ pub fn flux_source(d_cond: f64, length: f64, q: f64, area: f64, vol: f64) -> f64
 /// tensors and control volumes (local numbering).
 #[derive(Clone, Copy)]
 struct Flux<'a> {
-    r: &'a crate::discretize::material::Materials,
+    r: &'a crate::config::tissue::Materials,
     vol: &'a [f64],
 }
 
 impl<'a> Flux<'a> {
     /// Some in the continuum reading.
     fn of(setup: &'a Setup, vol: &'a [f64]) -> Option<Flux<'a>> {
-        (setup.model.reading == Reading::Continuum).then_some(Flux { r: &setup.materials, vol })
+        (setup.model.reading == Reading::Continuum).then_some(Flux {
+            r: &setup.materials,
+            vol,
+        })
     }
 }
 
@@ -350,7 +353,7 @@ fn load_sources(
 
 /// The loads at time t: each one's force, contact stress sigma = |F| / A and energy density
 /// q(sigma).
-fn applied_at(loads: &[Load], law: &crate::discretize::material::TissueLaw, t: f64) -> Vec<Applied> {
+fn applied_at(loads: &[Load], law: &crate::config::tissue::TissueLaw, t: f64) -> Vec<Applied> {
     loads
         .iter()
         .map(|l| {

@@ -61,7 +61,10 @@ fn the_mechanics_bound_separates_decay_from_growth() {
         let active: Vec<bool> = (0..n).map(|i| !s.fixed[i]).collect();
         let (dt, bound) = mechanics_dt(&s, &active, n, &Serial).unwrap();
         assert_eq!(dt, SAFETY * bound);
-        assert_eq!(bound, dt_bound_node(2.0, s.materials.at(0).damping, s.model.stiffness()));
+        assert_eq!(
+            bound,
+            dt_bound_node(2.0, s.materials.at(0).damping, s.model.stiffness())
+        );
         if s.model.stiffness() > 0.0 {
             // bounded below it (undamped: on an ellipse at most 1 / sqrt(1 - 0.9^2) wide)
             assert!(free_swing(&s, 0.9 * bound) < 2.5, "{model}");

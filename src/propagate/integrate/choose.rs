@@ -154,7 +154,7 @@ fn rkl2_supersteps(dt: f64, h_median: f64) -> usize {
 fn median_h(prop: &Propagation, comm: &dyn Comm) -> f64 {
     match &prop.op {
         crate::discretize::operator::Operator::Compact(c) => {
-            let g = crate::discretize::quality::median_bound(c, prop.layout().n_owned, comm);
+            let g = super::stability::median_bound(c, prop.layout().n_owned, comm);
             if g > 0.0 {
                 2.0 / g
             } else {

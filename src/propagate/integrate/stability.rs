@@ -1,7 +1,7 @@
 //! The largest stable forward Euler substep of an operator (docs/model.md section 3). Other
 //! integrators size their stages from the same spectral bound.
 
-use crate::discretize::operator::{Operator, V3};
+use crate::discretize::operator::{Compact, Operator, V3};
 use crate::distribute::comm::{exact_sum, Comm};
 use crate::distribute::field::NodeField;
 use crate::propagate::Propagation;
@@ -101,4 +101,36 @@ fn paper_bound(prop: &mut Propagation, active: &[bool], gid: &[u64], comm: &dyn 
         h *= 0.8;
     }
     h
+}
+
+/// The median of the Gershgorin bounds of the owned rows `0..n_owned` over every process
+/// (empty rows left out): a bisection on the value with exact counts, so the same on any number of processes.
+pub fn median_bound(op: &Compact, n_owned: usize, comm: &dyn Comm) -> f64 {
+    let mut g = op.row_bounds();
+    g.truncate(n_owned);
+    g.retain(|&x| x > 0.0);
+    let total = comm.sum_i128(g.len() as i128);
+    if total == 0 {
+        return 0.0;
+    }
+    let (mut lo, mut hi) = (
+        comm.min(g.iter().copied().fold(f64::INFINITY, f64::min)),
+        comm.max(g.iter().copied().fold(0.0, f64::max)),
+    );
+    // the smallest value v with count(g <= v) > total / 2 (the element at index total / 2 in
+    // increasing order, as `median_positive`), to 1e-15 relative
+    let want = total / 2 + 1;
+    for _ in 0..200 {
+        if hi <= lo * (1.0 + 1e-15) {
+            break;
+        }
+        let mid = (lo * hi).sqrt().clamp(lo, hi);
+        let below = comm.sum_i128(g.iter().filter(|&&x| x <= mid).count() as i128);
+        if below >= want {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    hi
 }

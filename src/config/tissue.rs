@@ -1,6 +1,7 @@
-//! Materials: per-node constitutive tensor R (symmetric positive definite), mass and damping,
-//! and the 1-D tissue law that turns a contact stress into an energy density (docs/model.md
-//! sections 1, 4).
+//! The tissues of a mesh (docs/model.md sections 1, 4): per tissue the constitutive tensor R
+//! (symmetric positive definite), mass, damping, pull-back, coupling and the 1-D tissue law
+//! that turns a contact stress into an energy density; a table of distinct tissues and an
+//! index per node (`Materials`).
 
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -171,6 +172,8 @@ impl Materials {
     /// Whether every node has the same Young's modulus (then it weighs nothing in the
     /// propagation: docs/model.md section 3).
     pub fn uniform_young(&self) -> bool {
-        self.tissues.windows(2).all(|w| w[0].law.young.to_bits() == w[1].law.young.to_bits())
+        self.tissues
+            .windows(2)
+            .all(|w| w[0].law.young.to_bits() == w[1].law.young.to_bits())
     }
 }
