@@ -4,7 +4,8 @@
 mod common;
 
 use common::{max_abs, sim};
-use eprop::config::tissue::Tensor;
+use eprop::config::tissue::{Materials, Tensor};
+use eprop::config::PAPER_TISSUE;
 use eprop::discretize::geometry::{compact_coefficients, Dual, Incidence};
 use eprop::discretize::operator::Operator;
 use eprop::propagate::integrate::stability::hash_unit;
@@ -26,7 +27,12 @@ fn check_compact_linear_exactness(mesh: &Mesh) {
     let inc = Incidence::new(mesh);
     let dual = Dual::build(mesh, &inc, n, None);
     for r in tensors() {
-        let a = compact_coefficients(mesh, &inc, &dual, &vec![r; n]);
+        let a = compact_coefficients(
+            mesh,
+            &inc,
+            &dual,
+            &Materials::with_conductivities(&vec![r; n], PAPER_TISSUE),
+        );
         for g in [[1.0, 0.0, 0.0], [0.3, -1.2, 0.7]] {
             let u: Vec<f64> = mesh
                 .points
@@ -75,7 +81,7 @@ fn compact_is_symmetric_on_tetrahedra() {
     let dual = Dual::build(&mesh, &inc, n, None);
     // heterogeneous: per-node tensors differ, the cell mean keeps the operator symmetric
     let r: Vec<Tensor> = (0..n).map(|i| tensors()[i % 3]).collect();
-    let a = compact_coefficients(&mesh, &inc, &dual, &r);
+    let a = compact_coefficients(&mesh, &inc, &dual, &Materials::with_conductivities(&r, PAPER_TISSUE));
     for i in 0..n {
         for p in dual.row_ptr[i]..dual.row_ptr[i + 1] {
             let j = dual.col[p] as usize;

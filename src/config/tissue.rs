@@ -121,6 +121,21 @@ impl Materials {
         }
     }
 
+    /// `base` on every node with node i's conductivity `r[i]` (a tissue per distinct tensor).
+    pub fn with_conductivities(r: &[Tensor], base: Tissue) -> Materials {
+        let mut m = Materials {
+            tissues: Vec::new(),
+            of_node: Vec::with_capacity(r.len()),
+        };
+        for t in r {
+            let k = m
+                .index_of(Tissue { r: *t, ..base })
+                .expect("fewer distinct tensors than MAX_TISSUES");
+            m.of_node.push(k);
+        }
+        m
+    }
+
     /// Node i's tissue.
     #[inline]
     pub fn at(&self, i: usize) -> &Tissue {
