@@ -87,6 +87,18 @@ pub fn check_output_dir(path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The room a series makes for the output steps after step `from` (and `from` itself when
+/// `fresh`): all of them, or for an equilibrium run, whose length is not known, a first 64
+/// (the file grows as the run goes on).
+fn room(sim: &Simulation, from: u64, fresh: bool) -> usize {
+    let every = sim.setup().output.every;
+    let steps = crate::guard::limits::output_steps(from, sim.max_steps(), every, fresh) as usize;
+    match sim.setup().time.stop {
+        crate::config::Stop::Equilibrium { .. } => steps.min(64),
+        _ => steps,
+    }
+}
+
 /// A run's output series, open for appending.
 pub struct Series {
     writer: SeriesWriter,
@@ -151,6 +163,7 @@ impl Series {
             block_start: sim.blocks().start,
             block_len: sim.blocks().len,
             control_volumes: sim.vol_block(),
+            output_steps: room(sim, sim.step(), true),
             attrs: vec![
                 ("dt", sim.dt()),
                 ("h", plan.h),
@@ -159,6 +172,7 @@ impl Series {
             ],
         };
         let file = output.file.clone();
+        let every = output.every;
         if restart {
             let (mut writer, resume) = SeriesWriter::reopen(&file, layout(sizes), &spec, io)?;
             // the norms too: the energy |phi| and max |u| of a component near f64::MAX overflow
@@ -180,10 +194,11 @@ impl Series {
             // a step off the output grid (a run stopped by a signal, or a shorter run's last
             // step) is a restart point only: continuing drops it, so the series is the one an
             // uninterrupted run writes
-            let every = sim.setup().output.every;
             if !resume.step.is_multiple_of(every) && resume.step < sim.max_steps() && writer.steps_written() > 1 {
                 writer.forget_last()?;
             }
+            // room for the rest of the run, made before its first step
+            writer.reserve(writer.steps_complete() + room(sim, resume.step, false))?;
             writer.commit_every(flush);
             return Ok(Series {
                 writer,
