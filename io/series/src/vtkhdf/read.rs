@@ -58,12 +58,9 @@ pub(super) fn count_of(f: &File) -> Option<i64> {
 }
 
 impl SeriesFile {
-    /// Opens a series (read only, without HDF5's file lock) and checks its header.
+    /// Opens a series (read only) and checks its header.
     pub fn open(path: &Path) -> Result<SeriesFile> {
-        let file = File::with_options()
-            .with_fapl(|p| p.file_locking(false))
-            .open(path)
-            .map_err(|e| anyhow!("{}: cannot open: {e}", path.display()))?;
+        let file = File::open(path).map_err(|e| anyhow!("{}: cannot open: {e}", path.display()))?;
         if file.group("VTKHDF").is_err() || file.group("eprop").is_err() {
             return Err(anyhow!(
                 "{}: not an eprop series (no /VTKHDF or /eprop group); fix: give a series written by eprop run",
