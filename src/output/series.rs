@@ -172,7 +172,6 @@ impl Series {
             ],
         };
         let file = output.file.clone();
-        let every = output.every;
         if restart {
             let (mut writer, resume) = SeriesWriter::reopen(&file, layout(sizes), &spec, io)?;
             // the norms too: the energy |phi| and max |u| of a component near f64::MAX overflow
@@ -194,6 +193,7 @@ impl Series {
             // a step off the output grid (a run stopped by a signal, or a shorter run's last
             // step) is a restart point only: continuing drops it, so the series is the one an
             // uninterrupted run writes
+            let every = sim.setup().output.every;
             if !resume.step.is_multiple_of(every) && resume.step < sim.max_steps() && writer.steps_written() > 1 {
                 writer.forget_last()?;
             }
