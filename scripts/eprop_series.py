@@ -10,9 +10,11 @@
         s.field("displacement", -1) # (N, 3) at the last complete step
         xyz, tris = s.surface(-1)   # deformed points and the outer surface's triangles
 
-A file from a running or killed job may hold more rows than complete steps: only the
-`/eprop` `steps_complete` steps are read. Opening retries briefly while the writer flushes.
-Errors are `Fail` (a one-line message naming the file and the fix).
+A series holds room for the steps its run will write: only the `/eprop/steps_complete`
+steps are read (the counter a commit writes last). The header's counts are checked against
+the datasets' extents on opening: a damaged or edited file is a `Fail`. Opening retries
+briefly while the writer flushes. Errors are `Fail` (a one-line message naming the file and
+the fix).
 
 examples:
   eprop_series.py out/cylinder.h5          # lists steps, fields, loads, tools and probes
@@ -82,14 +84,63 @@ def open_series(path, tries=50):
     raise Fail(f"{path}: cannot open: {last}")
 
 
+def count_of(f):
+    """The complete output steps of an open series: the counter /eprop/steps_complete (a
+    dataset), or in a series written before it was one, the attribute of that name."""
+    ep = f["eprop"]
+    if ep.get("steps_complete", getclass=True) is h5py.Dataset:
+        if ep["steps_complete"].shape != (1,):
+            return None
+        return int(ep["steps_complete"][0])
+    if "steps_complete" in ep.attrs:
+        return int(ep.attrs["steps_complete"])
+    return None
+
+
+def check_header(path, f):
+    """(points N, complete steps K) of an open series, its counts checked against the
+    extents of the datasets they describe: a damaged or edited header is a Fail naming what
+    is wrong, before anything is read or allocated from it."""
+    def damaged(what):
+        return Fail(f"{path}: a damaged series: {what}; fix: restore the file from a copy, "
+                    f"or write it again (eprop run ... --overwrite)")
+
+    def one(name):
+        if name not in f or not isinstance(f[name], h5py.Dataset) or f[name].shape != (1,):
+            raise damaged(f"/{name} is not one count")
+        return int(f[name][0])
+
+    k = count_of(f)
+    if k is None:
+        raise Fail(f"{path}: not an eprop series (no /eprop steps_complete)")
+    n, cells, conn = (one("VTKHDF/" + c) for c in
+                      ("NumberOfPoints", "NumberOfCells", "NumberOfConnectivityIds"))
+    if n < 1 or f["VTKHDF/Points"].shape != (n, 3):
+        raise damaged(f"/VTKHDF/NumberOfPoints is {n} but /VTKHDF/Points holds "
+                      f"{f['VTKHDF/Points'].shape} values")
+    if cells < 1 or conn < 1:
+        raise damaged(f"/VTKHDF/NumberOfCells is {cells} and NumberOfConnectivityIds {conn}")
+    for name, want in (("Types", cells), ("Offsets", cells + 1), ("Connectivity", conn)):
+        if f["VTKHDF/" + name].shape != (want,):
+            raise damaged(f"/VTKHDF/{name} holds {f['VTKHDF/' + name].shape} entries, not {want}")
+    held = [(f"/VTKHDF/PointData/{a}", d.shape[0] // n) for a, d in f["VTKHDF/PointData"].items()]
+    held += [(f"/eprop/probes/{a}", f["eprop/probes/" + a].shape[0]) for a in ("time", "step")]
+    if "eprop/tools" in f:
+        held += [(f"/eprop/tools/{a}", d.shape[0]) for a, d in f["eprop/tools"].items()]
+    for name, steps in held:
+        if not 0 <= k <= steps:
+            raise damaged(f"/eprop steps_complete is {k} but {name} holds {steps} steps (of {n} points)")
+    return n, k
+
+
 class Series:
     def __init__(self, path, f):
         self.path, self.f = path, f
-        self.n = int(f["VTKHDF/NumberOfPoints"][0])
-        self.steps = int(f["eprop"].attrs["steps_complete"])
+        self.n, self.steps = check_header(path, f)
         if self.steps < 1:
             raise Fail(f"{path}: no complete output step yet")
-        self.times = f["VTKHDF/Steps/Values"][: self.steps]
+        # the probes' times are the steps' times (/VTKHDF/Steps/Values is a copy for VTK)
+        self.times = f["eprop/probes/time"][: self.steps]
         self.points = f["VTKHDF/Points"][:]
 
     def __enter__(self):

@@ -5,14 +5,13 @@ import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
-from eprop_series import Fail, boundary_triangles  # noqa: E402
+from eprop_series import Fail, open_series  # noqa: E402
 
 EXAMPLES = """examples:
   plot_series.py scenarios/cylinder.h5
@@ -20,53 +19,28 @@ EXAMPLES = """examples:
   plot_series.py run.h5 --step -1 --scale 5     # last step, displacement x5
 
 K is the index of an output step (a row of /VTKHDF/Steps/Values), counted from 0;
-negative K counts from the last complete step. Only steps below the file's
-'steps_complete' are read, so a file from an interrupted run can still be plotted.
+negative K counts from the last complete step. Only the steps the file's counter
+(/eprop/steps_complete) names are read, so a file from an interrupted run can still be
+plotted; a file whose header its datasets contradict is refused.
 Prints the paths of <stem>_deformed.png and <stem>_history.png, one per line."""
 
 
-def field_rows(f, name, steps, n):
-    """Array (len(steps), n, ...) of point field `name` at the given output steps."""
-    ds = f["VTKHDF/PointData/" + name]
-    offs = f.get("VTKHDF/Steps/PointDataOffsets/" + name)
-    offs = offs[:][steps] if offs is not None else np.asarray(steps) * n
-    if len(offs) and offs.max() + n > ds.shape[0]:
-        raise Fail(f"/VTKHDF/PointData/{name} is shorter than its step offsets say")
-    data = ds[: offs.max() + n] if len(offs) else ds[:0]
-    return np.stack([data[o:o + n] for o in offs])
-
-
 def read(path, step):
+    """What the two pictures need from output step `step` of the series at `path` (through
+    eprop_series, which checks the file's header before reading it)."""
     if not os.path.isfile(path):
         raise Fail(f"no such file: {path}")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as e:
-        raise Fail(f"cannot open {path} as HDF5: {e}")
-    with f:
-        if "VTKHDF" not in f or "eprop" not in f or "probes" not in f["eprop"]:
-            raise Fail(f"{path} is not an eprop output file (no /VTKHDF or /eprop/probes)")
-        sc = int(f["eprop"].attrs.get("steps_complete", 0))
-        if sc < 1:
-            raise Fail(f"{path} holds no complete step")
-        k = step if step >= 0 else sc + step
-        if not 0 <= k < sc:
-            raise Fail(f"step {step} out of range: {path} has {sc} complete steps (0..{sc - 1})")
-        v = f["VTKHDF"]
-        n = int(v["NumberOfPoints"][0])
-        pr = f["eprop/probes"]
-        d = dict(
-            k=k, n=n, points=v["Points"][:],
-            tris=boundary_triangles(v["Connectivity"][:], v["Offsets"][:], v["Types"][:]),
-            time=v["Steps/Values"][k], solver_step=int(pr["step"][k]),
-            u=field_rows(f, "displacement", [k], n)[0],
-            energy=field_rows(f, "energy", [k], n)[0],
-            nodes=pr["node"][:].astype(int),
-            probe_time=pr["time"][:sc], probe_u=pr["displacement"][:sc],
-            volumes=f["eprop/control_volumes"][:],
-            all_energy=field_rows(f, "energy", list(range(sc)), n),
+    with open_series(path) as s:
+        k = s.step_index(step)
+        loads = s.loads()
+        xyz, tris = s.surface()
+        energy = np.stack([s.field("energy", j) for j in range(s.steps)])
+        return dict(
+            k=k, n=s.n, points=xyz, tris=tris, time=s.times[k], solver_step=int(s.solver_steps()[k]),
+            u=s.field("displacement", k), energy=energy[k], nodes=loads["node"],
+            probe_time=loads["time"], probe_u=loads["displacement"],
+            volumes=s.control_volumes(), all_energy=energy,
         )
-    return d
 
 
 def surface_panel(fig, ax, xyz, tris, values, label, d, title):

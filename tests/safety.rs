@@ -7,89 +7,13 @@
 
 mod common;
 
-use common::{assert_same, Tmpfs};
+use common::{
+    assert_same, command, eprop, finish, live_steps, ok, refused, spawn, stderr, steps_complete, wait_for_steps, Tmpfs,
+};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
 
 const CYL: &str = "[[fixed]]\ngroup = \"bottom\"\n[[load]]\nnearest = [1.0, 0.0, 2.0]\nnormal = 0.3\n";
-
-/// `eprop ARGS` on one process (`ranks` 1) or under mpirun.
-fn command(ranks: usize, args: &[&str]) -> Command {
-    let mut c = if ranks == 1 {
-        Command::new(env!("CARGO_BIN_EXE_eprop"))
-    } else {
-        let mut c = Command::new("mpirun");
-        c.args(["-n", &ranks.to_string(), "--oversubscribe"])
-            .arg(env!("CARGO_BIN_EXE_eprop"));
-        c
-    };
-    c.args(args)
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
-        .env("RAYON_NUM_THREADS", "1");
-    c
-}
-
-fn spawn(ranks: usize, args: &[&str]) -> Child {
-    command(ranks, args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
-}
-
-/// Waits for a child; a hang detector: kills it and fails after `secs` seconds.
-fn finish(mut child: Child, secs: u64, what: &str) -> Output {
-    let t = Instant::now();
-    loop {
-        if child.try_wait().unwrap().is_some() {
-            return child.wait_with_output().unwrap();
-        }
-        if t.elapsed() > Duration::from_secs(secs) {
-            let _ = child.kill();
-            let out = child.wait_with_output().unwrap();
-            panic!(
-                "{what}: still running after {secs} s (a hang): {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-/// `eprop ARGS` to its end, under a hang detector of 180 s.
-fn eprop(ranks: usize, args: &[&str]) -> Output {
-    finish(spawn(ranks, args), 180, &args.join(" "))
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).to_string()
-}
-
-fn ok(o: &Output) {
-    assert!(
-        o.status.success(),
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        stderr(o)
-    );
-}
-
-/// The command failed with `status` and its message holds every needle.
-fn refused(o: &Output, status: i32, needles: &[&str]) {
-    let e = stderr(o);
-    assert_eq!(
-        o.status.code(),
-        Some(status),
-        "stderr: {e}\nstdout: {}",
-        String::from_utf8_lossy(&o.stdout)
-    );
-    for n in needles {
-        assert!(e.contains(n), "`{n}` is not in: {e}");
-    }
-}
 
 /// A generated cylinder `cyl.msh` (once) and a scenario `NAME` in `dir`.
 fn cylinder(dir: &Path, name: &str, extra: &str, steps: u64) -> PathBuf {
@@ -122,26 +46,6 @@ fn s(p: &Path) -> &str {
 /// The bytes of files, to show they did not change.
 fn contents(paths: &[&Path]) -> Vec<Vec<u8>> {
     paths.iter().map(|p| std::fs::read(p).unwrap()).collect()
-}
-
-use common::steps_complete;
-
-/// steps_complete of a file another process writes (None while it cannot be opened).
-fn live_steps(h5: &Path) -> Option<i64> {
-    let f = hdf5::File::open(h5).ok()?;
-    f.group("eprop").ok()?.attr("steps_complete").ok()?.read_scalar().ok()
-}
-
-/// Waits until a running job has written `k` complete steps.
-fn wait_for_steps(h5: &Path, k: i64, child: &mut Child) {
-    let t = Instant::now();
-    while live_steps(h5).unwrap_or(0) < k {
-        if let Some(st) = child.try_wait().unwrap() {
-            panic!("the run ended ({st}) before it wrote {k} steps");
-        }
-        assert!(t.elapsed() < Duration::from_secs(120), "no {k} steps after 120 s");
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 /// The last complete step of a series: its step number, and every value of u, v and phi
@@ -1324,15 +1228,7 @@ fn an_unwritable_name_or_a_damaged_restart_file_is_status_1_not_disk_full() {
         );
     }
     // a tampered count of complete steps
-    {
-        let f = hdf5::File::open_rw(&h5).unwrap();
-        f.group("eprop")
-            .unwrap()
-            .attr("steps_complete")
-            .unwrap()
-            .write_scalar(&301i64)
-            .unwrap();
-    }
+    common::set_steps_complete(&h5, 301);
     for ranks in [1, 2] {
         let o = eprop(ranks, &["run", s(&sc), "-q", "--restart", s(&h5), "--steps", "8"]);
         refused(

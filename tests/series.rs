@@ -179,11 +179,18 @@ fn readers_see_complete_steps_while_the_run_goes_on() {
     }
 }
 
-/// Rows in the file's displacement array, in steps.
-fn rows_in_steps(h5: &Path) -> Option<usize> {
+/// The steps VTK reads (`NSteps`, and the extent of `Values`, which must equal it) and the
+/// steps the file's displacement array has room for.
+fn vtk_steps_and_room(h5: &Path) -> Option<(i64, usize, usize)> {
     let f = hdf5::File::open(h5).ok()?;
     let n = f.dataset("VTKHDF/NumberOfPoints").ok()?.read_raw::<i64>().ok()?[0] as usize;
-    Some(f.dataset("VTKHDF/PointData/displacement").ok()?.shape()[0] / n)
+    let ns = f.group("VTKHDF/Steps").ok()?.attr("NSteps").ok()?.read_scalar().ok()?;
+    let values = f.dataset("VTKHDF/Steps/Values").ok()?.shape()[0];
+    Some((
+        ns,
+        values,
+        f.dataset("VTKHDF/PointData/displacement").ok()?.shape()[0] / n,
+    ))
 }
 
 #[test]
@@ -207,8 +214,11 @@ fn written_steps_count_only_at_a_commit() {
         let (k, first) = read_live(&h5).expect("the file opens while the run goes on");
         assert_eq!(k, 1, "{ranks} rank(s): only the first step is counted before a commit");
         assert!(first.iter().all(|x| *x == 0.0));
-        // a reader sees the file of the last commit: its arrays hold the counted steps
-        assert_eq!(rows_in_steps(&h5), Some(1));
+        // a reader sees the file of the last commit: VTK reads the counted steps, of the room
+        // made for the run
+        let (ns, values, room) = vtk_steps_and_room(&h5).unwrap();
+        assert_eq!((ns, values), (1, 1), "{ranks} rank(s)");
+        assert!(room > 1, "{room}");
         if ranks == 1 {
             // a stop commits every step written
             assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
@@ -216,7 +226,9 @@ fn written_steps_count_only_at_a_commit() {
             assert_eq!(status.code(), Some(3));
             let k = steps_complete(&h5);
             assert!(k >= 2, "{k} steps counted after the stop");
-            assert_eq!(rows_in_steps(&h5), Some(k as usize));
+            let (ns, values, room) = vtk_steps_and_room(&h5).unwrap();
+            assert_eq!((ns, values), (k, k as usize));
+            assert!(room >= k as usize);
         } else {
             let _ = child.kill();
             let _ = child.wait();

@@ -307,6 +307,7 @@ fn live_equals_batch(ranks: usize, extra: &str) {
         .unwrap()
         .read_raw::<i64>()
         .unwrap();
+    let n = &n[..common::steps_complete(&live) as usize];
     assert!(n.iter().max().unwrap() >= &2 && *n.last().unwrap() == 0, "{n:?}");
 }
 
@@ -390,8 +391,10 @@ fn a_client_moving_a_sphere_deep_inside_the_organ_is_warned_about_once() {
 fn holds_steps_to_12(out: &Path) {
     let k = common::steps_complete(out);
     let f = hdf5::File::open(out).unwrap();
-    let steps = f.dataset("eprop/tools/step").unwrap().read_raw::<i64>().unwrap();
-    assert_eq!(steps.len(), k as usize);
+    // the counted steps of the room made for the scenario's
+    let room = f.dataset("eprop/tools/step").unwrap().read_raw::<i64>().unwrap();
+    assert!(room.len() >= k as usize, "{} rows, {k} steps", room.len());
+    let steps = &room[..k as usize];
     assert!(*steps.last().unwrap() >= 12, "{steps:?}");
 }
 
@@ -1080,6 +1083,7 @@ fn stream_equals_series(ranks: usize, width: u32) -> Vec<u8> {
         .unwrap()
         .read_raw::<i64>()
         .unwrap();
+    let steps = &steps[..common::steps_complete(&live) as usize];
     let frames = &c.payloads[1..];
     assert!(frames.len() >= 3, "{} frames", frames.len());
     let (mut last, mut moved) = (None, false);

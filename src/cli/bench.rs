@@ -186,6 +186,7 @@ pub fn measure(
         ids: vec![],
         float32: false,
         compression: 0,
+        output_steps: 5,
     };
     let io = sim.comm().handle().map(Handle::communicator);
     let mut out = SeriesWriter::create(&file, layout(&sizes), sim.global_mesh(), &spec, io)?;

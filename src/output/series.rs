@@ -88,6 +88,18 @@ pub fn check_output_dir(path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The room a series makes for the output steps after step `from` (and `from` itself when
+/// `fresh`): all of them, or for an equilibrium run, whose length is not known, a first 64
+/// (the file grows as the run goes on).
+fn room(sim: &Simulation, from: u64, fresh: bool) -> usize {
+    let every = sim.setup().output.every;
+    let steps = crate::guard::limits::output_steps(from, sim.max_steps(), every, fresh) as usize;
+    match sim.setup().time.stop {
+        crate::config::Stop::Equilibrium { .. } => steps.min(64),
+        _ => steps,
+    }
+}
+
 /// A run's output series, open for appending.
 pub struct Series {
     writer: SeriesWriter,
@@ -153,6 +165,7 @@ impl Series {
             block_start: sim.blocks().start,
             block_len: sim.blocks().len,
             control_volumes: sim.vol_block(),
+            output_steps: room(sim, sim.step(), true),
             attrs: vec![
                 ("dt", sim.dt()),
                 ("h", plan.h),
@@ -187,6 +200,8 @@ impl Series {
             if !resume.step.is_multiple_of(every) && resume.step < sim.max_steps() && writer.steps_written() > 1 {
                 writer.forget_last()?;
             }
+            // room for the rest of the run, made before its first step
+            writer.reserve(writer.steps_complete() + room(sim, resume.step, false))?;
             writer.commit_every(flush);
             return Ok(Series {
                 writer,

@@ -5,12 +5,17 @@ use eprop::config::{Scenario, Setup};
 use eprop::simulate::Simulation;
 use eprop_io::Mesh;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
 /// The log of tests that did not test what they are for (one line each: test, reason);
-/// `scripts/test.sh` empties it before the tests and prints it after.
+/// `scripts/test.sh` empties it before the tests and prints it after. `EPROP_SKIP_LOG` names
+/// another (a test that runs a probe of its own, which must not count in the suite's log).
 pub fn skip_log() -> PathBuf {
-    Path::new(env!("CARGO_TARGET_TMPDIR")).join("eprop-skipped.log")
+    match std::env::var_os("EPROP_SKIP_LOG") {
+        Some(p) => PathBuf::from(p),
+        None => Path::new(env!("CARGO_TARGET_TMPDIR")).join("eprop-skipped.log"),
+    }
 }
 
 fn log_skip(line: &str) {
@@ -34,8 +39,10 @@ pub fn skip(reason: &str) {
     }
 }
 
-/// Like `skip`, for what a machine may lawfully lack (a CPU feature, the right to mount a
-/// file system): logged and said, never a failure.
+/// For a part of a test that a machine may lawfully lack while the test still tests what it
+/// is for (a stand-in replaces `sbatch`; a README line that needs the network is supplied):
+/// logged and said, never a failure. A test that returns early instead, having tested nothing,
+/// calls `skip`.
 pub fn unsupported(reason: &str) {
     let test = std::thread::current().name().unwrap_or("?").to_string();
     log_skip(&format!("{test}: {reason} (not required)"));
@@ -189,12 +196,43 @@ pub fn open_pair(a: &Path, b: &Path) -> (hdf5::File, hdf5::File, Vec<String>) {
     (fa, fb, na)
 }
 
-/// Every dataset of two files (the same set), compared bit for bit.
+/// The values of a series' dataset a reader sees, as bits: a per-step dataset (its first
+/// dimension may grow) has room for its run's steps, of which only the `k` complete ones are
+/// read (`n` rows each for point data, one row for the tables).
+pub fn counted_bits(f: &hdf5::File, name: &str, k: usize, n: usize) -> Vec<u64> {
+    let v = bits(f, name);
+    let ds = f.dataset(name).unwrap();
+    if !ds.is_resizable() {
+        return v;
+    }
+    let shape = ds.shape();
+    let row: usize = shape[1..].iter().product();
+    let per = if name.starts_with("/VTKHDF/PointData/") { n } else { 1 };
+    let rows = (k * per).min(shape[0]);
+    v[..rows * row].to_vec()
+}
+
+/// Every dataset of two series (the same set), compared bit for bit as a reader sees them:
+/// the same count of complete steps, and the same values of every dataset in those steps
+/// (`counted_bits`; a series continued to fewer steps than it first had room for keeps that
+/// room).
 pub fn assert_same(a: &Path, b: &Path) {
     let (fa, fb, na) = open_pair(a, b);
     assert!(na.len() >= 20, "{na:?}");
+    let k = steps_complete(a);
+    assert_eq!(
+        k,
+        steps_complete(b),
+        "steps_complete of {} and {}",
+        a.display(),
+        b.display()
+    );
+    let n = fa.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
     for name in &na {
-        let (x, y) = (bits(&fa, name), bits(&fb, name));
+        let (x, y) = (
+            counted_bits(&fa, name, k as usize, n),
+            counted_bits(&fb, name, k as usize, n),
+        );
         assert_eq!(x.len(), y.len(), "{name}");
         let diff = x.iter().zip(&y).filter(|(p, q)| p != q).count();
         assert_eq!(
@@ -232,19 +270,42 @@ pub fn children(parent: u32) -> Vec<i32> {
     out
 }
 
-/// The `/eprop` `steps_complete` attribute of a series: how many output steps it holds.
+/// The count of complete steps of a series: its counter, the dataset `/eprop/steps_complete`
+/// (in a series written before it was one, the attribute of that name).
 pub fn steps_complete(h5: &Path) -> i64 {
     let f = hdf5::File::open(h5).unwrap_or_else(|e| panic!("{}: {e}", h5.display()));
-    f.group("eprop")
-        .unwrap()
-        .attr("steps_complete")
-        .unwrap()
-        .read_scalar()
-        .unwrap()
+    count_of(&f).unwrap_or_else(|| panic!("{}: no steps_complete", h5.display()))
 }
 
-/// A tmpfs of `size` mounted in a temporary directory, unmounted when dropped; None (said and
-/// logged) where mounting is not permitted.
+/// The counter of an open series (None: none readable).
+pub fn count_of(f: &hdf5::File) -> Option<i64> {
+    let ep = f.group("eprop").ok()?;
+    match ep.link_exists("steps_complete") {
+        true => ep
+            .dataset("steps_complete")
+            .ok()?
+            .read_raw::<i64>()
+            .ok()?
+            .first()
+            .copied(),
+        false => ep.attr("steps_complete").ok()?.read_scalar().ok(),
+    }
+}
+
+/// Sets the count of complete steps of a series by hand (its counter and the attribute that
+/// mirrors it), as an editor or a damaged disk might.
+pub fn set_steps_complete(h5: &Path, k: i64) {
+    let f = hdf5::File::open_rw(h5).unwrap();
+    let ep = f.group("eprop").unwrap();
+    if ep.link_exists("steps_complete") {
+        ep.dataset("steps_complete").unwrap().write(&[k]).unwrap();
+    }
+    ep.attr("steps_complete").unwrap().write_scalar(&k).unwrap();
+}
+
+/// A tmpfs of `size` mounted in a temporary directory, unmounted when dropped; None where it
+/// cannot be mounted: a `skip` (the full-disk cases, which return then, did not run), which
+/// fails under `EPROP_REQUIRE_ALL=1`.
 pub struct Tmpfs {
     dir: tempfile::TempDir,
 }
@@ -259,14 +320,14 @@ impl Tmpfs {
         match st {
             Ok(o) if o.status.success() => Some(Tmpfs { dir }),
             Ok(o) => {
-                unsupported(&format!(
+                skip(&format!(
                     "cannot mount a tmpfs ({}): the full-disk cases did not run",
                     String::from_utf8_lossy(&o.stderr).trim()
                 ));
                 None
             }
             Err(e) => {
-                unsupported(&format!("no `mount` ({e}): the full-disk cases did not run"));
+                skip(&format!("no `mount` ({e}): the full-disk cases did not run"));
                 None
             }
         }
@@ -382,5 +443,99 @@ impl Tmpfs {
 impl Drop for Tmpfs {
     fn drop(&mut self) {
         let _ = Command::new("umount").arg("-l").arg(self.dir.path()).status();
+    }
+}
+
+/// `eprop ARGS` on one process (`ranks` 1) or under mpirun.
+pub fn command(ranks: usize, args: &[&str]) -> Command {
+    let mut c = if ranks == 1 {
+        Command::new(env!("CARGO_BIN_EXE_eprop"))
+    } else {
+        let mut c = Command::new("mpirun");
+        c.args(["-n", &ranks.to_string(), "--oversubscribe"])
+            .arg(env!("CARGO_BIN_EXE_eprop"));
+        c
+    };
+    c.args(args)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
+        .env("RAYON_NUM_THREADS", "1");
+    c
+}
+
+pub fn spawn(ranks: usize, args: &[&str]) -> Child {
+    command(ranks, args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Waits for a child; a hang detector: kills it and fails after `secs` seconds.
+pub fn finish(mut child: Child, secs: u64, what: &str) -> Output {
+    let t = Instant::now();
+    loop {
+        if child.try_wait().unwrap().is_some() {
+            return child.wait_with_output().unwrap();
+        }
+        if t.elapsed() > Duration::from_secs(secs) {
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            panic!(
+                "{what}: still running after {secs} s (a hang): {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// `eprop ARGS` to its end, under a hang detector of 180 s.
+pub fn eprop(ranks: usize, args: &[&str]) -> Output {
+    finish(spawn(ranks, args), 180, &args.join(" "))
+}
+
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).to_string()
+}
+
+pub fn ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        stderr(o)
+    );
+}
+
+/// The command failed with `status` and its message holds every needle.
+pub fn refused(o: &Output, status: i32, needles: &[&str]) {
+    let e = stderr(o);
+    assert_eq!(
+        o.status.code(),
+        Some(status),
+        "stderr: {e}\nstdout: {}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    for n in needles {
+        assert!(e.contains(n), "`{n}` is not in: {e}");
+    }
+}
+
+/// steps_complete of a file another process writes (None while it cannot be opened).
+pub fn live_steps(h5: &Path) -> Option<i64> {
+    count_of(&hdf5::File::open(h5).ok()?)
+}
+
+/// Waits until a running job has written `k` complete steps.
+pub fn wait_for_steps(h5: &Path, k: i64, child: &mut Child) {
+    let t = Instant::now();
+    while live_steps(h5).unwrap_or(0) < k {
+        if let Some(st) = child.try_wait().unwrap() {
+            panic!("the run ended ({st}) before it wrote {k} steps");
+        }
+        assert!(t.elapsed() < Duration::from_secs(120), "no {k} steps after 120 s");
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
