@@ -218,10 +218,11 @@ fn counted_steps_readable(h5: &Path) -> i64 {
 fn a_disk_filled_by_another_process_during_a_commit_keeps_every_counted_step_and_the_restart_completes() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
-    // slow steps (many substeps): a few seconds for the run, so that the filler lands mid-run
+    // slow steps (many substeps): several seconds for the run even on a fast machine, so
+    // that the filler lands mid-run (the test checks that it did)
     let sc = scenario(dir, "s.toml", 800, "");
     let text = std::fs::read_to_string(&sc).unwrap();
-    std::fs::write(&sc, text.replace("steps = 800\n", "steps = 800\nh = 0.002\n")).unwrap();
+    std::fs::write(&sc, text.replace("steps = 800\n", "steps = 800\nh = 0.0004\n")).unwrap();
     let whole = dir.join("whole.h5");
     ok(&eprop(1, &["run", s(&sc), "-q", "-o", s(&whole)]));
     // 28 MiB of output: a disk the run fits on, and after the filler is gone, room for the
@@ -235,6 +236,11 @@ fn a_disk_filled_by_another_process_during_a_commit_keeps_every_counted_step_and
         let mut job = spawn(1, &["run", s(&sc), "-q", "-o", s(&h5)]);
         wait_for_steps(&h5, 1, &mut job);
         std::thread::sleep(Duration::from_millis(wait));
+        assert!(
+            job.try_wait().unwrap().is_none(),
+            "the run ended within {wait} ms of its first commit, before the disk was filled: \
+             make its steps slower (h)"
+        );
         let filler = disk.fill();
         let o = finish(job, 180, "the run on a full disk");
         refused(&o, 4, &["complete output steps", "fix: free space", "--restart"]);
