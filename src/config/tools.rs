@@ -14,6 +14,29 @@ use toml::Spanned;
 /// The columns of a tool's path table.
 pub const PATH_COLUMNS: [&str; 4] = ["t", "x", "y", "z"];
 
+/// How a tool acts on the tissue (docs/tools.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ContactLaw {
+    /// The tissue the tool touches is where the tool puts it; the potential there is the
+    /// value that holds it (a Dirichlet condition), the force the model's reaction.
+    #[default]
+    Kinematic,
+    /// An elastic foundation under the rest surface (the first tools' law): the pressure of
+    /// the tool's overlap with the rest surface is the source and the force.
+    Foundation,
+}
+
+/// How held tissue moves along a tool's face (kinematic law).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Grip {
+    /// Frictionless: the tissue is pushed onto the surface along its normal and may slide.
+    Slide,
+    /// Sticky: the tissue on the face moves with the tool until the tool moves away from it.
+    Stick,
+}
+
 /// A tool's shape as the scenario spells it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -41,6 +64,11 @@ pub struct ToolSec {
     /// Driven by the client of `eprop serve`.
     #[serde(default)]
     pub live: bool,
+    /// The contact law (default: kinematic).
+    #[serde(default)]
+    pub law: ContactLaw,
+    /// Slide or stick (kinematic law; default: a sphere slides, a punch sticks).
+    pub contact: Option<Grip>,
 }
 
 /// The solid a tool is.
@@ -91,12 +119,20 @@ impl Trajectory {
     }
 }
 
+fn slide() -> Grip {
+    Grip::Slide
+}
+
 /// A resolved tool.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Tool {
     pub shape: Shape,
     pub path: Trajectory,
     pub live: bool,
+    #[serde(default)]
+    pub law: ContactLaw,
+    #[serde(default = "slide")]
+    pub grip: Grip,
     /// The foundation depth h: a rest overlap delta gives the contact strain delta / h.
     pub foundation: f64,
 }
@@ -163,10 +199,33 @@ pub fn resolve(sc: &Scenario, tools: &[Spanned<ToolSec>]) -> Result<Vec<Tool>> {
             }
             (None, None) => unreachable!("shape_and_path asks for a path"),
         };
+        if sec.law == ContactLaw::Kinematic && sec.foundation.is_some() {
+            return Err(sc.error_at(
+                t.span(),
+                "tool",
+                "foundation",
+                "`foundation` is the depth of the elastic-foundation law, which this tool does not use; fix: add `law = \"foundation\"`, or drop `foundation` (the kinematic law needs none)".to_string(),
+            ));
+        }
+        if sec.law == ContactLaw::Foundation && sec.contact.is_some() {
+            return Err(sc.error_at(
+                t.span(),
+                "tool",
+                "contact",
+                "`contact` (slide or stick) belongs to the kinematic law; fix: drop it, or drop `law = \"foundation\"`"
+                    .to_string(),
+            ));
+        }
+        let grip = sec.contact.unwrap_or(match shape {
+            Shape::Sphere { .. } => Grip::Slide,
+            Shape::Punch { .. } => Grip::Stick,
+        });
         out.push(Tool {
             shape,
             path,
             live: sec.live,
+            law: sec.law,
+            grip,
             foundation: sec.foundation.unwrap_or(sec.radius),
         });
     }

@@ -171,6 +171,28 @@ impl Compact {
         self.coef.value(p)
     }
 
+    /// Empties `rows` (their potential then stays as it is: Dirichlet rows), appending their
+    /// coefficients to `saved` for `thaw`.
+    pub fn freeze(&mut self, rows: &[u32], saved: &mut Vec<f64>) {
+        for &i in rows {
+            for p in self.coef.row(i as usize) {
+                saved.push(self.coef.value(p));
+                self.coef.set_value(p, 0.0);
+            }
+        }
+    }
+
+    /// Gives `rows`, frozen by `freeze` with `saved`, their coefficients back.
+    pub fn thaw(&mut self, rows: &[u32], saved: &[f64]) {
+        let mut k = 0;
+        for &i in rows {
+            for p in self.coef.row(i as usize) {
+                self.coef.set_value(p, saved[k]);
+                k += 1;
+            }
+        }
+    }
+
     /// (L x)_i. Pairs are taken two at a time into two partial sums (a fixed order, so
     /// the same bits on any partition): one chain of dependent additions per sum would
     /// otherwise bound the speed by the add latency instead of the memory bandwidth.

@@ -95,6 +95,12 @@ pub fn solve<S: Sweep>(
     let n = a.vol.len();
     let (vol, tt) = (a.vol, a.c);
     let Work { r, w, p, s, u } = work;
+    // a held row of A is its volume alone: x there is b / V at once, and no residual is
+    // left there (the search directions stay zero on it)
+    for &i in sweep.frozen() {
+        let i = i as usize;
+        x[i] = [0, 1, 2].map(|d| b[i][d] / vol[i]);
+    }
     // r = b - A x; u = M r
     sweep.update_to(x, r, |i, xi, l, ri| {
         let v = vol[i];
@@ -102,21 +108,39 @@ pub fn solve<S: Sweep>(
             ri[d] = b[i][d] - v * (xi[d] - tt * l[d]);
         }
     });
+    mask(sweep, r);
     pre.apply(sweep, r, &mut u[..n]);
+    mask(sweep, u);
     // The tolerance is relative to ||x||_A^2 = (b, A^-1 b). A diagonal preconditioner
     // measures it as (b, M b), consistently with (r, M r): both see smooth modes scaled
     // alike. A multigrid's (r, M r) is close to the error's A-norm itself (M A is near I
     // on every mode), and M b would cost a V-cycle: (b, x_k) measures it instead, exact
     // at the start and carried by the recurrences of x_k and p_k through (b, u_k), which
     // the operator pass sums with the other two.
-    let energy = pre.inverse_diagonal().is_none();
+    // With held rows (`Sweep::frozen`) (b, x_k) is not an energy of the free rows' system
+    // (their right-hand side also has the held values' share): (b, M b) on the free rows
+    // measures it then.
+    let energy = pre.inverse_diagonal().is_none() && sweep.frozen().is_empty();
     let mut scale = if energy {
         let x_ = &x[..n];
         exact_sums_par(comm, n, |i| {
             [b[i][0] * x_[i][0] + b[i][1] * x_[i][1] + b[i][2] * x_[i][2]]
         })[0]
     } else {
+        let held = sweep.frozen().to_vec();
+        let masked;
+        let b = if held.is_empty() {
+            b
+        } else {
+            let mut m = b.to_vec();
+            for &i in &held {
+                m[i as usize] = [0.0; 3];
+            }
+            masked = m;
+            &masked[..]
+        };
         pre.apply(sweep, b, p);
+        mask(sweep, p);
         let p_ = &p[..];
         let bb: [f64; 3] = exact_sums_par(comm, n, |i| {
             [b[i][0] * p_[i][0], b[i][1] * p_[i][1], b[i][2] * p_[i][2]]
@@ -135,7 +159,8 @@ pub fn solve<S: Sweep>(
         if gamma < 0.0 {
             return Err(Failure::Indefinite { rmr: gamma });
         }
-        if gamma <= tol * tol * scale {
+        // (a zero residual is solved whatever the scale: held rows can leave nothing free)
+        if gamma <= tol * tol * scale || gamma == 0.0 {
             return Ok(it);
         }
         if it >= max_iterations {
@@ -163,6 +188,7 @@ pub fn solve<S: Sweep>(
         let m2 = update(p, s, &mut x[..n], r, &mut u[..n], w, alpha, beta, inv);
         let [mr, mu] = if inv.is_none() {
             pre.apply(sweep, r, &mut u[..n]);
+            mask(sweep, u);
             max_abs2(r, &u[..n])
         } else {
             m2
@@ -228,6 +254,7 @@ pub fn first_iterate<S: Sweep>(
     let n = a.vol.len();
     let Work { w, u, .. } = work;
     pre.apply(sweep, b, &mut u[..n]);
+    mask(sweep, u);
     let [mb, mu] = max_abs2(b, &u[..n]);
     let (gamma, delta, _) = apply_and_dots(sweep, a, u, w, b, b, [mb, mu, mb], comm);
     if !gamma.is_finite() || !delta.is_finite() {
@@ -253,6 +280,14 @@ pub fn first_iterate<S: Sweep>(
 
 /// The largest component magnitude of v (infinite for a non-finite one).
 #[inline(always)]
+/// Zero at the rows the operator holds (`Sweep::frozen`): with a zero residual there, the
+/// iteration stays on the free rows, where the matrix is symmetric.
+fn mask<S: Sweep>(sweep: &S, u: &mut [V3]) {
+    for &i in sweep.frozen() {
+        u[i as usize] = [0.0; 3];
+    }
+}
+
 fn max_abs(v: V3) -> f64 {
     // f64::max skips a NaN: test every component, not the maximum
     if v.iter().all(|x| x.is_finite()) {

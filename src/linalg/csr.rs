@@ -251,6 +251,16 @@ impl AnyCsr {
         }
     }
 
+    /// Sets stored entry p to v (rounded to f32 where the values are f32; a value read back
+    /// with `value` is restored exactly).
+    #[inline]
+    pub fn set_value(&mut self, p: usize, v: f64) {
+        match self {
+            AnyCsr::F64(a) => a.val[p] = v,
+            AnyCsr::F32(a) => a.val[p] = v as f32,
+        }
+    }
+
     /// Whether the values are stored in f32.
     pub fn is_f32(&self) -> bool {
         matches!(self, AnyCsr::F32(_))

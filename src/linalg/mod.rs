@@ -44,6 +44,12 @@ pub trait Sweep {
     /// The operator of L's pattern with the weight `w[p]` on stored pair p, in f32.
     fn twin(&self, w: Vec<f32>) -> Self::Twin;
 
+    /// Owned rows held at their value (Dirichlet rows of L, emptied): a solver keeps its
+    /// search directions zero there.
+    fn frozen(&self) -> &[u32] {
+        &[]
+    }
+
     /// y_i <- f(acc, i, x_i, (L x)_i, y_i) on the owned rows, the halo of x refreshed first;
     /// each block of rows folds from `A::default()` and `combine` merges blocks in no fixed
     /// order (so the fold must not depend on it, as exact integer sums do).

@@ -44,6 +44,9 @@ pub struct Propagation {
     /// load per neighbour), made on first use.
     wave: Option<Wavefront>,
     levels: Vec<NodeField<[f64; 4]>>,
+    /// Owned rows held at their potential (`freeze`), and their coefficients.
+    frozen: Vec<u32>,
+    saved: Vec<f64>,
 }
 
 /// The depths (substeps per sweep) the tuner tries.
@@ -136,6 +139,8 @@ impl Propagation {
             tuner,
             wave: None,
             levels: vec![],
+            frozen: Vec::new(),
+            saved: Vec::new(),
         }
     }
 
@@ -285,6 +290,32 @@ impl Propagation {
         self.layout
     }
 
+    /// Holds the potential of the owned `rows` where it is (a Dirichlet condition: their rows
+    /// of the operator are emptied), and lets go of the rows held before. Every integrator
+    /// then keeps them fixed; sources on them must be left out. The compact scheme only
+    /// (the paper scheme's rows are unchanged).
+    pub fn freeze(&mut self, rows: &[u32]) {
+        self.thaw();
+        if let Operator::Compact(c) = &mut self.op {
+            c.freeze(rows, &mut self.saved);
+            self.frozen = rows.to_vec();
+        }
+    }
+
+    /// Lets go of the rows `freeze` held.
+    pub fn thaw(&mut self) {
+        if let Operator::Compact(c) = &mut self.op {
+            c.thaw(&self.frozen, &self.saved);
+        }
+        self.frozen.clear();
+        self.saved.clear();
+    }
+
+    /// The rows `freeze` holds (sorted as given).
+    pub fn frozen(&self) -> &[u32] {
+        &self.frozen
+    }
+
     /// A zero field over this process's nodes.
     pub fn zeros(&self) -> NodeField<V3> {
         NodeField::filled(self.layout, [0.0; 3])
@@ -383,6 +414,10 @@ impl Propagation {
 /// compact operator's coefficients and pattern.
 impl Sweep for Propagation {
     type Twin = Operator;
+
+    fn frozen(&self) -> &[u32] {
+        &self.frozen
+    }
 
     fn layout(&self) -> Layout {
         self.layout

@@ -13,7 +13,7 @@
 //! are the same on any number of processes.
 
 use crate::config::tissue::TissueLaw;
-use crate::config::{Shape, Tool, Trajectory};
+use crate::config::{ContactLaw, Shape, Tool, Trajectory};
 use crate::discretize::operator::V3;
 use crate::distribute::comm::{exact_sums, Comm};
 use eprop_io::geom::{dot, norm, scale, sub};
@@ -163,6 +163,8 @@ pub struct ToolRun {
 pub struct Nodes<'a> {
     /// Owned surface nodes that move (local indices): the candidates for contact.
     pub surface: &'a [u32],
+    /// Which nodes move (owned first): every one is kept out of the tools.
+    pub active: &'a [bool],
     pub points: &'a [V3],
     /// Outward boundary dual area vectors A_i.
     pub area: &'a [V3],
@@ -178,6 +180,20 @@ impl ToolRun {
             reach: [0.0; 3],
             reach_distance: 0.0,
         }
+    }
+
+    /// Whether the tool follows the kinematic law (`super::kinematic`).
+    pub fn kinematic(&self) -> bool {
+        self.tool.law == ContactLaw::Kinematic
+    }
+
+    /// The indentation of the tool at `c` on this process's surface nodes (`ToolState`).
+    fn indentation(&self, c: V3, n: &Nodes) -> f64 {
+        let dir = self.direction();
+        n.surface
+            .iter()
+            .map(|&i| overlap(&self.tool.shape, c, dir, n.points[i as usize]))
+            .fold(f64::NEG_INFINITY, f64::max)
     }
 
     /// Restarts the record of the path at the tool's position `c`.
@@ -241,6 +257,9 @@ impl ToolRun {
     ) {
         let c = self.tool.path.at(t);
         self.observe(c);
+        if self.kinematic() {
+            return; // its source depends on the state (`Simulation::advance`)
+        }
         let rho = self.tool.shape.radius();
         for (i, p) in self.pressures(c, n, law).0 {
             let ar = n.area[i as usize];
@@ -257,6 +276,14 @@ impl ToolRun {
     /// The tool's state at `c` over every process (exact sums; every process calls), its
     /// indentation this process's part (reduce with max).
     fn measure(&self, c: V3, n: &Nodes, law: &TissueLaw, u: &[V3], comm: &dyn Comm) -> ToolState {
+        if self.kinematic() {
+            // the force and the contact come from the state (`kinematic::measure`)
+            return ToolState {
+                position: c,
+                indentation: self.indentation(c, n),
+                ..ToolState::default()
+            };
+        }
         let (pressed, most) = self.pressures(c, n, law);
         let s = exact_sums(
             comm,
@@ -301,9 +328,10 @@ pub fn surface_nodes(n_owned: usize, active: &[bool], area: &[V3]) -> Vec<u32> {
 }
 
 /// The tools at time t (the end of the mechanics step of size dt): after the free update
-/// (u*, v*) of every node, each owned surface node whose deformed position is inside a tool is
-/// moved onto its surface, u = P(X + u*) - X, v = v* + (u - u*) / dt; then each tool's state
-/// at t (`measure`: the foundation's pressures on the rest surface, summed exactly).
+/// (u*, v*) of every node, each owned active node (surface or interior) whose deformed
+/// position is inside a tool is moved onto its surface, u = P(X + u*) - X,
+/// v = v* + (u - u*) / dt; then each tool's state at t (`measure`: a foundation's pressures on
+/// the rest surface, summed exactly; a kinematic tool's contact is measured by the caller).
 /// Returns the largest |v|^2 of the surface nodes (after the tools) and each tool's local
 /// largest overlap with the rest surface (reduce with max).
 #[allow(clippy::too_many_arguments)]
@@ -322,8 +350,10 @@ pub fn constrain(
         let shape = run.tool.shape;
         let c = run.tool.path.at(t);
         run.observe(c);
-        for &i in n.surface {
-            let i = i as usize;
+        for i in 0..u.len() {
+            if !n.active[i] {
+                continue;
+            }
             let x0 = n.points[i];
             let ui = u[i];
             let x = [x0[0] + ui[0], x0[1] + ui[1], x0[2] + ui[2]];
@@ -342,10 +372,9 @@ pub fn constrain(
         run.state = run.measure(c, n, law, u, comm);
         overlaps.push(run.state.indentation);
     }
-    let m2 = n
-        .surface
-        .iter()
-        .map(|&i| dot(v[i as usize], v[i as usize]))
+    let m2 = (0..v.len())
+        .filter(|&i| n.active[i])
+        .map(|i| dot(v[i], v[i]))
         .fold(0.0, f64::max);
     (m2, overlaps)
 }
@@ -378,7 +407,7 @@ pub fn planned_sources(
     conductivity: Option<&crate::config::tissue::Materials>,
     mut stop: impl FnMut(u64, &[(u32, V3)]) -> bool,
 ) -> Option<Vec<Vec<(u32, V3)>>> {
-    if tools.iter().any(|t| t.tool.live) {
+    if tools.iter().any(|t| t.tool.live || t.kinematic()) {
         return None;
     }
     let mut runs: Vec<ToolRun> = tools.to_vec();
@@ -531,6 +560,8 @@ mod tests {
             shape: Shape::Sphere { radius: 0.2 },
             path: Trajectory::Table(h),
             live: false,
+            law: ContactLaw::Foundation,
+            grip: crate::config::Grip::Slide,
             foundation: 0.2,
         });
         run.start_at(run.tool.path.at(0.0));
@@ -548,6 +579,8 @@ mod tests {
                 velocity: [0.0, 3e300, 4e300],
             },
             live: false,
+            law: ContactLaw::Foundation,
+            grip: crate::config::Grip::Slide,
             foundation: 0.2,
         });
         let d = run.direction().unwrap();

@@ -6,6 +6,7 @@
 mod access;
 pub mod contact;
 pub mod distributed;
+pub mod kinematic;
 mod stop;
 #[cfg(test)]
 mod tests;
@@ -107,6 +108,8 @@ pub struct Simulation {
     stop_signal: i32,
     /// The scenario's tools (docs/tools.md).
     pub(crate) tools: Vec<ToolRun>,
+    /// What kinematic tools keep between steps (None without one).
+    kin: Option<kinematic::State>,
     /// Owned surface nodes that move (the tools' contact candidates; empty without tools)
     /// and a flag per owned node for them.
     surface: Vec<u32>,
@@ -482,9 +485,10 @@ fn mechanics_step(
 
 /// The geometry the tools need: the owned surface nodes and this process's rest positions,
 /// boundary dual areas and control volumes.
-fn nodes_of<'a>(surface: &'a [u32], setup: &'a Setup, dual: &'a Dual) -> contact::Nodes<'a> {
+fn nodes_of<'a>(surface: &'a [u32], active: &'a [bool], setup: &'a Setup, dual: &'a Dual) -> contact::Nodes<'a> {
     contact::Nodes {
         surface,
+        active,
         points: &setup.mesh.points,
         area: &dual.area,
         vol: &dual.vol,
@@ -589,16 +593,32 @@ impl Simulation {
             for &i in &surface {
                 on_surface[i as usize] = true;
             }
-            let nodes = nodes_of(&surface, &setup, &dual);
+            let nodes = nodes_of(&surface, &active, &setup, &dual);
             let rest = vec![[0.0; 3]; n_owned];
             contact::at_rest(&mut tools, 0.0, &nodes, &setup.law, &rest, c);
         }
+        let kin = if tools.iter().any(|t| t.kinematic()) {
+            let Some(mu) = kinematic::relaxation_rates(&prop.op, n_owned) else {
+                bail!(
+                    "{}: a tool's kinematic contact needs the compact scheme; fix: remove [model] scheme = \"paper\", or give the tools law = \"foundation\"",
+                    setup.scenario.path.display()
+                );
+            };
+            Some(kinematic::State {
+                mu,
+                lphi: vec![[0.0; 3]; n_owned],
+                scratch: prop.zeros(),
+                held: Vec::new(),
+            })
+        } else {
+            None
+        };
         let trial = trial_sources(
             &setup,
             &loads,
             &load_local,
             &tools,
-            &nodes_of(&surface, &setup, &dual),
+            &nodes_of(&surface, &active, &setup, &dual),
             &dual.vol,
             dt,
             c,
@@ -608,6 +628,7 @@ impl Simulation {
         let vol_block = blocks.collect(&dual.vol, 1, c);
         Ok(Simulation {
             tools,
+            kin,
             surface,
             on_surface,
             u: NodeField::filled(layout, [0.0; 3]),
@@ -703,7 +724,7 @@ impl Simulation {
 
     /// The geometry the tools need.
     fn tool_nodes(&self) -> contact::Nodes<'_> {
-        nodes_of(&self.surface, &self.setup, &self.dual)
+        nodes_of(&self.surface, &self.active, &self.setup, &self.dual)
     }
 
     /// One mechanics step: the loads and the tools at t_n give the sources and forces; the
@@ -713,14 +734,15 @@ impl Simulation {
     pub fn advance(&mut self) -> Result<StepStats> {
         let mut q = self.sources(self.time);
         if !self.tools.is_empty() {
-            let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
+            let nodes = nodes_of(&self.surface, &self.active, &self.setup, &self.dual);
             for t in &mut self.tools {
                 let conductivity = (self.setup.model.reading == Reading::Continuum).then_some(&self.setup.materials);
                 t.sources(self.time, &nodes, &self.setup.law, conductivity, &mut q);
             }
         }
-        let stats = self.stepper.advance(&mut self.prop, &q, self.comm.as_ref())?;
         let n = self.numbering.n_owned;
+        self.hold_potential(&mut q);
+        let stats = self.stepper.advance(&mut self.prop, &q, self.comm.as_ref())?;
         let m2 = mechanics_step(
             &self.setup,
             self.dt,
@@ -731,6 +753,7 @@ impl Simulation {
             &mut self.u[..n],
             &mut self.v[..n],
         );
+        self.put_held();
         // a stop request rides on the step's reduction, so every process stops after this step
         let signal = self.stop.requested() as f64;
         if self.tools.is_empty() {
@@ -739,7 +762,7 @@ impl Simulation {
             self.stop_signal = all[1] as i32;
         } else {
             let t_next = (self.step + 1) as f64 * self.dt;
-            let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
+            let nodes = nodes_of(&self.surface, &self.active, &self.setup, &self.dual);
             let c = self.comm.as_ref();
             let (m2s, overlaps) = contact::constrain(
                 &mut self.tools,
@@ -751,6 +774,8 @@ impl Simulation {
                 &mut self.v[..n],
                 c,
             );
+            self.measure_kinematic(t_next);
+            let c = self.comm.as_ref();
             let mut local = vec![m2.max(m2s).sqrt(), signal];
             local.extend(overlaps);
             let all = c.max_each(&local);
@@ -764,6 +789,83 @@ impl Simulation {
         self.step += 1;
         self.time = self.step as f64 * self.dt;
         Ok(stats)
+    }
+
+    /// The kinematic tools' holds over the step from t_n to t_{n+1}: which nodes they hold
+    /// and where (`kinematic::held_nodes`); each held node's potential is set to the value
+    /// that holds it there and kept there over the step (its row is frozen, and sources on
+    /// it are dropped from `q`).
+    fn hold_potential(&mut self, q: &mut Vec<(u32, V3)>) {
+        let Some(k) = &mut self.kin else { return };
+        let n = self.numbering.n_owned;
+        let t_next = (self.step + 1) as f64 * self.dt;
+        let now: Vec<V3> = self.tools.iter().map(|t| t.tool.path.at(self.time)).collect();
+        let next: Vec<V3> = self.tools.iter().map(|t| t.tool.path.at(t_next)).collect();
+        let (mat, p) = (&self.setup.materials, self.setup.model.exponent);
+        let (phi, lphi, mu, u) = (&self.prop.phi, &k.lphi, &k.mu, &self.u);
+        // the reaction of node i held where it is, along n
+        let pulls = |i: usize, nn: V3| {
+            let t = mat.at(i);
+            let held = kinematic::held_potential(u[i], t.stiffness, t.coupling, p);
+            let r: V3 = [0, 1, 2].map(|d| -(lphi[i][d] + mu[i] * (phi[i][d] - held[d])));
+            dot(r, nn) < 0.0
+        };
+        k.held = kinematic::held_nodes(
+            &self.tools,
+            &now,
+            &next,
+            &self.setup.mesh.points[..n],
+            &self.u[..n],
+            &self.active[..n],
+            pulls,
+        );
+        let mut rows = Vec::with_capacity(k.held.len());
+        let mut is_held = vec![false; n];
+        for h in &k.held {
+            let i = h.node as usize;
+            let t = mat.at(i);
+            self.prop.phi[i] = kinematic::held_potential(h.target, t.stiffness, t.coupling, p);
+            rows.push(h.node);
+            is_held[i] = true;
+        }
+        self.prop.freeze(&rows);
+        q.retain(|(i, _)| !is_held[*i as usize]);
+    }
+
+    /// Puts the nodes the tools held over the step at their targets (after the free
+    /// update), with the velocity of that move.
+    fn put_held(&mut self) {
+        let Some(k) = &self.kin else { return };
+        for h in &k.held {
+            let i = h.node as usize;
+            self.u[i] = h.target;
+            self.v[i] = [0, 1, 2].map(|d| (h.target[d] - h.before[d]) / self.dt);
+        }
+    }
+
+    /// L phi at the current state, and each kinematic tool's contact and force there
+    /// (`kinematic::measure`; its indentation is kept). Every process calls.
+    fn measure_kinematic(&mut self, t: f64) {
+        let Some(k) = &mut self.kin else { return };
+        let n = self.numbering.n_owned;
+        self.prop.thaw();
+        k.scratch[..n].copy_from_slice(&self.prop.phi[..n]);
+        self.prop.apply_to(&mut k.scratch, &mut k.lphi);
+        let nodes = nodes_of(&self.surface, &self.active, &self.setup, &self.dual);
+        for run in self.tools.iter_mut().filter(|r| r.kinematic()) {
+            let c = run.tool.path.at(t);
+            let indentation = run.state.indentation;
+            run.state = kinematic::measure(
+                run,
+                c,
+                &nodes,
+                &self.setup.materials,
+                &self.u[..n],
+                &k.lphi,
+                self.comm.as_ref(),
+            );
+            run.state.indentation = indentation;
+        }
     }
 
     /// Number of steps the stop condition allows (equilibrium: its cap).
@@ -814,7 +916,7 @@ impl Simulation {
     /// Recomputes the tools' state before the first step at the current time (after their
     /// paths changed, as `serve` does for live tools); every process calls.
     pub fn tools_at_rest(&mut self) {
-        let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
+        let nodes = nodes_of(&self.surface, &self.active, &self.setup, &self.dual);
         let n = self.numbering.n_owned;
         contact::at_rest(
             &mut self.tools,
@@ -824,6 +926,7 @@ impl Simulation {
             &self.u[..n],
             self.comm.as_ref(),
         );
+        self.measure_kinematic(self.time);
     }
 
     /// The largest spacing of the surface nodes within `reach` of any of `points` (rest
@@ -928,8 +1031,9 @@ impl Simulation {
             .fold(0.0, f64::max);
         self.max_speed = c.max(local);
         if !self.tools.is_empty() {
-            let nodes = nodes_of(&self.surface, &self.setup, &self.dual);
+            let nodes = nodes_of(&self.surface, &self.active, &self.setup, &self.dual);
             contact::resume(&mut self.tools, step, self.dt, &nodes, &self.setup.law, &self.u[..n], c);
+            self.measure_kinematic(self.time);
         }
     }
 
