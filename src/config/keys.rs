@@ -34,8 +34,11 @@ readings and derives the defaults.
               live = false (eprop serve)
   [[tool]]    shape = "sphere" | "punch", radius = R m, normal = [nx,ny,nz] (punch: pressing
               direction); start = [x,y,z] m and velocity = [vx,vy,vz] m/s | table = "path.csv"
-              (columns t, x, y, z); foundation = radius (the elastic foundation's depth, m);
-              live = false (eprop serve: the client moves it). See docs/tools.md
+              (columns t, x, y, z); law = "kinematic" (the tool holds the tissue it
+              touches; the force is the model's reaction) | "foundation" (elastic foundation);
+              contact = "slide" (sphere) | "stick" (punch) (kinematic); foundation = radius
+              (law = "foundation": its depth, m); live = false (eprop serve: the client moves
+              it). See docs/tools.md
   [time]      steps = N | end = T s | equilibrium = tol m/s; dt, h s optional (automatic)
   [output]    file = "out.h5" (default: <scenario stem>.h5 beside the scenario), every = 1,
               fields = ["displacement", "velocity", "potential", "energy"] (all),

@@ -180,6 +180,9 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
 
 /// The stepper of the scenario for the mechanics step dt, on an operator whose forward Euler
 /// stability bound is `h_bound` (`integrate::choose`).
+/// The integrators' default accuracy with a kinematic tool (`build_stepper`).
+pub const KINEMATIC_ACCURACY: f64 = 2.5e-4;
+
 fn build_stepper(
     setup: &Setup,
     prop: &mut Propagation,
@@ -192,8 +195,20 @@ fn build_stepper(
     comm: &dyn Comm,
 ) -> Result<Box<dyn Stepper>> {
     let path = setup.scenario.path.display().to_string();
+    // a kinematic tool sets its held potential anew at every step: a jump the integrators'
+    // error control meets at each step, so their default accuracy is tightened to keep them
+    // within 1e-3 of euler (tests/accuracy.rs)
+    let mut settings = setup.integrator.clone();
+    {
+        use crate::config::integrator::{DEFAULT_ACCURACY, DEFAULT_TOLERANCE};
+        let kinematic = setup.tools.iter().any(|t| t.law == crate::config::ContactLaw::Kinematic);
+        if kinematic && settings.accuracy == DEFAULT_ACCURACY && settings.tolerance == DEFAULT_TOLERANCE {
+            settings.accuracy = KINEMATIC_ACCURACY;
+            settings.tolerance = DEFAULT_TOLERANCE * KINEMATIC_ACCURACY / DEFAULT_ACCURACY;
+        }
+    }
     crate::propagate::integrate::choose::build(&mut crate::propagate::integrate::choose::Context {
-        settings: &setup.integrator,
+        settings: &settings,
         scheme: scheme_name(setup.model.scheme()),
         compact: setup.model.scheme() == Scheme::Compact,
         h_bound,
