@@ -678,7 +678,7 @@ fn auto_replays_its_trial_steps_and_gives_the_bits_of_the_integrator_it_chose() 
     // and a sphere that reaches the box at step 3 and presses on (its contact sources are
     // known in advance): rkl2, replayed from step 3
     let patch = "[[load]]\npatch = { center = [1.0, 0.5, 0.5], radius = 0.2 }\nnormal = 1.0\n";
-    let sphere = "[tissue]\nyoung = 1.0\n[[tool]]\nshape = \"sphere\"\nradius = 0.3\nstart = [1.32, 0.5, 0.5]\nvelocity = [-0.02, 0.0, 0.0]\n";
+    let sphere = "[tissue]\nyoung = 1.0\n[[tool]]\nshape = \"sphere\"\nlaw = \"foundation\"\nradius = 0.3\nstart = [1.32, 0.5, 0.5]\nvelocity = [-0.02, 0.0, 0.0]\n";
     for (steps, want, push) in [(2, "rkl2", patch), (60, "implicit", patch), (60, "rkl2", sphere)] {
         let sc = d.path().join(format!("box{steps}{want}{}.toml", push.len()));
         std::fs::write(

@@ -130,7 +130,9 @@ fn read_live(h5: &Path) -> Option<(i64, Vec<f64>)> {
     for _ in 0..50 {
         let r = (|| -> hdf5::Result<(i64, Vec<f64>)> {
             let f = hdf5::File::open(h5)?;
-            let k: i64 = f.group("eprop")?.attr("steps_complete")?.read_scalar()?;
+            let Some(k) = common::count_of(&f) else {
+                return Err(hdf5::Error::from("no step counter yet"));
+            };
             if k == 0 {
                 return Ok((0, vec![]));
             }

@@ -575,7 +575,7 @@ fn check_warns_of_a_tool_as_of_a_load_in_metres() {
     .unwrap();
     for (tool, want) in [
         (
-            "radius = 0.01\nstart = [0.1, 0.06, 0.12]\nvelocity = [0, 0, -0.05]",
+            "law = \"foundation\"\nradius = 0.01\nstart = [0.1, 0.06, 0.12]\nvelocity = [0, 0, -0.05]",
             "times [tissue] young = 100, far outside the tissue law's range",
         ),
         (

@@ -272,7 +272,7 @@ mod tests {
         assert_eq!(t[0].path.at(0.5), [0.0, 0.0, 0.5]);
         assert!(t[0].live);
         let t = tools(
-            "shape = \"sphere\"\nradius = 0.5\nfoundation = 2\nstart = [0, 0, 2]",
+            "shape = \"sphere\"\nlaw = \"foundation\"\nradius = 0.5\nfoundation = 2\nstart = [0, 0, 2]",
             &[],
         )
         .unwrap();

@@ -201,7 +201,10 @@ fn build_stepper(
     let mut settings = setup.integrator.clone();
     {
         use crate::config::integrator::{DEFAULT_ACCURACY, DEFAULT_TOLERANCE};
-        let kinematic = setup.tools.iter().any(|t| t.law == crate::config::ContactLaw::Kinematic);
+        let kinematic = setup
+            .tools
+            .iter()
+            .any(|t| t.law == crate::config::ContactLaw::Kinematic);
         if kinematic && settings.accuracy == DEFAULT_ACCURACY && settings.tolerance == DEFAULT_TOLERANCE {
             settings.accuracy = KINEMATIC_ACCURACY;
             settings.tolerance = DEFAULT_TOLERANCE * KINEMATIC_ACCURACY / DEFAULT_ACCURACY;
