@@ -86,6 +86,9 @@ pub struct Tissue {
     pub coupling: f64,
     /// Young's modulus and stiffening of the tissue law.
     pub law: TissueLaw,
+    /// Poisson's ratio nu, 0 <= nu < 0.5 (`[tissue] poisson`; the propagation does not read
+    /// it).
+    pub poisson: f64,
 }
 
 impl Tissue {
@@ -94,7 +97,18 @@ impl Tissue {
     fn same(&self, o: &Tissue) -> bool {
         let bits = |t: &Tissue| {
             let mut v: Vec<u64> = t.r.iter().map(|x| x.to_bits()).collect();
-            v.extend([t.mass, t.damping, t.stiffness, t.coupling, t.law.young, t.law.beta].map(f64::to_bits));
+            v.extend(
+                [
+                    t.mass,
+                    t.damping,
+                    t.stiffness,
+                    t.coupling,
+                    t.law.young,
+                    t.law.beta,
+                    t.poisson,
+                ]
+                .map(f64::to_bits),
+            );
             v
         };
         bits(self) == bits(o)
