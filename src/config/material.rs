@@ -230,6 +230,18 @@ pub fn resolve(
             mat.of_node[i] = new;
         }
     }
+    // one young on every node (a region may give them all another): the reference, so that no
+    // weight is applied (docs/model.md section 3)
+    if let Some(k) = mat.of_node.first() {
+        let young = mat.tissues[*k as usize].law.young;
+        if mat
+            .of_node
+            .iter()
+            .all(|&t| mat.tissues[t as usize].law.young.to_bits() == young.to_bits())
+        {
+            mat.young0 = young;
+        }
+    }
     Ok(mat)
 }
 
