@@ -304,3 +304,29 @@ fn a_stiff_skull_moves_less_under_a_load_on_the_scalp() {
     );
     assert!(means[1] < 0.5 * means[0], "{means:?}");
 }
+
+/// A load's energy source in the continuum reading takes q(sigma) from the contact nodes' own
+/// tissue law: a load on a region of young 8 kPa injects what it injects on a head of that
+/// young throughout, not what the scenario's [tissue] young (4 kPa) would give.
+#[test]
+fn a_load_takes_the_energy_density_of_the_tissue_it_presses() {
+    let sources = |extra: &str| {
+        let mesh = box_mesh([0.1, 0.1, 0.1], [4, 4, 4], BoxCells::Tet).unwrap();
+        let toml = format!(
+            "unit = \"m\"\n[model]\nreading = \"continuum\"\nintegrator = \"euler\"\n{extra}[[fixed]]\ngroup = \"zmin\"\n[[load]]\npatch = {{ center = [0.05, 0.05, 0.1], radius = 0.02 }}\nnormal = 0.5\n[time]\nsteps = 1\n"
+        );
+        let mut s = common::sim(mesh, &toml);
+        let mut q = s.sources(0.0);
+        q.sort_by_key(|x| x.0);
+        q
+    };
+    let region = sources("[[material.region]]\nbox = [[-1, -1, 0.07], [1, 1, 1]]\nyoung = 8000\n");
+    let stiff = sources("[tissue]\nyoung = 8000\n");
+    let soft = sources("");
+    assert!(!region.is_empty());
+    assert_eq!(region, stiff);
+    // linear law: q = sigma^2 / (2 E), half as much at twice the young
+    for (a, b) in region.iter().zip(&soft) {
+        assert!((a.1[2] / b.1[2] - 0.5).abs() < 1e-12, "{a:?} against {b:?}");
+    }
+}

@@ -345,7 +345,8 @@ fn resolve_loads(
 }
 
 /// The sources of loads as applied, on the owned contact nodes: the paper's q times the
-/// source weight along F/|F|, or in the continuum reading the flux of `flux_source`.
+/// source weight along F/|F|, or in the continuum reading the flux of `flux_source` with q
+/// from each contact node's own tissue law.
 fn load_sources(
     loads: &[Load],
     load_local: &[Vec<(u32, f64, f64, f64)>],
@@ -365,7 +366,10 @@ fn load_sources(
                     let r = fx.r.r(i as usize);
                     let rd = r * nalgebra::Vector3::from(d);
                     let d_cond = d[0] * rd[0] + d[1] * rd[1] + d[2] * rd[2];
-                    let s = flux_source(d_cond, length, a.q, area, fx.vol[i as usize]);
+                    // the energy density of the contact node's own tissue law (the same bits
+                    // as a.q where it is the scenario's)
+                    let q = fx.r.at(i as usize).law.energy_density(a.sigma);
+                    let s = flux_source(d_cond, length, q, area, fx.vol[i as usize]);
                     (i, scale(d, s))
                 }));
             }
