@@ -415,11 +415,11 @@ pub fn cell_young(nodes: &[u32], mat: &Materials) -> f64 {
 
 /// The capacity of every row's control volume, C_i = sum over the node's cells of
 /// (E_c / E0) V_i^cell (docs/model.md section 3): V_i itself when every cell of the node has
-/// the same ratio 1 (bit for bit), and a copy of `dual.vol` when no tissue weighs
-/// (`Materials::weighs_young`).
-pub fn capacities(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -> Vec<f64> {
+/// the same ratio 1 (bit for bit); None when no tissue weighs (`Materials::weighs_young`:
+/// the capacities are `dual.vol`, not copied).
+pub fn capacities(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -> Option<Vec<f64>> {
     if !mat.weighs_young() {
-        return dual.vol.clone();
+        return None;
     }
     let pts = &mesh.points;
     (0..dual.n_rows)
@@ -446,7 +446,8 @@ pub fn capacities(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) ->
             }
             v
         })
-        .collect()
+        .collect::<Vec<f64>>()
+        .into()
 }
 
 /// The dual faces weighted by their cells' Young's modulus, sum over cells of

@@ -50,7 +50,7 @@ impl Simulation {
     /// `discretize::geometry::capacities`; the control volumes themselves when no tissue
     /// weighs).
     pub fn capacities(&self) -> &[f64] {
-        &self.capacity
+        self.capacity.as_deref().unwrap_or(&self.dual.vol)
     }
 
     /// Control volume of each local node (0 for a node of no cell).

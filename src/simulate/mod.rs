@@ -88,9 +88,9 @@ pub struct Simulation {
     load_local: Vec<Vec<(u32, f64, f64, f64)>>,
     /// control volumes of this process's output block
     vol_block: Vec<f64>,
-    /// The capacities C_i of the operator's rows (`geometry::capacities`; the control volumes
-    /// when no tissue weighs), the weights of the integrators' symmetric forms.
-    capacity: Vec<f64>,
+    /// The capacities C_i of the operator's rows where tissues weigh (`geometry::capacities`;
+    /// None: the control volumes), the weights of the integrators' symmetric forms.
+    capacity: Option<Vec<f64>>,
     /// fixed nodes of the whole mesh
     fixed_nodes: usize,
     dt: f64,
@@ -119,14 +119,15 @@ pub struct Simulation {
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
 /// faces before its coefficients are computed and takes the pair columns over), and the
 /// capacities C_i of its rows (`geometry::capacities`: the control volumes weighted by young,
-/// which the integrators' symmetric forms weigh by; V_i when no tissue weighs).
+/// which the integrators' symmetric forms weigh by; None, the control volumes, when no tissue
+/// weighs).
 fn build_operator(
     setup: &Setup,
     inc: &Incidence,
     dual: &mut Dual,
     active: &[bool],
     n_rows: usize,
-) -> (Operator, Vec<f64>) {
+) -> (Operator, Option<Vec<f64>>) {
     let (mesh, r) = (&setup.mesh, &setup.materials);
     let capacity = capacities(mesh, inc, dual, r);
     let op = match setup.model.scheme() {
@@ -135,7 +136,8 @@ fn build_operator(
             let a = compact_coefficients(mesh, inc, dual, r);
             crate::diagnostics::log_memory("the coefficients");
             let col = std::mem::take(&mut dual.col);
-            let c = Compact::from_pairs(&dual.row_ptr[..=n_rows], col, a, &capacity, active);
+            let cap = capacity.as_deref().unwrap_or(&dual.vol);
+            let c = Compact::from_pairs(&dual.row_ptr[..=n_rows], col, a, cap, active);
             if setup.model.operator_precision == Precision::Float32 {
                 Operator::Compact(c.into_f32())
             } else {
@@ -151,7 +153,7 @@ fn build_operator(
                 active,
                 correction,
                 faces.as_deref(),
-                &capacity,
+                capacity.as_deref().unwrap_or(&dual.vol),
             ))
         }
     };
@@ -542,7 +544,7 @@ impl Simulation {
         Some(crate::discretize::quality::analyse(
             self.mesh(),
             op,
-            &self.capacity,
+            self.capacities(),
             &self.setup.materials,
             &|c| ids.map(|m| m.cell_id(c)).unwrap_or(c as u64 + 1),
         ))
@@ -631,7 +633,8 @@ impl Simulation {
             dt,
             c,
         );
-        let stepper = build_stepper(&setup, &mut prop, &capacity, &active, &gid, h_bound, dt, trial, c)?;
+        let cap = capacity.as_deref().unwrap_or(&dual.vol);
+        let stepper = build_stepper(&setup, &mut prop, cap, &active, &gid, h_bound, dt, trial, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
         Ok(Simulation {
@@ -694,7 +697,7 @@ impl Simulation {
         self.stepper = build_stepper(
             &self.setup,
             &mut self.prop,
-            &self.capacity,
+            self.capacity.as_deref().unwrap_or(&self.dual.vol),
             &self.active,
             &self.gid,
             self.stepper.plan().h_bound,
