@@ -14,7 +14,7 @@ readings and derives the defaults.
   [material]  mass = 1060 kg/m^3 (1, per node), damping = 4.118e4 kg/(m^3 s) (2, per node),
               conductivity = 0.1 m^2/s (0.05) | [rx, ry, rz] | 3x3 table
   [[material.region]]  box | sphere | halfspace | tag | group, and any of conductivity, mass,
-              damping, young, beta, stiffness, coupling: a tissue of its own where it holds
+              damping, young, beta, poisson, stiffness, coupling: a tissue of its own where it holds
               (a later region wins where regions overlap; docs/model.md section 1)
   [model]     reading = "continuum" | "paper", scheme = "compact" | "paper",
               paper_correction = true, operator_precision = "float64" | "float32",
@@ -25,7 +25,8 @@ readings and derives the defaults.
               tolerance = 1e-2 of accuracy (implicit: relative residual of each solve),
               preconditioner = "auto" | "jacobi" | "multigrid" | "amg" (implicit),
               max_iterations = 2000 (implicit, per solve), max_stages = 4096 (rkl2, per step)
-  [tissue]    young = 4000 Pa (100), beta = 0.0 (exponential law when > 0)
+  [tissue]    young = 4000 Pa (100), beta = 0.0 (exponential law when > 0),
+              poisson = 0.45 (0 <= nu < 0.5; a tool's contact modulus, not the propagation)
   [[fixed]]   box = [[x0,y0,z0],[x1,y1,z1]] | sphere = {center, radius} |
               halfspace = {point, normal} | nodes = [ids] | tag = N | group = "name"
   [[load]]    node = ID | nearest = [x,y,z] m | patch = {center, radius} m;

@@ -2,7 +2,7 @@
 
 use super::model::Model;
 use super::select::{Entry, Keys};
-use super::values::{opt_non_negative, opt_positive, Finite, NonNegative, Positive};
+use super::values::{opt_non_negative, opt_positive, Finite, NonNegative, Poisson, Positive};
 use super::Scenario;
 use crate::config::tissue::{check_spd, Materials, Tensor, Tissue, TissueLaw, MAX_TISSUES};
 use anyhow::Result;
@@ -129,6 +129,8 @@ pub struct Region {
     /// `[tissue] young` and `beta` of the region's tissue law.
     pub young: Option<f64>,
     pub beta: Option<f64>,
+    /// `[tissue] poisson` in the region.
+    pub poisson: Option<f64>,
     /// `[model] stiffness` (the pull-back) and `coupling` in the region.
     pub stiffness: Option<f64>,
     pub coupling: Option<f64>,
@@ -144,6 +146,7 @@ impl Keys for Region {
         "damping",
         "young",
         "beta",
+        "poisson",
         "stiffness",
         "coupling",
     ];
@@ -154,6 +157,7 @@ impl Keys for Region {
             "damping" => self.damping = Some(map.next_value::<NonNegative>()?.0),
             "young" => self.young = Some(map.next_value::<Positive>()?.0),
             "beta" => self.beta = Some(map.next_value::<NonNegative>()?.0),
+            "poisson" => self.poisson = Some(map.next_value::<Poisson>()?.0),
             "stiffness" => self.stiffness = Some(map.next_value::<NonNegative>()?.0),
             _ => self.coupling = Some(map.next_value::<Finite>()?.0),
         }
@@ -171,6 +175,7 @@ impl Region {
         t.damping = self.damping.unwrap_or(t.damping);
         t.law.young = self.young.unwrap_or(t.law.young);
         t.law.beta = self.beta.unwrap_or(t.law.beta);
+        t.poisson = self.poisson.unwrap_or(t.poisson);
         t.stiffness = self.stiffness.unwrap_or(t.stiffness);
         t.coupling = self.coupling.unwrap_or(t.coupling);
         t
@@ -180,7 +185,14 @@ impl Region {
 /// The tissue of every node: the sections' values (`[material]`, `[model]` stiffness and
 /// coupling, `[tissue]`; the reading's defaults where a key is not written), then each
 /// region's keys on its nodes, in order (a later region wins where they overlap).
-pub fn resolve(sc: &Scenario, m: &MaterialSec, model: &Model, law: TissueLaw, mesh: &Mesh) -> Result<Materials> {
+pub fn resolve(
+    sc: &Scenario,
+    m: &MaterialSec,
+    model: &Model,
+    law: TissueLaw,
+    poisson: f64,
+    mesh: &Mesh,
+) -> Result<Materials> {
     let n = mesh.n_nodes();
     let d = model.reading.defaults();
     let base = Tissue {
@@ -190,6 +202,7 @@ pub fn resolve(sc: &Scenario, m: &MaterialSec, model: &Model, law: TissueLaw, me
         stiffness: model.stiffness(),
         coupling: model.coupling(),
         law,
+        poisson,
     };
     let mut mat = Materials::uniform(n, base);
     for (k, reg) in m.region.iter().enumerate() {
@@ -215,6 +228,18 @@ pub fn resolve(sc: &Scenario, m: &MaterialSec, model: &Model, law: TissueLaw, me
                 }
             };
             mat.of_node[i] = new;
+        }
+    }
+    // one young on every node (a region may give them all another): the reference, so that no
+    // weight is applied (docs/model.md section 3)
+    if let Some(k) = mat.of_node.first() {
+        let young = mat.tissues[*k as usize].law.young;
+        if mat
+            .of_node
+            .iter()
+            .all(|&t| mat.tissues[t as usize].law.young.to_bits() == young.to_bits())
+        {
+            mat.young0 = young;
         }
     }
     Ok(mat)

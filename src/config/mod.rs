@@ -70,6 +70,7 @@ pub const PAPER_TISSUE: crate::config::tissue::Tissue = crate::config::tissue::T
         young: model::PAPER.young,
         beta: 0.0,
     },
+    poisson: values::POISSON,
 };
 pub use mesh::{MeshSec, Unit};
 pub use model::{Defaults, IntegratorSec, Model, Reading, Scheme, SchemeName, TissueSec, CONTINUUM, PAPER};
@@ -409,7 +410,7 @@ impl Setup {
         let time = time::resolve(sc, &f.time)?;
         let output = output::resolve(sc);
         let law = f.tissue.law(f.model.reading);
-        let materials = material::resolve(sc, &f.material, &f.model, law, &mesh)?;
+        let materials = material::resolve(sc, &f.material, &f.model, law, f.tissue.poisson, &mesh)?;
         let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         let tools = tools::resolve(sc, &f.tool)?;

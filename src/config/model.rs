@@ -7,7 +7,9 @@
 //! `#[serde(default)]`, and its options as further fields (checked by their types, see
 //! `values`). `Setup::model` carries it to every process and to the simulation.
 
-use super::values::{non_negative, one, opt_finite, opt_non_negative, opt_positive, positive, yes, Precision};
+use super::values::{
+    non_negative, one, opt_finite, opt_non_negative, opt_positive, poisson, poisson_default, positive, yes, Precision,
+};
 use crate::config::integrator::{self, Kind, Preconditioner, Settings};
 use crate::config::tissue::TissueLaw;
 use serde::{de::Error, Deserialize, Deserializer, Serialize};
@@ -251,6 +253,10 @@ pub struct TissueSec {
     /// 0: linear; > 0: exponential stiffening.
     #[serde(default, deserialize_with = "non_negative")]
     pub beta: f64,
+    /// Poisson's ratio nu (0 <= nu < 0.5): not used by the propagation; a tool's contact
+    /// modulus E / (2 (1 - nu^2)) reads it.
+    #[serde(default = "poisson_default", deserialize_with = "poisson")]
+    pub poisson: f64,
 }
 
 impl TissueSec {
@@ -292,6 +298,14 @@ mod tests {
         let t: TissueSec = defaults();
         assert_eq!((t.law(Reading::Paper).young, t.beta), (100.0, 0.0));
         assert_eq!(t.law(Reading::Continuum).young, 4000.0);
+        assert_eq!(t.poisson, 0.45);
+        let tissue = |text: &str| toml::from_str::<TissueSec>(text).map_err(|e| e.message().to_string());
+        assert_eq!(tissue("poisson = 0.3").unwrap().poisson, 0.3);
+        assert_eq!(tissue("poisson = 0").unwrap().poisson, 0.0);
+        for bad in ["poisson = 0.5", "poisson = -0.1"] {
+            let e = tissue(bad).unwrap_err();
+            assert!(e.contains("0 <= poisson < 0.5"), "{bad}: {e}");
+        }
     }
 
     #[test]

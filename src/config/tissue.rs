@@ -86,6 +86,9 @@ pub struct Tissue {
     pub coupling: f64,
     /// Young's modulus and stiffening of the tissue law.
     pub law: TissueLaw,
+    /// Poisson's ratio nu, 0 <= nu < 0.5 (`[tissue] poisson`; the propagation does not read
+    /// it).
+    pub poisson: f64,
 }
 
 impl Tissue {
@@ -94,7 +97,18 @@ impl Tissue {
     fn same(&self, o: &Tissue) -> bool {
         let bits = |t: &Tissue| {
             let mut v: Vec<u64> = t.r.iter().map(|x| x.to_bits()).collect();
-            v.extend([t.mass, t.damping, t.stiffness, t.coupling, t.law.young, t.law.beta].map(f64::to_bits));
+            v.extend(
+                [
+                    t.mass,
+                    t.damping,
+                    t.stiffness,
+                    t.coupling,
+                    t.law.young,
+                    t.law.beta,
+                    t.poisson,
+                ]
+                .map(f64::to_bits),
+            );
             v
         };
         bits(self) == bits(o)
@@ -107,6 +121,9 @@ impl Tissue {
 pub struct Materials {
     pub tissues: Vec<Tissue>,
     pub of_node: Vec<u16>,
+    /// The reference Young's modulus E0 of the propagation's weights (docs/model.md section
+    /// 3): the scenario's `[tissue] young`, the same on every process.
+    pub young0: f64,
 }
 
 /// More distinct tissues than a node's index can name.
@@ -118,6 +135,7 @@ impl Materials {
         Materials {
             tissues: vec![t],
             of_node: vec![0; n],
+            young0: t.law.young,
         }
     }
 
@@ -126,6 +144,7 @@ impl Materials {
         let mut m = Materials {
             tissues: Vec::new(),
             of_node: Vec::with_capacity(r.len()),
+            young0: base.law.young,
         };
         for t in r {
             let k = m
@@ -172,6 +191,7 @@ impl Materials {
         let mut out = Materials {
             tissues: Vec::new(),
             of_node: Vec::with_capacity(ids.len()),
+            young0: self.young0,
         };
         for &g in ids {
             let k = self.of_node[g as usize] as usize;
@@ -190,5 +210,20 @@ impl Materials {
         self.tissues
             .windows(2)
             .all(|w| w[0].law.young.to_bits() == w[1].law.young.to_bits())
+    }
+
+    /// Whether some tissue's Young's modulus differs from the reference E0 (then the
+    /// propagation weighs each cell and control volume by E / E0: docs/model.md section 3;
+    /// otherwise every weight is exactly 1 and none is applied).
+    pub fn weighs_young(&self) -> bool {
+        self.tissues
+            .iter()
+            .any(|t| t.law.young.to_bits() != self.young0.to_bits())
+    }
+
+    /// Node i's ratio E_i / E0 (exactly 1 where its tissue has the reference young).
+    #[inline]
+    pub fn young_ratio(&self, i: usize) -> f64 {
+        self.at(i).law.young / self.young0
     }
 }

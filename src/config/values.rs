@@ -5,6 +5,37 @@
 use crate::diagnostics::short;
 use serde::{Deserialize, Deserializer, Serialize};
 
+/// Poisson's ratio nu: 0 <= nu < 0.5 (0.5, incompressible, has no finite bulk modulus).
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(try_from = "f64")]
+pub struct Poisson(pub f64);
+
+impl TryFrom<f64> for Poisson {
+    type Error = String;
+    fn try_from(x: f64) -> Result<Self, String> {
+        if (0.0..0.5).contains(&x) {
+            Ok(Poisson(x))
+        } else {
+            Err(format!(
+                "{} is not a Poisson's ratio; fix: 0 <= poisson < 0.5 (0.45 for soft tissue, 0.49 nearly incompressible)",
+                short(x)
+            ))
+        }
+    }
+}
+
+/// The default Poisson's ratio of soft tissue (`[tissue] poisson`).
+pub const POISSON: f64 = 0.45;
+
+pub fn poisson<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Poisson::deserialize(d).map(|x| x.0)
+}
+
+/// `[tissue] poisson`'s default, for serde.
+pub fn poisson_default() -> f64 {
+    POISSON
+}
+
 /// A finite number > 0.
 #[derive(Clone, Copy, Debug, Deserialize)]
 #[serde(try_from = "f64")]

@@ -398,13 +398,98 @@ impl Dual {
     }
 }
 
+/// A cell's Young's modulus over the reference, E_c / E0 (docs/model.md section 3): its
+/// nodes' ratio when they all have the same (bit for bit, so exactly 1 in a tissue of the
+/// reference young), otherwise the harmonic mean of its nodes' ratios (a cell is as stiff as
+/// the stiff tissue only when every node of it belongs to that tissue).
+pub fn cell_young(nodes: &[u32], mat: &Materials) -> f64 {
+    let first = mat.young_ratio(nodes[0] as usize);
+    if nodes
+        .iter()
+        .all(|&n| mat.young_ratio(n as usize).to_bits() == first.to_bits())
+    {
+        return first;
+    }
+    nodes.len() as f64 / nodes.iter().map(|&n| 1.0 / mat.young_ratio(n as usize)).sum::<f64>()
+}
+
+/// The capacity of every row's control volume, C_i = sum over the node's cells of
+/// (E_c / E0) V_i^cell (docs/model.md section 3): V_i itself when every cell of the node has
+/// the same ratio 1 (bit for bit); None when no tissue weighs (`Materials::weighs_young`:
+/// the capacities are `dual.vol`, not copied).
+pub fn capacities(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -> Option<Vec<f64>> {
+    if !mat.weighs_young() {
+        return None;
+    }
+    let pts = &mesh.points;
+    (0..dual.n_rows)
+        .into_par_iter()
+        .map(|i| {
+            let cells = inc.of(i);
+            let w: Vec<f64> = cells.iter().map(|&c| cell_young(mesh.cell(c as usize), mat)).collect();
+            if let Some(&w0) = w.first() {
+                if w.iter().all(|x| x.to_bits() == w0.to_bits()) {
+                    return dual.vol[i] * w0;
+                }
+            }
+            let mut v = 0.0;
+            for (&c, wc) in cells.iter().zip(&w) {
+                let c = c as usize;
+                let nodes = mesh.cell(c);
+                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                let piece = if mesh.kinds[c] == CellKind::Tet {
+                    cell_volume(CellKind::Tet, nodes, pts) / 4.0
+                } else {
+                    cell_dual(mesh.kinds[c], nodes, pts).vol[li]
+                };
+                v += wc * piece;
+            }
+            v
+        })
+        .collect::<Vec<f64>>()
+        .into()
+}
+
+/// The dual faces weighted by their cells' Young's modulus, sum over cells of
+/// (E_c / E0) S_ij^cell, on the pair graph of `dual` (the paper scheme's fluxes when
+/// `Materials::weighs_young`; docs/model.md section 3).
+pub fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -> Vec<[f64; 3]> {
+    let pts = &mesh.points;
+    let mut out = vec![[0.0; 3]; dual.row_ptr[dual.n_rows]];
+    par_rows(&mut out, &dual.row_ptr[..=dual.n_rows], |i, s| {
+        let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
+        for &c in inc.of(i) {
+            let c = c as usize;
+            let (kind, nodes) = (mesh.kinds[c], mesh.cell(c));
+            let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+            let cd = cell_dual(kind, nodes, pts);
+            let w = cell_young(nodes, mat);
+            for (e, edge) in kind.edges().iter().enumerate() {
+                let (other, sign) = if edge[0] == li {
+                    (edge[1], w)
+                } else if edge[1] == li {
+                    (edge[0], -w)
+                } else {
+                    continue;
+                };
+                let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
+                s[p] = add(s[p], scale(cd.s[e], sign));
+            }
+        }
+    });
+    out
+}
+
 /// Compact-scheme coefficients a_ij of rows `0..n_rows` on the pair graph of `dual`:
-/// sum_j a_ij (u_j - u_i) is the exact flux of R grad u (cell gradients) into the control
-/// volume of i. `r` gives the tensor of every local node; a cell uses the mean of its nodes'.
+/// sum_j a_ij (u_j - u_i) is the exact flux of (E/E0) R grad u (cell gradients) into the
+/// control volume of i. `r` gives the tensor and young of every local node; a cell uses the
+/// mean of its nodes' tensors and `cell_young` (no weight at all unless
+/// `Materials::weighs_young`).
 pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Materials) -> Vec<f64> {
     let pts = &mesh.points;
     let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
     let order = visit_order(mesh, dual.n_rows);
+    let weighs = r.weighs_young();
     par_rows_with(
         &mut out,
         &dual.row_ptr[..=dual.n_rows],
@@ -422,6 +507,9 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                     rc += r.r(n as usize);
                 }
                 rc /= nodes.len() as f64;
+                if weighs {
+                    rc *= cell_young(nodes, r);
+                }
                 if kind == CellKind::Tet {
                     // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
                     // that a_ab == a_ba bitwise

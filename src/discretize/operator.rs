@@ -551,19 +551,34 @@ pub struct Paper {
     pub col: Vec<u32>,
     /// S_ij
     pub s: Vec<V3>,
-    /// R_i S_ij and R_j S_ij
+    /// R_i S_ij and R_j S_ij (the young-weighted face in place of S_ij where tissues weigh)
     pub ris: Vec<V3>,
     pub rjs: Vec<V3>,
     /// e = X_j - X_i
     pub e: Vec<V3>,
     /// (R_bar e) . S_ij / |e|^2 (zero when the correction is off)
     pub c: Vec<f64>,
+    /// 1 / V_i (the gradients)
     pub inv_vol: Vec<f64>,
+    /// 1 / C_i, the capacity the fluxes fill (`geometry::capacities`; 1 / V_i when no tissue
+    /// weighs)
+    pub inv_cap: Vec<f64>,
     pub update: Vec<bool>,
 }
 
 impl Paper {
-    pub fn new(dual: &Dual, points: &[V3], mat: &Materials, update: &[bool], correction: bool) -> Paper {
+    /// `faces`: the dual faces weighted by young the fluxes pass (`geometry::young_faces`;
+    /// None: S_ij, no weight), `capacity` the control volumes they fill
+    /// (`geometry::capacities`).
+    pub fn new(
+        dual: &Dual,
+        points: &[V3],
+        mat: &Materials,
+        update: &[bool],
+        correction: bool,
+        faces: Option<&[V3]>,
+        capacity: &[f64],
+    ) -> Paper {
         let n = dual.n_rows;
         let mut row_ptr = Vec::with_capacity(n + 1);
         let (mut col, mut s, mut ris, mut rjs, mut e, mut c) = (vec![], vec![], vec![], vec![], vec![], vec![]);
@@ -575,7 +590,9 @@ impl Paper {
                     continue; // shares a cell but no edge: no dual face
                 }
                 let j = dual.col[p] as usize;
-                let sv = Vector3::from(sij);
+                // the flux passes the weighted face, the gradient the geometric one
+                let sw = faces.map_or(sij, |f| f[p]);
+                let sv = Vector3::from(sw);
                 let (r_i, r_j) = (mat.r(i), mat.r(j));
                 let ri = r_i * sv;
                 let rj = r_j * sv;
@@ -588,14 +605,15 @@ impl Paper {
                 rjs.push([rj[0], rj[1], rj[2]]);
                 e.push(ev);
                 c.push(if correction {
-                    dot([re[0], re[1], re[2]], sij) / dot(ev, ev)
+                    dot([re[0], re[1], re[2]], sw) / dot(ev, ev)
                 } else {
                     0.0
                 });
             }
             row_ptr.push(col.len() as u32);
         }
-        let inv_vol = dual.vol.iter().map(|&v| if v > 0.0 { 1.0 / v } else { 0.0 }).collect();
+        let inverse = |x: &[f64]| x.iter().map(|&v| if v > 0.0 { 1.0 / v } else { 0.0 }).collect();
+        let (inv_vol, inv_cap) = (inverse(&dual.vol), inverse(capacity));
         Paper {
             row_ptr,
             col,
@@ -605,6 +623,7 @@ impl Paper {
             e,
             c,
             inv_vol,
+            inv_cap,
             update: update.to_vec(),
         }
     }
@@ -661,7 +680,7 @@ impl Paper {
                 acc[c] += f;
             }
         }
-        let iv = self.inv_vol[i];
+        let iv = self.inv_cap[i];
         [acc[0] * iv, acc[1] * iv, acc[2] * iv]
     }
 }

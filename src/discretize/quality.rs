@@ -71,7 +71,8 @@ pub fn median_positive(g: &[f64]) -> f64 {
 }
 
 /// Stiffness of `op` on `mesh` (the operator's rows are the mesh's first nodes, in its
-/// numbering); `vol` the control volumes and `r` the conductivity of every node; `cell_id`
+/// numbering); `vol` the capacities of its rows (`geometry::capacities`: the control volumes
+/// when no tissue weighs) and `r` the conductivity and young of every node; `cell_id`
 /// the file's id of a cell.
 pub fn analyse(mesh: &Mesh, op: &Compact, vol: &[f64], r: &Materials, cell_id: &dyn Fn(usize) -> u64) -> Stiffness {
     let g = op.row_bounds();
@@ -153,6 +154,9 @@ fn cell_weight(mesh: &Mesh, c: usize, li: usize, r: &Materials) -> f64 {
         rc += r.r(n as usize);
     }
     rc /= 4.0;
+    if r.weighs_young() {
+        rc *= crate::discretize::geometry::cell_young(nodes, r);
+    }
     let gi = rc * Vector3::from(gr[li]);
     (0..4)
         .filter(|&k| k != li)

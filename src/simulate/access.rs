@@ -46,6 +46,13 @@ impl Simulation {
         &self.blocks
     }
 
+    /// The capacities C_i of the operator's rows (the control volumes weighted by young:
+    /// `discretize::geometry::capacities`; the control volumes themselves when no tissue
+    /// weighs).
+    pub fn capacities(&self) -> &[f64] {
+        self.capacity.as_deref().unwrap_or(&self.dual.vol)
+    }
+
     /// Control volume of each local node (0 for a node of no cell).
     pub fn volumes(&self) -> &[f64] {
         &self.dual.vol

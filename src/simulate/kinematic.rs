@@ -36,9 +36,6 @@ use eprop_io::geom::{dot, norm, scale, sub};
 /// outside it (round-off of a node put on the surface).
 pub const ON_SURFACE: f64 = 1e-9;
 
-/// The Poisson ratio of the force's modulus E / (2 (1 - nu^2)).
-pub const POISSON: f64 = 0.45;
-
 /// A node held over one step.
 #[derive(Clone, Copy, Debug)]
 pub struct Held {
@@ -123,11 +120,11 @@ pub fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
     )
 }
 
-/// The force factor of node i, M lambda_i / D_i with M = E_i / (2 (1 - nu^2)) and D_i the
-/// mean of its conductivity's diagonal.
+/// The force factor of node i, M lambda_i / D_i with M = E_i / (2 (1 - nu_i^2)) (its
+/// tissue's young and poisson) and D_i the mean of its conductivity's diagonal.
 pub fn force_factor(mat: &Materials, i: usize) -> f64 {
     let t = mat.at(i);
-    let m = t.law.young / (2.0 * (1.0 - POISSON * POISSON));
+    let m = t.law.young / (2.0 * (1.0 - t.poisson * t.poisson));
     let r = &t.r;
     let d = (r[(0, 0)] + r[(1, 1)] + r[(2, 2)]) / 3.0;
     m * (t.coupling / t.stiffness) / d

@@ -13,7 +13,7 @@ mod tests;
 
 use crate::config::{Fuse, Load, Precision, Reading, Scheme, Setup, Stop};
 use crate::diagnostics::short;
-use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
+use crate::discretize::geometry::{capacities, compact_coefficients, young_faces, Dual, Incidence};
 use crate::discretize::operator::{Compact, Operator, Paper, V3};
 use crate::distribute::comm::{exact_sum, Comm, Serial};
 use crate::distribute::field::NodeField;
@@ -89,6 +89,9 @@ pub struct Simulation {
     load_local: Vec<Vec<(u32, f64, f64, f64)>>,
     /// control volumes of this process's output block
     vol_block: Vec<f64>,
+    /// The capacities C_i of the operator's rows where tissues weigh (`geometry::capacities`;
+    /// None: the control volumes), the weights of the integrators' symmetric forms.
+    capacity: Option<Vec<f64>>,
     /// fixed nodes of the whole mesh
     fixed_nodes: usize,
     dt: f64,
@@ -117,24 +120,47 @@ pub struct Simulation {
 }
 
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
-/// faces before its coefficients are computed and takes the pair columns over).
-fn build_operator(setup: &Setup, inc: &Incidence, dual: &mut Dual, active: &[bool], n_rows: usize) -> Operator {
+/// faces before its coefficients are computed and takes the pair columns over), and the
+/// capacities C_i of its rows (`geometry::capacities`: the control volumes weighted by young,
+/// which the integrators' symmetric forms weigh by; None, the control volumes, when no tissue
+/// weighs).
+fn build_operator(
+    setup: &Setup,
+    inc: &Incidence,
+    dual: &mut Dual,
+    active: &[bool],
+    n_rows: usize,
+) -> (Operator, Option<Vec<f64>>) {
     let (mesh, r) = (&setup.mesh, &setup.materials);
-    match setup.model.scheme() {
+    let capacity = capacities(mesh, inc, dual, r);
+    let op = match setup.model.scheme() {
         Scheme::Compact => {
             dual.release_pairs(); // S_ij are not needed by compact: free them first
             let a = compact_coefficients(mesh, inc, dual, r);
             crate::diagnostics::log_memory("the coefficients");
             let col = std::mem::take(&mut dual.col);
-            let c = Compact::from_pairs(&dual.row_ptr[..=n_rows], col, a, &dual.vol, active);
+            let cap = capacity.as_deref().unwrap_or(&dual.vol);
+            let c = Compact::from_pairs(&dual.row_ptr[..=n_rows], col, a, cap, active);
             if setup.model.operator_precision == Precision::Float32 {
                 Operator::Compact(c.into_f32())
             } else {
                 Operator::Compact(c)
             }
         }
-        Scheme::Paper { correction } => Operator::Paper(Paper::new(dual, &mesh.points, r, active, correction)),
-    }
+        Scheme::Paper { correction } => {
+            let faces = r.weighs_young().then(|| young_faces(mesh, inc, dual, r));
+            Operator::Paper(Paper::new(
+                dual,
+                &mesh.points,
+                r,
+                active,
+                correction,
+                faces.as_deref(),
+                capacity.as_deref().unwrap_or(&dual.vol),
+            ))
+        }
+    };
+    (op, capacity)
 }
 
 /// The mechanics step: the scenario's dt, or 0.9 of the stability bound over all nodes.
@@ -342,7 +368,8 @@ fn resolve_loads(
 }
 
 /// The sources of loads as applied, on the owned contact nodes: the paper's q times the
-/// source weight along F/|F|, or in the continuum reading the flux of `flux_source`.
+/// source weight along F/|F|, or in the continuum reading the flux of `flux_source` with q
+/// from each contact node's own tissue law.
 fn load_sources(
     loads: &[Load],
     load_local: &[Vec<(u32, f64, f64, f64)>],
@@ -362,7 +389,10 @@ fn load_sources(
                     let r = fx.r.r(i as usize);
                     let rd = r * nalgebra::Vector3::from(d);
                     let d_cond = d[0] * rd[0] + d[1] * rd[1] + d[2] * rd[2];
-                    let s = flux_source(d_cond, length, a.q, area, fx.vol[i as usize]);
+                    // the energy density of the contact node's own tissue law (the same bits
+                    // as a.q where it is the scenario's)
+                    let q = fx.r.at(i as usize).law.energy_density(a.sigma);
+                    let s = flux_source(d_cond, length, q, area, fx.vol[i as usize]);
                     (i, scale(d, s))
                 }));
             }
@@ -536,7 +566,7 @@ impl Simulation {
         Some(crate::discretize::quality::analyse(
             self.mesh(),
             op,
-            &self.dual.vol,
+            self.capacities(),
             &self.setup.materials,
             &|c| ids.map(|m| m.cell_id(c)).unwrap_or(c as u64 + 1),
         ))
@@ -581,7 +611,7 @@ impl Simulation {
             .map(|i| !setup.fixed[i] && (i >= n_rows || dual.vol[i] > 0.0))
             .collect();
         let fixed_nodes = c.sum_i128(setup.fixed[..n_owned].iter().filter(|&&b| b).count() as i128) as usize;
-        let mut op = build_operator(&setup, &inc, &mut dual, &active, n_rows);
+        let (mut op, capacity) = build_operator(&setup, &inc, &mut dual, &active, n_rows);
         if let Operator::Compact(c) = &mut op {
             c.kernel.vector &= setup.performance.simd;
         }
@@ -641,7 +671,8 @@ impl Simulation {
             dt,
             c,
         );
-        let stepper = build_stepper(&setup, &mut prop, &dual.vol, &active, &gid, h_bound, dt, trial, c)?;
+        let cap = capacity.as_deref().unwrap_or(&dual.vol);
+        let stepper = build_stepper(&setup, &mut prop, cap, &active, &gid, h_bound, dt, trial, c)?;
         let blocks = BlockScatter::new(&gid[..n_owned], n_global, c);
         let vol_block = blocks.collect(&dual.vol, 1, c);
         Ok(Simulation {
@@ -649,6 +680,7 @@ impl Simulation {
             kin,
             surface,
             on_surface,
+            capacity,
             u: NodeField::filled(layout, [0.0; 3]),
             v: NodeField::filled(layout, [0.0; 3]),
             force: NodeField::filled(layout, [0.0; 3]),
@@ -704,7 +736,7 @@ impl Simulation {
         self.stepper = build_stepper(
             &self.setup,
             &mut self.prop,
-            &self.dual.vol,
+            self.capacity.as_deref().unwrap_or(&self.dual.vol),
             &self.active,
             &self.gid,
             self.stepper.plan().h_bound,
