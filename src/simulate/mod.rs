@@ -6,6 +6,7 @@
 mod access;
 pub mod contact;
 pub mod distributed;
+pub mod inspect;
 mod stop;
 #[cfg(test)]
 mod tests;
