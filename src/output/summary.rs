@@ -276,11 +276,20 @@ pub fn summarize(
     let mut warnings = warnings(sim, mesh);
     warnings.extend(run_warnings);
     if let Stop::Equilibrium { tol, .. } = sim.setup().time.stop {
+        let residuals = sim.steady_residuals();
         if sim.max_speed() >= tol {
             warnings.push(format!(
                 "equilibrium not reached after {} steps (max |v| = {:.3e} > {tol:e})",
                 sim.step(),
                 sim.max_speed()
+            ));
+        } else if let Some(r) = residuals.filter(|r| !r.within(tol)) {
+            warnings.push(format!(
+                "equilibrium not reached after {} steps (max |v| = {:.3e}, but the steady equations' relative residuals are {:.3e} (potential) and {:.3e} (mechanics), not both <= {tol:e})",
+                sim.step(),
+                sim.max_speed(),
+                r.potential,
+                r.mechanics
             ));
         }
     }
