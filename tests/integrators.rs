@@ -719,3 +719,51 @@ fn auto_replays_its_trial_steps_and_gives_the_bits_of_the_integrator_it_chose() 
         }
     }
 }
+
+/// `[time] equilibrium` stops on the steady equations, not on max |v| alone (docs/model.md
+/// section 6): on an organ mesh in the paper's reading with a point load, every integrator's
+/// stop state is within 1e-8 (relative, max norm of u) of euler's steady state.
+#[test]
+fn every_integrator_stops_at_the_steady_state_on_an_organ_mesh() {
+    let Some(path) = common::shared_mesh("sofa_liver2.msh") else {
+        return;
+    };
+    let mesh = eprop_io::read_mesh(&path).unwrap();
+    // the SOFA liver (507 nodes) held at its left end, a point load on its right lobe
+    let base = "[[fixed]]\nhalfspace = { point = [-0.9, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }\n[[load]]\nnearest = [0.94, 0.1, 0.33]\nforce = [-0.3, 0.2, -0.1]\n[time]\nsteps = 400000\n";
+    let run = |kind: &str, tol: f64| {
+        let mut s = sim(
+            mesh.clone(),
+            &format!("[model]\nreading = \"paper\"\nintegrator = \"{kind}\"\n{base}equilibrium = {tol:e}\n"),
+        );
+        while !s.done() {
+            s.advance().unwrap();
+        }
+        let r = s.steady_residuals();
+        eprintln!(
+            "{kind} ({}): {} steps, max |v| = {:.3e}, residuals {r:?}",
+            s.step_plan().integrator.name(),
+            s.step(),
+            s.max_speed()
+        );
+        assert!(
+            r.is_some_and(|r| r.within(tol)),
+            "{kind}: stopped at step {} off the steady state: {r:?}",
+            s.step()
+        );
+        s.u().owned().to_vec()
+    };
+    let steady = run("euler", 1e-14);
+    let scale = common::max_abs(&steady);
+    for kind in ["auto", "implicit", "rkl2", "euler"] {
+        let u = run(kind, 1e-11);
+        let off = u
+            .iter()
+            .zip(&steady)
+            .flat_map(|(a, b)| (0..3).map(move |d| (a[d] - b[d]).abs()))
+            .fold(0.0f64, f64::max)
+            / scale;
+        eprintln!("{kind}: |u - u_steady| / |u_steady| = {off:.2e}");
+        assert!(off < 1e-8, "{kind}: the stop state is {off:.2e} from the steady state");
+    }
+}

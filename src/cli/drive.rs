@@ -1,8 +1,8 @@
 //! The time loop of `eprop run` and `eprop serve`. Before the output is opened, `check`: the
 //! limits (`limits::Budget`), the free space and the load warnings. Then `drive`: the series
 //! created (or reopened), and per step the inputs its `Feed` supplies, the step, and at output
-//! steps the non-finite watch (`plausible::Watch`), the free-space check and the append; the
-//! progress bar, the stop signal and the summary. The feed is all that differs: `Batch` for
+//! steps the non-finite watch (`plausible::Watch`), the free-space check, the append and the
+//! warning when the mesh first folds (`fold::Record`); the progress bar, the stop signal and the summary. The feed is all that differs: `Batch` for
 //! `eprop run` (the scenario's own inputs), the client's session for `eprop serve`.
 
 use crate::config::Stop;
@@ -315,6 +315,13 @@ impl Output {
         }
         let appended = self.series.append(sim, commit);
         appended.map_err(|e| self.failed(e, s))?;
+        // the first output step with inverted cells: one warning (every process takes part)
+        if let Some(w) = self.series.folds.warning(sim) {
+            if root && !s.quiet {
+                progress.println(&format!("warning: {w}"));
+            }
+            self.warnings.push(w);
+        }
         self.last_written = sim.step();
         Ok(())
     }

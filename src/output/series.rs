@@ -109,6 +109,8 @@ pub struct Series {
     /// The simulation step of the last appended and of the last complete output step.
     appended_step: u64,
     complete_step: u64,
+    /// The inverted cells and nodes inside tools of the output steps this run appended.
+    pub(crate) folds: crate::guard::fold::Record,
 }
 
 impl Series {
@@ -209,6 +211,7 @@ impl Series {
                 appends: Vec::new(),
                 appended_step: resume.step,
                 complete_step: resume.step,
+                folds: Default::default(),
             });
         }
         let created =
@@ -220,6 +223,7 @@ impl Series {
                 if !sim.tools.is_empty() {
                     writer.add_tools(sim.tools.len())?;
                 }
+                writer.add_checks(sim.tools.len())?;
                 log_memory("the static output");
                 writer.commit_every(flush);
                 let mut series = Series {
@@ -228,6 +232,7 @@ impl Series {
                     appends: Vec::new(),
                     appended_step: sim.step(),
                     complete_step: sim.step(),
+                    folds: Default::default(),
                 };
                 series.append(sim, true)?;
                 log_memory("the first output step");
@@ -264,6 +269,10 @@ impl Series {
         if !sim.tools.is_empty() {
             self.writer.append_tools(sim.time(), sim.step(), &tool_rows(sim))?;
         }
+        let checked = sim.inspect();
+        self.writer
+            .append_checks(sim.step(), checked.inverted, &checked.inside)?;
+        self.folds.note(sim.time(), checked);
         let committed = self
             .writer
             .append(sim.time(), sim.step(), &refs, &sim.probes(), commit)?;

@@ -82,6 +82,16 @@ pub struct Summary {
     pub loads: Vec<LoadSummary>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub tools: Vec<ToolSummary>,
+    /// Cells inverted at the last output step, and the most at an output step of this run
+    /// (since its restart) with that step's time.
+    pub inverted_cells: u64,
+    pub max_inverted_cells: u64,
+    pub max_inverted_time: f64,
+    /// Per tool: active nodes inside it at the last output step, and the most at one.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub inside_nodes: Vec<u64>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub max_inside_nodes: Vec<u64>,
     pub output: String,
     pub output_steps: usize,
     pub warnings: Vec<String>,
@@ -183,6 +193,40 @@ impl std::fmt::Display for Summary {
                 t.force[2] + 0.0
             )?;
         }
+        if self.max_inverted_cells > 0 {
+            writeln!(
+                f,
+                "  inverted    {} cells (max {} at t = {})",
+                self.inverted_cells,
+                self.max_inverted_cells,
+                fixed(self.max_inverted_time, 6)
+            )?;
+        } else {
+            writeln!(f, "  inverted    0 cells")?;
+        }
+        if !self.inside_nodes.is_empty() {
+            let now: u64 = self.inside_nodes.iter().sum();
+            let most: u64 = self.max_inside_nodes.iter().sum();
+            let per = match self.inside_nodes.len() {
+                1 => String::new(),
+                _ => format!(
+                    " ({})",
+                    self.inside_nodes
+                        .iter()
+                        .enumerate()
+                        .map(|(k, n)| format!("tool {}: {n}", k + 1))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            };
+            match most {
+                0 => writeln!(f, "  inside      {now} nodes in tools{per}")?,
+                _ => writeln!(
+                    f,
+                    "  inside      {now} nodes in tools{per} (at most {most} at an output step)"
+                )?,
+            }
+        }
         for w in &self.warnings {
             writeln!(f, "  warning     {w}")?;
         }
@@ -232,11 +276,20 @@ pub fn summarize(
     let mut warnings = warnings(sim, mesh);
     warnings.extend(run_warnings);
     if let Stop::Equilibrium { tol, .. } = sim.setup().time.stop {
+        let residuals = sim.steady_residuals();
         if sim.max_speed() >= tol {
             warnings.push(format!(
                 "equilibrium not reached after {} steps (max |v| = {:.3e} > {tol:e})",
                 sim.step(),
                 sim.max_speed()
+            ));
+        } else if let Some(r) = residuals.filter(|r| !r.within(tol)) {
+            warnings.push(format!(
+                "equilibrium not reached after {} steps (max |v| = {:.3e}, but the steady equations' relative residuals are {:.3e} (potential) and {:.3e} (mechanics), not both <= {tol:e})",
+                sim.step(),
+                sim.max_speed(),
+                r.potential,
+                r.mechanics
             ));
         }
     }
@@ -304,6 +357,11 @@ pub fn summarize(
                 displacement: t.state.displacement,
             })
             .collect(),
+        inverted_cells: series.folds.last.inverted,
+        max_inverted_cells: series.folds.most,
+        max_inverted_time: series.folds.most_time,
+        inside_nodes: series.folds.last.inside.clone(),
+        max_inside_nodes: series.folds.most_inside.clone(),
         output: series.path().display().to_string(),
         output_steps: series.steps_written(),
         warnings,

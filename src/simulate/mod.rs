@@ -6,7 +6,9 @@
 mod access;
 pub mod contact;
 pub mod distributed;
+pub mod inspect;
 pub mod kinematic;
+pub mod steady;
 mod stop;
 #[cfg(test)]
 mod tests;
@@ -117,6 +119,9 @@ pub struct Simulation {
     /// and a flag per owned node for them.
     surface: Vec<u32>,
     on_surface: Vec<bool>,
+    /// A run to equilibrium: the steady equations' residuals after the last step, judged when
+    /// its max |v| was below the tolerance (`steady.rs`).
+    steady: Option<steady::Residuals>,
 }
 
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
@@ -701,6 +706,7 @@ impl Simulation {
             max_speed: 0.0,
             inactive_nodes,
             applications: Vec::new(),
+            steady: None,
             stop: StopToken::new(),
             stop_signal: 0,
             setup,
@@ -838,6 +844,7 @@ impl Simulation {
         self.applications.push(stats.applications.min(u32::MAX as usize) as u32);
         self.step += 1;
         self.time = self.step as f64 * self.dt;
+        self.judge_steady();
         Ok(stats)
     }
 
@@ -927,13 +934,16 @@ impl Simulation {
         }
     }
 
-    /// True when the run should stop after the current step.
+    /// True when the run should stop after the current step: its count, its end, or at
+    /// equilibrium max |v| and the steady equations' residuals within the tolerance.
     pub fn done(&self) -> bool {
         if self.step >= self.max_steps() {
             return true;
         }
         match self.setup.time.stop {
-            Stop::Equilibrium { tol, .. } => self.step > 0 && self.max_speed < tol,
+            Stop::Equilibrium { tol, .. } => {
+                self.step > 0 && self.max_speed < tol && self.steady.is_some_and(|r| r.within(tol))
+            }
             _ => false,
         }
     }

@@ -304,6 +304,9 @@ impl Stepper for Replay {
     fn last_error(&self) -> Option<f64> {
         self.inner.last_error()
     }
+    fn tighten(&mut self, factor: f64) -> bool {
+        self.inner.tighten(factor)
+    }
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<super::StepStats> {
         if self.wait > 0 {
             // before the first recorded step; whether the run then repeats the trial is

@@ -256,6 +256,9 @@ impl Stepper for Implicit {
     fn last_error(&self) -> Option<f64> {
         self.errors.last_error()
     }
+    fn tighten(&mut self, factor: f64) -> bool {
+        self.solver.tighten(factor)
+    }
     fn replayed(&mut self, error: Option<f64>) {
         self.errors.replayed(error)
     }

@@ -81,6 +81,13 @@ pub trait Stepper {
     /// A step was replayed from the automatic choice's trial (`choose::Replay`): counts it,
     /// with its estimated error.
     fn replayed(&mut self, _error: Option<f64>) {}
+    /// A run to equilibrium found max |v| small but the potential's steady residual above its
+    /// tolerance: an integrator whose fixed point is the steady state only to its solves'
+    /// tolerance (implicit) solves `factor` times tighter from now on (to a floor); returns
+    /// whether it did. Euler's and rkl2's fixed points are the steady state itself.
+    fn tighten(&mut self, _factor: f64) -> bool {
+        false
+    }
 }
 
 pub use crate::config::integrator::{

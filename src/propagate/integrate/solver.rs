@@ -84,6 +84,10 @@ pub struct Solver {
     work: cg::Work,
 }
 
+/// The tightest tolerance `Solver::tighten` sets: conjugate gradients still converge there in
+/// double precision.
+pub const TIGHTEST: f64 = 1e-13;
+
 impl Solver {
     /// The solves of TR-BDF2 steps of dt on `prop`'s operator: `vol` the control volumes,
     /// `active` the nodes that move and `gid` their global ids (owned first).
@@ -139,6 +143,21 @@ impl Solver {
     /// The relative tolerance of the stages' solves (`[integrator] tolerance`).
     pub fn tolerance(&self) -> f64 {
         self.tol
+    }
+
+    /// Solves `factor` times tighter (at most down to `TIGHTEST`); whether the tolerance
+    /// changed (`Stepper::tighten`: TR-BDF2's fixed point is the steady state only to it).
+    pub fn tighten(&mut self, factor: f64) -> bool {
+        let t = (self.tol * factor).max(TIGHTEST);
+        let tighter = t < self.tol;
+        if tighter {
+            tracing::debug!(
+                "implicit: the solves' tolerance {:.1e} -> {t:.1e} for the steady state",
+                self.tol
+            );
+            self.tol = t;
+        }
+        tighter
     }
 
     /// Whether the preconditioner is diagonal (fused into the iteration).

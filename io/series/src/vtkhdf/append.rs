@@ -13,7 +13,7 @@ impl SeriesWriter {
 
     /// Room for output step `n_steps` (every process calls): a full room grows (by as many
     /// steps as it holds, at most `MAX_ROOM`), after a commit.
-    fn make_slot(&mut self) -> Result<()> {
+    pub(super) fn make_slot(&mut self) -> Result<()> {
         if self.n_steps < self.room {
             return Ok(());
         }

@@ -274,6 +274,7 @@ impl SeriesWriter {
             last_commit: std::time::Instant::now(),
             team,
             tools: None,
+            checks: None,
             cell_offsets,
         })
     }

@@ -4,7 +4,8 @@
 //! step along the first axis; `/VTKHDF/Steps` maps step k to the rows `k*N .. (k+1)*N` of each
 //! point-data array (the mesh offsets stay 0). `/eprop` holds what VTK does not model: the
 //! scenario text, the program version, control volumes, input node ids, per-load probes, the
-//! tools' rows and the count of complete steps.
+//! tools' rows, the checks of each step's state (inverted cells, nodes inside tools) and the
+//! count of complete steps.
 //!
 //! The layout keeps every complete step readable whatever write a crash interrupts:
 //! - **Room made at creation.** Every per-step dataset is chunked, allocated early and sized
@@ -30,6 +31,7 @@
 //! the one case this layout does not cover.
 
 mod append;
+mod checks;
 mod create;
 mod read;
 mod restart;
@@ -179,6 +181,8 @@ pub struct SeriesWriter {
     /// The writing processes; every call's outcome is agreed through it.
     team: Team,
     tools: Option<ToolSets>,
+    /// `/eprop/checks` (`checks.rs`); absent in series written before it was stored.
+    checks: Option<checks::CheckSets>,
     /// `/VTKHDF/Steps/CellDataOffsets/tag`: the cell tags are static (offset 0 at every
     /// step); absent in series written before they were stored.
     cell_offsets: Option<Dataset>,
@@ -356,6 +360,7 @@ impl SeriesWriter {
             .chain(&self.cell_offsets)
             .chain([&self.probe_time, &self.probe_step, &self.probe_force, &self.probe_disp])
             .chain(self.tools.iter().flat_map(|t| t.datasets()))
+            .chain(self.checks.iter().flat_map(|c| c.datasets()))
             .map(|d| (d, 1));
         fields.chain(tables)
     }

@@ -80,6 +80,7 @@ struct Opened {
     n_loads: usize,
     cell_offsets: Option<Dataset>,
     tools: Option<ToolSets>,
+    checks: Option<super::checks::CheckSets>,
 }
 
 fn open_sets(t: &Team, file: &File, ep: &hdf5::Group, spec: &SeriesSpec, path: &Path) -> Result<Opened> {
@@ -130,7 +131,9 @@ fn open_sets(t: &Team, file: &File, ep: &hdf5::Group, spec: &SeriesSpec, path: &
         }
         None => None,
     };
+    let checks = super::checks::CheckSets::open(t, ep)?;
     Ok(Opened {
+        checks,
         fields,
         steps,
         step_sets,
@@ -245,6 +248,7 @@ impl SeriesWriter {
             last_commit: std::time::Instant::now(),
             team,
             tools: o.tools,
+            checks: o.checks,
             cell_offsets: o.cell_offsets,
         };
         w.room = w
