@@ -443,6 +443,13 @@ fn every_bad_message_gets_its_error_and_the_server_exits_cleanly() {
             "not finite",
         ),
         (
+            // finite, but the contact's distances overflow (it gave an indentation of -inf)
+            "a position beyond reach",
+            Box::new(|c| c.raw(&p::client_message(p::kind::POSE, 0, 0.0, [1e200, 0.0, 2.0]))),
+            6,
+            "the position of tool 0 at t = 0 has the component 1e200",
+        ),
+        (
             "back in time",
             Box::new(|c| {
                 c.answer(p::kind::POSE, 0, 1.0, [1.6, 0.0, 2.0]);

@@ -185,6 +185,7 @@ pub fn check(sim: &Simulation, s: &Settings) -> Result<Checked> {
     );
     // every process computes the same verdicts from the same numbers
     let budget = Budget::of(sim, &s.sizes, s.steps_from_cli, !s.restart).map_err(|e| Agreed::error(EXIT_ERROR, e))?;
+    plausible::tool_reach(sim).map_err(|e| Agreed::error(EXIT_ERROR, e))?;
     if !s.restart {
         space(sim, &budget, s)?;
     }
@@ -263,7 +264,7 @@ impl Output {
                     error: Agreed::error(
                         EXIT_ERROR,
                         format!(
-                            "{}: at step {} (t = {:.6e}) the displacement, velocity or potential is no longer finite (NaN or inf), so the run stopped; {}. Likely cause: {}",
+                            "{}: at step {} (t = {:.6e}) the displacement, velocity, potential or a tool's state is no longer finite (NaN or inf), so the run stopped; {}. Likely cause: {}",
                             sim.setup().scenario.path.display(),
                             sim.step(),
                             sim.time(),

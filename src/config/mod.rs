@@ -77,7 +77,7 @@ pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
 pub use select::{distance, Entry, Keys, Selector};
 pub use time::{steps_to, Stop, Time, TimeSec};
-pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
+pub use tools::{Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS, REACH, REACH_FIX, REACH_WHY};
 pub use values::Precision;
 
 use crate::config::tissue::{Materials, TissueLaw};

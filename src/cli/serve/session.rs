@@ -698,6 +698,19 @@ fn serve_client(
                         format!("no live tool {index} (the hello's live_tools mask lists them)"),
                     );
                 }
+                if let Some(x) = position.iter().find(|x| !(x.abs() <= crate::config::REACH)) {
+                    return End::Error(
+                        Some(Code::Sample),
+                        format!(
+                            "the position of tool {index} at t = {} has the component {}, beyond +-{}, {}; fix: {}",
+                            crate::diagnostics::short(t),
+                            crate::diagnostics::short(*x),
+                            crate::diagnostics::short(crate::config::REACH),
+                            crate::config::REACH_WHY,
+                            crate::config::REACH_FIX
+                        ),
+                    );
+                }
                 (e, p::answer::TOOL, index, t, position)
             }
             Message::Force { index, t, force } => {
