@@ -498,3 +498,54 @@ fn a_set_override_runs_as_the_edited_file() {
         );
     }
 }
+
+/// A bad option value is a bad command line, status 2, however it is spelt (a zero gave 1
+/// and a negative value 2), with the message and its fix.
+#[test]
+fn a_bad_option_value_is_status_2_however_it_is_spelt() {
+    for (args, said) in [
+        (
+            vec!["serve", "s.toml", "--listen", "127.0.0.1:0", "--timeout", "0"],
+            "must be a positive number of seconds",
+        ),
+        (
+            vec!["serve", "s.toml", "--listen", "127.0.0.1:0", "--timeout=-1"],
+            "must be a positive number of seconds",
+        ),
+        (
+            vec!["serve", "s.toml", "--listen", "127.0.0.1:0", "--timeout", "nan"],
+            "must be a positive number of seconds",
+        ),
+        (
+            vec!["serve", "s.toml", "--listen", ":99999"],
+            "must be HOST:PORT with a port of 0 to 65535",
+        ),
+        (
+            vec!["serve", "s.toml", "--listen", "127.0.0.1:99999"],
+            "must be HOST:PORT",
+        ),
+        (
+            vec!["export", "s.h5", "-o", "x", "--every", "0"],
+            "must be a whole number of at least 1",
+        ),
+        (vec!["export", "s.h5", "-o", "x", "--step=-1"], "invalid value '-1'"),
+        (
+            vec![
+                "fit",
+                "s.toml",
+                "--data",
+                "c.csv",
+                "--param",
+                "young=1:2",
+                "--tolerance",
+                "0",
+            ],
+            "must be between 0 and 1",
+        ),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_eprop")).args(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(said), "{args:?}: {err}");
+    }
+}

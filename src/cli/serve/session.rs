@@ -516,7 +516,7 @@ fn refuse_others(listener: &TcpListener) {
         let _ = s.set_write_timeout(Some(Duration::from_secs(1)));
         let _ = s.write_all(&p::error(
             Code::Busy,
-            "another client holds the session; connect again after it ends",
+            "another client holds the session; a server takes one client per run",
         ));
         let _ = s.shutdown(std::net::Shutdown::Both);
     }
