@@ -549,3 +549,30 @@ fn a_bad_option_value_is_status_2_however_it_is_spelt() {
         assert!(err.contains(said), "{args:?}: {err}");
     }
 }
+
+/// `--set` on what the file does not have names the override, never a line past the end of the
+/// file (`--set load.1.normal=1` on a scenario without [[load]] blamed line 42 of 40).
+#[test]
+fn a_set_on_what_the_file_lacks_names_the_override() {
+    let d = workdir("set-missing");
+    let sc = d.path().join("s.toml");
+    // without [[load]] and without [time]
+    let text = "[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"bottom\"\n";
+    std::fs::write(&sc, text).unwrap();
+    let lines = text.lines().count();
+    for (set, said) in [
+        (
+            "load.1.normal=1",
+            "s.toml: --set load.1.normal: the scenario has no [[load]] table, so it has no entry 1 to change; fix: add a [[load]] table",
+        ),
+        ("foo.x=1", "s.toml: --set foo.x: [foo]: unknown field `foo`"),
+        ("time.dt=0.1", "s.toml: --set time.dt: [time]: say when to stop"),
+    ] {
+        let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", set]);
+        assert!(!ok);
+        assert!(err.contains(said), "{set}: {err}");
+        for past in lines + 1..lines + 10 {
+            assert!(!err.contains(&format!("s.toml:{past}")), "{set}: {err}");
+        }
+    }
+}

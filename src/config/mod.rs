@@ -346,13 +346,15 @@ impl Scenario {
     }
 }
 
-/// The `--set KEY` recorded in a scenario text whose line holds byte `at`, if any.
+/// The `--set KEY` recorded in a scenario text whose line holds byte `at` (or that made the
+/// table whose header holds it), if any.
 fn overridden(text: &str, at: usize) -> Option<String> {
     set::recorded(text)
         .into_iter()
         .rev()
         .find(|(_, r)| r.contains(&at))
         .map(|(k, _)| k)
+        .or_else(|| set::made_by(text, at))
 }
 
 /// `AT: [section] key: message; fix: ...`, with a generic fix when the message has none.
