@@ -656,6 +656,19 @@ fn sigterm_while_the_client_is_quiet_stops_every_process_and_keeps_the_series() 
         assert!(status.1.contains("stopped by SIGTERM while waiting"), "{}", status.1);
         assert!(status.1.contains("complete output steps"), "{}", status.1);
         holds_steps_to_12(&out);
+        // the client's samples are in no file: `run --restart` would go on along the
+        // scenario's own path (it did, the tool jumping at the restart step); refused
+        let o = common::serial(
+            &["run", sc.to_str().unwrap(), "-q", "--restart", out.to_str().unwrap()],
+            1,
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains("cannot restart: `eprop serve` wrote it, and its client's samples") && err.contains("fix:"),
+            "{err}"
+        );
+        holds_steps_to_12(&out);
     }
 }
 

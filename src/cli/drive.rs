@@ -57,6 +57,9 @@ pub struct Settings<'a> {
     pub claim: Option<&'a OutputLock>,
     /// Continue the series in the output file (`--restart`).
     pub restart: bool,
+    /// The inputs come from a client (`serve`): the series is marked so, and `run --restart`
+    /// refuses it (the client's samples are in no file).
+    pub live: bool,
     /// The step count came from `--steps`.
     pub steps_from_cli: bool,
     /// Start and write even when the disk is short of space (`--force`).
@@ -348,7 +351,7 @@ fn steps(
     if let Some(h) = feed.start(sim)? {
         return Err(halted(h, None));
     }
-    let series = Series::start(sim, &s.sizes, s.restart, s.claim).map_err(|e| Failure {
+    let series = Series::start(sim, &s.sizes, s.restart, s.live, s.claim).map_err(|e| Failure {
         why: format!("the series could not be created: {}", cause(&e)),
         error: match fresh {
             true if sim.setup().output.file.exists() => {

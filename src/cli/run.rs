@@ -256,6 +256,7 @@ fn run_simulation(
         opts,
     );
     let settings = Settings {
+        live: false,
         sizes,
         claim: claim.map(Claim::lock),
         restart: opts.restart.is_some(),

@@ -142,6 +142,7 @@ pub fn serve_on(world: Option<&dyn Comm>, path: &Path, opts: &ServeOptions) -> R
     };
     let claim = claim.into_inner();
     let settings = Settings {
+        live: true,
         sizes,
         claim: claim.as_ref().map(|c| c.lock()),
         restart: false,
