@@ -339,6 +339,9 @@ faces, quadrilaterals split in two, moved by each step's displacement) as files 
 game engine loads: <prefix>_<step>.obj|stl|ply|vtu, one per output step (all of them, every \
 --every-th, or --step N). --scalar FIELD adds a value per vertex (a vector field's magnitude): \
 a blue-white-red colour in OBJ (v x y z r g b) and PLY (with the value), point data in VTU.\n\n\
+Each file is claimed as a run claims its output: never the series read, nor a file a run is \
+writing (through any link), nor anything but a regular file; an existing one is replaced only \
+with --overwrite.\n\n\
 Example: eprop export out/cylinder.h5 --surface obj --every 10 -o out/frames/cyl --scalar energy"
     )]
     Export {

@@ -576,3 +576,80 @@ fn a_set_on_what_the_file_lacks_names_the_override() {
         }
     }
 }
+
+/// export claims each file as every writer does: a series a run is writing (its lock held,
+/// through its own name or a link named like an export file) is not replaced even with
+/// --overwrite (it replaced a 15 MB series with a 23 kB surface), and an existing FIFO is
+/// refused at once (the export blocked in open() forever).
+#[test]
+fn export_respects_a_running_series_and_refuses_a_fifo() {
+    let d = workdir("export-claim");
+    let sc = d.path().join("s.toml");
+    std::fs::write(&sc, SCENARIO).unwrap();
+    let (ok, _, err) = eprop(&["run", sc.to_str().unwrap(), "--quiet"]);
+    assert!(ok, "{err}");
+    let h5 = d.path().join("out.h5");
+    let h = h5.to_str().unwrap();
+    let export = |prefix: &Path| {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_eprop"))
+            .args([
+                "export",
+                h,
+                "--surface",
+                "vtu",
+                "--step",
+                "0",
+                "--overwrite",
+                "-o",
+                prefix.to_str().unwrap(),
+            ])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = std::time::Instant::now();
+        while child.try_wait().unwrap().is_none() {
+            if start.elapsed().as_secs() > 20 {
+                let _ = child.kill();
+                panic!("the export blocked");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let out = child.wait_with_output().unwrap();
+        (out.status.code(), String::from_utf8_lossy(&out.stderr).to_string())
+    };
+    // a run writing run_000000.vtu (its lock held as a run holds it)
+    let running = d.path().join("run_000000.vtu");
+    std::fs::copy(&h5, &running).unwrap();
+    let size = std::fs::metadata(&running).unwrap().len();
+    let lock = eprop::guard::safety::OutputLock::take(&running).unwrap();
+    let (code, err) = export(&d.path().join("run"));
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("is writing this file now") && err.contains("fix:"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::metadata(&running).unwrap().len(),
+        size,
+        "the series was replaced"
+    );
+    // a link named like an export file, to a series being written
+    let link = d.path().join("z_000000.vtu");
+    std::os::unix::fs::symlink(&running, &link).unwrap();
+    let (code, err) = export(&d.path().join("z"));
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("is writing this file now"), "{err}");
+    assert_eq!(
+        std::fs::metadata(&running).unwrap().len(),
+        size,
+        "the series was replaced"
+    );
+    drop(lock);
+    // a FIFO where an export file goes
+    let fifo = d.path().join("u_000000.vtu");
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let (code, err) = export(&d.path().join("u"));
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("is not a regular file") && err.contains("fix:"), "{err}");
+}
