@@ -359,7 +359,8 @@ Example: eprop export out/cylinder.h5 --surface obj --every 10 -o out/frames/cyl
         /// A point field to write per vertex: displacement, potential, energy, ...
         #[arg(long)]
         scalar: Option<String>,
-        /// Prefix of the files: <prefix>_<step>.<ext>
+        /// Prefix of the files: <prefix>_<step>.<ext> (with --step, a name ending in the
+        /// format's extension is the file's own name: -o s.obj)
         #[arg(short, long)]
         output: PathBuf,
         /// Replace files that exist (refused otherwise)

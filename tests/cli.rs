@@ -406,6 +406,11 @@ fn export_writes_the_deformed_surface_of_each_chosen_step() {
     assert!(!ok && err.contains("exists") && err.contains("--overwrite"), "{err}");
     let (ok, _, err) = eprop(&["export", h, "--surface", "stl", "--step", "3", "-o", p, "--overwrite"]);
     assert!(ok, "{err}");
+    // one step to a name with the format's extension is that name (it was s.obj_000001.obj)
+    let named = d.path().join("frames/one.obj");
+    let (ok, out, err) = eprop(&["export", h, "--step", "1", "-o", named.to_str().unwrap()]);
+    assert!(ok && out.contains("1 file(s)"), "{err}");
+    assert!(named.is_file() && !d.path().join("frames/one.obj_000001.obj").exists());
     let (ok, _, err) = eprop(&["export", h, "--surface", "gltf", "-o", p]);
     assert!(!ok && err.contains("obj, stl, ply or vtu"), "{err}");
     let (ok, _, err) = eprop(&["export", h, "--step", "9", "-o", p]);

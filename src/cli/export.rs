@@ -47,7 +47,7 @@ pub struct ExportOptions {
     pub step: Option<usize>,
     /// A point field whose value (its magnitude for vectors) goes with each vertex.
     pub scalar: Option<String>,
-    /// Files are `<prefix>_<step>.<ext>`.
+    /// Files are `<prefix>_<step>.<ext>` (one step to a prefix ending in `.<ext>`: the prefix).
     pub prefix: PathBuf,
     pub overwrite: bool,
 }
@@ -92,6 +92,11 @@ pub fn plan(steps: usize, o: &ExportOptions) -> Result<Vec<(usize, PathBuf)>> {
         ),
         None => (0..steps).step_by(o.every.max(1)).collect(),
     };
+    // one step to a name with the format's extension: that name (not s.obj_000010.obj)
+    let ext = format!(".{}", o.format.ext());
+    if o.step.is_some() && o.prefix.to_string_lossy().to_ascii_lowercase().ends_with(&ext) {
+        return Ok(chosen.into_iter().map(|k| (k, o.prefix.clone())).collect());
+    }
     Ok(chosen
         .into_iter()
         .map(|k| {
