@@ -175,6 +175,22 @@ def samples(a, t0):
             k += 1
 
 
+
+def glued(argv, options):
+    """argv with `OPTION VALUE` written `OPTION=VALUE` for the options whose value may start
+    with a minus sign (`--from -0.00047,0,2`, `--view -y`), which argparse would take for an
+    option of its own."""
+    out = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in options and i + 1 < len(argv):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("address", help="HOST:PORT that eprop serve listens on")
@@ -195,7 +211,7 @@ def main():
                     help="ask for the deformed surface (protocol version 2), a frame of every K-th step")
     ap.add_argument("--f64", action="store_true", help="stream f64 values (default f32)")
     ap.add_argument("--obj", help="write the last frame's deformed surface to this OBJ file (needs --stream)")
-    a = ap.parse_args()
+    a = ap.parse_args(glued(sys.argv[1:], {"--from", "--to"}))
     if a.stream < 0 or (a.obj and not a.stream):
         ap.error("--stream takes K >= 1; --obj needs --stream")
     if not a.path and (a.from_ is None or a.to is None):

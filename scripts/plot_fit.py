@@ -50,6 +50,11 @@ def read_report(prefix):
     return a[:, 0], a[:, 1], a[:, 2], a[:, 3], report
 
 
+def number(v):
+    """A number of the report; NaN for null (a figure the report could not give)."""
+    return float("nan") if v is None else float(v)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("prefix", help="the PREFIX of `eprop fit -o PREFIX` (PREFIX.csv and PREFIX.json)")
@@ -69,8 +74,8 @@ def main():
     ar.set_xlabel(rep.get("x", "x"))
     ar.set_ylabel("fitted - measured")
     ar.grid(alpha=0.3)
-    params = ", ".join(f"{p['name']} = {p['value']:.4g}" for p in rep.get("parameters", []))
-    ar.set_title(f"rms {rep.get('rms', float('nan')):.3g} ({rep.get('rms_relative', float('nan')):.2g} of the range)", fontsize=9)
+    params = ", ".join(f"{p['name']} = {number(p.get('value')):.4g}" for p in rep.get("parameters", []))
+    ar.set_title(f"rms {number(rep.get('rms')):.3g} ({number(rep.get('rms_relative')):.2g} of {rep.get('relative_to', 'the data range')})", fontsize=9)
     fig.suptitle(f"eprop fit: {params}")
     fig.tight_layout()
     fig.savefig(out, dpi=120)

@@ -45,6 +45,22 @@ import numpy as np  # noqa: E402
 from eprop_series import Fail, open_series  # noqa: E402
 
 
+
+def glued(argv, options):
+    """argv with `OPTION VALUE` written `OPTION=VALUE` for the options whose value may start
+    with a minus sign (`--from -0.00047,0,2`, `--view -y`), which argparse would take for an
+    option of its own."""
+    out = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in options and i + 1 < len(argv):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("file", help="eprop series (.h5)")
@@ -57,7 +73,7 @@ def main():
                     help="camera: iso (default), auto (facing the dent) or a side")
     ap.add_argument("--azimuth", type=float, help="camera azimuth in degrees (from +x towards +y)")
     ap.add_argument("--elevation", type=float, help="camera elevation in degrees (above the x-y plane)")
-    a = ap.parse_args()
+    a = ap.parse_args(glued(sys.argv[1:], {"--view", "--azimuth", "--elevation", "--step"}))
     try:
         import vtk
         from vtk.util import numpy_support as ns

@@ -101,10 +101,10 @@ ends before the `listening on` line. Under mpirun rank 0 holds the socket."
         /// Scenario file (TOML) with at least one `live = true` tool or load
         scenario: PathBuf,
         /// Address to listen on, HOST:PORT (port 0 picks a free port; the chosen one is printed)
-        #[arg(long, value_name = "HOST:PORT")]
+        #[arg(long, value_name = "HOST:PORT", value_parser = host_port)]
         listen: String,
         /// Seconds to wait for the client to connect, and for each step's samples
-        #[arg(long, default_value_t = 10.0)]
+        #[arg(long, default_value_t = 10.0, value_parser = timeout_seconds)]
         timeout: f64,
         /// Output file (overrides [output] file)
         #[arg(long, short)]
@@ -201,7 +201,7 @@ Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a si
         max_evaluations: usize,
         /// Relative reduction of the sum of squares, and relative parameter change, that end
         /// the search
-        #[arg(long, default_value_t = 1e-6)]
+        #[arg(long, default_value_t = 1e-6, value_parser = relative_tolerance)]
         tolerance: f64,
         /// No PNG (no python3 called)
         #[arg(long)]
@@ -339,6 +339,9 @@ faces, quadrilaterals split in two, moved by each step's displacement) as files 
 game engine loads: <prefix>_<step>.obj|stl|ply|vtu, one per output step (all of them, every \
 --every-th, or --step N). --scalar FIELD adds a value per vertex (a vector field's magnitude): \
 a blue-white-red colour in OBJ (v x y z r g b) and PLY (with the value), point data in VTU.\n\n\
+Each file is claimed as a run claims its output: never the series read, nor a file a run is \
+writing (through any link), nor anything but a regular file; an existing one is replaced only \
+with --overwrite.\n\n\
 Example: eprop export out/cylinder.h5 --surface obj --every 10 -o out/frames/cyl --scalar energy"
     )]
     Export {
@@ -348,7 +351,7 @@ Example: eprop export out/cylinder.h5 --surface obj --every 10 -o out/frames/cyl
         #[arg(long, default_value = "obj")]
         surface: String,
         /// Every k-th output step
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, value_parser = at_least_one)]
         every: usize,
         /// One output step only (0 is the first)
         #[arg(long)]
@@ -356,7 +359,8 @@ Example: eprop export out/cylinder.h5 --surface obj --every 10 -o out/frames/cyl
         /// A point field to write per vertex: displacement, potential, energy, ...
         #[arg(long)]
         scalar: Option<String>,
-        /// Prefix of the files: <prefix>_<step>.<ext>
+        /// Prefix of the files: <prefix>_<step>.<ext> (with --step, a name ending in the
+        /// format's extension is the file's own name: -o s.obj)
         #[arg(short, long)]
         output: PathBuf,
         /// Replace files that exist (refused otherwise)
@@ -647,9 +651,6 @@ fn real_main(cli: Cli) -> Result<()> {
             output,
             overwrite,
         } => {
-            if every == 0 {
-                bail!("--every 0: must be at least 1; fix: --every 1 exports every step");
-            }
             let o = eprop::cli::export::ExportOptions {
                 format: eprop::cli::export::Format::parse(&surface)?,
                 every,
@@ -684,18 +685,50 @@ fn run(scenario: &Path, opts: &RunOptions, json: bool) -> Result<()> {
     Ok(())
 }
 
-/// `eprop serve`: the timeout checked, the served run, its summary.
+/// `eprop serve`: the served run, its summary.
 fn serve(scenario: &Path, opts: &ServeOptions, json: bool) -> Result<()> {
-    let timeout = opts.timeout;
-    if !(timeout > 0.0 && timeout <= 1e9) {
-        bail!(
-            "--timeout {timeout:?}: must be a positive number of seconds (at most 1e9); fix: give, say, --timeout 10"
-        );
-    }
     if let Some(r) = launch(|world| serve_on(world, scenario, opts))? {
         print(&r, json)?;
     }
     Ok(())
+}
+
+// Option values checked as the command line is read, so that a bad value is a bad command
+// line (status 2) however it is spelt.
+
+/// `--timeout`: seconds, positive, at most 1e9.
+fn timeout_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(t) if t > 0.0 && t <= 1e9 => Ok(t),
+        _ => Err("must be a positive number of seconds (at most 1e9); fix: give, say, --timeout 10".into()),
+    }
+}
+
+/// `--listen`: HOST:PORT, a host and a port of 0 to 65535.
+fn host_port(s: &str) -> Result<String, String> {
+    match s.rsplit_once(':') {
+        Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => Ok(s.to_string()),
+        _ => Err(
+            "must be HOST:PORT with a port of 0 to 65535 (0 picks a free one); fix: give, say, --listen 127.0.0.1:7000"
+                .into(),
+        ),
+    }
+}
+
+/// `--tolerance`: relative, strictly between 0 and 1.
+fn relative_tolerance(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(t) if t > 0.0 && t < 1.0 => Ok(t),
+        _ => Err("must be between 0 and 1 (relative); fix: e.g. --tolerance 1e-6".into()),
+    }
+}
+
+/// A count of at least one (`--every`).
+fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if n >= 1 => Ok(n),
+        _ => Err("must be a whole number of at least 1; fix: --every 1 takes every step".into()),
+    }
 }
 
 /// `eprop convert`: the output claimed (not one of the input's files), the mesh read,

@@ -406,6 +406,11 @@ fn export_writes_the_deformed_surface_of_each_chosen_step() {
     assert!(!ok && err.contains("exists") && err.contains("--overwrite"), "{err}");
     let (ok, _, err) = eprop(&["export", h, "--surface", "stl", "--step", "3", "-o", p, "--overwrite"]);
     assert!(ok, "{err}");
+    // one step to a name with the format's extension is that name (it was s.obj_000001.obj)
+    let named = d.path().join("frames/one.obj");
+    let (ok, out, err) = eprop(&["export", h, "--step", "1", "-o", named.to_str().unwrap()]);
+    assert!(ok && out.contains("1 file(s)"), "{err}");
+    assert!(named.is_file() && !d.path().join("frames/one.obj_000001.obj").exists());
     let (ok, _, err) = eprop(&["export", h, "--surface", "gltf", "-o", p]);
     assert!(!ok && err.contains("obj, stl, ply or vtu"), "{err}");
     let (ok, _, err) = eprop(&["export", h, "--step", "9", "-o", p]);
@@ -497,4 +502,159 @@ fn a_set_override_runs_as_the_edited_file() {
             "{cmd}: {out}"
         );
     }
+}
+
+/// A bad option value is a bad command line, status 2, however it is spelt (a zero gave 1
+/// and a negative value 2), with the message and its fix.
+#[test]
+fn a_bad_option_value_is_status_2_however_it_is_spelt() {
+    for (args, said) in [
+        (
+            vec!["serve", "s.toml", "--listen", "127.0.0.1:0", "--timeout", "0"],
+            "must be a positive number of seconds",
+        ),
+        (
+            vec!["serve", "s.toml", "--listen", "127.0.0.1:0", "--timeout=-1"],
+            "must be a positive number of seconds",
+        ),
+        (
+            vec!["serve", "s.toml", "--listen", "127.0.0.1:0", "--timeout", "nan"],
+            "must be a positive number of seconds",
+        ),
+        (
+            vec!["serve", "s.toml", "--listen", ":99999"],
+            "must be HOST:PORT with a port of 0 to 65535",
+        ),
+        (
+            vec!["serve", "s.toml", "--listen", "127.0.0.1:99999"],
+            "must be HOST:PORT",
+        ),
+        (
+            vec!["export", "s.h5", "-o", "x", "--every", "0"],
+            "must be a whole number of at least 1",
+        ),
+        (vec!["export", "s.h5", "-o", "x", "--step=-1"], "invalid value '-1'"),
+        (
+            vec![
+                "fit",
+                "s.toml",
+                "--data",
+                "c.csv",
+                "--param",
+                "young=1:2",
+                "--tolerance",
+                "0",
+            ],
+            "must be between 0 and 1",
+        ),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_eprop")).args(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(said), "{args:?}: {err}");
+    }
+}
+
+/// `--set` on what the file does not have names the override, never a line past the end of the
+/// file (`--set load.1.normal=1` on a scenario without [[load]] blamed line 42 of 40).
+#[test]
+fn a_set_on_what_the_file_lacks_names_the_override() {
+    let d = workdir("set-missing");
+    let sc = d.path().join("s.toml");
+    // without [[load]] and without [time]
+    let text = "[mesh]\nfile = \"cyl.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"bottom\"\n";
+    std::fs::write(&sc, text).unwrap();
+    let lines = text.lines().count();
+    for (set, said) in [
+        (
+            "load.1.normal=1",
+            "s.toml: --set load.1.normal: the scenario has no [[load]] table, so it has no entry 1 to change; fix: add a [[load]] table",
+        ),
+        ("foo.x=1", "s.toml: --set foo.x: [foo]: unknown field `foo`"),
+        ("time.dt=0.1", "s.toml: --set time.dt: [time]: say when to stop"),
+    ] {
+        let (ok, _, err) = eprop(&["check", sc.to_str().unwrap(), "--set", set]);
+        assert!(!ok);
+        assert!(err.contains(said), "{set}: {err}");
+        for past in lines + 1..lines + 10 {
+            assert!(!err.contains(&format!("s.toml:{past}")), "{set}: {err}");
+        }
+    }
+}
+
+/// export claims each file as every writer does: a series a run is writing (its lock held,
+/// through its own name or a link named like an export file) is not replaced even with
+/// --overwrite (it replaced a 15 MB series with a 23 kB surface), and an existing FIFO is
+/// refused at once (the export blocked in open() forever).
+#[test]
+fn export_respects_a_running_series_and_refuses_a_fifo() {
+    let d = workdir("export-claim");
+    let sc = d.path().join("s.toml");
+    std::fs::write(&sc, SCENARIO).unwrap();
+    let (ok, _, err) = eprop(&["run", sc.to_str().unwrap(), "--quiet"]);
+    assert!(ok, "{err}");
+    let h5 = d.path().join("out.h5");
+    let h = h5.to_str().unwrap();
+    let export = |prefix: &Path| {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_eprop"))
+            .args([
+                "export",
+                h,
+                "--surface",
+                "vtu",
+                "--step",
+                "0",
+                "--overwrite",
+                "-o",
+                prefix.to_str().unwrap(),
+            ])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = std::time::Instant::now();
+        while child.try_wait().unwrap().is_none() {
+            if start.elapsed().as_secs() > 20 {
+                let _ = child.kill();
+                panic!("the export blocked");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let out = child.wait_with_output().unwrap();
+        (out.status.code(), String::from_utf8_lossy(&out.stderr).to_string())
+    };
+    // a run writing run_000000.vtu (its lock held as a run holds it)
+    let running = d.path().join("run_000000.vtu");
+    std::fs::copy(&h5, &running).unwrap();
+    let size = std::fs::metadata(&running).unwrap().len();
+    let lock = eprop::guard::safety::OutputLock::take(&running).unwrap();
+    let (code, err) = export(&d.path().join("run"));
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("is writing this file now") && err.contains("fix:"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::metadata(&running).unwrap().len(),
+        size,
+        "the series was replaced"
+    );
+    // a link named like an export file, to a series being written
+    let link = d.path().join("z_000000.vtu");
+    std::os::unix::fs::symlink(&running, &link).unwrap();
+    let (code, err) = export(&d.path().join("z"));
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("is writing this file now"), "{err}");
+    assert_eq!(
+        std::fs::metadata(&running).unwrap().len(),
+        size,
+        "the series was replaced"
+    );
+    drop(lock);
+    // a FIFO where an export file goes
+    let fifo = d.path().join("u_000000.vtu");
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let (code, err) = export(&d.path().join("u"));
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("is not a regular file") && err.contains("fix:"), "{err}");
 }

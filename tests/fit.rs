@@ -502,3 +502,88 @@ fn bad_curves_and_parameters_are_refused_naming_the_fix() {
         &["0 [[tool]] table(s)", "a scenario with a [[tool]]"],
     );
 }
+
+/// Reports of curves at the edges of double precision: values past 1e154 (their squares
+/// overflowed: rms inf), a flat curve (rms_relative was null and plot_fit.py crashed), bounds
+/// whose product underflows or overflows (the start sqrt(lo hi) was 0 or inf), and a curve x of
+/// 1e300 (printed with 301 digits).
+#[test]
+fn fit_reports_huge_flat_and_extreme_curves_sensibly() {
+    let d = tempfile::tempdir().unwrap();
+    let sc = repo().join("scenarios/cylinder_indent.toml");
+    let s = sc.to_str().unwrap();
+    let curve = |name: &str, rows: &str| {
+        let p = d.path().join(name);
+        std::fs::write(&p, format!("indentation,force\n{rows}")).unwrap();
+        p
+    };
+    let fit = |csv: &Path, param: &str, plot: bool| {
+        let prefix = csv.with_file_name(format!("{}_fit", csv.file_stem().unwrap().to_str().unwrap()));
+        let mut a = vec![
+            "fit",
+            s,
+            "--data",
+            csv.to_str().unwrap(),
+            "--param",
+            param,
+            "-o",
+            prefix.to_str().unwrap(),
+            "-q",
+        ];
+        if !plot {
+            a.push("--no-plot");
+        }
+        (serial(&a, 1), prefix)
+    };
+    // huge: the simulated force (about 1) is nothing beside the data; the residuals are the data
+    let rows: Vec<f64> = vec![1.1e160, 1.9e160, 3.3e160, 5.5e160, 7.9e160];
+    let table: String = rows
+        .iter()
+        .enumerate()
+        .map(|(k, y)| format!("{},{y:e}\n", 0.05 * (k + 1) as f64))
+        .collect();
+    let (out, prefix) = fit(&curve("huge.csv", &table), "young=20:500", false);
+    assert!(out.status.success(), "{}", text(&out));
+    let r = report(&prefix);
+    let rms = r["rms"].as_f64().expect("a finite rms");
+    let want = (rows.iter().map(|y| (y / 1e160).powi(2)).sum::<f64>() / 5.0).sqrt() * 1e160;
+    assert!((rms / want - 1.0).abs() < 1e-3, "rms {rms}, want about {want}: {r:#}");
+    assert!(r["rms_relative"].as_f64().is_some_and(f64::is_finite), "{r:#}");
+    // flat: relative to max |y|, said so, and the plot script draws it
+    let (out, prefix) = fit(
+        &curve("flat.csv", "0.05,0.3\n0.1,0.3\n0.15,0.3\n0.2,0.3\n0.25,0.3\n"),
+        "young=20:500",
+        true,
+    );
+    assert!(out.status.success(), "{}", text(&out));
+    let r = report(&prefix);
+    let rel = r["rms_relative"].as_f64().expect("rms_relative is a number");
+    assert!((rel - r["rms"].as_f64().unwrap() / 0.3).abs() < 1e-12, "{r:#}");
+    assert_eq!(r["relative_to"], "max |y| (a flat curve)");
+    if let Some(note) = r["plot_note"].as_str() {
+        assert!(note.contains("no matplotlib"), "the script failed: {note}");
+    }
+    // bounds whose product underflows: the start is their geometric mean, not 0
+    let (out, prefix) = fit(
+        &curve("tiny.csv", "0.05,0.3\n0.1,0.3\n0.15,0.3\n"),
+        "young=1e-300:1e-299",
+        false,
+    );
+    assert!(!text(&out).contains("0 must be a positive number"), "{}", text(&out));
+    if out.status.success() {
+        let start = report(&prefix)["parameters"][0]["start"].as_f64().unwrap();
+        assert!((start / 10f64.powf(-299.5) - 1.0).abs() < 1e-9, "{start}");
+    }
+    let (out, _) = fit(
+        &curve("vast.csv", "0.05,0.3\n0.1,0.3\n0.15,0.3\n"),
+        "young=1e299:1e300",
+        false,
+    );
+    assert!(!text(&out).contains("inf must be a positive number"), "{}", text(&out));
+    // a curve x of 1e300 in the message as written
+    let (out, _) = fit(&curve("far.csv", "1e299,1\n1e300,2\n"), "young=20:500", false);
+    let err = text(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("the curve's x 1e299 .. 1e300 is beyond"), "{err}");
+    assert!(!err.contains("000000000000"), "{err}");
+}

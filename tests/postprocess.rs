@@ -141,6 +141,37 @@ fn scripts_teach_and_fail_cleanly() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains("no such file") && !err.contains("Traceback"), "{s}: {err}");
     }
+    // negative values as written (argparse took them for options: "expected one argument")
+    let out = py(&[
+        script("render.py").to_str().unwrap(),
+        "/nonexistent.h5",
+        "-o",
+        "/tmp/x.png",
+        "--view",
+        "-y",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no such file") && !err.contains("expected one argument"),
+        "{err}"
+    );
+    let out = py(&[
+        script("haptic_client.py").to_str().unwrap(),
+        "127.0.0.1:1",
+        "--from",
+        "-0.00047,0,2",
+        "--to",
+        "-1e-3,0,2",
+        "--connect-timeout",
+        "0.1",
+        "-o",
+        "/tmp/x.png",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && !err.contains("expected one argument") && !err.contains("Traceback"),
+        "{err}"
+    );
 }
 
 /// The demo's indentation in `dir` (a shorter press): the scenario and its series.

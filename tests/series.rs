@@ -102,6 +102,22 @@ fn restart_refuses_another_scenario_or_mesh() {
     // a file that is not there, and float32 output
     let out = serial(&["run", sc.to_str().unwrap(), "-q", "--restart", "/nonexistent.h5"], 1);
     assert!(String::from_utf8_lossy(&out.stderr).contains("no such file to restart"));
+    // what is there but is not a file is named for what it is (it was "no such file")
+    for (what, said) in [
+        (
+            d.path().to_str().unwrap(),
+            "is a directory, not a series to restart from; fix:",
+        ),
+        (
+            "/dev/null",
+            "/dev/null: is a character device, not a series to restart from; fix:",
+        ),
+    ] {
+        let out = serial(&["run", sc.to_str().unwrap(), "-q", "--restart", what], 1);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains(said) && !err.contains("no such file"), "{err}");
+    }
 }
 
 /// Starts `eprop run` (or mpirun) in the background.

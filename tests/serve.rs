@@ -443,6 +443,13 @@ fn every_bad_message_gets_its_error_and_the_server_exits_cleanly() {
             "not finite",
         ),
         (
+            // finite, but the contact's distances overflow (it gave an indentation of -inf)
+            "a position beyond reach",
+            Box::new(|c| c.raw(&p::client_message(p::kind::POSE, 0, 0.0, [1e200, 0.0, 2.0]))),
+            6,
+            "the position of tool 0 at t = 0 has the component 1e200",
+        ),
+        (
             "back in time",
             Box::new(|c| {
                 c.answer(p::kind::POSE, 0, 1.0, [1.6, 0.0, 2.0]);
@@ -570,7 +577,11 @@ fn a_second_client_is_refused_while_the_first_goes_on() {
     second.raw(&p::client_hello(p::VERSION_1));
     let (code, message) = second.error();
     assert_eq!(code, 3);
-    assert!(message.contains("another client holds the session"), "{message}");
+    // (it said "connect again after it ends", but a server takes no client after its session)
+    assert_eq!(
+        message, "another client holds the session; a server takes one client per run",
+        "{message}"
+    );
     // the first goes on, then the run ends while it is connected: it gets END
     c.answer(p::kind::FORCE, 0, 1e6, [0.0; 3]);
     let mut t = 1e6;
@@ -644,6 +655,19 @@ fn sigterm_while_the_client_is_quiet_stops_every_process_and_keeps_the_series() 
         assert_eq!(status.0, Some(3), "{ranks} ranks: {}", status.1);
         assert!(status.1.contains("stopped by SIGTERM while waiting"), "{}", status.1);
         assert!(status.1.contains("complete output steps"), "{}", status.1);
+        holds_steps_to_12(&out);
+        // the client's samples are in no file: `run --restart` would go on along the
+        // scenario's own path (it did, the tool jumping at the restart step); refused
+        let o = common::serial(
+            &["run", sc.to_str().unwrap(), "-q", "--restart", out.to_str().unwrap()],
+            1,
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains("cannot restart: `eprop serve` wrote it, and its client's samples") && err.contains("fix:"),
+            "{err}"
+        );
         holds_steps_to_12(&out);
     }
 }

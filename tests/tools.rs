@@ -499,6 +499,11 @@ fn bad_tables_and_tools_are_named_with_their_fix() {
     .unwrap();
     std::fs::write(d.path().join("back.csv"), "t,fx,fy,fz\n0,0,0,0\n2,0,0,1\n1,0,0,2\n").unwrap();
     std::fs::write(d.path().join("nan.csv"), "t,x,y,z\n0,0,0,1\n1,0,nan,1\n").unwrap();
+    std::fs::write(
+        d.path().join("huge.csv"),
+        "t,x,y,z\n0,1e308,1e308,0\n10,-1e308,-1e308,0\n",
+    )
+    .unwrap();
     std::fs::create_dir(d.path().join("dir.csv")).unwrap();
     let base =
         "[mesh]\nfile = \"b.msh\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"zmin\"\n[time]\nsteps = 2\n";
@@ -523,14 +528,33 @@ fn bad_tables_and_tools_are_named_with_their_fix() {
             "[[tool]]\nshape = \"punch\"\nradius = 0.2\nstart = [0, 0, 2]\n",
             vec!["[tool]: a punch needs `normal = [nx, ny, nz]`"],
         ),
+        // each row finite, but the path between them passes through infinity (it wrote
+        // positions of NaN and an indentation of -inf with status 0)
+        (
+            "[[tool]]\nshape = \"sphere\"\nradius = 0.2\ntable = \"huge.csv\"\n",
+            vec!["huge.csv:2: row 1 of the path table of [[tool]] 1: x = 1e308 is beyond +-1e100, where the contact's distances overflow; fix:"],
+        ),
+        (
+            "[[tool]]\nshape = \"sphere\"\nradius = 0.2\nstart = [1e200, 0, 2]\n",
+            vec!["[tool]: `start` has the component 1e200, beyond +-1e100", "fix:"],
+        ),
+        // a straight path that leaves the range by the last step
+        (
+            "[[tool]]\nshape = \"sphere\"\nradius = 0.2\nstart = [0, 0, 2]\nvelocity = [0, 0, 1e100]\n",
+            vec!["tool 1's path `start` + t `velocity` is at (0, 0, ", "beyond +-1e100", "fix: a smaller velocity"],
+        ),
     ] {
         let sc = d.path().join("s.toml");
         std::fs::write(&sc, format!("{base}{extra}")).unwrap();
-        let out = common::serial(&["check", sc.to_str().unwrap()], 1);
-        assert!(!out.status.success(), "{extra}");
-        let err = String::from_utf8_lossy(&out.stderr);
-        for w in want {
-            assert!(err.contains(w), "{extra}: {err}");
+        let o = d.path().join("o.h5");
+        let (s, o) = (sc.to_str().unwrap(), o.to_str().unwrap());
+        for args in [vec!["check", s], vec!["run", s, "-q", "--overwrite", "-o", o]] {
+            let out = common::serial(&args, 1);
+            assert_eq!(out.status.code(), Some(1), "{args:?} {extra}");
+            let err = String::from_utf8_lossy(&out.stderr);
+            for w in &want {
+                assert!(err.contains(w), "{args:?} {extra}: {err}");
+            }
         }
     }
 }

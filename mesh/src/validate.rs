@@ -148,7 +148,22 @@ fn orient_cells(mesh: &mut Mesh, src: &str, opts: &ReadOptions) -> Result<()> {
         let nodes: Vec<u32> = mesh.conn[r.clone()].to_vec();
         let v = crate::geom::cell_volume(kind, &nodes, &mesh.points);
         let scale = crate::geom::cell_size(kind, &nodes, &mesh.points);
-        if !(v.abs() > 1e-14 * scale.powi(3)) {
+        let cube = scale.powi(3);
+        if !(v.is_finite() && cube.is_finite()) || (scale > 0.0 && !(cube > 0.0)) {
+            // a volume of 1e450 or 1e-450 is no number an f64 holds: not a zero volume
+            let ids: Vec<u64> = nodes.iter().map(|&n| mesh.node_id(n as usize)).collect();
+            let way = if cube.is_finite() {
+                "underflows to zero"
+            } else {
+                "overflows"
+            };
+            bail!(
+                "{src}: cell {} ({}) has edges up to {scale:e} long, so its volume {way} in double precision (nodes {ids:?}); fix: write the coordinates in a length unit that makes the mesh between about 1e-60 and 1e60 across (metres instead of micrometres, say)",
+                mesh.cell_id(c),
+                kind.name()
+            );
+        }
+        if !(v.abs() > 1e-14 * cube) {
             let ids: Vec<u64> = nodes.iter().map(|&n| mesh.node_id(n as usize)).collect();
             bail!(
                 "{src}: cell {} ({}) has zero volume (nodes {ids:?}); fix: remove the degenerate cell or re-mesh",
@@ -313,6 +328,16 @@ mod tests {
         m.push_cell(CellKind::Tet, &[3, 2, 1, 0], 1);
         let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();
         assert!(e.contains("cells 1 and 3 are duplicates"), "{e}");
+        // coordinates whose volume overflows or underflows (it said "zero volume")
+        for (f, way) in [(1e150, "overflows"), (1e-150, "underflows to zero")] {
+            let mut m = two_tets();
+            m.points.iter_mut().flatten().for_each(|x| *x *= f);
+            let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();
+            assert!(
+                e.contains(&format!("its volume {way}")) && !e.contains("zero volume") && e.contains("fix:"),
+                "{e}"
+            );
+        }
         let mut m = two_tets();
         m.conn[7] = 99;
         let e = validate(&mut m, &ReadOptions::default()).unwrap_err().to_string();

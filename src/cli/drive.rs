@@ -57,6 +57,9 @@ pub struct Settings<'a> {
     pub claim: Option<&'a OutputLock>,
     /// Continue the series in the output file (`--restart`).
     pub restart: bool,
+    /// The inputs come from a client (`serve`): the series is marked so, and `run --restart`
+    /// refuses it (the client's samples are in no file).
+    pub live: bool,
     /// The step count came from `--steps`.
     pub steps_from_cli: bool,
     /// Start and write even when the disk is short of space (`--force`).
@@ -185,6 +188,7 @@ pub fn check(sim: &Simulation, s: &Settings) -> Result<Checked> {
     );
     // every process computes the same verdicts from the same numbers
     let budget = Budget::of(sim, &s.sizes, s.steps_from_cli, !s.restart).map_err(|e| Agreed::error(EXIT_ERROR, e))?;
+    plausible::tool_reach(sim).map_err(|e| Agreed::error(EXIT_ERROR, e))?;
     if !s.restart {
         space(sim, &budget, s)?;
     }
@@ -263,7 +267,7 @@ impl Output {
                     error: Agreed::error(
                         EXIT_ERROR,
                         format!(
-                            "{}: at step {} (t = {:.6e}) the displacement, velocity or potential is no longer finite (NaN or inf), so the run stopped; {}. Likely cause: {}",
+                            "{}: at step {} (t = {:.6e}) the displacement, velocity, potential or a tool's state is no longer finite (NaN or inf), so the run stopped; {}. Likely cause: {}",
                             sim.setup().scenario.path.display(),
                             sim.step(),
                             sim.time(),
@@ -354,7 +358,7 @@ fn steps(
     if let Some(h) = feed.start(sim)? {
         return Err(halted(h, None));
     }
-    let series = Series::start(sim, &s.sizes, s.restart, s.claim).map_err(|e| Failure {
+    let series = Series::start(sim, &s.sizes, s.restart, s.live, s.claim).map_err(|e| Failure {
         why: format!("the series could not be created: {}", cause(&e)),
         error: match fresh {
             true if sim.setup().output.file.exists() => {

@@ -2,6 +2,7 @@
 //! engine loads (OBJ, STL, PLY, VTU), optionally with a scalar per vertex (as a colour in OBJ
 //! and PLY, as point data in VTU).
 
+use crate::guard::safety::{claim_file, Input};
 use anyhow::{bail, Result};
 use eprop_io::mesh::boundary_faces;
 use eprop_io::Mesh;
@@ -46,7 +47,7 @@ pub struct ExportOptions {
     pub step: Option<usize>,
     /// A point field whose value (its magnitude for vectors) goes with each vertex.
     pub scalar: Option<String>,
-    /// Files are `<prefix>_<step>.<ext>`.
+    /// Files are `<prefix>_<step>.<ext>` (one step to a prefix ending in `.<ext>`: the prefix).
     pub prefix: PathBuf,
     pub overwrite: bool,
 }
@@ -91,6 +92,11 @@ pub fn plan(steps: usize, o: &ExportOptions) -> Result<Vec<(usize, PathBuf)>> {
         ),
         None => (0..steps).step_by(o.every.max(1)).collect(),
     };
+    // one step to a name with the format's extension: that name (not s.obj_000010.obj)
+    let ext = format!(".{}", o.format.ext());
+    if o.step.is_some() && o.prefix.to_string_lossy().to_ascii_lowercase().ends_with(&ext) {
+        return Ok(chosen.into_iter().map(|k| (k, o.prefix.clone())).collect());
+    }
     Ok(chosen
         .into_iter()
         .map(|k| {
@@ -105,6 +111,14 @@ pub fn plan(steps: usize, o: &ExportOptions) -> Result<Vec<(usize, PathBuf)>> {
 pub fn export(series: &Path, o: &ExportOptions) -> Result<Vec<PathBuf>> {
     let (mesh, steps) = eprop_series::vtkhdf::read_mesh(series)?;
     let files = plan(steps, o)?;
+    let inputs = [Input {
+        role: format!("the series exported ({})", series.display()),
+        path: series.to_path_buf(),
+    }];
+    let role = "an exported surface (-o)";
+    // every file claimed as every writer claims its output, before any is written: not the
+    // series read, not a file a run is writing (its lock, through any link), a regular file
+    // (a FIFO would block the export forever), replaced only with --overwrite
     for (_, p) in &files {
         if same_file(p, series) {
             bail!(
@@ -122,6 +136,9 @@ pub fn export(series: &Path, o: &ExportOptions) -> Result<Vec<PathBuf>> {
     if let Some(dir) = o.prefix.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
             .map_err(|e| anyhow::anyhow!("{}: cannot create the directory: {e}", dir.display()))?;
+    }
+    for (_, p) in &files {
+        drop(claim_file(p, role, &inputs, o.overwrite)?);
     }
     let surf = Surface::of(&mesh);
     if surf.triangles.is_empty() {
@@ -152,9 +169,34 @@ pub fn export(series: &Path, o: &ExportOptions) -> Result<Vec<PathBuf>> {
             s.as_deref(),
             o.scalar.as_deref().unwrap_or(""),
         );
-        std::fs::write(path, text).map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", path.display()))?;
+        // held while it is written
+        let _claim = claim_file(path, role, &inputs, o.overwrite)?;
+        write_regular(path, text.as_bytes())?;
     }
     Ok(files.into_iter().map(|f| f.1).collect())
+}
+
+/// Writes a file that must be a regular one: opened without blocking (a FIFO put in its place
+/// since the claim fails or is refused, it never blocks the export).
+fn write_regular(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let cannot = |e: std::io::Error| anyhow::anyhow!("{}: cannot write: {e}", path.display());
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)
+        .map_err(cannot)?;
+    if !f.metadata().map_err(cannot)?.is_file() {
+        bail!(
+            "{}: is not a regular file; fix: give a -o prefix whose files are new or regular files",
+            path.display()
+        );
+    }
+    f.set_len(0).map_err(cannot)?;
+    f.write_all(bytes).map_err(cannot)
 }
 
 fn same_file(a: &Path, b: &Path) -> bool {

@@ -20,6 +20,7 @@
 
 use crate::cli::run::start_mpi_if_needed;
 use crate::config::{Scenario, Setup};
+use crate::diagnostics::short;
 use crate::distribute::comm::Comm;
 use crate::distribute::launch::is_root;
 use crate::guard::safety::{self, Agreed, Input, EXIT_ERROR, EXIT_STOPPED};
@@ -103,6 +104,17 @@ fn number(s: &str) -> Option<f64> {
     s.trim().parse::<f64>().ok().filter(|v| v.is_finite())
 }
 
+/// sqrt(lo hi) for 0 < lo < hi, in logarithms where the product underflows or overflows
+/// (1e-300:1e-299 starts at 3.2e-300, not 0; 1e299:1e300 at 3.2e299, not inf).
+fn geometric_mean(lo: f64, hi: f64) -> f64 {
+    let p = lo * hi;
+    if p.is_normal() {
+        p.sqrt()
+    } else {
+        (0.5 * (lo.ln() + hi.ln())).exp().clamp(lo, hi)
+    }
+}
+
 /// `NAME=LO:HI` (and its `--start NAME=VALUE`) as a parameter.
 fn parse_params(params: &[String], starts: &[String]) -> Result<Vec<Param>> {
     let known = NAMES.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ");
@@ -138,9 +150,11 @@ fn parse_params(params: &[String], starts: &[String]) -> Result<Vec<Param>> {
         };
         if lo >= hi {
             return Err(refused(format!(
-                "--param {s}: the lower bound {lo} is not below the upper bound {hi}; fix: LO < HI, e.g. --param {name}={}:{}",
-                lo.min(hi),
-                if lo == hi { 2.0 * hi.abs().max(1.0) } else { lo.max(hi) }
+                "--param {s}: the lower bound {} is not below the upper bound {}; fix: LO < HI, e.g. --param {name}={}:{}",
+                short(lo),
+                short(hi),
+                short(lo.min(hi)),
+                short(if lo == hi { 2.0 * hi.abs().max(1.0) } else { lo.max(hi) })
             )));
         }
         if out.iter().any(|p| p.key == key) {
@@ -149,7 +163,11 @@ fn parse_params(params: &[String], starts: &[String]) -> Result<Vec<Param>> {
             )));
         }
         let log = lo > 0.0;
-        let start = if log { (lo * hi).sqrt() } else { 0.5 * (lo + hi) };
+        let start = if log {
+            geometric_mean(lo, hi)
+        } else {
+            0.5 * lo + 0.5 * hi
+        };
         out.push(Param {
             name: name.to_string(),
             key,
@@ -178,8 +196,8 @@ fn parse_params(params: &[String], starts: &[String]) -> Result<Vec<Param>> {
                 return Err(refused(format!(
                     "--start {s}: `{}` is not a number within the bounds {}:{}; fix: a start inside the bounds of --param {name}",
                     v.trim(),
-                    p.lo,
-                    p.hi
+                    short(p.lo),
+                    short(p.hi)
                 )))
             }
         }
@@ -489,8 +507,8 @@ fn evaluate(
             .ok_or_else(|| {
                 format!(
                     "the curve's x {} .. {} is beyond the simulated {what} {:.6e} .. {:.6e}",
-                    curve.x[0],
-                    curve.x[curve.x.len() - 1],
+                    short(curve.x[0]),
+                    short(curve.x[curve.x.len() - 1]),
                     xs.first().copied().unwrap_or(f64::NAN),
                     xs.last().copied().unwrap_or(f64::NAN)
                 )
@@ -812,7 +830,7 @@ pub struct Fitted {
     /// The RMS over the curve's points of value * dy/d(value): how much y moves for a
     /// relative change of the parameter.
     pub sensitivity: f64,
-    /// `sensitivity` over the data range.
+    /// `sensitivity` over the data's scale (the report's `relative_to`).
     pub sensitivity_relative: f64,
 }
 
@@ -827,8 +845,12 @@ pub struct FitReport {
     pub parameters: Vec<Fitted>,
     /// sqrt(mean of the squared residuals).
     pub rms: f64,
-    /// `rms` over the data range (max y - min y).
+    /// `rms` over the data's scale (`relative_to`).
     pub rms_relative: f64,
+    /// What the relative figures are relative to: "the data range" (max y - min y), or, for a
+    /// flat curve, "max |y| (a flat curve)"; a curve of zeros has no scale: its relative figures
+    /// are the absolute ones ("1 (a curve of zeros)").
+    pub relative_to: String,
     pub evaluations: usize,
     pub iterations: usize,
     pub stop: String,
@@ -866,20 +888,21 @@ impl std::fmt::Display for FitReport {
             };
             writeln!(
                 f,
-                "  {:<14} {:.6e} {se}; bounds {}:{}{}; sensitivity {:.3e} ({:.2e} of the data range)",
+                "  {:<14} {:.6e} {se}; bounds {}:{}{}; sensitivity {:.3e} ({:.2e} of {})",
                 p.name,
                 p.value,
-                p.lower,
-                p.upper,
+                short(p.lower),
+                short(p.upper),
                 if p.at_bound { " (AT A BOUND)" } else { "" },
                 p.sensitivity,
-                p.sensitivity_relative
+                p.sensitivity_relative,
+                self.relative_to
             )?;
         }
         writeln!(
             f,
-            "  rms residual   {:.6e} ({:.3e} of the data range)",
-            self.rms, self.rms_relative
+            "  rms residual   {:.6e} ({:.3e} of {})",
+            self.rms, self.rms_relative, self.relative_to
         )?;
         writeln!(
             f,
@@ -925,9 +948,22 @@ fn plot_script() -> Option<PathBuf> {
     from_exe.chain(built).find(|p| p.is_file())
 }
 
-/// Draws PREFIX.png with scripts/plot_fit.py; Err: why not.
-fn plot(prefix: &Path, png: &Path) -> std::result::Result<(), String> {
-    let script = plot_script().ok_or("scripts/plot_fit.py was not found beside the eprop executable")?;
+/// Why there is no PNG, and the fix.
+struct NoPlot {
+    why: String,
+    fix: String,
+}
+
+/// Draws PREFIX.png with scripts/plot_fit.py; Err: why not, and what to do.
+fn plot(prefix: &Path, png: &Path) -> std::result::Result<(), NoPlot> {
+    let install = format!(
+        "install matplotlib (pip install -r scripts/requirements.txt), then `python3 scripts/plot_fit.py {}`",
+        prefix.display()
+    );
+    let script = plot_script().ok_or_else(|| NoPlot {
+        why: "scripts/plot_fit.py was not found beside the eprop executable".into(),
+        fix: format!("run scripts/plot_fit.py {} from an eprop checkout", prefix.display()),
+    })?;
     // the checkout's environment (scripts/setup.sh makes .venv) where there is one
     let venv = script
         .parent()
@@ -940,19 +976,61 @@ fn plot(prefix: &Path, png: &Path) -> std::result::Result<(), String> {
         .arg("-o")
         .arg(png)
         .output()
-        .map_err(|e| format!("{} could not be started ({e})", python.display()))?;
+        .map_err(|e| NoPlot {
+            why: format!("{} could not be started ({e})", python.display()),
+            fix: install.clone(),
+        })?;
     if out.status.success() {
         return Ok(());
     }
     let err = String::from_utf8_lossy(&out.stderr);
     if err.contains("No module named") {
-        return Err(format!(
-            "{} has no matplotlib ({})",
-            python.display(),
-            err.lines().last().unwrap_or("").trim()
-        ));
+        return Err(NoPlot {
+            why: format!(
+                "{} has no matplotlib ({})",
+                python.display(),
+                err.lines().last().unwrap_or("").trim()
+            ),
+            fix: install,
+        });
     }
-    Err(format!("{} failed: {}", script.display(), err.trim()))
+    // matplotlib is there: the script itself failed
+    Err(NoPlot {
+        why: format!("{} failed: {}", script.display(), err.trim()),
+        fix: format!(
+            "the report and curve are written; draw them yourself from {}.csv, or report the failure with those files",
+            prefix.display()
+        ),
+    })
+}
+
+/// The scale the relative figures of a report are over, and its name: the data range, or max
+/// |y| for a flat curve, or 1 for a curve of zeros.
+fn data_scale(y: &[f64]) -> (f64, &'static str) {
+    let (lo, hi) = y
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    // halves first: the range of values near f64::MAX does not overflow
+    let range = 2.0 * (0.5 * hi - 0.5 * lo);
+    let top = lo.abs().max(hi.abs());
+    if range > 0.0 {
+        (range, "the data range")
+    } else if top > 0.0 {
+        (top, "max |y| (a flat curve)")
+    } else {
+        (1.0, "1 (a curve of zeros)")
+    }
+}
+
+/// The largest power of two at most max |y| (1 for a curve of zeros; within 2^-1000 ..
+/// 2^1000, normal numbers): the unit the search measures residuals in.
+fn power_of_two_near(y: &[f64]) -> f64 {
+    let top = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if top > 0.0 && top.is_finite() {
+        2f64.powi((top.log2().floor() as i32).clamp(-1000, 1000))
+    } else {
+        1.0
+    }
 }
 
 /// Fits the parameters on this process alone (`world` None) or on every process of `world`;
@@ -1055,14 +1133,12 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         x,
         y,
     };
-    let range = {
-        let (lo, hi) = curve
-            .y
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-        hi - lo
-    };
-    let rel = |v: f64| if range > 0.0 { v / range } else { f64::NAN };
+    let (range, relative_to) = data_scale(&curve.y);
+    let rel = |v: f64| v / range;
+    // the residuals as the search sees them: divided by a power of two near the data's size,
+    // so their squares do not overflow (values past 1e154) and the search's arithmetic is the
+    // same bit for bit (a power of two scales exactly)
+    let unit = power_of_two_near(&curve.y);
     let names: Vec<String> = params.iter().map(|p| p.name.clone()).collect();
     let values = |z: &[f64]| -> Vec<f64> { params.iter().zip(z).map(|(p, &z)| p.p(z)).collect() };
     let show = root && !opts.quiet;
@@ -1071,13 +1147,18 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         count += 1;
         let p = values(z);
         let out = evaluate(w, &stop, scenario, opts, &params, &p, &curve)?;
-        let r = out.map(|f| f.iter().zip(&curve.y).map(|(a, b)| a - b).collect::<Vec<f64>>());
+        let r = out.map(|f| {
+            f.iter()
+                .zip(&curve.y)
+                .map(|(a, b)| (a - b) / unit)
+                .collect::<Vec<f64>>()
+        });
         if show {
             let ps: Vec<String> = names.iter().zip(&p).map(|(n, v)| format!("{n} = {v:.6e}")).collect();
             let how = match &r {
                 Ok(r) => {
-                    let rms = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
-                    format!("rms {rms:.4e} ({:.3e} of the range)", rel(rms))
+                    let rms = unit * (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
+                    format!("rms {rms:.4e} ({:.3e} of {relative_to})", rel(rms))
                 }
                 Err(why) => format!("rejected: {why}"),
             };
@@ -1112,8 +1193,9 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
     drop(problem);
     let value = values(&sol.z);
     let m = sol.r.len();
+    // in units of `unit`, as the search saw them (the squares finite)
     let ssr: f64 = sol.r.iter().map(|v| v * v).sum();
-    let rms = (ssr / m as f64).sqrt();
+    let rms = unit * (ssr / m as f64).sqrt();
     // dy/dp = dy/dz dz/dp; p dy/dp = dy/dz for log coordinates
     let jp: Vec<Vec<f64>> = jac
         .iter()
@@ -1140,7 +1222,7 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         .enumerate()
         .map(|(j, q)| {
             let v = value[j];
-            let sens = (jp.iter().map(|row| (row[j] * v).powi(2)).sum::<f64>() / m as f64).sqrt();
+            let sens = unit * (jp.iter().map(|row| (row[j] * v).powi(2)).sum::<f64>() / m as f64).sqrt();
             Fitted {
                 name: q.name.clone(),
                 key: q.key.clone(),
@@ -1159,7 +1241,7 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
             }
         })
         .collect();
-    let fitted_y: Vec<f64> = sol.r.iter().zip(&curve.y).map(|(r, y)| y + r).collect();
+    let fitted_y: Vec<f64> = sol.r.iter().zip(&curve.y).map(|(r, y)| y + unit * r).collect();
     let mut report = FitReport {
         scenario: scenario.display().to_string(),
         data: opts.data.display().to_string(),
@@ -1169,6 +1251,7 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         parameters,
         rms,
         rms_relative: rel(rms),
+        relative_to: relative_to.to_string(),
         evaluations,
         iterations: sol.iterations,
         stop: sol.stop.text().to_string(),
@@ -1180,7 +1263,7 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         measured: curve.x.iter().copied().zip(curve.y.iter().copied()).collect(),
         scaled_jacobian: jp
             .iter()
-            .map(|row| row.iter().zip(&value).map(|(d, v)| d * v).collect())
+            .map(|row| row.iter().zip(&value).map(|(d, v)| unit * (d * v)).collect())
             .collect(),
     };
     let written = crate::distribute::launch::on_root(w, || {
@@ -1213,12 +1296,9 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         };
         write_json(&report)?;
         if opts.plot {
-            if let Err(why) = plot(&prefix, &png_file) {
+            if let Err(no) = plot(&prefix, &png_file) {
                 report.files.pop();
-                report.plot_note = Some(format!(
-                    "no PNG: {why}; fix: install matplotlib (pip install -r scripts/requirements.txt), then `python3 scripts/plot_fit.py {}`",
-                    prefix.display()
-                ));
+                report.plot_note = Some(format!("no PNG: {}; fix: {}", no.why, no.fix));
                 write_json(&report)?;
             }
         }

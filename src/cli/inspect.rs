@@ -289,6 +289,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     let sizes = crate::distribute::parts::GlobalSizes::of(&setup.mesh);
     let mut sim = Simulation::new(setup)?;
     let budget = Budget::of(&sim, &sizes, opts.steps.is_some(), true).map_err(|e| anyhow::anyhow!(e))?;
+    crate::guard::plausible::tool_reach(&sim).map_err(|e| anyhow::anyhow!(e))?;
     let n = sim.n_global();
     let q: Vec<(u32, [f64; 3])> = vec![];
     let t = Instant::now();

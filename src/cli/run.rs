@@ -116,6 +116,47 @@ impl Claim {
     }
 }
 
+/// A `--restart` file must be a regular file: says what it is otherwise (a missing file, a
+/// directory, /dev/null).
+fn restartable(r: &Path) -> Result<()> {
+    let shown = r.display();
+    let fix = "fix: give the output file (.h5) of the interrupted run";
+    let meta = match std::fs::metadata(r) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            bail!("{shown}: no such file to restart from; {fix}")
+        }
+        Err(e) => bail!("{shown}: cannot look at the file to restart from: {e}; {fix}"),
+    };
+    let t = meta.file_type();
+    if t.is_file() {
+        return Ok(());
+    }
+    let what = if t.is_dir() { "a directory" } else { special_kind(&t) };
+    bail!("{shown}: is {what}, not a series to restart from; {fix}")
+}
+
+#[cfg(unix)]
+fn special_kind(t: &std::fs::FileType) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    if t.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_socket() {
+        "a socket"
+    } else {
+        "a special file"
+    }
+}
+
+#[cfg(not(unix))]
+fn special_kind(_: &std::fs::FileType) -> &'static str {
+    "a special file"
+}
+
 /// Reads a scenario and claims its output before reading the mesh and before anything is
 /// opened for writing: the output must not be one of the run's inputs, must not be written by
 /// another run (the lock), and an existing file is replaced only when it is a series and the
@@ -127,11 +168,8 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
     let inputs = scenario.inputs();
     safety::refuse_inputs(&file, &role, &inputs)?;
     safety::refuse_inputs(&safety::lock_path(&file), "the lock file of the output", &inputs)?;
-    if let Some(r) = opts.restart.as_ref().filter(|r| !r.is_file()) {
-        bail!(
-            "{}: no such file to restart from; fix: give the output file of the interrupted run",
-            r.display()
-        );
+    if let Some(r) = &opts.restart {
+        restartable(r)?;
     }
     let lock = OutputLock::take(&file)?;
     match &opts.restart {
@@ -218,6 +256,7 @@ fn run_simulation(
         opts,
     );
     let settings = Settings {
+        live: false,
         sizes,
         claim: claim.map(Claim::lock),
         restart: opts.restart.is_some(),

@@ -78,7 +78,9 @@ pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
 pub use select::{distance, Entry, Keys, Selector};
 pub use time::{steps_to, Stop, Time, TimeSec};
-pub use tools::{ContactLaw, Grip, Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS};
+pub use tools::{
+    ContactLaw, Grip, Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS, REACH, REACH_FIX, REACH_WHY,
+};
 pub use values::Precision;
 
 use crate::config::tissue::{Materials, TissueLaw};
@@ -347,13 +349,15 @@ impl Scenario {
     }
 }
 
-/// The `--set KEY` recorded in a scenario text whose line holds byte `at`, if any.
+/// The `--set KEY` recorded in a scenario text whose line holds byte `at` (or that made the
+/// table whose header holds it), if any.
 fn overridden(text: &str, at: usize) -> Option<String> {
     set::recorded(text)
         .into_iter()
         .rev()
         .find(|(_, r)| r.contains(&at))
         .map(|(k, _)| k)
+        .or_else(|| set::made_by(text, at))
 }
 
 /// `AT: [section] key: message; fix: ...`, with a generic fix when the message has none.

@@ -100,6 +100,19 @@ fn put(cur: &mut dyn TableLike, segs: &[&str], value: Value, key: &str) -> Resul
         return Ok(());
     }
     if !cur.contains_key(first) {
+        if rest[0].chars().all(|c| c.is_ascii_digit()) {
+            // an entry of an array of tables the scenario does not have: a table made here
+            // would be refused as a map where a sequence is expected, at a line past the end
+            let table = key
+                .split('.')
+                .take_while(|g| *g != rest[0])
+                .collect::<Vec<_>>()
+                .join(".");
+            bail!(
+                "--set {key}: the scenario has no [[{table}]] table, so it has no entry {} to change; fix: add a [[{table}]] table with its keys to the scenario file (--set changes a key of an entry that exists)",
+                rest[0]
+            );
+        }
         let mut t = Table::new();
         t.set_implicit(true);
         cur.insert(first, Item::Table(t));
@@ -147,6 +160,44 @@ pub fn recorded(text: &str) -> Vec<(String, Range<usize>)> {
             Some((k.clone(), span))
         })
         .collect()
+}
+
+/// The override that made the table whose header line holds byte `at`: a table the file does
+/// not have, which `--set` adds at the end of the text (`--set time.dt=0.1` without [time]).
+/// An error at its header (a table unknown, a key it lacks) would otherwise name a line past
+/// the end of the file. A table is taken as made when every key it holds is an override.
+pub fn made_by(text: &str, at: usize) -> Option<String> {
+    let line_start = text.get(..at)?.rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next()?.trim();
+    let name = line.strip_prefix('[')?.trim_start_matches('[');
+    let name = name.split(']').next()?.trim();
+    let keys: Vec<String> = recorded(text).into_iter().map(|(k, _)| k).collect();
+    let doc = ImDocument::parse(text).ok()?;
+    let mut cur: &dyn TableLike = doc.as_table();
+    let mut segs: Vec<String> = Vec::new();
+    for seg in name.split('.').map(str::trim) {
+        segs.push(seg.to_string());
+        cur = match cur.get(seg)? {
+            // the entry whose header is this line: the last one above `at`
+            Item::ArrayOfTables(a) => {
+                let k = a
+                    .iter()
+                    .filter(|t| t.span().is_some_and(|s| s.start <= at))
+                    .count()
+                    .checked_sub(1)?;
+                segs.push((k + 1).to_string());
+                a.get(k)?
+            }
+            item => item.as_table_like()?,
+        };
+    }
+    let prefix = segs.join(".");
+    let own: Vec<String> = cur
+        .iter()
+        .filter(|(_, v)| v.is_value())
+        .map(|(k, _)| format!("{prefix}.{k}"))
+        .collect();
+    (!own.is_empty() && own.iter().all(|k| keys.contains(k))).then(|| own[0].clone())
 }
 
 fn locate(cur: &dyn TableLike, segs: &[&str]) -> Option<Range<usize>> {
@@ -218,6 +269,21 @@ mod tests {
         );
         let e = set(&["time..steps=1"]).unwrap_err();
         assert!(e.contains("is not a key path"), "{e}");
+        // an entry of an array of tables the file does not have (it was refused at a line past
+        // the end of the file)
+        let e = set(&["tool.1.radius=1"]).unwrap_err();
+        assert!(
+            e.starts_with("--set tool.1.radius: the scenario has no [[tool]] table, so it has no entry 1 to change; fix: add a [[tool]] table"),
+            "{e}"
+        );
+        let e = set(&["material.region.2.young=1"]).unwrap_err();
+        assert!(e.contains("no [[material.region]] table, so it has no entry 2"), "{e}");
+        // a table the overrides made: its header names the override, not a line
+        let t = set(&["integrator.tolerance=0.1", "load.2.normal=3"]).unwrap();
+        let at = |s: &str| t.rfind(s).unwrap() + 1;
+        assert_eq!(made_by(&t, at("[integrator]")).as_deref(), Some("integrator.tolerance"));
+        assert_eq!(made_by(&t, at("[[load]]")), None, "load 2 holds a key of the file");
+        assert_eq!(made_by(&t, at("[mesh]")), None);
         let e = set(&["mesh.file.x=1"]).unwrap_err();
         assert!(e.contains("`file` is a value, not a table"), "{e}");
     }

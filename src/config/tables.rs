@@ -88,11 +88,31 @@ impl History {
     }
 }
 
+/// A bound on the magnitude of a table's values (not its times), beyond which what they feed
+/// overflows: `why` says what, `fix` what to do.
+#[derive(Clone, Copy, Debug)]
+pub struct Bound {
+    pub limit: f64,
+    pub why: &'static str,
+    pub fix: &'static str,
+}
+
 /// Parses a CSV table of four columns (`columns` names them for messages): one row per line,
 /// values separated by commas, an optional header line first, blank lines and lines starting
 /// with `#` ignored. Times must increase strictly and every value be finite. Errors name the
 /// file (`name`), the line and row, and the fix.
 pub fn parse_table(name: &str, bytes: &[u8], role: &str, columns: [&str; 4]) -> Result<History> {
+    parse_bounded(name, bytes, role, columns, None)
+}
+
+/// `parse_table`, with the values (not the times) within `bound`.
+pub fn parse_bounded(
+    name: &str,
+    bytes: &[u8],
+    role: &str,
+    columns: [&str; 4],
+    bound: Option<Bound>,
+) -> Result<History> {
     let cols = columns.join(", ");
     let text = std::str::from_utf8(bytes).map_err(|e| {
         anyhow!(
@@ -140,7 +160,19 @@ pub fn parse_table(name: &str, bytes: &[u8], role: &str, columns: [&str; 4]) -> 
         let mut values = [0.0; 4];
         for (c, (f, x)) in fields.iter().zip(&numbers).enumerate() {
             match x {
-                Some(v) if v.is_finite() => values[c] = *v,
+                Some(v) if v.is_finite() => match bound {
+                    Some(b) if c > 0 && !(v.abs() <= b.limit) => {
+                        return Err(anyhow!(
+                            "{at}: {} = {} is beyond +-{}, {}; fix: {}",
+                            columns[c],
+                            crate::diagnostics::short(*v),
+                            crate::diagnostics::short(b.limit),
+                            b.why,
+                            b.fix
+                        ))
+                    }
+                    _ => values[c] = *v,
+                },
                 Some(v) => {
                     return Err(anyhow!(
                         "{at}: {} = {v} is not finite; fix: give a finite number",
@@ -176,8 +208,13 @@ pub fn parse_table(name: &str, bytes: &[u8], role: &str, columns: [&str; 4]) -> 
 
 /// Reads a table file (a regular file only, `eprop_io::read_input_file`) and parses it.
 pub fn read_table(path: &Path, role: &str, columns: [&str; 4]) -> Result<History> {
+    read_bounded(path, role, columns, None)
+}
+
+/// `read_table`, with the values (not the times) within `bound`.
+pub fn read_bounded(path: &Path, role: &str, columns: [&str; 4], bound: Option<Bound>) -> Result<History> {
     let bytes = read_input_file(path, "table")?;
-    parse_table(&path.display().to_string(), &bytes, role, columns)
+    parse_bounded(&path.display().to_string(), &bytes, role, columns, bound)
 }
 
 #[cfg(test)]

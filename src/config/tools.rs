@@ -5,7 +5,7 @@
 
 use super::values::{opt_positive, positive, Point};
 use super::Scenario;
-use crate::config::tables::{read_table, History};
+use crate::config::tables::{read_bounded, Bound, History};
 use anyhow::Result;
 use eprop_io::geom::{norm, scale};
 use serde::{Deserialize, Serialize};
@@ -36,6 +36,17 @@ pub enum Grip {
     /// Sticky: the tissue on the face moves with the tool until the tool moves away from it.
     Stick,
 }
+
+/// The largest magnitude of a tool's coordinates, radius and velocity: the contact measures
+/// distances as roots of sums of squares, which overflow beyond about 1e154, and a path
+/// between two samples near f64's limit passes through infinity. 1e100 leaves room for both,
+/// far outside any mesh (`mesh::EXTENT`).
+pub const REACH: f64 = 1e100;
+
+/// What a tool's coordinate beyond `REACH` is told.
+pub const REACH_WHY: &str = "where the contact's distances overflow";
+/// Its fix.
+pub const REACH_FIX: &str = "give the tool's positions in the mesh's units, near the organ";
 
 /// A tool's shape as the scenario spells it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -137,8 +148,31 @@ pub struct Tool {
     pub foundation: f64,
 }
 
+/// `x`'s components within `REACH`, or the message about `key`.
+fn within_reach(key: &str, x: Option<Point>) -> Result<(), String> {
+    match x.and_then(|p| p.0.into_iter().find(|v| !(v.abs() <= REACH))) {
+        Some(v) => Err(format!(
+            "`{key}` has the component {}, beyond +-{}, {REACH_WHY}; fix: {REACH_FIX}",
+            crate::diagnostics::short(v),
+            crate::diagnostics::short(REACH)
+        )),
+        None => Ok(()),
+    }
+}
+
 /// The combinations of keys a tool takes.
 fn shape_and_path(t: &ToolSec) -> Result<(Shape, Option<Trajectory>), String> {
+    within_reach("start", t.start)?;
+    within_reach("velocity", t.velocity)?;
+    for (key, v) in [("radius", Some(t.radius)), ("foundation", t.foundation)] {
+        if v.is_some_and(|v| !(v <= REACH)) {
+            return Err(format!(
+                "`{key}` = {} is beyond {}, {REACH_WHY}; fix: give it in the mesh's units",
+                crate::diagnostics::short(v.unwrap_or_default()),
+                crate::diagnostics::short(REACH)
+            ));
+        }
+    }
     let shape = match (t.shape, t.normal) {
         (ShapeName::Sphere, None) => Shape::Sphere { radius: t.radius },
         (ShapeName::Sphere, Some(_)) => {
@@ -193,7 +227,12 @@ pub fn resolve(sc: &Scenario, tools: &[Spanned<ToolSec>]) -> Result<Vec<Tool>> {
             (Some(p), _) => p,
             (None, Some(file)) => {
                 let role = format!("path table of [[tool]] {}", k + 1);
-                let h = read_table(&base.join(file.get_ref()), &role, PATH_COLUMNS)
+                let bound = Bound {
+                    limit: REACH,
+                    why: REACH_WHY,
+                    fix: REACH_FIX,
+                };
+                let h = read_bounded(&base.join(file.get_ref()), &role, PATH_COLUMNS, Some(bound))
                     .map_err(|e| sc.error_at(file.span(), "tool", "table", format!("{e:#}")))?;
                 Trajectory::Table(h)
             }
@@ -309,8 +348,21 @@ mod tests {
             ("shape = \"sphere\"\nradius = 1\ntable = \"none.csv\"", "s.toml:8: [tool] table: "),
             ("shape = \"sphere\"\nradius = 1\ntable = \"p.csv\"", "p.csv:3: row 2 of the path table of [[tool]] 1: time 0 does not come after the previous row's time 0; fix:"),
             ("shape = \"sphere\"\nradius = 1\ntable = \"q.csv\"", "q.csv:2: row 2 of the path table of [[tool]] 1: z = `z` is not a number"),
+            // each row finite, but the path between them passes through infinity
+            ("shape = \"sphere\"\nradius = 1\ntable = \"h.csv\"", "h.csv:2: row 1 of the path table of [[tool]] 1: x = 1e308 is beyond +-1e100, where the contact's distances overflow; fix: give the tool's positions"),
+            ("shape = \"sphere\"\nradius = 1\nstart = [1e200, 0, 0]", "[tool]: `start` has the component 1e200, beyond +-1e100"),
+            ("shape = \"sphere\"\nradius = 1\nstart = [0, 0, 0]\nvelocity = [0, -1e101, 0]", "`velocity` has the component -1e101"),
+            ("shape = \"sphere\"\nradius = 1e200\nstart = [0, 0, 0]", "`radius` = 1e200 is beyond 1e100"),
         ] {
-            let e = tools(keys, &[("p.csv", "t,x,y,z\n0,0,0,1\n0,0,0,0\n"), ("q.csv", "0,0,0,0\n1,0,0,z\n")]).unwrap_err();
+            let e = tools(
+                keys,
+                &[
+                    ("p.csv", "t,x,y,z\n0,0,0,1\n0,0,0,0\n"),
+                    ("q.csv", "0,0,0,0\n1,0,0,z\n"),
+                    ("h.csv", "t,x,y,z\n0,1e308,1e308,0\n10,-1e308,-1e308,0\n"),
+                ],
+            )
+            .unwrap_err();
             assert!(e.contains(want), "{keys}:\n{e}");
             assert!(e.contains("fix:"), "{keys}:\n{e}");
         }

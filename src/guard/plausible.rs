@@ -2,8 +2,8 @@
 //! the tissue law's range (often a units mistake; for loads and tools), a contact area too
 //! small for its mesh, a tool that never reaches the organ, a
 //! `nearest` point far from the node it picks, and displacements past small-deformation
-//! validity. None of them changes a number. And the check that stops a run whose state is no
-//! longer finite.
+//! validity. None of them changes a number. And the checks that stop a run whose state is no
+//! longer finite, or whose tool leaves the range where its contact is computed.
 
 use crate::config::{Reading, CONTINUUM};
 use crate::diagnostics::{fixed, short};
@@ -295,8 +295,48 @@ pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
     out
 }
 
+/// Refuses a tool whose straight path (`start` + t `velocity`) leaves `config::tools::REACH`
+/// before the run's last step (tables are bounded row by row when they are read, and a live
+/// tool's samples as they arrive). The same verdict on every process.
+pub fn tool_reach(sim: &Simulation) -> Result<(), String> {
+    use crate::config::{REACH, REACH_WHY};
+    let end = sim.max_steps() as f64 * sim.dt();
+    for (k, run) in sim.tools.iter().enumerate() {
+        if let crate::config::Trajectory::Linear { .. } = run.tool.path {
+            let far = run.tool.path.at(end);
+            if far.iter().any(|x| !(x.abs() <= REACH)) {
+                return Err(format!(
+                    "{}: tool {}'s path `start` + t `velocity` is at ({}, {}, {}) by the last step's time t = {}, beyond +-{}, {REACH_WHY}; fix: a smaller velocity, fewer steps, or a path table that holds the tool still",
+                    sim.setup().scenario.path.display(),
+                    k + 1,
+                    short(far[0]),
+                    short(far[1]),
+                    short(far[2]),
+                    short(end),
+                    short(REACH)
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The likely cause of a state that is no longer finite, for the message that stops the run.
 pub fn nonfinite_cause(sim: &Simulation) -> String {
+    for (k, s) in sim.tool_states().iter().enumerate() {
+        if !(norm(s.position).is_finite() && norm(s.force).is_finite()) {
+            return format!(
+                "tool {}'s position ({}, {}, {}) or force ({}, {}, {}) is not finite; fix: check its path",
+                k + 1,
+                short(s.position[0]),
+                short(s.position[1]),
+                short(s.position[2]),
+                short(s.force[0]),
+                short(s.force[1]),
+                short(s.force[2])
+            );
+        }
+    }
     for (k, (l, a)) in sim.loads.iter().zip(sim.applied(sim.time())).enumerate() {
         let peak = sim
             .setup()
@@ -336,7 +376,8 @@ pub fn nonfinite_cause(sim: &Simulation) -> String {
 pub enum Look {
     /// Every value finite; a warning the first time max |u| passes its limit.
     Finite(Option<String>),
-    /// Some process holds a NaN or an infinity in u, v, phi, |phi| or a probe.
+    /// Some process holds a NaN or an infinity in u, v, phi, |phi|, a probe or a tool's
+    /// position or force.
     NonFinite,
 }
 
@@ -355,7 +396,8 @@ impl Watch {
         Watch { diag, warned: false }
     }
 
-    /// Looks at u, v, phi and |phi| of the owned nodes and the probes (every process calls).
+    /// Looks at u, v, phi and |phi| of the owned nodes, the probes and the tools (every
+    /// process calls).
     pub fn look(&mut self, sim: &Simulation) -> Look {
         let n = sim.n_owned();
         // every written field: u, v, phi, the energy |phi|, and the probes' displacements; a
@@ -366,7 +408,11 @@ impl Watch {
             .probes()
             .iter()
             .all(|(f, d)| norm(*f).is_finite() && norm(*d).is_finite());
-        let bad = !(finite(&sim.u()[..n]) && finite(&sim.v()[..n]) && finite(&sim.prop.phi[..n]) && probes);
+        let tools = sim
+            .tool_states()
+            .iter()
+            .all(|s| norm(s.position).is_finite() && norm(s.force).is_finite());
+        let bad = !(finite(&sim.u()[..n]) && finite(&sim.v()[..n]) && finite(&sim.prop.phi[..n]) && probes && tools);
         let umax = sim.u()[..n].iter().map(|p| norm(*p)).fold(0.0f64, f64::max);
         let all = sim.comm().max_each(&[f64::from(u8::from(bad)), umax]);
         if all[0] > 0.0 {

@@ -180,7 +180,11 @@ fn lock_inode(output: &Path) -> Result<Option<std::fs::File>> {
     if !meta.is_file() {
         return Ok(None);
     }
-    let Ok(f) = std::fs::OpenOptions::new().write(true).open(output) else {
+    // without blocking: a FIFO put in the file's place since it was looked at is not waited on
+    let Ok(f) =
+        std::os::unix::fs::OpenOptionsExt::custom_flags(std::fs::OpenOptions::new().write(true), libc::O_NONBLOCK)
+            .open(output)
+    else {
         return Ok(None);
     };
     match ofd_lock(&f) {

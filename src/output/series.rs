@@ -11,7 +11,7 @@ use crate::simulate::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
 use eprop_series::outcome::WriteFailed;
-use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow, CREATING, TABLE_HASH};
+use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow, CREATING, LIVE_SESSION, TABLE_HASH};
 use std::path::Path;
 use std::time::Instant;
 
@@ -119,10 +119,13 @@ impl Series {
     /// to its last complete step. Every process calls; under MPI they write collectively, on
     /// the simulation's communicator (`Comm::handle`). `claim`, the lock of the process that
     /// claimed the output, holds a created file's inode too (`OutputLock::hold_output`).
+    /// `live`: the inputs come from a client (`serve`); the series is marked so
+    /// (`eprop_series::vtkhdf::LIVE_SESSION`), and no restart continues it.
     pub fn start(
         sim: &mut Simulation,
         sizes: &GlobalSizes,
         restart: bool,
+        live: bool,
         claim: Option<&OutputLock>,
     ) -> Result<Series> {
         let output = &sim.setup().output;
@@ -153,6 +156,15 @@ impl Series {
             .map(|((name, _), h)| (format!("{TABLE_HASH}{name}"), h.to_bits()))
             .collect();
         let plan = sim.step_plan();
+        let mut attrs = vec![
+            ("dt", sim.dt()),
+            ("h", plan.h),
+            ("substeps", plan.per_step as f64),
+            ("processes", sim.comm().size() as f64),
+        ];
+        if live {
+            attrs.push((LIVE_SESSION, 1.0));
+        }
         let mut ids = vec![("scenario_hash", text_hash.finish()), ("mesh_hash", sizes.mesh_hash)];
         ids.extend(tables.iter().map(|(n, h)| (n.as_str(), *h)));
         let spec = SeriesSpec {
@@ -168,12 +180,7 @@ impl Series {
             block_len: sim.blocks().len,
             control_volumes: sim.vol_block(),
             output_steps: room(sim, sim.step(), true),
-            attrs: vec![
-                ("dt", sim.dt()),
-                ("h", plan.h),
-                ("substeps", plan.per_step as f64),
-                ("processes", sim.comm().size() as f64),
-            ],
+            attrs,
         };
         let file = output.file.clone();
         let io = sim.comm().handle().map(Handle::communicator);

@@ -109,6 +109,13 @@ pub(crate) fn check_live(setup: &Setup) -> Result<()> {
 /// returns the report on rank 0.
 pub fn serve_on(world: Option<&dyn Comm>, path: &Path, opts: &ServeOptions) -> Result<Option<ServeReport>> {
     let t0 = Instant::now();
+    // (the command line checks it as it is read)
+    if !(opts.timeout > 0.0 && opts.timeout <= 1e9) {
+        bail!(
+            "timeout {}: must be a positive number of seconds (at most 1e9); fix: give, say, 10",
+            opts.timeout
+        );
+    }
     let stop = crate::guard::signals::install();
     let listener = std::cell::RefCell::new(None);
     // the output claimed as `eprop run` claims it (not an input, one writer, no silent
@@ -135,6 +142,7 @@ pub fn serve_on(world: Option<&dyn Comm>, path: &Path, opts: &ServeOptions) -> R
     };
     let claim = claim.into_inner();
     let settings = Settings {
+        live: true,
         sizes,
         claim: claim.as_ref().map(|c| c.lock()),
         restart: false,

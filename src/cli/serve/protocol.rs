@@ -53,7 +53,8 @@ pub enum Code {
     Kind = 4,
     /// No live tool or load of that index.
     Index = 5,
-    /// A non-finite value, or a time not after the last sample of the same tool or load.
+    /// A non-finite value, a tool position beyond `config::REACH`, or a time not after the
+    /// last sample of the same tool or load.
     Sample = 6,
     /// The client sent nothing the run needed within the timeout.
     Timeout = 7,

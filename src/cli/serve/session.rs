@@ -516,7 +516,7 @@ fn refuse_others(listener: &TcpListener) {
         let _ = s.set_write_timeout(Some(Duration::from_secs(1)));
         let _ = s.write_all(&p::error(
             Code::Busy,
-            "another client holds the session; connect again after it ends",
+            "another client holds the session; a server takes one client per run",
         ));
         let _ = s.shutdown(std::net::Shutdown::Both);
     }
@@ -696,6 +696,19 @@ fn serve_client(
                     return End::Error(
                         Some(Code::Index),
                         format!("no live tool {index} (the hello's live_tools mask lists them)"),
+                    );
+                }
+                if let Some(x) = position.iter().find(|x| !(x.abs() <= crate::config::REACH)) {
+                    return End::Error(
+                        Some(Code::Sample),
+                        format!(
+                            "the position of tool {index} at t = {} has the component {}, beyond +-{}, {}; fix: {}",
+                            crate::diagnostics::short(t),
+                            crate::diagnostics::short(*x),
+                            crate::diagnostics::short(crate::config::REACH),
+                            crate::config::REACH_WHY,
+                            crate::config::REACH_FIX
+                        ),
                     );
                 }
                 (e, p::answer::TOOL, index, t, position)

@@ -66,6 +66,10 @@ impl Layout {
 /// (`table_hash:forces.csv`): a restart refuses a file whose table changed.
 pub const TABLE_HASH: &str = "table_hash:";
 
+/// An attribute of `/eprop` (1) on a series whose inputs a client sent (`eprop serve`): its
+/// samples are in no file, so a restart refuses it.
+pub const LIVE_SESSION: &str = "live_session";
+
 /// What a series holds besides the mesh.
 pub struct SeriesSpec<'a> {
     /// Point arrays written every output step: (name, components).

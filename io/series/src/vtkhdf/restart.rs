@@ -2,8 +2,8 @@
 
 use super::create::make_count;
 use super::{
-    access, at, rows_of, values_set, Field, Layout, Resume, SeriesSpec, SeriesWriter, ToolSets, COUNT, STEP_SETS,
-    TABLE_HASH,
+    access, at, rows_of, values_set, Field, Layout, Resume, SeriesSpec, SeriesWriter, ToolSets, COUNT, LIVE_SESSION,
+    STEP_SETS, TABLE_HASH,
 };
 use crate::outcome::Team;
 use anyhow::{anyhow, Result};
@@ -29,6 +29,15 @@ fn check_identity(t: &Team, ep: &hdf5::Group, spec: &SeriesSpec, path: &Path) ->
                 None => bad(format!("it was written for a different {}", name.trim_end_matches("_hash"))),
             });
         }
+    }
+    let live: f64 = t
+        .settle_opt(read(LIVE_SESSION), ep.attr(LIVE_SESSION).and_then(|a| a.read_scalar()))?
+        .unwrap_or(0.0);
+    if live != 0.0 {
+        return Err(anyhow!(
+            "{}: cannot restart: `eprop serve` wrote it, and its client's samples (the live tools' and loads' inputs) are in no file, so a restart would continue it on the scenario's own paths and forces instead, as if the session had gone on that way; fix: start a new session or run in a new file (or --overwrite), or give the session's samples to `eprop run` as path and force tables",
+            path.display()
+        ));
     }
     let f32_file: u8 = t
         .settle_opt(read("float32"), ep.attr("float32").and_then(|a| a.read_scalar()))?
