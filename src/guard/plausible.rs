@@ -423,8 +423,24 @@ impl Watch {
             return Look::Finite(None);
         }
         self.warned = true;
+        // the cause that applies: a prescribed tool path (its depth), else the loads
+        let pressing: Vec<String> = sim
+            .tools
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.state.indentation > 0.0)
+            .map(|(k, t)| format!("tool {} is {:.4e} deep", k + 1, t.state.indentation))
+            .collect();
+        let fix = if pressing.is_empty() {
+            "fix: a smaller force, or check [tissue] young and the units".to_string()
+        } else {
+            format!(
+                "cause: the tools' prescribed paths ({}); fix: a shallower path, or check the path's units",
+                pressing.join(", ")
+            )
+        };
         Look::Finite(Some(format!(
-            "max |u| = {umax:.4e} at step {} (t = {:.6e}) passed {} % of the mesh's diagonal {:.4e}: the small-deformation model is no longer valid there; fix: a smaller force, or check [tissue] young and the units",
+            "max |u| = {umax:.4e} at step {} (t = {:.6e}) passed {} % of the mesh's diagonal {:.4e}: the small-deformation model is no longer valid there; {fix}",
             sim.step(),
             sim.time(),
             100.0 * U_FRACTION,
