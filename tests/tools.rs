@@ -725,3 +725,37 @@ fn a_press_that_folds_the_mesh_is_reported_in_the_summary_and_the_series_on_any_
         "{inverted:?} {inside:?}"
     );
 }
+
+#[test]
+fn a_deep_press_is_blamed_on_the_tool_never_on_a_force() {
+    // the demo's sphere pressed 0.9 into the cylinder (of diagonal 4.9): max |u| passes 10 %
+    // of the diagonal; the warning names the tool's depth, and no force
+    let d = tempfile::tempdir().unwrap();
+    let msh = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/cylinder.msh");
+    let sc = d.path().join("deep.toml");
+    std::fs::write(
+        &sc,
+        format!(
+            "[mesh]\nfile = \"{}\"\n[model]\nreading = \"paper\"\n[[fixed]]\ngroup = \"bottom\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.8\nstart = [1.85, 0.0, 2.0]\nvelocity = [-0.02, 0.0, 0.0]\n[time]\nend = 47.5\n",
+            msh.display()
+        ),
+    )
+    .unwrap();
+    let out = common::serial(
+        &[
+            "run",
+            sc.to_str().unwrap(),
+            "-o",
+            d.path().join("deep.h5").to_str().unwrap(),
+        ],
+        1,
+    );
+    common::ok(&out);
+    let err = common::stderr(&out);
+    assert!(
+        err.contains("passed 10 % of the mesh's diagonal")
+            && err.contains("cause: the tools' prescribed paths (tool 1 is ")
+            && !err.contains("a smaller force"),
+        "{err}"
+    );
+}
