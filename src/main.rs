@@ -496,6 +496,14 @@ fn print<T: serde::Serialize + std::fmt::Display>(report: &T, json: bool) -> Res
 
 fn real_main(cli: Cli) -> Result<()> {
     match cli.cmd {
+        cmd @ (Cmd::Run { .. } | Cmd::Serve { .. } | Cmd::Fit { .. }) => solve_command(cmd),
+        cmd => tool_command(cmd),
+    }
+}
+
+/// `eprop run`, `serve` and `fit`: the commands that solve a scenario.
+fn solve_command(cmd: Cmd) -> Result<()> {
+    match cmd {
         Cmd::Run {
             scenario,
             output,
@@ -588,6 +596,14 @@ fn real_main(cli: Cli) -> Result<()> {
                 print(&r, json)?;
             }
         }
+        _ => unreachable!("real_main sends only run, serve and fit here"),
+    }
+    Ok(())
+}
+
+/// The commands that inspect, convert, export or generate files.
+fn tool_command(cmd: Cmd) -> Result<()> {
+    match cmd {
         Cmd::Check {
             scenario,
             steps,
@@ -667,6 +683,7 @@ fn real_main(cli: Cli) -> Result<()> {
             eprop_io::write_mesh(&mesh, &out)?;
             println!("{}: {} nodes, {} cells", out.display(), mesh.n_nodes(), mesh.n_cells());
         }
+        Cmd::Run { .. } | Cmd::Serve { .. } | Cmd::Fit { .. } => unreachable!("real_main sends these to solve_command"),
     }
     Ok(())
 }

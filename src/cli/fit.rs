@@ -1033,33 +1033,18 @@ fn power_of_two_near(y: &[f64]) -> f64 {
     }
 }
 
-/// Fits the parameters on this process alone (`world` None) or on every process of `world`;
-/// returns the report on rank 0.
-pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> Result<Option<FitReport>> {
-    let stop = crate::guard::signals::install();
-    let t0 = Instant::now();
-    let w = world;
-    let root = is_root(w);
-    let processes = w.map_or(1, |w| w.size());
-    if !(opts.tolerance > 0.0 && opts.tolerance < 1.0) {
-        return Err(refused(format!(
-            "--tolerance {}: must be between 0 and 1 (relative); fix: e.g. --tolerance 1e-6",
-            opts.tolerance
-        )));
-    }
-    let params = parse_params(&opts.params, &opts.starts)?;
+/// On rank 0: reads the measured curve, checks the scenario with the parameters at their
+/// starting values and claims the report files; None on the other processes.
+fn claim(
+    w: Option<&dyn Comm>,
+    scenario: &Path,
+    opts: &FitOptions,
+    params: &[Param],
+    prefix: &Path,
+) -> Result<Option<(Curve, Vec<safety::OutputLock>)>> {
     let n = params.len();
-    if opts.max_evaluations < 2 * n + 2 {
-        return Err(refused(format!(
-            "--max-evaluations {}: too few for {n} parameter(s) (the start, a derivative per parameter and a step); fix: at least {}",
-            opts.max_evaluations,
-            2 * n + 2
-        )));
-    }
-    let prefix = opts.prefix.clone().unwrap_or_else(|| default_prefix(&opts.data));
-    let [json_file, csv_file, png_file] = files_of(&prefix);
-    // rank 0 reads the curve and claims the report files; every process gets the curve
-    let claimed = crate::distribute::launch::on_root(w, || {
+    let [json_file, csv_file, png_file] = files_of(prefix);
+    crate::distribute::launch::on_root(w, || {
         let curve = read_curve(&opts.data)?;
         if curve.x.len() <= n {
             bail!(
@@ -1104,7 +1089,14 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
             )?);
         }
         Ok((curve, locks))
-    })?;
+    })
+}
+
+/// Rank 0's curve on every process, and rank 0's locks on the report files.
+fn share_curve(
+    w: Option<&dyn Comm>,
+    claimed: Option<(Curve, Vec<safety::OutputLock>)>,
+) -> (Curve, Option<Vec<safety::OutputLock>>) {
     let (mut x, mut y, mut kinds) = (vec![], vec![], vec![]);
     let mut locks = None;
     if let Some((c, l)) = claimed {
@@ -1133,6 +1125,133 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         x,
         y,
     };
+    (curve, locks)
+}
+
+/// The fitted parameters: values, standard errors from the covariance of the sensitivities
+/// `jp` (dy/dp, in units of `unit`), and sensitivities.
+fn fitted_parameters(
+    params: &[Param],
+    value: &[f64],
+    jp: &[Vec<f64>],
+    unit: f64,
+    ssr: f64,
+    m: usize,
+    rel: &dyn Fn(f64) -> f64,
+) -> Vec<Fitted> {
+    let n = params.len();
+    let mut a = vec![vec![0.0; n]; n];
+    for row in jp {
+        for j in 0..n {
+            for k in 0..n {
+                a[j][k] += row[j] * row[k];
+            }
+        }
+    }
+    let s2 = ssr / (m - n) as f64;
+    let cov = lm::inverse(&a);
+    params
+        .iter()
+        .enumerate()
+        .map(|(j, q)| {
+            let v = value[j];
+            let sens = unit * (jp.iter().map(|row| (row[j] * v).powi(2)).sum::<f64>() / m as f64).sqrt();
+            Fitted {
+                name: q.name.clone(),
+                key: q.key.clone(),
+                lower: q.lo,
+                upper: q.hi,
+                start: q.start,
+                value: v,
+                log: q.log,
+                at_bound: (v - q.lo).abs() <= 1e-9 * (q.hi - q.lo) || (q.hi - v).abs() <= 1e-9 * (q.hi - q.lo),
+                standard_error: cov
+                    .as_ref()
+                    .map(|c| (s2 * c[j][j]).max(0.0).sqrt())
+                    .filter(|s| s.is_finite()),
+                sensitivity: sens,
+                sensitivity_relative: rel(sens),
+            }
+        })
+        .collect()
+}
+
+/// On rank 0: writes the report (PREFIX.json), the fitted curve (PREFIX.csv) and the plot
+/// (PREFIX.png); returns the report as written, None on the other processes.
+fn write_report(
+    w: Option<&dyn Comm>,
+    mut report: FitReport,
+    opts: &FitOptions,
+    prefix: &Path,
+) -> Result<Option<FitReport>> {
+    let [json_file, csv_file, png_file] = files_of(prefix);
+    crate::distribute::launch::on_root(w, || {
+        report.files = vec![json_file.display().to_string(), csv_file.display().to_string()];
+        if opts.plot {
+            report.files.push(png_file.display().to_string());
+        }
+        // x, measured, fitted, residual, then value * dy/d(value) of each parameter
+        let mut csv = String::from("x,measured,fitted,residual");
+        for p in &report.parameters {
+            csv.push_str(&format!(",sensitivity_{}", p.name));
+        }
+        csv.push('\n');
+        for (((x, y), f), s) in report
+            .measured
+            .iter()
+            .zip(&report.fitted_y)
+            .zip(&report.scaled_jacobian)
+        {
+            csv.push_str(&format!("{x:?},{y:?},{f:?},{:?}", f - y));
+            for v in s {
+                csv.push_str(&format!(",{v:?}"));
+            }
+            csv.push('\n');
+        }
+        std::fs::write(&csv_file, csv).map_err(|e| anyhow!("{}: cannot write: {e}", csv_file.display()))?;
+        let write_json = |r: &FitReport| {
+            std::fs::write(&json_file, serde_json::to_string_pretty(r)? + "\n")
+                .map_err(|e| anyhow!("{}: cannot write: {e}", json_file.display()))
+        };
+        write_json(&report)?;
+        if opts.plot {
+            if let Err(no) = plot(prefix, &png_file) {
+                report.files.pop();
+                report.plot_note = Some(format!("no PNG: {}; fix: {}", no.why, no.fix));
+                write_json(&report)?;
+            }
+        }
+        Ok(report.clone())
+    })
+}
+
+/// Fits the parameters on this process alone (`world` None) or on every process of `world`;
+/// returns the report on rank 0.
+pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> Result<Option<FitReport>> {
+    let stop = crate::guard::signals::install();
+    let t0 = Instant::now();
+    let w = world;
+    let root = is_root(w);
+    let processes = w.map_or(1, |w| w.size());
+    if !(opts.tolerance > 0.0 && opts.tolerance < 1.0) {
+        return Err(refused(format!(
+            "--tolerance {}: must be between 0 and 1 (relative); fix: e.g. --tolerance 1e-6",
+            opts.tolerance
+        )));
+    }
+    let params = parse_params(&opts.params, &opts.starts)?;
+    let n = params.len();
+    if opts.max_evaluations < 2 * n + 2 {
+        return Err(refused(format!(
+            "--max-evaluations {}: too few for {n} parameter(s) (the start, a derivative per parameter and a step); fix: at least {}",
+            opts.max_evaluations,
+            2 * n + 2
+        )));
+    }
+    let prefix = opts.prefix.clone().unwrap_or_else(|| default_prefix(&opts.data));
+    // rank 0 reads the curve and claims the report files; every process gets the curve
+    let claimed = claim(w, scenario, opts, &params, &prefix)?;
+    let (curve, locks) = share_curve(w, claimed);
     let (range, relative_to) = data_scale(&curve.y);
     let rel = |v: f64| v / range;
     // the residuals as the search sees them: divided by a power of two near the data's size,
@@ -1207,42 +1326,9 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
                 .collect()
         })
         .collect();
-    let mut a = vec![vec![0.0; n]; n];
-    for row in &jp {
-        for j in 0..n {
-            for k in 0..n {
-                a[j][k] += row[j] * row[k];
-            }
-        }
-    }
-    let s2 = ssr / (m - n) as f64;
-    let cov = lm::inverse(&a);
-    let parameters = params
-        .iter()
-        .enumerate()
-        .map(|(j, q)| {
-            let v = value[j];
-            let sens = unit * (jp.iter().map(|row| (row[j] * v).powi(2)).sum::<f64>() / m as f64).sqrt();
-            Fitted {
-                name: q.name.clone(),
-                key: q.key.clone(),
-                lower: q.lo,
-                upper: q.hi,
-                start: q.start,
-                value: v,
-                log: q.log,
-                at_bound: (v - q.lo).abs() <= 1e-9 * (q.hi - q.lo) || (q.hi - v).abs() <= 1e-9 * (q.hi - q.lo),
-                standard_error: cov
-                    .as_ref()
-                    .map(|c| (s2 * c[j][j]).max(0.0).sqrt())
-                    .filter(|s| s.is_finite()),
-                sensitivity: sens,
-                sensitivity_relative: rel(sens),
-            }
-        })
-        .collect();
+    let parameters = fitted_parameters(&params, &value, &jp, unit, ssr, m, &rel);
     let fitted_y: Vec<f64> = sol.r.iter().zip(&curve.y).map(|(r, y)| y + unit * r).collect();
-    let mut report = FitReport {
+    let report = FitReport {
         scenario: scenario.display().to_string(),
         data: opts.data.display().to_string(),
         x: curve.x_kind,
@@ -1266,44 +1352,7 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
             .map(|row| row.iter().zip(&value).map(|(d, v)| unit * (d * v)).collect())
             .collect(),
     };
-    let written = crate::distribute::launch::on_root(w, || {
-        report.files = vec![json_file.display().to_string(), csv_file.display().to_string()];
-        if opts.plot {
-            report.files.push(png_file.display().to_string());
-        }
-        // x, measured, fitted, residual, then value * dy/d(value) of each parameter
-        let mut csv = String::from("x,measured,fitted,residual");
-        for p in &report.parameters {
-            csv.push_str(&format!(",sensitivity_{}", p.name));
-        }
-        csv.push('\n');
-        for (((x, y), f), s) in report
-            .measured
-            .iter()
-            .zip(&report.fitted_y)
-            .zip(&report.scaled_jacobian)
-        {
-            csv.push_str(&format!("{x:?},{y:?},{f:?},{:?}", f - y));
-            for v in s {
-                csv.push_str(&format!(",{v:?}"));
-            }
-            csv.push('\n');
-        }
-        std::fs::write(&csv_file, csv).map_err(|e| anyhow!("{}: cannot write: {e}", csv_file.display()))?;
-        let write_json = |r: &FitReport| {
-            std::fs::write(&json_file, serde_json::to_string_pretty(r)? + "\n")
-                .map_err(|e| anyhow!("{}: cannot write: {e}", json_file.display()))
-        };
-        write_json(&report)?;
-        if opts.plot {
-            if let Err(no) = plot(&prefix, &png_file) {
-                report.files.pop();
-                report.plot_note = Some(format!("no PNG: {}; fix: {}", no.why, no.fix));
-                write_json(&report)?;
-            }
-        }
-        Ok(report.clone())
-    })?;
+    let written = write_report(w, report, opts, &prefix)?;
     drop(locks);
     Ok(written)
 }

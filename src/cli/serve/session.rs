@@ -592,6 +592,88 @@ fn send_failed(e: std::io::Error, timeout: Duration) -> End {
     End::Error(None, msg)
 }
 
+/// The client's hello, its magic read first so that another protocol is refused at once.
+fn read_opening(
+    stream: &mut TcpStream,
+    listener: &TcpListener,
+    shared: &Shared,
+    last_look: &mut Instant,
+) -> Result<p::Opening, End> {
+    let mut first = [0u8; CLIENT_SIZE];
+    let mut opening = None;
+    for (from, to) in [(0, 8), (8, CLIENT_SIZE)] {
+        match read_into(stream, listener, shared, last_look, &mut first[..to], from) {
+            Ok(Some(())) => {}
+            Ok(None) => return Err(End::RunOver),
+            Err(e) => return Err(e),
+        }
+        match p::read_hello(&first) {
+            Ok(o) => opening = Some(o),
+            Err((code, msg)) if to == CLIENT_SIZE || code == Code::NotEprop => return Err(End::Error(Some(code), msg)),
+            Err(_) => {}
+        }
+    }
+    let Some(opening) = opening else {
+        return Err(End::Error(Some(Code::NotEprop), "internal: no hello read".into()));
+    };
+    Ok(opening)
+}
+
+/// A bye: the run told to end, and the client its last answer (or why the run cannot end).
+fn say_bye(stream: &mut TcpStream, shared: &Shared, ents: &Entities) -> End {
+    let cv = &shared.1;
+    let mut g = lock(shared);
+    g.messages += 1;
+    // an input without any sample has no value to hold: the run cannot go on,
+    // and the client hears so instead of a bye answer
+    if let Some(e) = (0..ents.live.len()).find(|&e| ents.live[e] && g.latest[e] == f64::NEG_INFINITY) {
+        drop(g);
+        return End::Error(
+            Some(Code::Server),
+            format!(
+                "bye before any sample of {}: the run has no input for it; fix: send a sample of every live tool and load before bye",
+                ents.name(e)
+            ),
+        );
+    }
+    if g.phase == Phase::Connected {
+        g.phase = Phase::Bye;
+    }
+    g.ended = Some("bye".into());
+    let (_, last) = first_live(&g, ents);
+    g.answers += 1;
+    cv.notify_all();
+    drop(g);
+    let a = last.final_answer(p::answer::BYE);
+    send(stream, &p::answer(&a));
+    End::Bye
+}
+
+/// The entity of a pose of tool `index` at `t`: a live tool, its position within reach.
+fn live_tool(ents: &Entities, index: u32, t: f64, position: &[f64; 3]) -> Result<usize, End> {
+    let e = index as usize;
+    if e >= ents.tools || !ents.live[e] {
+        return Err(End::Error(
+            Some(Code::Index),
+            format!("no live tool {index} (the hello's live_tools mask lists them)"),
+        ));
+    }
+    if let Some(x) = position.iter().find(|x| !(x.abs() <= crate::config::REACH)) {
+        return Err(End::Error(
+            Some(Code::Sample),
+            format!(
+                "the position of tool {index} at t = {} has the component {}, beyond +-{}, {}; fix: {}",
+                crate::diagnostics::short(t),
+                crate::diagnostics::short(*x),
+                crate::diagnostics::short(crate::config::REACH),
+                crate::config::REACH_WHY,
+                crate::config::REACH_FIX
+            ),
+        ));
+    }
+    Ok(e)
+}
+
 fn serve_client(
     stream: &mut TcpStream,
     listener: &TcpListener,
@@ -605,23 +687,9 @@ fn serve_client(
     let _ = stream.set_read_timeout(Some(TICK));
     let _ = stream.set_write_timeout(Some(timeout));
     let mut last_look = Instant::now();
-    // the magic first, so that another protocol is refused at once
-    let mut first = [0u8; CLIENT_SIZE];
-    let mut opening = None;
-    for (from, to) in [(0, 8), (8, CLIENT_SIZE)] {
-        match read_into(stream, listener, shared, &mut last_look, &mut first[..to], from) {
-            Ok(Some(())) => {}
-            Ok(None) => return End::RunOver,
-            Err(e) => return e,
-        }
-        match p::read_hello(&first) {
-            Ok(o) => opening = Some(o),
-            Err((code, msg)) if to == CLIENT_SIZE || code == Code::NotEprop => return End::Error(Some(code), msg),
-            Err(_) => {}
-        }
-    }
-    let Some(opening) = opening else {
-        return End::Error(Some(Code::NotEprop), "internal: no hello read".into());
+    let opening = match read_opening(stream, listener, shared, &mut last_look) {
+        Ok(o) => o,
+        Err(e) => return e,
     };
     let stream_req = opening.stream;
     let mut hello = Hello {
@@ -663,56 +731,11 @@ fn serve_client(
             Err((code, text)) => return End::Error(Some(code), text),
         };
         let (e, kind, index, t, v) = match msg {
-            Message::Bye => {
-                let mut g = lock(shared);
-                g.messages += 1;
-                // an input without any sample has no value to hold: the run cannot go on,
-                // and the client hears so instead of a bye answer
-                if let Some(e) = (0..ents.live.len()).find(|&e| ents.live[e] && g.latest[e] == f64::NEG_INFINITY) {
-                    drop(g);
-                    return End::Error(
-                        Some(Code::Server),
-                        format!(
-                            "bye before any sample of {}: the run has no input for it; fix: send a sample of every live tool and load before bye",
-                            ents.name(e)
-                        ),
-                    );
-                }
-                if g.phase == Phase::Connected {
-                    g.phase = Phase::Bye;
-                }
-                g.ended = Some("bye".into());
-                let (_, last) = first_live(&g, ents);
-                g.answers += 1;
-                cv.notify_all();
-                drop(g);
-                let a = last.final_answer(p::answer::BYE);
-                send(stream, &p::answer(&a));
-                return End::Bye;
-            }
-            Message::Pose { index, t, position } => {
-                let e = index as usize;
-                if e >= ents.tools || !ents.live[e] {
-                    return End::Error(
-                        Some(Code::Index),
-                        format!("no live tool {index} (the hello's live_tools mask lists them)"),
-                    );
-                }
-                if let Some(x) = position.iter().find(|x| !(x.abs() <= crate::config::REACH)) {
-                    return End::Error(
-                        Some(Code::Sample),
-                        format!(
-                            "the position of tool {index} at t = {} has the component {}, beyond +-{}, {}; fix: {}",
-                            crate::diagnostics::short(t),
-                            crate::diagnostics::short(*x),
-                            crate::diagnostics::short(crate::config::REACH),
-                            crate::config::REACH_WHY,
-                            crate::config::REACH_FIX
-                        ),
-                    );
-                }
-                (e, p::answer::TOOL, index, t, position)
-            }
+            Message::Bye => return say_bye(stream, shared, ents),
+            Message::Pose { index, t, position } => match live_tool(ents, index, t, &position) {
+                Ok(e) => (e, p::answer::TOOL, index, t, position),
+                Err(end) => return end,
+            },
             Message::Force { index, t, force } => {
                 let e = ents.tools + index as usize;
                 if e >= ents.live.len() || !ents.live[e] {
