@@ -120,7 +120,9 @@ pub fn solve<S: Sweep>(
     // With held rows (`Sweep::frozen`) (b, x_k) is not an energy of the free rows' system
     // (their right-hand side also has the held values' share): (b, M b) on the free rows
     // measures it then.
-    let energy = pre.inverse_diagonal().is_none() && sweep.frozen().is_empty();
+    // Every process must take the same branch (each has its own collectives): whether any
+    // holds rows is agreed first (the preconditioner's kind is the same everywhere).
+    let energy = pre.inverse_diagonal().is_none() && comm.max(f64::from(u8::from(!sweep.frozen().is_empty()))) == 0.0;
     let mut scale = if energy {
         let x_ = &x[..n];
         exact_sums_par(comm, n, |i| {
