@@ -35,6 +35,8 @@ import struct
 import sys
 import time
 
+from argv_glue import glued
+
 MAGIC = b"EPROPHAP"
 VERSION, VERSION_STREAM = 1, 2
 STREAM_SURFACE = 1
@@ -176,20 +178,6 @@ def samples(a, t0):
 
 
 
-def glued(argv, options):
-    """argv with `OPTION VALUE` written `OPTION=VALUE` for the options whose value may start
-    with a minus sign (`--from -0.00047,0,2`, `--view -y`), which argparse would take for an
-    option of its own."""
-    out = []
-    i = 0
-    while i < len(argv):
-        if argv[i] in options and i + 1 < len(argv):
-            out.append(f"{argv[i]}={argv[i + 1]}")
-            i += 2
-        else:
-            out.append(argv[i])
-            i += 1
-    return out
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -42,24 +42,11 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np  # noqa: E402
+from argv_glue import glued  # noqa: E402
 from eprop_series import Fail, open_series  # noqa: E402
 
 
 
-def glued(argv, options):
-    """argv with `OPTION VALUE` written `OPTION=VALUE` for the options whose value may start
-    with a minus sign (`--from -0.00047,0,2`, `--view -y`), which argparse would take for an
-    option of its own."""
-    out = []
-    i = 0
-    while i < len(argv):
-        if argv[i] in options and i + 1 < len(argv):
-            out.append(f"{argv[i]}={argv[i + 1]}")
-            i += 2
-        else:
-            out.append(argv[i])
-            i += 1
-    return out
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

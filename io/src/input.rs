@@ -81,8 +81,10 @@ fn check_regular(path: &Path, role: &str, meta: &std::fs::Metadata) -> Result<()
     ))
 }
 
+/// What a file that is not a regular file or a directory is, for a message ("a FIFO (named
+/// pipe)", "a character device", ...).
 #[cfg(unix)]
-fn special_kind(t: &std::fs::FileType) -> &'static str {
+pub fn special_kind(t: &std::fs::FileType) -> &'static str {
     use std::os::unix::fs::FileTypeExt;
     if t.is_fifo() {
         "a FIFO (named pipe)"
@@ -98,7 +100,7 @@ fn special_kind(t: &std::fs::FileType) -> &'static str {
 }
 
 #[cfg(not(unix))]
-fn special_kind(_: &std::fs::FileType) -> &'static str {
+pub fn special_kind(_: &std::fs::FileType) -> &'static str {
     "a special file"
 }
 

@@ -132,29 +132,12 @@ fn restartable(r: &Path) -> Result<()> {
     if t.is_file() {
         return Ok(());
     }
-    let what = if t.is_dir() { "a directory" } else { special_kind(&t) };
-    bail!("{shown}: is {what}, not a series to restart from; {fix}")
-}
-
-#[cfg(unix)]
-fn special_kind(t: &std::fs::FileType) -> &'static str {
-    use std::os::unix::fs::FileTypeExt;
-    if t.is_fifo() {
-        "a FIFO (named pipe)"
-    } else if t.is_char_device() {
-        "a character device"
-    } else if t.is_block_device() {
-        "a block device"
-    } else if t.is_socket() {
-        "a socket"
+    let what = if t.is_dir() {
+        "a directory"
     } else {
-        "a special file"
-    }
-}
-
-#[cfg(not(unix))]
-fn special_kind(_: &std::fs::FileType) -> &'static str {
-    "a special file"
+        eprop_io::input::special_kind(&t)
+    };
+    bail!("{shown}: is {what}, not a series to restart from; {fix}")
 }
 
 /// Reads a scenario and claims its output before reading the mesh and before anything is

@@ -25,8 +25,9 @@ pub struct ToolSummary {
     pub shape: String,
     pub radius: f64,
     pub position: [f64; 3],
-    /// The force the tool exerts on the organ (the elastic foundation: -sum p_i A_i over the
-    /// surface nodes it overlaps at rest; docs/tools.md).
+    /// The force the tool exerts on the organ (the kinematic law: the model's reaction at the
+    /// nodes it holds; the elastic foundation: -sum p_i A_i over the surface nodes it overlaps
+    /// at rest; docs/tools.md).
     pub force: [f64; 3],
     pub contact_nodes: u64,
     pub contact_area: f64,

@@ -36,12 +36,16 @@ use eprop_io::geom::{dot, norm, scale, sub};
 /// outside it (round-off of a node put on the surface).
 pub const ON_SURFACE: f64 = 1e-9;
 
+/// Whether a point y touches the tool at `c`: inside it, or outside by less than ON_SURFACE
+/// of its radius.
+pub fn touches(shape: &Shape, c: V3, y: V3) -> bool {
+    depth(shape, c, y) >= -ON_SURFACE * shape.radius()
+}
+
 /// A node held over one step.
 #[derive(Clone, Copy, Debug)]
 pub struct Held {
     pub node: u32,
-    /// The tool that holds it.
-    pub tool: u16,
     /// The displacement the tool gives it at the step's end.
     pub target: V3,
     /// Its displacement at the step's start.
@@ -75,7 +79,7 @@ pub fn push_normal(shape: &Shape, c: V3, y: V3) -> Option<V3> {
 pub fn hold(run: &ToolRun, c_now: V3, c_next: V3, y: V3) -> Option<V3> {
     let shape = run.tool.shape;
     let tol = ON_SURFACE * shape.radius();
-    let on_now = depth(&shape, c_now, y) >= -tol;
+    let on_now = touches(&shape, c_now, y);
     let mut y = y;
     if run.tool.grip == Grip::Stick && on_now {
         y = add(y, sub(c_next, c_now));
@@ -172,7 +176,6 @@ pub fn held_nodes(
                 taken[i] = true;
                 out.push(Held {
                     node: i as u32,
-                    tool: k as u16,
                     target: sub(p, x[i]),
                     before: u[i],
                 });
@@ -210,14 +213,13 @@ pub fn measure(
     comm: &dyn crate::distribute::comm::Comm,
 ) -> super::contact::ToolState {
     let shape = run.tool.shape;
-    let tol = ON_SURFACE * shape.radius();
     let mut rows = Vec::new();
     for i in 0..u.len() {
         if !n.active[i] {
             continue;
         }
         let y = add(n.points[i], u[i]);
-        if !(depth(&shape, c, y) >= -tol) {
+        if !touches(&shape, c, y) {
             continue;
         }
         let s = -force_factor(mat, i) * n.vol[i];

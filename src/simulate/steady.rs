@@ -6,7 +6,7 @@
 //! potential and place are the contact's); max
 //! norms over every process (exact maxima, so the same stop on any number of processes).
 
-use super::{contact, load_sources, Flux, Simulation};
+use super::{load_sources, Flux, Simulation};
 use crate::config::{Reading, Stop};
 use crate::discretize::operator::V3;
 use eprop_io::geom::{add, norm, scale};
@@ -70,10 +70,9 @@ impl Simulation {
         // the nodes a tool holds: their equation is the contact's
         let held = |i: usize| {
             let xi = add(self.setup.mesh.points[i], self.u[i]);
-            self.tools.iter().any(|t| {
-                let tol = super::inspect::INSIDE_TOLERANCE * t.tool.shape.radius();
-                contact::depth(&t.tool.shape, t.state.position, xi) >= -tol
-            })
+            self.tools
+                .iter()
+                .any(|t| super::kinematic::touches(&t.tool.shape, t.state.position, xi))
         };
         let (mat, p) = (&self.setup.materials, self.setup.model.exponent);
         let mut m = [0.0f64; 4];
