@@ -1,10 +1,13 @@
 //! The `eprop` command line.
 
+mod cli;
+mod guard;
+
+use crate::cli::run::{run_on, Every, RunOptions};
+use crate::cli::serve::{serve_on, ServeOptions};
+use crate::cli::{bench, inspect};
 use anyhow::{bail, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use eprop::cli::run::{run_on, Every, RunOptions};
-use eprop::cli::serve::{serve_on, ServeOptions};
-use eprop::cli::{bench, inspect};
 use eprop::distribute::launch::{is_root, launch};
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use std::path::{Path, PathBuf};
@@ -452,7 +455,7 @@ enum Shape {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    eprop::cli::log_to_stderr(cli.verbose);
+    crate::cli::log_to_stderr(cli.verbose);
     let status = match real_main(cli) {
         Ok(()) => 0,
         Err(e) => match e.downcast_ref::<eprop::guard::safety::Agreed>() {
@@ -577,7 +580,7 @@ fn solve_command(cmd: Cmd) -> Result<()> {
             json,
             quiet,
         } => {
-            let opts = eprop::cli::fit::FitOptions {
+            let opts = crate::cli::fit::FitOptions {
                 data,
                 params: param,
                 starts: start,
@@ -592,7 +595,7 @@ fn solve_command(cmd: Cmd) -> Result<()> {
                 plot: !no_plot,
                 overwrite,
             };
-            if let Some(r) = launch(|world| eprop::cli::fit::fit_on(world, &scenario, &opts))? {
+            if let Some(r) = launch(|world| crate::cli::fit::fit_on(world, &scenario, &opts))? {
                 print(&r, json)?;
             }
         }
@@ -619,7 +622,7 @@ fn tool_command(cmd: Cmd) -> Result<()> {
         }
         Cmd::Info { mesh, json, strict } => {
             let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
-            print(&inspect::mesh_info(&m), json)?;
+            print(&eprop::simulate::mesh_info(&m), json)?;
         }
         Cmd::Convert {
             input,
@@ -667,8 +670,8 @@ fn tool_command(cmd: Cmd) -> Result<()> {
             output,
             overwrite,
         } => {
-            let o = eprop::cli::export::ExportOptions {
-                format: eprop::cli::export::Format::parse(&surface)?,
+            let o = crate::cli::export::ExportOptions {
+                format: crate::cli::export::Format::parse(&surface)?,
                 every,
                 step,
                 scalar,
@@ -808,8 +811,8 @@ fn bench_boxes(
 }
 
 /// `eprop export`: the files written and the first and last named.
-fn export_surface(series: &Path, o: &eprop::cli::export::ExportOptions) -> Result<()> {
-    let files = eprop::cli::export::export(series, o)?;
+fn export_surface(series: &Path, o: &crate::cli::export::ExportOptions) -> Result<()> {
+    let files = crate::cli::export::export(series, o)?;
     println!(
         "{}: {} file(s), {} .. {}",
         series.display(),

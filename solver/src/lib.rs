@@ -6,15 +6,15 @@
 //! propagated potential drives damped nodal dynamics. The model is fixed in docs/model.md;
 //! ARCHITECTURE.md maps the code.
 
-pub mod cli;
 pub mod config;
-pub(crate) mod diagnostics;
+pub mod diagnostics;
 pub mod discretize;
 pub mod distribute;
 pub mod guard;
 pub mod linalg;
-pub(crate) mod output;
+pub mod output;
 pub mod propagate;
+pub mod protocol;
 pub mod simulate;
 #[cfg(test)]
 mod testing;

@@ -2,8 +2,8 @@
 //! engine loads (OBJ, STL, PLY, VTU), optionally with a scalar per vertex (as a colour in OBJ
 //! and PLY, as point data in VTU).
 
-use crate::guard::safety::{claim_file, Input};
 use anyhow::{bail, Result};
+use eprop::guard::safety::{claim_file, Input};
 use eprop_io::mesh::boundary_faces;
 use eprop_io::Mesh;
 use std::fmt::Write as _;

@@ -408,6 +408,25 @@ impl Setup {
         Self::with_mesh(scenario, mesh)
     }
 
+    /// The bench scenario (`eprop bench`, the kernel examples and tests): the unit box of
+    /// `cells`^3 tetrahedral cubes, the left face fixed, a normal load on the right face.
+    /// `scheme` is "compact", "paper" or "compact32" (compact with float32 coefficients).
+    pub fn bench_box(cells: usize, scheme: &str) -> Result<Setup> {
+        let mesh = eprop_io::generate::box_mesh([1.0; 3], [cells; 3], eprop_io::generate::BoxCells::Tet)?;
+        let (scheme, prec) = match scheme {
+            "compact32" => ("compact", "float32"),
+            s => (s, "float64"),
+        };
+        let text = format!(
+            "[mesh]\nfile = \"generated\"\n[model]\nreading = \"paper\"\nscheme = \"{scheme}\"\noperator_precision = \"{prec}\"\n[[fixed]]\ngroup = \"xmin\"\n\
+             [[load]]\nnearest = [1.0, 0.5, 0.5]\nnormal = 1.0\n[time]\nsteps = 1\n"
+        );
+        let sc = Scenario::parse(Path::new("bench.toml"), text)?;
+        let mut s = Self::with_mesh(sc, mesh)?;
+        s.mesh.source = format!("box {cells}^3 tet");
+        Ok(s)
+    }
+
     /// Resolves a scenario against an already loaded mesh, one section after the other.
     pub fn with_mesh(scenario: Scenario, mesh: Mesh) -> Result<Setup> {
         let (sc, f) = (&scenario, &scenario.file);

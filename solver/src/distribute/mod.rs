@@ -9,4 +9,4 @@ pub mod comm;
 pub mod field;
 pub mod halo;
 pub mod launch;
-pub(crate) mod parts;
+pub mod parts;

@@ -1,11 +1,8 @@
 //! What keeps a run safe: output claims, the writer lock and agreed exit statuses (`safety`),
-//! checked counts and the output budget (`limits`), plausibility warnings and the non-finite
-//! watch (`plausible`), the record of inverted cells and nodes inside tools with the warning
-//! when the mesh folds (`fold`), and the signal handler, whose flag a command hands its simulations as
-//! a `StopToken` (`signals`).
+//! checked counts and the output budget (`limits`), and the record of inverted cells and nodes
+//! inside tools with the warning when the mesh folds (`fold`). The command adds the plausibility
+//! warnings and the signal handler (the `eprop` binary's `guard`).
 
-pub(crate) mod fold;
-pub(crate) mod limits;
-pub(crate) mod plausible;
+pub mod fold;
+pub mod limits;
 pub mod safety;
-pub(crate) mod signals;

@@ -6,6 +6,9 @@
 //! (`propagate::Propagation`) is the `Sweep` the solvers run on, and the implicit integrator
 //! says what a failed solve means for the scenario.
 
+/// Whether the library was built with hypre, the `amg` preconditioner (`build.rs`).
+pub const HAS_AMG: bool = cfg!(eprop_hypre);
+
 #[cfg(eprop_hypre)]
 pub mod amg;
 pub mod cg;

@@ -302,6 +302,12 @@ impl Series {
         Ok(())
     }
 
+    /// The warning of the first written step with inverted cells or nodes inside a tool, once
+    /// (every process calls: `guard::fold::Record::warning`).
+    pub fn fold_warning(&mut self, sim: &Simulation) -> Option<String> {
+        self.folds.warning(sim)
+    }
+
     /// The simulation step of the last complete output step.
     pub fn complete_step(&self) -> u64 {
         self.complete_step

@@ -567,7 +567,7 @@ mod tests {
 
     /// The compact operator of a small bench box (Morton order) and one in RCM order.
     fn box_operator(cells: usize) -> (Compact, f64) {
-        let setup = crate::cli::bench::box_setup(cells, "compact").unwrap();
+        let setup = crate::config::Setup::bench_box(cells, "compact").unwrap();
         let sim = crate::simulate::Simulation::new(setup).unwrap();
         let h = sim.step_plan().h;
         let Operator::Compact(c) = &sim.prop.op else {

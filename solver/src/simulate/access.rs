@@ -2,6 +2,7 @@
 //! commands, the tests and the examples. Its state changes only by its own steps
 //! (`Simulation::advance`, `restore`, `set_dt`).
 
+use super::contact::ToolRun;
 use super::Simulation;
 use crate::config::{Load, Setup};
 use crate::discretize::geometry::Dual;
@@ -66,6 +67,17 @@ impl Simulation {
     /// The propagation: the operator, its halo exchange and the potential.
     pub fn prop(&self) -> &Propagation {
         &self.prop
+    }
+
+    /// The propagation to drive by hand between steps: the kernel benchmarks (`eprop bench`)
+    /// time its substeps and sweeps on the simulation's own operator and halo.
+    pub fn prop_mut(&mut self) -> &mut Propagation {
+        &mut self.prop
+    }
+
+    /// The scenario's tools as the run holds them (their trajectories and states).
+    pub fn tools(&self) -> &[ToolRun] {
+        &self.tools
     }
 
     /// The propagation alone, the simulation given up: to drive its operator and potential by
@@ -139,12 +151,12 @@ impl Simulation {
     }
 
     /// Control volumes of this process's output block.
-    pub(crate) fn vol_block(&self) -> &[f64] {
+    pub fn vol_block(&self) -> &[f64] {
         &self.vol_block
     }
 
     /// Fixed nodes of the whole mesh.
-    pub(crate) fn fixed_nodes(&self) -> usize {
+    pub fn fixed_nodes(&self) -> usize {
         self.fixed_nodes
     }
 
@@ -154,7 +166,7 @@ impl Simulation {
     }
 
     /// The mechanics stability bound over every node.
-    pub(crate) fn dt_bound(&self) -> f64 {
+    pub fn dt_bound(&self) -> f64 {
         self.dt_bound
     }
 

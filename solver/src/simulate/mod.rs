@@ -8,6 +8,8 @@ pub mod contact;
 pub mod distributed;
 pub mod inspect;
 pub mod kinematic;
+mod live;
+mod mesh_info;
 pub mod steady;
 mod stop;
 #[cfg(test)]
@@ -30,6 +32,7 @@ use eprop_partition::{LocalNumbering, Plan};
 use rayon::prelude::*;
 
 pub use crate::propagate::integrate::euler::SAFETY;
+pub use mesh_info::{mesh_info, MeshInfo};
 pub use stop::StopToken;
 
 /// Largest stable mechanics step of one node (semi-implicit Euler), infinite when undamped
@@ -968,6 +971,18 @@ impl Simulation {
             .collect()
     }
 
+    /// Seconds per substep of the step plan's h without sources, the mean of `count` run
+    /// outside any step (`eprop check`'s estimate of a run's time). The potential changes; a
+    /// simulation timed so is for looking at, not for stepping on.
+    pub fn time_substeps(&mut self, count: usize) -> f64 {
+        let h = self.step_plan().h;
+        let t = std::time::Instant::now();
+        for _ in 0..count {
+            self.prop.substep(h, &[]);
+        }
+        t.elapsed().as_secs_f64() / count.max(1) as f64
+    }
+
     /// Each tool's state at the end of the last step (at rest before the first).
     pub fn tool_states(&self) -> Vec<ToolState> {
         self.tools.iter().map(|t| t.state).collect()
@@ -993,7 +1008,7 @@ impl Simulation {
     /// positions), estimated from their boundary dual areas (a node of a regular triangulation
     /// of spacing h has a dual area of about 0.87 h^2), over every process; None when there are
     /// none (every process calls: a reduction).
-    pub(crate) fn surface_spacing_near(&self, points: &[V3], reach: f64) -> Option<f64> {
+    pub fn surface_spacing_near(&self, points: &[V3], reach: f64) -> Option<f64> {
         let pts = &self.setup.mesh.points;
         let largest = self
             .surface
@@ -1010,7 +1025,7 @@ impl Simulation {
     /// surface node that moves, when p is on the inner side of that node's boundary dual area
     /// (A_i . (p - X_i) < 0); None outside or without such nodes (every process calls: two
     /// reductions).
-    pub(crate) fn depth_inside(&self, p: V3) -> Option<f64> {
+    pub fn depth_inside(&self, p: V3) -> Option<f64> {
         let pts = &self.setup.mesh.points;
         let (mut best, mut inside) = (f64::INFINITY, false);
         for &i in &self.surface {
@@ -1116,7 +1131,8 @@ impl Simulation {
     }
 }
 
-pub(crate) fn scheme_name(s: Scheme) -> &'static str {
+/// The scenario key's word for a scheme (`[model] scheme`).
+pub fn scheme_name(s: Scheme) -> &'static str {
     match s {
         Scheme::Compact => "compact",
         Scheme::Paper { correction: true } => "paper (corrected)",
