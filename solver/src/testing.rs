@@ -166,9 +166,9 @@ fn thread_processes_reduce_and_exchange() {
     let terms: Vec<f64> = (0..30)
         .map(|i| 1.0 / (i as f64 + 1.0) * if i % 2 == 0 { 1e8 } else { 1e-8 })
         .collect();
-    let one = crate::distribute::comm::exact_sum(&crate::distribute::comm::Serial, terms.iter().copied());
+    let one = crate::distribute::comm::reproducible_sum(&crate::distribute::comm::Serial, terms.iter().copied());
     let sums = threads(4, |c| {
-        crate::distribute::comm::exact_sum(c, terms.iter().skip(c.rank()).step_by(4).copied())
+        crate::distribute::comm::reproducible_sum(c, terms.iter().skip(c.rank()).step_by(4).copied())
     });
     assert!(sums.iter().all(|&s| s == one), "{sums:?} vs {one}");
 }

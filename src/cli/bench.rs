@@ -185,7 +185,7 @@ pub fn measure(
     }
     let rss = peak_rss() as f64;
     let peak = sim.comm().max(rss);
-    let total_rss = eprop::distribute::comm::exact_sum(sim.comm(), [rss].into_iter());
+    let total_rss = eprop::distribute::comm::reproducible_sum(sim.comm(), [rss].into_iter());
     let rate = n as f64 / per_substep;
     Ok(Case {
         mesh: sim.global_mesh().map(|m| m.source.clone()).unwrap_or_default(),

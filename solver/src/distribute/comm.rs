@@ -82,7 +82,7 @@ impl Handle {
 #[derive(Clone, Copy, Debug)]
 pub struct RawComm(mpi::ffi::MPI_Comm);
 
-/// A 256-bit two's-complement integer (`hi * 2^128 + lo`): the accumulator of `exact_sum`.
+/// A 256-bit two's-complement integer (`hi * 2^128 + lo`): the accumulator of `reproducible_sum`.
 /// Terms are below 2^100 in magnitude, so about 2^155 of them fit: no node count overflows it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Wide {
@@ -145,7 +145,8 @@ impl Wide {
     }
 }
 
-/// An exact, order-independent sum of f64 values spread over processes.
+/// A reproducible, order-independent sum of f64 values spread over processes: the sum of the
+/// terms truncated to one fixed-point grid, added exactly (not the exact sum of the terms).
 ///
 /// What it guarantees: with e = ceil(log2 M), M the largest |x| over every process, each term
 /// is truncated to the grid 2^(e-100) and the truncated terms are added exactly (256-bit
@@ -153,13 +154,13 @@ impl Wide {
 /// multiset of terms only: the same on any number of processes, in any order, on any thread
 /// count. Its error is below N 2^(e-100) for N terms (relative to the largest term, N 2^-100),
 /// plus one rounding of the total to f64. A non-finite term gives NaN.
-pub fn exact_sum(comm: &dyn Comm, local: impl Iterator<Item = f64> + Clone) -> f64 {
-    let [s] = exact_sums(comm, local.map(|x| [x]));
+pub fn reproducible_sum(comm: &dyn Comm, local: impl Iterator<Item = f64> + Clone) -> f64 {
+    let [s] = reproducible_sums(comm, local.map(|x| [x]));
     s
 }
 
-/// `exact_sum` of K sums at once (one reduction of the maxima, one of the sums).
-pub fn exact_sums<const K: usize>(comm: &dyn Comm, local: impl Iterator<Item = [f64; K]> + Clone) -> [f64; K] {
+/// `reproducible_sum` of K sums at once (one reduction of the maxima, one of the sums).
+pub fn reproducible_sums<const K: usize>(comm: &dyn Comm, local: impl Iterator<Item = [f64; K]> + Clone) -> [f64; K] {
     let mut m = [0.0f64; K];
     for x in local.clone() {
         for k in 0..K {
@@ -202,11 +203,11 @@ pub fn exact_sums<const K: usize>(comm: &dyn Comm, local: impl Iterator<Item = [
     out
 }
 
-/// `exact_sums` of K sums over the terms `term(0..n)`, computed by the rayon threads in
+/// `reproducible_sums` of K sums over the terms `term(0..n)`, computed by the rayon threads in
 /// blocks (the same result: the terms are truncated to the same grid and added exactly, so the
 /// grouping does not matter). For the dot products of the implicit solves, where one pass
 /// over a few hundred thousand nodes must cost no more than an operator application.
-pub fn exact_sums_par<const K: usize, F>(comm: &dyn Comm, n: usize, term: F) -> [f64; K]
+pub fn reproducible_sums_par<const K: usize, F>(comm: &dyn Comm, n: usize, term: F) -> [f64; K]
 where
     F: Fn(usize) -> [f64; K] + Sync,
 {
@@ -241,7 +242,7 @@ where
             },
         );
     let m = comm.max_each(&m);
-    let grids: [Grid; K] = std::array::from_fn(|k| Grid::new(m[k]));
+    let grids: [SumGrid; K] = std::array::from_fn(|k| SumGrid::new(m[k]));
     let part = (0..blocks)
         .into_par_iter()
         .map(|b| {
@@ -269,30 +270,30 @@ where
     std::array::from_fn(|k| grids[k].value(total[k]))
 }
 
-/// The fixed-point grid of an exact sum whose terms are at most `m` in magnitude (`m` the same
+/// The fixed-point grid of a reproducible sum whose terms are at most `m` in magnitude (`m` the same
 /// on every process: a maximum or a bound reduced with `Comm::max`): terms are truncated to
-/// 2^(e-100), e = ceil(log2 m), and added as integers, as `exact_sums` does. A bound above the
+/// 2^(e-100), e = ceil(log2 m), and added as integers, as `reproducible_sums` does. A bound above the
 /// largest term only coarsens the grid (each doubling costs one of the 100 bits); a
 /// non-finite bound makes the sum NaN.
 #[derive(Clone, Copy, Debug)]
-pub struct Grid {
+pub struct SumGrid {
     sa: f64,
     sb: f64,
     /// 0: every term is zero; 1: a grid; 2: NaN
     state: u8,
 }
 
-impl Grid {
-    pub fn new(m: f64) -> Grid {
+impl SumGrid {
+    pub fn new(m: f64) -> SumGrid {
         if !m.is_finite() {
-            return Grid {
+            return SumGrid {
                 sa: 0.0,
                 sb: 0.0,
                 state: 2,
             };
         }
         if !(m > 0.0) {
-            return Grid {
+            return SumGrid {
                 sa: 0.0,
                 sb: 0.0,
                 state: 0,
@@ -300,7 +301,7 @@ impl Grid {
         }
         let e = m.log2().ceil() as i32;
         let q = 100 - e; // |x| * 2^q <= 2^100
-        Grid {
+        SumGrid {
             sa: 2f64.powi(q / 2),
             sb: 2f64.powi(q - q / 2),
             state: 1,
@@ -528,13 +529,13 @@ mod tests {
     }
 
     #[test]
-    fn exact_sum_takes_any_order_and_does_not_overflow() {
+    fn reproducible_sum_takes_any_order_and_does_not_overflow() {
         // 2^28 terms of the largest magnitude would wrap a 128-bit accumulator (2^28 2^100 >
         // 2^127); in 256 bits they add exactly
         let n = 1usize << 28;
-        let s = exact_sum(&Serial, (0..n).map(|_| 1.0));
+        let s = reproducible_sum(&Serial, (0..n).map(|_| 1.0));
         assert_eq!(s, n as f64);
-        let s = exact_sum(&Serial, (0..n).map(|i| if i % 3 == 0 { -1e300 } else { 1e300 }));
+        let s = reproducible_sum(&Serial, (0..n).map(|i| if i % 3 == 0 { -1e300 } else { 1e300 }));
         assert_eq!(s, 1e300 * (n as f64 - 2.0 * n.div_ceil(3) as f64));
         // order does not matter, even with cancellation
         let x: Vec<f64> = (0..1000)
@@ -544,17 +545,17 @@ mod tests {
         y.reverse();
         y.rotate_left(317);
         assert_eq!(
-            exact_sum(&Serial, x.iter().copied()),
-            exact_sum(&Serial, y.iter().copied())
+            reproducible_sum(&Serial, x.iter().copied()),
+            reproducible_sum(&Serial, y.iter().copied())
         );
         // extreme magnitudes and non-finite terms
-        assert_eq!(exact_sum(&Serial, [f64::MAX, -f64::MAX, 1.0].into_iter()), 0.0);
-        assert_eq!(exact_sum(&Serial, [5e-324, 5e-324].into_iter()), 1e-323);
-        assert!(exact_sum(&Serial, [1.0, f64::NAN].into_iter()).is_nan());
-        assert!(exact_sum(&Serial, [f64::NAN, 1.0].into_iter()).is_nan());
-        assert!(exact_sum(&Serial, [1.0, f64::INFINITY].into_iter()).is_nan());
-        assert_eq!(exact_sum(&Serial, std::iter::empty()), 0.0);
-        let [a, b] = exact_sums(&Serial, [[1.0, 2.0], [3.0, -2.0]].into_iter());
+        assert_eq!(reproducible_sum(&Serial, [f64::MAX, -f64::MAX, 1.0].into_iter()), 0.0);
+        assert_eq!(reproducible_sum(&Serial, [5e-324, 5e-324].into_iter()), 1e-323);
+        assert!(reproducible_sum(&Serial, [1.0, f64::NAN].into_iter()).is_nan());
+        assert!(reproducible_sum(&Serial, [f64::NAN, 1.0].into_iter()).is_nan());
+        assert!(reproducible_sum(&Serial, [1.0, f64::INFINITY].into_iter()).is_nan());
+        assert_eq!(reproducible_sum(&Serial, std::iter::empty()), 0.0);
+        let [a, b] = reproducible_sums(&Serial, [[1.0, 2.0], [3.0, -2.0]].into_iter());
         assert_eq!((a, b), (4.0, 0.0));
     }
 
@@ -566,8 +567,8 @@ mod tests {
                 r * 10f64.powi((i % 37) as i32 - 18)
             })
             .collect();
-        let serial = exact_sums(&Serial, x.iter().map(|&v| [v, v * v, -v, 0.0]));
-        let par = exact_sums_par(&Serial, x.len(), |i| [x[i], x[i] * x[i], -x[i], 0.0]);
+        let serial = reproducible_sums(&Serial, x.iter().map(|&v| [v, v * v, -v, 0.0]));
+        let par = reproducible_sums_par(&Serial, x.len(), |i| [x[i], x[i] * x[i], -x[i], 0.0]);
         assert_eq!(serial.map(f64::to_bits), par.map(f64::to_bits));
         for y in [
             0.0,
@@ -585,7 +586,7 @@ mod tests {
         ] {
             assert_eq!(truncate(y), y as i128, "{y}");
         }
-        assert!(exact_sums_par(&Serial, 2, |i| [if i == 1 { f64::NAN } else { 1.0 }])[0].is_nan());
-        assert_eq!(exact_sums_par(&Serial, 0, |_| [1.0]), [0.0]);
+        assert!(reproducible_sums_par(&Serial, 2, |i| [if i == 1 { f64::NAN } else { 1.0 }])[0].is_nan());
+        assert_eq!(reproducible_sums_par(&Serial, 0, |_| [1.0]), [0.0]);
     }
 }

@@ -26,7 +26,7 @@ pub struct GlobalSizes {
 
 impl GlobalSizes {
     pub fn of(mesh: &Mesh) -> GlobalSizes {
-        let mut h = Fnv::default();
+        let mut h = StableHash::default();
         mesh.points.iter().flatten().for_each(|x| h.u64(x.to_bits()));
         mesh.conn.iter().for_each(|&c| h.u64(c as u64));
         mesh.kinds
@@ -44,9 +44,9 @@ impl GlobalSizes {
 
 /// FNV-1a, 64 bit (the `fnv` crate): a stable hash for identity checks (not for security).
 #[derive(Default)]
-pub struct Fnv(fnv::FnvHasher);
+pub struct StableHash(fnv::FnvHasher);
 
-impl Fnv {
+impl StableHash {
     pub fn bytes(&mut self, b: &[u8]) {
         std::hash::Hasher::write(&mut self.0, b);
     }

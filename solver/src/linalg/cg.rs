@@ -9,7 +9,7 @@
 
 use super::csr::AnyCsr;
 use super::{Precond, Sweep, V3};
-use crate::distribute::comm::{exact_sums_par, Comm, Grid, Wide};
+use crate::distribute::comm::{reproducible_sums_par, Comm, SumGrid, Wide};
 use crate::distribute::field::NodeField;
 use eprop_partition::Layout;
 use rayon::prelude::*;
@@ -125,7 +125,7 @@ pub fn solve<S: Sweep>(
     let energy = pre.inverse_diagonal().is_none() && comm.max(f64::from(u8::from(!sweep.frozen().is_empty()))) == 0.0;
     let mut scale = if energy {
         let x_ = &x[..n];
-        exact_sums_par(comm, n, |i| {
+        reproducible_sums_par(comm, n, |i| {
             [b[i][0] * x_[i][0] + b[i][1] * x_[i][1] + b[i][2] * x_[i][2]]
         })[0]
     } else {
@@ -144,7 +144,7 @@ pub fn solve<S: Sweep>(
         pre.apply(sweep, b, p);
         mask(sweep, p);
         let p_ = &p[..];
-        let bb: [f64; 3] = exact_sums_par(comm, n, |i| {
+        let bb: [f64; 3] = reproducible_sums_par(comm, n, |i| {
             [b[i][0] * p_[i][0], b[i][1] * p_[i][1], b[i][2] * p_[i][2]]
         });
         bb[0] + bb[1] + bb[2]
@@ -333,9 +333,9 @@ fn apply_and_dots<S: Sweep>(
     let m = comm.max_each(&local_max);
     let (mr, mu, mb) = (m[0], m[1], m[2]);
     // 3.01: the three products of a row and their rounding
-    let g_ru = Grid::new(3.01 * mr * mu);
-    let g_wu = Grid::new(3.01 * a.bound * mu * mu);
-    let g_bu = Grid::new(3.01 * mb * mu);
+    let g_ru = SumGrid::new(3.01 * mr * mu);
+    let g_wu = SumGrid::new(3.01 * a.bound * mu * mu);
+    let g_bu = SumGrid::new(3.01 * mb * mu);
     let acc: Acc = sweep.fold_to(
         u,
         w,

@@ -5,7 +5,7 @@
 use crate::config::{Field, Precision};
 use crate::diagnostics::{log_memory, median};
 use crate::distribute::comm::Handle;
-use crate::distribute::parts::{Fnv, GlobalSizes};
+use crate::distribute::parts::{GlobalSizes, StableHash};
 use crate::guard::safety::{Agreed, OutputLock, EXIT_ERROR};
 use crate::simulate::Simulation;
 use anyhow::{anyhow, Result};
@@ -131,7 +131,7 @@ impl Series {
         let output = &sim.setup().output;
         let flush = output.flush;
         let fields = output.fields();
-        let mut text_hash = Fnv::default();
+        let mut text_hash = StableHash::default();
         text_hash.bytes(sim.setup().scenario.text.as_bytes());
         // every table the scenario names is an input too: a restart refuses a changed one
         // (rank 0 reads them, as it read the scenario; an unreadable one hashes to 0)
@@ -139,7 +139,7 @@ impl Series {
         let mut hashes: Vec<f64> = named
             .iter()
             .map(|(_, input)| {
-                let mut h = Fnv::default();
+                let mut h = StableHash::default();
                 match sim.comm().rank() == 0 {
                     true => std::fs::read(&input.path).map_or(0.0, |bytes| {
                         h.bytes(&bytes);

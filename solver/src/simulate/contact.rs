@@ -15,7 +15,7 @@
 use crate::config::tissue::TissueLaw;
 use crate::config::{ContactLaw, Shape, Tool, Trajectory};
 use crate::discretize::operator::V3;
-use crate::distribute::comm::{exact_sums, Comm};
+use crate::distribute::comm::{reproducible_sums, Comm};
 use eprop_io::geom::{dot, norm, scale, sub};
 
 /// Below this contact strain (delta / h) the pressure rises quadratically, so that a node's
@@ -285,7 +285,7 @@ impl ToolRun {
             };
         }
         let (pressed, most) = self.pressures(c, n, law);
-        let s = exact_sums(
+        let s = reproducible_sums(
             comm,
             pressed.iter().map(|&(i, p)| {
                 let (ar, ui) = (n.area[i as usize], u[i as usize]);

@@ -5,7 +5,7 @@
 
 use super::{contact, Simulation};
 use crate::discretize::operator::V3;
-use crate::distribute::comm::exact_sums;
+use crate::distribute::comm::reproducible_sums;
 use eprop_io::geom::{add, det3, sub};
 use eprop_io::mesh::CellKind;
 
@@ -109,7 +109,7 @@ impl Simulation {
         let inverted = c.sum_i128(bad.len() as i128) as u64;
         let (mut centroid, mut bounds) = ([0.0; 3], None);
         if inverted > 0 {
-            let sums = exact_sums(c, bad.iter().map(|&k| eprop_io::geom::centroid(mesh.cell(k), pts)));
+            let sums = reproducible_sums(c, bad.iter().map(|&k| eprop_io::geom::centroid(mesh.cell(k), pts)));
             centroid = sums.map(|s| s / inverted as f64);
             let mut local = [f64::NEG_INFINITY; 6];
             for &k in &bad {

@@ -233,7 +233,7 @@ pub fn measure(
         let a = norm(n.area[i]);
         rows.push([f[0], f[1], f[2], a, 1.0, a * u[i][0], a * u[i][1], a * u[i][2]]);
     }
-    let s = crate::distribute::comm::exact_sums(comm, rows.iter().copied());
+    let s = crate::distribute::comm::reproducible_sums(comm, rows.iter().copied());
     let area = s[3];
     super::contact::ToolState {
         position: c,

@@ -19,7 +19,7 @@ use crate::config::{Fuse, Load, Precision, Reading, Scheme, Setup, Stop};
 use crate::diagnostics::short;
 use crate::discretize::geometry::{capacities, compact_coefficients, young_faces, Dual, Incidence};
 use crate::discretize::operator::{Compact, Operator, Paper, V3};
-use crate::distribute::comm::{exact_sum, Comm, Serial};
+use crate::distribute::comm::{reproducible_sum, Comm, Serial};
 use crate::distribute::field::NodeField;
 use crate::distribute::halo::{BlockScatter, Halo};
 use crate::propagate::integrate::{stability, StepPlan, StepStats, Stepper};
@@ -334,7 +334,7 @@ fn resolve_loads(
             .collect();
         let mut a = [0.0; 3];
         for d in 0..3 {
-            a[d] = exact_sum(comm, mine.iter().map(|&(li, _)| dual.area[li as usize][d]));
+            a[d] = reproducible_sum(comm, mine.iter().map(|&(li, _)| dual.area[li as usize][d]));
         }
         let an = norm(a);
         if !(an > 0.0) {
@@ -961,7 +961,7 @@ impl Simulation {
             .map(|(mine, a)| {
                 let mut d = [0.0; 3];
                 for c in 0..3 {
-                    d[c] = exact_sum(
+                    d[c] = reproducible_sum(
                         self.comm.as_ref(),
                         mine.iter().map(|&(i, w, _, _)| w * self.u[i as usize][c]),
                     );
@@ -1058,7 +1058,7 @@ impl Simulation {
     /// Sum of V_i |phi_i| over the mesh (exact sum).
     pub fn total_energy(&self) -> f64 {
         let n = self.numbering.n_owned;
-        exact_sum(
+        reproducible_sum(
             self.comm.as_ref(),
             self.dual.vol[..n]
                 .iter()

@@ -111,7 +111,9 @@ pub fn squares<const K: usize, F>(comm: &dyn Comm, n: usize, rows: F) -> [f64; K
 where
     F: Fn(usize) -> [V3; K] + Sync,
 {
-    crate::distribute::comm::exact_sums_par(comm, n, |i| rows(i).map(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+    crate::distribute::comm::reproducible_sums_par(comm, n, |i| {
+        rows(i).map(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    })
 }
 
 /// The most levels (halvings of the mechanics step) the error control may take: a step of

@@ -2,7 +2,7 @@
 //! integrators size their stages from the same spectral bound.
 
 use crate::discretize::operator::{Compact, Operator, V3};
-use crate::distribute::comm::{exact_sum, Comm};
+use crate::distribute::comm::{reproducible_sum, Comm};
 use crate::distribute::field::NodeField;
 use crate::propagate::Propagation;
 use eprop_io::geom::{dot, scale};
@@ -55,7 +55,7 @@ fn paper_bound(prop: &mut Propagation, active: &[bool], gid: &[u64], comm: &dyn 
             })
             .collect(),
     );
-    let nrm = |x: &[V3]| exact_sum(comm, x[..n].iter().map(|v| dot(*v, *v))).sqrt();
+    let nrm = |x: &[V3]| reproducible_sum(comm, x[..n].iter().map(|v| dot(*v, *v))).sqrt();
     // power iteration on L: growth rate of |L^k x|
     let mut x = start.clone();
     let mut y = prop.zeros();
