@@ -487,10 +487,10 @@ fn main() -> ExitCode {
     crate::cli::log_to_stderr(cli.verbose);
     let status = match real_main(cli) {
         Ok(()) => 0,
-        Err(e) => match e.downcast_ref::<eprop::guard::safety::Agreed>() {
+        Err(e) => match e.downcast_ref::<eprop::Agreed>() {
             Some(a) => {
                 // a stop says so itself ("stopped by SIGTERM ...")
-                let word = if a.status == eprop::guard::safety::EXIT_STOPPED {
+                let word = if a.status == eprop::distribute::launch::EXIT_STOPPED {
                     ""
                 } else {
                     "error: "
@@ -685,9 +685,9 @@ fn at_least_one(s: &str) -> Result<usize, String> {
 /// `eprop convert`: the output claimed (not one of the input's files), the mesh read,
 /// validated and written.
 fn convert(input: &Path, output: &Path, strict: bool, overwrite: bool) -> Result<()> {
-    let inputs: Vec<eprop::guard::safety::Input> = eprop_io::mesh_files(input)
+    let inputs: Vec<eprop::config::Input> = eprop_io::mesh_files(input)
         .into_iter()
-        .map(|p| eprop::guard::safety::Input {
+        .map(|p| eprop::config::Input {
             role: format!("the input mesh ({})", p.display()),
             path: p,
         })

@@ -8,9 +8,10 @@
 use crate::guard::plausible::{self, Look, Watch};
 use anyhow::Result;
 use eprop::config::Stop;
+use eprop::distribute::launch::{Agreed, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
 use eprop::distribute::parts::GlobalSizes;
 use eprop::guard::limits::Budget;
-use eprop::guard::safety::{self, Agreed, OutputLock, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
+use eprop::guard::safety::{self, OutputLock};
 use eprop::output::progress::{Every, Progress};
 use eprop::output::series::Series;
 use eprop::output::summary::{summarize, Summary, Timing};

@@ -3,7 +3,8 @@
 //! and PLY, as point data in VTU).
 
 use anyhow::{bail, Result};
-use eprop::guard::safety::{claim_file, Input};
+use eprop::config::Input;
+use eprop::guard::safety::claim_file;
 use eprop_io::mesh::boundary_faces;
 use eprop_io::Mesh;
 use std::fmt::Write as _;

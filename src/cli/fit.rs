@@ -20,11 +20,13 @@
 
 use crate::cli::run::start_mpi_if_needed;
 use anyhow::{anyhow, bail, Result};
+use eprop::config::Input;
 use eprop::config::{Scenario, Setup};
 use eprop::diagnostics::short;
 use eprop::distribute::comm::Comm;
 use eprop::distribute::launch::is_root;
-use eprop::guard::safety::{self, Agreed, Input, EXIT_ERROR, EXIT_STOPPED};
+use eprop::distribute::launch::{Agreed, EXIT_ERROR, EXIT_STOPPED};
+use eprop::guard::safety;
 use eprop::simulate::distributed::build_mpi;
 use eprop::simulate::{Simulation, StopToken};
 use serde::Serialize;

@@ -2,7 +2,7 @@
 //! policy and exit statuses.
 //!
 //! The policy: an error every process knows (a bad scenario or mesh, found by rank 0 before
-//! the parts were sent and sent to all; or one the processes agreed on, `safety::Agreed`: a
+//! the parts were sent and sent to all; or one the processes agreed on, `Agreed`: a
 //! stop by a signal, a failed write, a non-finite state) is printed once and every process
 //! exits with its status; an error on one process prints its message with its rank and ends
 //! every process (MPI_Abort), so a batch job never hangs.

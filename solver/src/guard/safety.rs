@@ -9,18 +9,15 @@
 //!   output is opened and held to the end of the run (`OutputLock`). Readers never take it.
 //! - The output must fit on its disk (`check_space`).
 //! - A run that stops early ends every process with the same status and one message
-//!   (`Agreed`); the statuses are `EXIT_*`.
+//!   (`distribute::launch::Agreed`; the statuses are its `EXIT_*`).
 
+use crate::config::Input;
 use crate::guard::limits::{reserve, Budget};
 use anyhow::{anyhow, bail, Result};
 use eprop_series::outcome::{dir_of, free_bytes, human_bytes};
 use eprop_series::vtkhdf::Kind;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
-
-pub use crate::distribute::launch::{Agreed, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
-
-pub use crate::config::Input;
 
 /// The canonical form of a path whose file may not exist yet: its directory made canonical.
 fn canonical(path: &Path) -> Option<PathBuf> {

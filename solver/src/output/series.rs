@@ -5,8 +5,9 @@
 use crate::config::{Field, Precision};
 use crate::diagnostics::{log_memory, median};
 use crate::distribute::comm::Handle;
+use crate::distribute::launch::{Agreed, EXIT_ERROR};
 use crate::distribute::parts::{GlobalSizes, StableHash};
-use crate::guard::safety::{Agreed, OutputLock, EXIT_ERROR};
+use crate::guard::safety::OutputLock;
 use crate::simulate::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
