@@ -755,7 +755,7 @@ fn export_surface(series: &Path, o: &crate::cli::export::ExportOptions) -> Resul
 }
 
 /// The mesh a `mesh` subcommand describes, and where it goes.
-fn generate(shape: Shape) -> Result<(eprop_io::Mesh, PathBuf)> {
+fn generate(shape: Shape) -> Result<(eprop_mesh::Mesh, PathBuf)> {
     Ok(match shape {
         Shape::Cylinder {
             radius,

@@ -8,7 +8,7 @@ mod common;
 
 use base64::Engine;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use std::io::Write;
 use std::path::Path;
 

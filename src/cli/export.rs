@@ -6,7 +6,7 @@ use anyhow::{bail, Result};
 use eprop::config::Input;
 use eprop::guard::safety::claim_file;
 use eprop_io::mesh::boundary_faces;
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

@@ -9,7 +9,7 @@ use eprop::diagnostics::{fixed, peak_rss};
 use eprop::discretize::operator::{Compact, Operator};
 use eprop::guard::limits::Budget;
 use eprop::simulate::{scheme_name, Simulation};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::Serialize;
 use std::path::Path;
 

@@ -9,7 +9,7 @@ use eprop::config::{Reading, CONTINUUM};
 use eprop::diagnostics::{fixed, short};
 use eprop::simulate::Simulation;
 use eprop_io::geom::{norm, sub};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 
 /// max |u| above this fraction of the mesh's bounding-box diagonal is warned about once (the
 /// model is a small-deformation one).

@@ -3,7 +3,7 @@
 use super::select::{Entry, Keys};
 use super::Scenario;
 use anyhow::{bail, Result};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::de::MapAccess;
 
 /// A `[[fixed]]` table: a selector and nothing else.

@@ -5,7 +5,7 @@ use super::values::{Finite, Point, Ramp};
 use super::{Reading, Scenario};
 use crate::config::tables::{read_table, History};
 use anyhow::Result;
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::de::MapAccess;
 use serde::{Deserialize, Serialize};
 use toml::Spanned;

@@ -6,7 +6,7 @@ use super::values::{opt_non_negative, opt_positive, Finite, NonNegative, Poisson
 use super::Scenario;
 use crate::config::tissue::{check_spd, Materials, Tensor, Tissue, TissueLaw, MAX_TISSUES};
 use anyhow::Result;
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::de::MapAccess;
 use serde::Deserialize;
 

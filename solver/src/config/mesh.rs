@@ -2,7 +2,7 @@
 
 use super::{Reading, Scenario};
 use anyhow::{anyhow, Result};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::de::Error;
 use serde::{Deserialize, Deserializer, Serialize};
 

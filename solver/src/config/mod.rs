@@ -85,7 +85,7 @@ pub use values::Precision;
 
 use crate::config::tissue::{Materials, TissueLaw};
 use anyhow::{anyhow, Result};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 use std::path::{Path, PathBuf};

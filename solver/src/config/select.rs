@@ -8,7 +8,7 @@
 use super::values::{Aabb, Ball, HalfSpace, Point};
 use crate::diagnostics::short;
 use eprop_io::geom::{dot, norm, sub};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::de::{self, DeserializeSeed, Deserializer, MapAccess, Visitor};
 use serde::Deserialize;
 use std::marker::PhantomData;

@@ -30,7 +30,7 @@ fn kind_of(c: u8) -> Option<CellKind> {
 /// (the facets and group names stay on rank 0, which resolved the selectors).
 pub mod mesh {
     use super::{kind_code, kind_of};
-    use eprop_io::{CellKind, Mesh};
+    use eprop_mesh::{CellKind, Mesh};
     use serde::de::Error;
     use serde::ser::Serializer;
     use serde::{Deserialize, Deserializer, Serialize};

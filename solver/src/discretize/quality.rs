@@ -9,7 +9,7 @@ use crate::config::tissue::{Materials, Tensor};
 use crate::discretize::geometry::tet_gradients;
 use crate::discretize::operator::Compact;
 use eprop_io::geom::cell_quality;
-use eprop_io::{CellKind, Mesh};
+use eprop_mesh::{CellKind, Mesh};
 use nalgebra::Vector3;
 use serde::Serialize;
 

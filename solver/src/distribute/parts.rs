@@ -10,7 +10,7 @@ use crate::diagnostics::log_memory;
 use crate::distribute::comm::{Comm, Handle, Mpi};
 use crate::distribute::halo::Halo;
 use anyhow::{anyhow, bail, Result};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use eprop_partition::Plan;
 use serde::{Deserialize, Serialize};
 

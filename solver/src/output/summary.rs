@@ -6,7 +6,7 @@ use crate::diagnostics::{fixed, peak_rss, spread};
 use crate::distribute::parts::GlobalSizes;
 use crate::output::series::Series;
 use crate::simulate::{scheme_name, Simulation};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::Serialize;
 
 #[derive(Serialize, Debug, Clone)]

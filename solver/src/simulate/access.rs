@@ -12,7 +12,7 @@ use crate::distribute::field::NodeField;
 use crate::distribute::halo::BlockScatter;
 use crate::propagate::integrate::Stepper;
 use crate::propagate::Propagation;
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 
 impl Simulation {
     /// This process's view of the scenario: its local mesh and per-node arrays in local

@@ -8,7 +8,7 @@ use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
 use crate::discretize::operator::Compact;
 use crate::simulate::SAFETY;
 use eprop_io::geom::{cell_quality, cell_volume};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use serde::Serialize;
 /// What `eprop info` reports about a mesh.
 #[derive(Serialize, Debug)]

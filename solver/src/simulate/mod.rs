@@ -27,7 +27,7 @@ use crate::propagate::Propagation;
 use anyhow::{bail, Result};
 use contact::{ToolRun, ToolState};
 use eprop_io::geom::{dot, norm, scale};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use eprop_partition::{LocalNumbering, Plan};
 use rayon::prelude::*;
 
