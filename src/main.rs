@@ -168,12 +168,12 @@ struct RunFlags {
     /// Print the summary as JSON
     #[arg(long)]
     json: bool,
-    /// No progress lines (nor the notes of a setup longer than 2 s)
+    /// No progress lines (nor, in `eprop run`, the notes of a setup longer than 2 s)
     #[arg(long, short)]
     quiet: bool,
     /// Without a terminal (a batch job's log): a progress line every N steps, every T
-    /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar. A setup that
-    /// takes longer than 2 s notes what it does (auto's trial steps, the multigrid)
+    /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar. In `eprop run` a
+    /// setup that takes longer than 2 s notes what it does (auto's trial steps, the multigrid)
     #[arg(long, value_name = "N|Ts|Tm", default_value = "10s")]
     progress_every: Every,
     /// Replace the series in the output file if there is one (never a file of another kind)
