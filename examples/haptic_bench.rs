@@ -19,7 +19,7 @@
 //!
 //! Needs the release binary (target/release/eprop) and, for more than one rank, mpirun.
 
-use eprop::cli::serve::protocol::{self as p, Reply};
+use eprop::protocol::{self as p, Reply};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};

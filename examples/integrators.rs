@@ -96,8 +96,11 @@ fn compare(world: Option<&dyn Comm>) -> anyhow::Result<()> {
                     let mine = sim.in_output_order(sim.u());
                     let w = &want[3 * sim.blocks().start..3 * (sim.blocks().start + sim.blocks().len)];
                     let c = sim.comm();
-                    let d = eprop::distribute::comm::exact_sum(c, mine.iter().zip(w).map(|(a, b)| (a - b) * (a - b)));
-                    let n = eprop::distribute::comm::exact_sum(c, w.iter().map(|b| b * b));
+                    let d = eprop::distribute::comm::reproducible_sum(
+                        c,
+                        mine.iter().zip(w).map(|(a, b)| (a - b) * (a - b)),
+                    );
+                    let n = eprop::distribute::comm::reproducible_sum(c, w.iter().map(|b| b * b));
                     Some((d / n).sqrt())
                 })
                 .collect()

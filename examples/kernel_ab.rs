@@ -24,7 +24,7 @@ fn main() -> anyhow::Result<()> {
     // optional: the variants to time, by name, comma-separated (default: all)
     let only: Option<Vec<String>> = a.get(4).map(|s| s.split(',').map(|v| v.trim().to_string()).collect());
     let setup = match what.parse::<usize>() {
-        Ok(cells) => eprop::cli::bench::box_setup(cells, &scheme)?,
+        Ok(cells) => eprop::config::Setup::bench_box(cells, &scheme)?,
         Err(_) => eprop::config::Setup::new(eprop::config::Scenario::load(std::path::Path::new(&what))?)?,
     };
     let sim = eprop::simulate::Simulation::new(setup)?;

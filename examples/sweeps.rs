@@ -71,7 +71,7 @@ fn main() -> anyhow::Result<()> {
                     }
                     3 => {
                         let (yr, zr) = (&y[..], &z[..]);
-                        let s: [f64; 6] = eprop::distribute::comm::exact_sums_par(comm, n, |i| {
+                        let s: [f64; 6] = eprop::distribute::comm::reproducible_sums_par(comm, n, |i| {
                             let (a, b, c) = (yr[i], zr[i], x[i]);
                             [
                                 a[0] * b[0],

@@ -1,10 +1,13 @@
 //! The `eprop` command line.
 
+mod cli;
+mod guard;
+
+use crate::cli::run::{run_on, Every, RunOptions};
+use crate::cli::serve::{serve_on, ServeOptions};
+use crate::cli::{bench, inspect};
 use anyhow::{bail, Result};
-use clap::{Parser, Subcommand, ValueEnum};
-use eprop::cli::run::{run_on, Every, RunOptions};
-use eprop::cli::serve::{serve_on, ServeOptions};
-use eprop::cli::{bench, inspect};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use eprop::distribute::launch::{is_root, launch};
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use std::path::{Path, PathBuf};
@@ -35,49 +38,7 @@ struct Cli {
 enum Cmd {
     /// Run a scenario to its stop condition and write the HDF5 series.
     #[command(long_about = run_help())]
-    Run {
-        /// Scenario file (TOML)
-        scenario: PathBuf,
-        /// Output file (overrides [output] file; default <scenario stem>.h5 beside the scenario)
-        #[arg(long, short)]
-        output: Option<PathBuf>,
-        /// Number of steps (overrides [time])
-        #[arg(long)]
-        steps: Option<u64>,
-        /// Override a scenario key by its TOML path, as if edited in the file (repeatable):
-        /// --set material.conductivity=0.1, --set time.steps=50, --set load.1.normal=2.0 (an
-        /// array of tables by its 1-based index); VALUE is a TOML value (a bare word is a
-        /// string); the series records the overrides with the scenario text
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-        /// Print the summary as JSON
-        #[arg(long)]
-        json: bool,
-        /// No progress lines (nor the notes of a setup longer than 2 s)
-        #[arg(long, short)]
-        quiet: bool,
-        /// Without a terminal (a batch job's log): a progress line every N steps, every T
-        /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar. A setup that
-        /// takes longer than 2 s notes what it does (auto's trial steps, the multigrid)
-        #[arg(long, value_name = "N|Ts|Tm", default_value = "10s")]
-        progress_every: Every,
-        /// Continue the series in FILE (the output of an interrupted run of the same scenario and
-        /// mesh) from its last complete step; the result is bit for bit the uninterrupted run's
-        #[arg(long, value_name = "FILE")]
-        restart: Option<PathBuf>,
-        /// Replace the series in the output file if there is one (never a file of another kind)
-        #[arg(long)]
-        overwrite: bool,
-        /// Start even when the estimated output exceeds the free space of its disk (the start,
-        /// the mesh and first step, and 1 MiB + two steps must still fit); the run then writes
-        /// until the disk refuses, and stops with status 4, keeping every complete step
-        #[arg(long)]
-        force: bool,
-        /// Substeps per fused sweep: auto or 1 to 16 (overrides [performance] fuse; the same
-        /// bits whatever the value)
-        #[arg(long)]
-        fuse: Option<eprop::config::Fuse>,
-    },
+    Run(RunArgs),
     /// Run a scenario whose live tools and loads a client drives over TCP (docs/protocol.md).
     #[command(
         long_about = "Run a scenario whose live tools and loads (`live = true`) a client drives over \
@@ -97,46 +58,7 @@ step computed, and exits with status 1. SIGTERM, SIGINT or SIGHUP stop it the sa
 Every check of `eprop run` applies (the output claims, the limits on steps, substeps and step sizes, the free space): a refused run \
 ends before the `listening on` line. Under mpirun rank 0 holds the socket."
     )]
-    Serve {
-        /// Scenario file (TOML) with at least one `live = true` tool or load
-        scenario: PathBuf,
-        /// Address to listen on, HOST:PORT (port 0 picks a free port; the chosen one is printed)
-        #[arg(long, value_name = "HOST:PORT", value_parser = host_port)]
-        listen: String,
-        /// Seconds to wait for the client to connect, and for each step's samples
-        #[arg(long, default_value_t = 10.0, value_parser = timeout_seconds)]
-        timeout: f64,
-        /// Output file (overrides [output] file)
-        #[arg(long, short)]
-        output: Option<PathBuf>,
-        /// Number of steps (overrides [time])
-        #[arg(long)]
-        steps: Option<u64>,
-        /// Override a scenario key by its TOML path, as if edited in the file (repeatable):
-        /// --set material.conductivity=0.1, --set time.steps=50, --set load.1.normal=2.0 (an
-        /// array of tables by its 1-based index); VALUE is a TOML value (a bare word is a
-        /// string); the series records the overrides with the scenario text
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-        /// Print the summary as JSON
-        #[arg(long)]
-        json: bool,
-        /// No progress lines
-        #[arg(long, short)]
-        quiet: bool,
-        /// Without a terminal (a batch job's log): a progress line every N steps, every T
-        /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar
-        #[arg(long, value_name = "N|Ts|Tm", default_value = "10s")]
-        progress_every: Every,
-        /// Replace the series in the output file if there is one (never a file of another kind)
-        #[arg(long)]
-        overwrite: bool,
-        /// Start even when the estimated output exceeds the free space of its disk (the start,
-        /// the mesh and first step, and 1 MiB + two steps must still fit); the run then writes
-        /// until the disk refuses, and stops with status 4, keeping every complete step
-        #[arg(long)]
-        force: bool,
-    },
+    Serve(ServeArgs),
     /// Fit scenario parameters (young, coupling, ...) to a measured curve by least squares.
     #[command(
         long_about = "Fit scenario parameters to a measured curve by least squares (bounded \
@@ -166,101 +88,17 @@ has matplotlib).\n\n\
 Example (a sphere pressed into the cylinder; the force measured against the indentation):\n  printf 'indentation,force\\n0.05,0.11\\n0.10,0.19\\n0.15,0.33\\n0.20,0.55\\n0.25,0.79\\n' > press.csv\n  eprop fit scenarios/cylinder_indent.toml --data press.csv --param young=20:500 -o press_fit\n\n\
 Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a signal."
     )]
-    Fit {
-        /// Scenario file (TOML)
-        scenario: PathBuf,
-        /// The measured curve: CSV with a header `x,y`, x one of time, t, indentation; y one of
-        /// force, displacement
-        #[arg(long, value_name = "CURVE.csv")]
-        data: PathBuf,
-        /// A fitted parameter and its bounds (repeatable): young=20:500, coupling=0.1:10,
-        /// load.1.normal=0.1:2
-        #[arg(long = "param", value_name = "NAME=LO:HI", required = true)]
-        param: Vec<String>,
-        /// A starting value (default: the geometric mean of positive bounds, else the middle)
-        #[arg(long = "start", value_name = "NAME=VALUE")]
-        start: Vec<String>,
-        /// The tool (1-based) whose force or indentation the curve holds
-        #[arg(long, default_value_t = 1)]
-        tool: usize,
-        /// The load (1-based) whose probe displacement the curve holds
-        #[arg(long, default_value_t = 1)]
-        load: usize,
-        /// The node (its id in the mesh file) whose displacement |u| the curve holds
-        #[arg(long, value_name = "ID")]
-        node: Option<u64>,
-        /// Override another scenario key in every evaluation (as eprop run --set)
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-        /// Report prefix: PREFIX.json, PREFIX.csv, PREFIX.png (default <curve stem>_fit beside
-        /// the curve)
-        #[arg(short, long, value_name = "PREFIX")]
-        output: Option<PathBuf>,
-        /// Most simulations of the search (the final sensitivities may add one per parameter)
-        #[arg(long, default_value_t = 100)]
-        max_evaluations: usize,
-        /// Relative reduction of the sum of squares, and relative parameter change, that end
-        /// the search
-        #[arg(long, default_value_t = 1e-6, value_parser = relative_tolerance)]
-        tolerance: f64,
-        /// No PNG (no python3 called)
-        #[arg(long)]
-        no_plot: bool,
-        /// Replace report files that exist (refused otherwise)
-        #[arg(long)]
-        overwrite: bool,
-        /// Print the report as JSON
-        #[arg(long)]
-        json: bool,
-        /// No progress lines
-        #[arg(long, short)]
-        quiet: bool,
-    },
+    Fit(FitArgs),
     /// Validate a scenario without running it and print what it derives: counts, fixed and
     /// loaded nodes, h, dt, substeps, estimated run time, memory and output size; refuses the
     /// inputs `run` refuses (limits, parameters whose products overflow) and warns as it does
     /// (what `run` would refuse about its output, it prints as a warning).
-    Check {
-        /// Scenario file (TOML)
-        scenario: PathBuf,
-        /// Number of steps (overrides [time])
-        #[arg(long)]
-        steps: Option<u64>,
-        /// Override a scenario key by its TOML path, as if edited in the file (repeatable):
-        /// --set material.conductivity=0.1, --set time.steps=50, --set load.1.normal=2.0 (an
-        /// array of tables by its 1-based index); VALUE is a TOML value (a bare word is a
-        /// string); the series records the overrides with the scenario text
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-        /// Print JSON
-        #[arg(long)]
-        json: bool,
-    },
+    Check(CheckArgs),
     /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep and the
     /// nodes and cells that set it.
-    Info {
-        /// Mesh file (.msh, .vtk, .vtu, .node/.ele, .mesh)
-        mesh: PathBuf,
-        /// Print JSON
-        #[arg(long)]
-        json: bool,
-        /// Refuse inverted cells instead of reorienting them
-        #[arg(long)]
-        strict: bool,
-    },
+    Info(InfoArgs),
     /// Convert a mesh: read any supported format, validate, write .msh (Gmsh 4.1) or .vtu.
-    Convert {
-        /// Input mesh (.msh, .vtk, .vtu, .node/.ele, .mesh)
-        input: PathBuf,
-        /// Output mesh (.msh or .vtu); never one of the input's files
-        output: PathBuf,
-        /// Refuse inverted cells instead of reorienting them
-        #[arg(long)]
-        strict: bool,
-        /// Replace OUTPUT if it exists (refused otherwise)
-        #[arg(long)]
-        overwrite: bool,
-    },
+    Convert(ConvertArgs),
     /// Split a mesh's node graph for K processes and report the quality of the split.
     #[command(
         long_about = "Split a mesh's node graph for K processes (METIS k-way, as `mpirun -n K eprop run` \
@@ -269,16 +107,7 @@ does) and report, for METIS and for a naive block split of the input numbering s
   imbalance     largest part / mean part (the slowest process sets the pace)\n\
   per part      owned nodes, halo nodes (copies received every substep), neighbour parts"
     )]
-    Partition {
-        /// Mesh file
-        mesh: PathBuf,
-        /// Number of parts (processes)
-        #[arg(long, short = 'k', default_value_t = 2)]
-        parts: usize,
-        /// Print JSON
-        #[arg(long)]
-        json: bool,
-    },
+    Partition(PartitionArgs),
     /// Measure the propagation kernel against the memory bandwidth (run under mpirun for ranks).
     #[command(
         long_about = "Measure the propagation kernel against the memory bandwidth of this machine.\n\n\
@@ -291,26 +120,7 @@ output step and the peak memory per node. Under mpirun every rank takes part: ru
 Columns: ns/node = ns per node-substep; B/node = bytes per node-substep; frac = GB/s / triad; \
 B/node* = peak resident memory per node, all processes."
     )]
-    Bench {
-        /// Cells per side of the boxes (nodes = (N+1)^3): 20,45,66,99 give 9k to 1M nodes
-        #[arg(long, value_delimiter = ',', default_values_t = [20, 45, 66, 99])]
-        cells: Vec<usize>,
-        /// Schemes to measure
-        #[arg(long, value_delimiter = ',', default_values_t = ["compact".to_string(), "paper".to_string()])]
-        schemes: Vec<String>,
-        /// Also write the cases as JSON to this file
-        #[arg(long)]
-        json: Option<PathBuf>,
-        /// Substeps per fused sweep: auto (timed on one process, 1 on several) or 1 to 16
-        #[arg(long, default_value = "auto")]
-        fuse: eprop::config::Fuse,
-        /// The AVX2+FMA kernel where the CPU has it (off: the portable kernel)
-        #[arg(long, default_value = "on", value_parser = ["on", "off"])]
-        simd: String,
-        /// Replace the --json file if it exists (refused otherwise)
-        #[arg(long)]
-        overwrite: bool,
-    },
+    Bench(BenchArgs),
     /// Write a scenario's compact operator L (with its diagonal) as CSR in HDF5, for comparisons.
     #[command(
         long_about = "Write the compact operator L of a scenario (mesh, conductivity, fixed set) as a \
@@ -322,16 +132,7 @@ scripts/bench_petsc.py and scripts/bench_ksp.py time them with PETSc.\n\n\
 An existing output file is replaced only with --overwrite; the output is never one of the \
 scenario's inputs nor a series a run is writing. Under mpirun rank 0 builds and writes the file."
     )]
-    ExportOperator {
-        /// Scenario file (TOML); its mesh, material and fixed set define L
-        scenario: PathBuf,
-        /// Output file (.h5); never one of the scenario's inputs
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Replace the output file if it exists (refused otherwise)
-        #[arg(long)]
-        overwrite: bool,
-    },
+    ExportOperator(ExportOperatorArgs),
     /// The deformed outer surface of a series' steps as OBJ, STL, PLY or VTU files.
     #[command(
         long_about = "The deformed outer surface of a series' steps (the rest mesh's boundary \
@@ -344,37 +145,268 @@ writing (through any link), nor anything but a regular file; an existing one is 
 with --overwrite.\n\n\
 Example: eprop export out/cylinder.h5 --surface obj --every 10 -o out/frames/cyl --scalar energy"
     )]
-    Export {
-        /// The series (.h5) written by eprop run or serve
-        series: PathBuf,
-        /// obj, stl, ply or vtu
-        #[arg(long, default_value = "obj")]
-        surface: String,
-        /// Every k-th output step
-        #[arg(long, default_value_t = 1, value_parser = at_least_one)]
-        every: usize,
-        /// One output step only (0 is the first)
-        #[arg(long)]
-        step: Option<usize>,
-        /// A point field to write per vertex: displacement, potential, energy, ...
-        #[arg(long)]
-        scalar: Option<String>,
-        /// Prefix of the files: <prefix>_<step>.<ext> (with --step, a name ending in the
-        /// format's extension is the file's own name: -o s.obj)
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Replace files that exist (refused otherwise)
-        #[arg(long)]
-        overwrite: bool,
-    },
+    Export(ExportArgs),
     /// Generate a mesh: the paper's cylinder or a box.
-    Mesh {
-        #[command(subcommand)]
-        shape: Shape,
-        /// Replace the output file if it exists (refused otherwise)
-        #[arg(long, global = true)]
-        overwrite: bool,
-    },
+    Mesh(MeshArgs),
+}
+
+/// The flags of a run that `run` and `serve` share.
+#[derive(Args)]
+struct RunFlags {
+    /// Output file (overrides [output] file; default <scenario stem>.h5 beside the scenario)
+    #[arg(long, short)]
+    output: Option<PathBuf>,
+    /// Number of steps (overrides [time])
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Override a scenario key by its TOML path, as if edited in the file (repeatable):
+    /// --set material.conductivity=0.1, --set time.steps=50, --set load.1.normal=2.0 (an
+    /// array of tables by its 1-based index); VALUE is a TOML value (a bare word is a
+    /// string); the series records the overrides with the scenario text
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Print the summary as JSON
+    #[arg(long)]
+    json: bool,
+    /// No progress lines (nor, in `eprop run`, the notes of a setup longer than 2 s)
+    #[arg(long, short)]
+    quiet: bool,
+    /// Without a terminal (a batch job's log): a progress line every N steps, every T
+    /// seconds (30s) or minutes (5m), or never (0); with a terminal a bar. In `eprop run` a
+    /// setup that takes longer than 2 s notes what it does (auto's trial steps, the multigrid)
+    #[arg(long, value_name = "N|Ts|Tm", default_value = "10s")]
+    progress_every: Every,
+    /// Replace the series in the output file if there is one (never a file of another kind)
+    #[arg(long)]
+    overwrite: bool,
+    /// Start even when the estimated output exceeds the free space of its disk (the start,
+    /// the mesh and first step, and 1 MiB + two steps must still fit); the run then writes
+    /// until the disk refuses, and stops with status 4, keeping every complete step
+    #[arg(long)]
+    force: bool,
+}
+
+impl RunFlags {
+    /// The run's options: these flags with a run's own `restart` and `fuse`.
+    fn options(self, restart: Option<PathBuf>, fuse: Option<eprop::config::Fuse>) -> RunOptions {
+        RunOptions {
+            output: self.output,
+            steps: self.steps,
+            quiet: self.quiet || self.json,
+            restart,
+            overwrite: self.overwrite,
+            force: self.force,
+            progress_every: self.progress_every,
+            fuse,
+            sets: self.set,
+        }
+    }
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// Scenario file (TOML)
+    scenario: PathBuf,
+    #[command(flatten)]
+    flags: RunFlags,
+    /// Continue the series in FILE (the output of an interrupted run of the same scenario and
+    /// mesh) from its last complete step; the result is bit for bit the uninterrupted run's
+    #[arg(long, value_name = "FILE")]
+    restart: Option<PathBuf>,
+    /// Substeps per fused sweep: auto or 1 to 16 (overrides [performance] fuse; the same
+    /// bits whatever the value)
+    #[arg(long)]
+    fuse: Option<eprop::config::Fuse>,
+}
+
+#[derive(Args)]
+struct ServeArgs {
+    /// Scenario file (TOML) with at least one `live = true` tool or load
+    scenario: PathBuf,
+    /// Address to listen on, HOST:PORT (port 0 picks a free port; the chosen one is printed)
+    #[arg(long, value_name = "HOST:PORT", value_parser = host_port)]
+    listen: String,
+    /// Seconds to wait for the client to connect, and for each step's samples
+    #[arg(long, default_value_t = 10.0, value_parser = timeout_seconds)]
+    timeout: f64,
+    #[command(flatten)]
+    flags: RunFlags,
+}
+
+#[derive(Args)]
+struct FitArgs {
+    /// Scenario file (TOML)
+    scenario: PathBuf,
+    /// The measured curve: CSV with a header `x,y`, x one of time, t, indentation; y one of
+    /// force, displacement
+    #[arg(long, value_name = "CURVE.csv")]
+    data: PathBuf,
+    /// A fitted parameter and its bounds (repeatable): young=20:500, coupling=0.1:10,
+    /// load.1.normal=0.1:2
+    #[arg(long = "param", value_name = "NAME=LO:HI", required = true)]
+    param: Vec<String>,
+    /// A starting value (default: the geometric mean of positive bounds, else the middle)
+    #[arg(long = "start", value_name = "NAME=VALUE")]
+    start: Vec<String>,
+    /// The tool (1-based) whose force or indentation the curve holds
+    #[arg(long, default_value_t = 1)]
+    tool: usize,
+    /// The load (1-based) whose probe displacement the curve holds
+    #[arg(long, default_value_t = 1)]
+    load: usize,
+    /// The node (its id in the mesh file) whose displacement |u| the curve holds
+    #[arg(long, value_name = "ID")]
+    node: Option<u64>,
+    /// Override another scenario key in every evaluation (as eprop run --set)
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Report prefix: PREFIX.json, PREFIX.csv, PREFIX.png (default <curve stem>_fit beside
+    /// the curve)
+    #[arg(short, long, value_name = "PREFIX")]
+    output: Option<PathBuf>,
+    /// Most simulations of the search (the final sensitivities may add one per parameter)
+    #[arg(long, default_value_t = 100)]
+    max_evaluations: usize,
+    /// Relative reduction of the sum of squares, and relative parameter change, that end
+    /// the search
+    #[arg(long, default_value_t = 1e-6, value_parser = relative_tolerance)]
+    tolerance: f64,
+    /// No PNG (no python3 called)
+    #[arg(long)]
+    no_plot: bool,
+    /// Replace report files that exist (refused otherwise)
+    #[arg(long)]
+    overwrite: bool,
+    /// Print the report as JSON
+    #[arg(long)]
+    json: bool,
+    /// No progress lines
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+#[derive(Args)]
+struct CheckArgs {
+    /// Scenario file (TOML)
+    scenario: PathBuf,
+    /// Number of steps (overrides [time])
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Override a scenario key by its TOML path, as if edited in the file (repeatable):
+    /// --set material.conductivity=0.1, --set time.steps=50, --set load.1.normal=2.0 (an
+    /// array of tables by its 1-based index); VALUE is a TOML value (a bare word is a
+    /// string); the series records the overrides with the scenario text
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Print JSON
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+struct InfoArgs {
+    /// Mesh file (.msh, .vtk, .vtu, .node/.ele, .mesh)
+    mesh: PathBuf,
+    /// Print JSON
+    #[arg(long)]
+    json: bool,
+    /// Refuse inverted cells instead of reorienting them
+    #[arg(long)]
+    strict: bool,
+}
+
+#[derive(Args)]
+struct ConvertArgs {
+    /// Input mesh (.msh, .vtk, .vtu, .node/.ele, .mesh)
+    input: PathBuf,
+    /// Output mesh (.msh or .vtu); never one of the input's files
+    output: PathBuf,
+    /// Refuse inverted cells instead of reorienting them
+    #[arg(long)]
+    strict: bool,
+    /// Replace OUTPUT if it exists (refused otherwise)
+    #[arg(long)]
+    overwrite: bool,
+}
+
+#[derive(Args)]
+struct PartitionArgs {
+    /// Mesh file
+    mesh: PathBuf,
+    /// Number of parts (processes)
+    #[arg(long, short = 'k', default_value_t = 2)]
+    parts: usize,
+    /// Print JSON
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Cells per side of the boxes (nodes = (N+1)^3): 20,45,66,99 give 9k to 1M nodes
+    #[arg(long, value_delimiter = ',', default_values_t = [20, 45, 66, 99])]
+    cells: Vec<usize>,
+    /// Schemes to measure
+    #[arg(long, value_delimiter = ',', default_values_t = ["compact".to_string(), "paper".to_string()])]
+    schemes: Vec<String>,
+    /// Also write the cases as JSON to this file
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Substeps per fused sweep: auto (timed on one process, 1 on several) or 1 to 16
+    #[arg(long, default_value = "auto")]
+    fuse: eprop::config::Fuse,
+    /// The AVX2+FMA kernel where the CPU has it (off: the portable kernel)
+    #[arg(long, default_value = "on", value_parser = ["on", "off"])]
+    simd: String,
+    /// Replace the --json file if it exists (refused otherwise)
+    #[arg(long)]
+    overwrite: bool,
+}
+
+#[derive(Args)]
+struct ExportOperatorArgs {
+    /// Scenario file (TOML); its mesh, material and fixed set define L
+    scenario: PathBuf,
+    /// Output file (.h5); never one of the scenario's inputs
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Replace the output file if it exists (refused otherwise)
+    #[arg(long)]
+    overwrite: bool,
+}
+
+#[derive(Args)]
+struct ExportArgs {
+    /// The series (.h5) written by eprop run or serve
+    series: PathBuf,
+    /// obj, stl, ply or vtu
+    #[arg(long, default_value = "obj")]
+    surface: String,
+    /// Every k-th output step
+    #[arg(long, default_value_t = 1, value_parser = at_least_one)]
+    every: usize,
+    /// One output step only (0 is the first)
+    #[arg(long)]
+    step: Option<usize>,
+    /// A point field to write per vertex: displacement, potential, energy, ...
+    #[arg(long)]
+    scalar: Option<String>,
+    /// Prefix of the files: <prefix>_<step>.<ext> (with --step, a name ending in the
+    /// format's extension is the file's own name: -o s.obj)
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Replace files that exist (refused otherwise)
+    #[arg(long)]
+    overwrite: bool,
+}
+
+#[derive(Args)]
+struct MeshArgs {
+    #[command(subcommand)]
+    shape: Shape,
+    /// Replace the output file if it exists (refused otherwise)
+    #[arg(long, global = true)]
+    overwrite: bool,
 }
 
 /// `eprop run --help`: what it does, every scenario key (`eprop::config::keys`, the one
@@ -452,13 +484,13 @@ enum Shape {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    eprop::cli::log_to_stderr(cli.verbose);
+    crate::cli::log_to_stderr(cli.verbose);
     let status = match real_main(cli) {
         Ok(()) => 0,
-        Err(e) => match e.downcast_ref::<eprop::guard::safety::Agreed>() {
+        Err(e) => match e.downcast_ref::<eprop::Agreed>() {
             Some(a) => {
                 // a stop says so itself ("stopped by SIGTERM ...")
-                let word = if a.status == eprop::guard::safety::EXIT_STOPPED {
+                let word = if a.status == eprop::distribute::launch::EXIT_STOPPED {
                     ""
                 } else {
                     "error: "
@@ -496,194 +528,96 @@ fn print<T: serde::Serialize + std::fmt::Display>(report: &T, json: bool) -> Res
 
 fn real_main(cli: Cli) -> Result<()> {
     match cli.cmd {
-        cmd @ (Cmd::Run { .. } | Cmd::Serve { .. } | Cmd::Fit { .. }) => solve_command(cmd),
-        cmd => tool_command(cmd),
-    }
-}
-
-/// `eprop run`, `serve` and `fit`: the commands that solve a scenario.
-fn solve_command(cmd: Cmd) -> Result<()> {
-    match cmd {
-        Cmd::Run {
-            scenario,
-            output,
-            steps,
-            set,
-            json,
-            quiet,
-            progress_every,
-            restart,
-            overwrite,
-            force,
-            fuse,
-        } => {
-            let opts = RunOptions {
-                output,
-                steps,
-                quiet: quiet || json,
-                restart,
-                overwrite,
-                force,
-                progress_every,
-                fuse,
-                sets: set,
-            };
-            run(&scenario, &opts, json)?;
+        Cmd::Run(a) => {
+            let json = a.flags.json;
+            run(&a.scenario, &a.flags.options(a.restart, a.fuse), json)
         }
-        Cmd::Serve {
-            scenario,
-            listen,
-            timeout,
-            output,
-            steps,
-            set,
-            json,
-            quiet,
-            progress_every,
-            overwrite,
-            force,
-        } => {
+        Cmd::Serve(a) => {
+            let json = a.flags.json;
             let opts = ServeOptions {
-                listen,
-                timeout,
-                run: RunOptions {
-                    output,
-                    steps,
-                    quiet: quiet || json,
-                    restart: None,
-                    overwrite,
-                    force,
-                    progress_every,
-                    fuse: None,
-                    sets: set,
-                },
+                listen: a.listen,
+                timeout: a.timeout,
+                run: a.flags.options(None, None),
             };
-            serve(&scenario, &opts, json)?;
+            serve(&a.scenario, &opts, json)
         }
-        Cmd::Fit {
-            scenario,
-            data,
-            param,
-            start,
-            tool,
-            load,
-            node,
-            set,
-            output,
-            max_evaluations,
-            tolerance,
-            no_plot,
-            overwrite,
-            json,
-            quiet,
-        } => {
-            let opts = eprop::cli::fit::FitOptions {
-                data,
-                params: param,
-                starts: start,
-                tool,
-                load,
-                node,
-                sets: set,
-                prefix: output,
-                max_evaluations,
-                tolerance,
-                quiet: quiet || json,
-                plot: !no_plot,
-                overwrite,
-            };
-            if let Some(r) = launch(|world| eprop::cli::fit::fit_on(world, &scenario, &opts))? {
-                print(&r, json)?;
-            }
-        }
-        _ => unreachable!("real_main sends only run, serve and fit here"),
-    }
-    Ok(())
-}
-
-/// The commands that inspect, convert, export or generate files.
-fn tool_command(cmd: Cmd) -> Result<()> {
-    match cmd {
-        Cmd::Check {
-            scenario,
-            steps,
-            set,
-            json,
-        } => {
+        Cmd::Fit(a) => fit(a),
+        Cmd::Check(a) => {
             let opts = RunOptions {
-                steps,
-                sets: set,
+                steps: a.steps,
+                sets: a.set,
                 ..Default::default()
             };
-            print(&inspect::check(&scenario, &opts)?, json)?;
+            print(&inspect::check(&a.scenario, &opts)?, a.json)
         }
-        Cmd::Info { mesh, json, strict } => {
-            let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
-            print(&inspect::mesh_info(&m), json)?;
+        Cmd::Info(a) => {
+            let m = eprop_io::read_mesh_with(&a.mesh, &eprop_io::ReadOptions { strict: a.strict })?;
+            print(&eprop::simulate::mesh_info(&m), a.json)
         }
-        Cmd::Convert {
-            input,
-            output,
-            strict,
-            overwrite,
-        } => convert(&input, &output, strict, overwrite)?,
-        Cmd::Partition { mesh, parts, json } => {
-            let m = eprop_io::read_mesh(&mesh)?;
-            print(&inspect::partition_report(&m, parts)?, json)?;
+        Cmd::Convert(a) => convert(&a.input, &a.output, a.strict, a.overwrite),
+        Cmd::Partition(a) => {
+            let m = eprop_io::read_mesh(&a.mesh)?;
+            print(&inspect::partition_report(&m, a.parts)?, a.json)
         }
-        Cmd::Bench {
-            cells,
-            schemes,
-            json,
-            fuse,
-            simd,
-            overwrite,
-        } => {
+        Cmd::Bench(a) => {
             let perf = eprop::config::Performance {
-                fuse,
-                simd: simd == "on",
+                fuse: a.fuse,
+                simd: a.simd == "on",
             };
-            bench_boxes(&cells, &schemes, perf, json, overwrite)?;
+            bench_boxes(&a.cells, &a.schemes, perf, a.json, a.overwrite)
         }
-        Cmd::ExportOperator {
-            scenario,
-            output,
-            overwrite,
-        } => {
+        Cmd::ExportOperator(a) => {
             // one writer: rank 0 builds and writes the operator, the other processes wait
             let report = launch(|world| {
-                eprop::distribute::launch::on_root(world, || inspect::export_operator(&scenario, &output, overwrite))
+                eprop::distribute::launch::on_root(world, || {
+                    inspect::export_operator(&a.scenario, &a.output, a.overwrite)
+                })
             })?;
             if let Some(r) = report {
                 println!("{r}");
             }
+            Ok(())
         }
-        Cmd::Export {
-            series,
-            surface,
-            every,
-            step,
-            scalar,
-            output,
-            overwrite,
-        } => {
-            let o = eprop::cli::export::ExportOptions {
-                format: eprop::cli::export::Format::parse(&surface)?,
-                every,
-                step,
-                scalar,
-                prefix: output,
-                overwrite,
+        Cmd::Export(a) => {
+            let o = crate::cli::export::ExportOptions {
+                format: crate::cli::export::Format::parse(&a.surface)?,
+                every: a.every,
+                step: a.step,
+                scalar: a.scalar,
+                prefix: a.output,
+                overwrite: a.overwrite,
             };
-            export_surface(&series, &o)?;
+            export_surface(&a.series, &o)
         }
-        Cmd::Mesh { shape, overwrite } => {
-            let (mesh, out) = generate(shape)?;
-            let _lock = eprop::guard::safety::claim_file(&out, "the mesh file (-o)", &[], overwrite)?;
+        Cmd::Mesh(a) => {
+            let (mesh, out) = generate(a.shape)?;
+            let _lock = eprop::guard::safety::claim_file(&out, "the mesh file (-o)", &[], a.overwrite)?;
             eprop_io::write_mesh(&mesh, &out)?;
             println!("{}: {} nodes, {} cells", out.display(), mesh.n_nodes(), mesh.n_cells());
+            Ok(())
         }
-        Cmd::Run { .. } | Cmd::Serve { .. } | Cmd::Fit { .. } => unreachable!("real_main sends these to solve_command"),
+    }
+}
+
+/// `eprop fit`: the fit on one process or under mpirun, its report.
+fn fit(a: FitArgs) -> Result<()> {
+    let opts = crate::cli::fit::FitOptions {
+        data: a.data,
+        params: a.param,
+        starts: a.start,
+        tool: a.tool,
+        load: a.load,
+        node: a.node,
+        sets: a.set,
+        prefix: a.output,
+        max_evaluations: a.max_evaluations,
+        tolerance: a.tolerance,
+        quiet: a.quiet || a.json,
+        plot: !a.no_plot,
+        overwrite: a.overwrite,
+    };
+    if let Some(r) = launch(|world| crate::cli::fit::fit_on(world, &a.scenario, &opts))? {
+        print(&r, a.json)?;
     }
     Ok(())
 }
@@ -751,9 +685,9 @@ fn at_least_one(s: &str) -> Result<usize, String> {
 /// `eprop convert`: the output claimed (not one of the input's files), the mesh read,
 /// validated and written.
 fn convert(input: &Path, output: &Path, strict: bool, overwrite: bool) -> Result<()> {
-    let inputs: Vec<eprop::guard::safety::Input> = eprop_io::mesh_files(input)
+    let inputs: Vec<eprop::config::Input> = eprop_io::mesh_files(input)
         .into_iter()
-        .map(|p| eprop::guard::safety::Input {
+        .map(|p| eprop::config::Input {
             role: format!("the input mesh ({})", p.display()),
             path: p,
         })
@@ -808,8 +742,8 @@ fn bench_boxes(
 }
 
 /// `eprop export`: the files written and the first and last named.
-fn export_surface(series: &Path, o: &eprop::cli::export::ExportOptions) -> Result<()> {
-    let files = eprop::cli::export::export(series, o)?;
+fn export_surface(series: &Path, o: &crate::cli::export::ExportOptions) -> Result<()> {
+    let files = crate::cli::export::export(series, o)?;
     println!(
         "{}: {} file(s), {} .. {}",
         series.display(),
@@ -821,7 +755,7 @@ fn export_surface(series: &Path, o: &eprop::cli::export::ExportOptions) -> Resul
 }
 
 /// The mesh a `mesh` subcommand describes, and where it goes.
-fn generate(shape: Shape) -> Result<(eprop_io::Mesh, PathBuf)> {
+fn generate(shape: Shape) -> Result<(eprop_mesh::Mesh, PathBuf)> {
     Ok(match shape {
         Shape::Cylinder {
             radius,

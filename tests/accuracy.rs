@@ -12,7 +12,7 @@ use eprop_io::generate::{box_mesh, BoxCells};
 use std::path::Path;
 
 /// u after every step and the first tool's force of every step.
-fn run(dir: &Path, mesh: &eprop_io::Mesh, toml: &str, kind: &str) -> (Vec<Vec<V3>>, Vec<V3>, String) {
+fn run(dir: &Path, mesh: &eprop_mesh::Mesh, toml: &str, kind: &str) -> (Vec<Vec<V3>>, Vec<V3>, String) {
     let mut extra = std::env::var("EPROP_ACC")
         .map(|a| format!("accuracy = {a}\n"))
         .unwrap_or_default();
@@ -72,7 +72,7 @@ fn rel(a: &[V3], b: &[V3]) -> f64 {
 
 /// Every kind against euler: the largest relative L2 error of u over the steps, and of the
 /// tool force against euler's peak; fails above 1e-3 and 1e-2.
-fn against_euler(mesh: eprop_io::Mesh, toml: &str, files: &[(&str, &str)], kinds: &[&str]) {
+fn against_euler(mesh: eprop_mesh::Mesh, toml: &str, files: &[(&str, &str)], kinds: &[&str]) {
     let d = tempfile::tempdir().unwrap();
     for (name, text) in files {
         std::fs::write(d.path().join(name), text).unwrap();

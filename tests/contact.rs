@@ -13,11 +13,11 @@ use eprop_io::geom::norm;
 use std::path::Path;
 
 /// A 40 x 40 x 20 mm block in metres (continuum reading), bottom fixed.
-fn block() -> eprop_io::Mesh {
+fn block() -> eprop_mesh::Mesh {
     box_mesh([0.04, 0.04, 0.02], [12, 12, 6], BoxCells::Tet).unwrap()
 }
 
-fn continuum(dir: &Path, mesh: eprop_io::Mesh, toml: &str) -> Simulation {
+fn continuum(dir: &Path, mesh: eprop_mesh::Mesh, toml: &str) -> Simulation {
     let text = format!("[[fixed]]\ngroup = \"zmin\"\n{toml}[model]\nreading = \"continuum\"\n");
     let setup = common::setup_with(mesh, &text, dir, &["mesh.unit=\"m\"".to_string()]);
     Simulation::new(setup).expect("simulation builds")

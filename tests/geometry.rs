@@ -5,7 +5,7 @@ mod common;
 use eprop::discretize::geometry::{cell_dual, tet_gradients, Dual, Incidence};
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use eprop_io::geom::cell_volume;
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 
 fn check_identities(mesh: &Mesh) {
     let inc = Incidence::new(mesh);

@@ -209,7 +209,7 @@ impl Stepper for Halves {
 /// Runs `steps` mechanics steps of a scenario with each integrator; checks that rkl2 and
 /// implicit agree with euler (phi and u) within the sum of both error estimates: step
 /// doubling, |X(dt) - X(dt/2)| (2^p / (2^p - 1)), p their orders.
-fn agree_with_euler(mesh: eprop_io::Mesh, toml: &str, steps: usize) {
+fn agree_with_euler(mesh: eprop_mesh::Mesh, toml: &str, steps: usize) {
     let run = |kind: &str, halve: bool| -> (Vec<V3>, Vec<V3>) {
         let s = sim(mesh.clone(), toml);
         let dt = s.dt();
@@ -396,7 +396,7 @@ fn every_integrator_reaches_the_same_equilibrium() {
     }
 }
 
-fn build_err(mesh: eprop_io::Mesh, toml: &str) -> String {
+fn build_err(mesh: eprop_mesh::Mesh, toml: &str) -> String {
     let dir = tempfile::tempdir().unwrap();
     let setup = common::setup(mesh, toml, dir.path());
     match Simulation::new(setup) {

@@ -8,7 +8,7 @@ mod common;
 
 use base64::Engine;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use std::io::Write;
 use std::path::Path;
 
@@ -31,7 +31,7 @@ fn every_shared_tetrahedral_mesh_reads_with_closed_control_volumes() {
     ] {
         let Some(p) = common::shared_mesh(name) else { continue };
         let m = eprop_io::read_mesh(&p).unwrap_or_else(|e| panic!("{name}: {e:#}"));
-        let info = eprop::cli::inspect::mesh_info(&m);
+        let info = eprop::simulate::mesh_info(&m);
         let rel = ((info.control_volume_sum - info.volume) / info.volume).abs();
         assert!(rel < 1e-12, "{name}: sum V_i off by {rel:e}");
         assert!(
@@ -250,7 +250,7 @@ fn tetgen_made_organ_meshes_read() {
         .unwrap();
     assert!(st.status.success());
     let m = eprop_io::read_mesh(&d.path().join("p.1.ele")).unwrap();
-    let info = eprop::cli::inspect::mesh_info(&m);
+    let info = eprop::simulate::mesh_info(&m);
     assert!(((info.control_volume_sum - info.volume) / info.volume).abs() < 1e-12);
     assert!(info.max_closure_error < 1e-10);
     assert!(!m.facets.is_empty(), "the .face file gives the boundary");

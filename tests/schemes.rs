@@ -10,7 +10,7 @@ use eprop::discretize::geometry::{compact_coefficients, Dual, Incidence};
 use eprop::discretize::operator::Operator;
 use eprop::propagate::integrate::stability::hash_unit;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use nalgebra::Vector3;
 
 fn tensors() -> Vec<Tensor> {

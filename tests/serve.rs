@@ -5,7 +5,7 @@
 
 mod common;
 
-use eprop::cli::serve::protocol::{self as p, Reply};
+use eprop::protocol::{self as p, Reply};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};

@@ -9,7 +9,7 @@ use eprop::discretize::operator::Operator;
 use eprop::propagate::integrate::stability::hash_unit;
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 
 const PAPER_SCHEME: &str = "[model]\nscheme = \"paper\"\nintegrator = \"euler\"\n";
 const COMPACT: &str = "[model]\nintegrator = \"euler\"\n";

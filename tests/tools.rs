@@ -12,7 +12,7 @@ use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use eprop_io::geom::norm;
 use std::path::Path;
 
-fn sim_in(dir: &Path, mesh: eprop_io::Mesh, toml: &str) -> Simulation {
+fn sim_in(dir: &Path, mesh: eprop_mesh::Mesh, toml: &str) -> Simulation {
     Simulation::new(common::setup(mesh, toml, dir)).expect("simulation builds")
 }
 

@@ -11,7 +11,7 @@ use eprop::config::{Scenario, Setup};
 use eprop::discretize::operator::V3;
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use std::path::Path;
 
 /// A 0.1 m cube in metres, its bottom face tagged `zmin`.

@@ -7,15 +7,14 @@
 //! a STREAM-like triad measured here; full steps per second with one substep per step (the
 //! haptic configuration: dt = h); peak memory per node; halo waiting share; output cost.
 
-use crate::config::{Field, Performance, Scenario, Setup};
-use crate::diagnostics::{median, peak_rss};
-use crate::distribute::comm::{Comm, Handle};
-use crate::distribute::parts::GlobalSizes;
-use crate::output::series::{field_blocks, layout, VERSION};
-use crate::simulate::distributed::{build_mpi, Built};
-use crate::simulate::Simulation;
 use anyhow::Result;
-use eprop_io::generate::{box_mesh, BoxCells};
+use eprop::config::{Field, Performance, Setup};
+use eprop::diagnostics::{median, peak_rss};
+use eprop::distribute::comm::{Comm, Handle};
+use eprop::distribute::parts::GlobalSizes;
+use eprop::output::series::{field_blocks, layout, VERSION};
+use eprop::simulate::distributed::{build_mpi, Built};
+use eprop::simulate::Simulation;
 use eprop_series::vtkhdf::{SeriesSpec, SeriesWriter};
 use serde::Serialize;
 use std::path::Path;
@@ -83,24 +82,6 @@ pub fn triad(n: usize, reps: usize) -> f64 {
     24.0 * n as f64 / best / 1e9
 }
 
-/// The bench scenario: the unit box, the left face fixed, a normal load on the right face.
-/// `scheme` is "compact", "paper" or "compact32" (compact with float32 coefficients).
-pub fn box_setup(cells: usize, scheme: &str) -> Result<Setup> {
-    let mesh = box_mesh([1.0; 3], [cells; 3], BoxCells::Tet)?;
-    let (scheme, prec) = match scheme {
-        "compact32" => ("compact", "float32"),
-        s => (s, "float64"),
-    };
-    let text = format!(
-        "[mesh]\nfile = \"generated\"\n[model]\nreading = \"paper\"\nscheme = \"{scheme}\"\noperator_precision = \"{prec}\"\n[[fixed]]\ngroup = \"xmin\"\n\
-         [[load]]\nnearest = [1.0, 0.5, 0.5]\nnormal = 1.0\n[time]\nsteps = 1\n"
-    );
-    let sc = Scenario::parse(Path::new("bench.toml"), text)?;
-    let mut s = Setup::with_mesh(sc, mesh)?;
-    s.mesh.source = format!("box {cells}^3 tet");
-    Ok(s)
-}
-
 /// Measures one built simulation. Every process calls (collectives inside).
 pub fn measure(
     mut sim: Simulation,
@@ -116,14 +97,14 @@ pub fn measure(
     // the substep as the Euler stepper runs it (fused sweeps of `fuse` substeps where they
     // apply), and one substep per sweep, in alternating chunks
     // let the process choose its fusion depth first (the same calls on every process)
-    while !sim.prop.tuned() && sim.prop.fuses() {
-        sim.prop.substeps(h, &q, 8);
+    while !sim.prop().tuned() && sim.prop().fuses() {
+        sim.prop_mut().substeps(h, &q, 8);
     }
-    let fuse = sim.prop.fuse();
-    let sweep = if sim.prop.fuses() { fuse } else { 1 };
+    let fuse = sim.prop().fuse();
+    let sweep = if sim.prop().fuses() { fuse } else { 1 };
     let run = |sim: &mut Simulation, depth: usize, count: usize| {
-        sim.prop.set_fuse(depth);
-        sim.prop.substeps(h, &q, count);
+        sim.prop_mut().set_fuse(depth);
+        sim.prop_mut().substeps(h, &q, count);
     };
     // calibrate: about 2 s of substeps per variant, the same count on every process
     run(&mut sim, fuse, 2 * sweep);
@@ -137,23 +118,23 @@ pub fn measure(
     let mut waited = 0.0;
     for _ in 0..10 {
         sim.comm().max(0.0); // line the processes up
-        let w0 = sim.prop.halo.wait_seconds();
+        let w0 = sim.prop().halo.wait_seconds();
         let t = Instant::now();
         run(&mut sim, fuse, chunk);
         times.push(sim.comm().max(t.elapsed().as_secs_f64()) / chunk as f64);
-        waited += sim.prop.halo.wait_seconds() - w0;
+        waited += sim.prop().halo.wait_seconds() - w0;
         sim.comm().max(0.0);
         let t = Instant::now();
         run(&mut sim, 1, chunk);
         single.push(sim.comm().max(t.elapsed().as_secs_f64()) / chunk as f64);
     }
-    sim.prop.set_fuse(fuse);
+    sim.prop_mut().set_fuse(fuse);
     let per_substep = median(&times);
     let per_single = median(&single);
     let waited = sim.comm().max(waited) / (10 * chunk) as f64;
     let bytes = sim
         .comm()
-        .sum_i128(sim.prop.op.stream_bytes_rows(sim.n_owned()) as i128) as f64
+        .sum_i128(sim.prop().op.stream_bytes_rows(sim.n_owned()) as i128) as f64
         / n as f64;
     // full steps with one substep each (dt = h)
     sim.set_dt(sim.dt().min(h))?;
@@ -204,15 +185,15 @@ pub fn measure(
     }
     let rss = peak_rss() as f64;
     let peak = sim.comm().max(rss);
-    let total_rss = crate::distribute::comm::exact_sum(sim.comm(), [rss].into_iter());
+    let total_rss = eprop::distribute::comm::reproducible_sum(sim.comm(), [rss].into_iter());
     let rate = n as f64 / per_substep;
     Ok(Case {
         mesh: sim.global_mesh().map(|m| m.source.clone()).unwrap_or_default(),
         nodes: n,
         cells: sizes.cells,
-        scheme: match &sim.prop.op {
-            crate::discretize::operator::Operator::Compact(c) if c.is_f32() => "compact32".to_string(),
-            _ => crate::simulate::scheme_name(sim.setup().model.scheme()).to_string(),
+        scheme: match &sim.prop().op {
+            eprop::discretize::operator::Operator::Compact(c) if c.is_f32() => "compact32".to_string(),
+            _ => eprop::simulate::scheme_name(sim.setup().model.scheme()).to_string(),
         },
         processes: sim.comm().size(),
         threads: rayon::current_num_threads(),
@@ -255,7 +236,7 @@ pub fn bench(
             let t0 = Instant::now();
             let case = match world {
                 None => {
-                    let mut setup = box_setup(nc, scheme)?;
+                    let mut setup = Setup::bench_box(nc, scheme)?;
                     setup.performance = perf;
                     let sizes = GlobalSizes::of(&setup.mesh);
                     let sim = Simulation::new(setup)?;
@@ -264,7 +245,7 @@ pub fn bench(
                 }
                 Some(w) => {
                     let Built { sim, sizes, .. } = build_mpi(w, || {
-                        box_setup(nc, scheme).map(|mut s| {
+                        Setup::bench_box(nc, scheme).map(|mut s| {
                             s.performance = perf;
                             s
                         })

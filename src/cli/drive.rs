@@ -5,16 +5,17 @@
 //! warning when the mesh first folds (`fold::Record`); the progress bar, the stop signal and the summary. The feed is all that differs: `Batch` for
 //! `eprop run` (the scenario's own inputs), the client's session for `eprop serve`.
 
-use crate::config::Stop;
-use crate::distribute::parts::GlobalSizes;
-use crate::guard::limits::Budget;
 use crate::guard::plausible::{self, Look, Watch};
-use crate::guard::safety::{self, Agreed, OutputLock, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
-use crate::output::progress::{Every, Progress};
-use crate::output::series::Series;
-use crate::output::summary::{summarize, Summary, Timing};
-use crate::simulate::{Simulation, StopToken};
 use anyhow::Result;
+use eprop::config::Stop;
+use eprop::distribute::launch::{Agreed, EXIT_ERROR, EXIT_STOPPED, EXIT_WRITE};
+use eprop::distribute::parts::GlobalSizes;
+use eprop::guard::limits::Budget;
+use eprop::guard::safety::{self, OutputLock};
+use eprop::output::progress::{Every, Progress};
+use eprop::output::series::Series;
+use eprop::output::summary::{summarize, Summary, Timing};
+use eprop::simulate::{Simulation, StopToken};
 use eprop_series::outcome::{dir_of, free_bytes, human_bytes, Cause, WriteFailed};
 use std::time::Instant;
 
@@ -290,7 +291,7 @@ impl Output {
             let step_bytes = self.budget.step_bytes;
             let full = root
                 && free_bytes(&dir_of(file))
-                    .is_some_and(|free| (free as f64) < crate::guard::limits::reserve(step_bytes));
+                    .is_some_and(|free| (free as f64) < eprop::guard::limits::reserve(step_bytes));
             if sim.comm().max(f64::from(u8::from(full))) > 0.0 {
                 // the steps written before are counted (a few bytes of the reserve)
                 self.complete(s)?;
@@ -307,7 +308,7 @@ impl Output {
                             file.display(),
                             human_bytes(free as f64),
                             dir_of(file).display(),
-                            human_bytes(crate::guard::limits::reserve(step_bytes)),
+                            human_bytes(eprop::guard::limits::reserve(step_bytes)),
                             human_bytes(step_bytes),
                             self.series.steps_written(),
                             holds(&self.series),
@@ -320,7 +321,7 @@ impl Output {
         let appended = self.series.append(sim, commit);
         appended.map_err(|e| self.failed(e, s))?;
         // the first output step with inverted cells: one warning (every process takes part)
-        if let Some(w) = self.series.folds.warning(sim) {
+        if let Some(w) = self.series.fold_warning(sim) {
             if root && !s.quiet {
                 progress.println(&format!("warning: {w}"));
             }

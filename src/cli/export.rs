@@ -2,10 +2,11 @@
 //! engine loads (OBJ, STL, PLY, VTU), optionally with a scalar per vertex (as a colour in OBJ
 //! and PLY, as point data in VTU).
 
-use crate::guard::safety::{claim_file, Input};
 use anyhow::{bail, Result};
+use eprop::config::Input;
+use eprop::guard::safety::claim_file;
 use eprop_io::mesh::boundary_faces;
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

@@ -19,14 +19,16 @@
 //! Levenberg-Marquardt.
 
 use crate::cli::run::start_mpi_if_needed;
-use crate::config::{Scenario, Setup};
-use crate::diagnostics::short;
-use crate::distribute::comm::Comm;
-use crate::distribute::launch::is_root;
-use crate::guard::safety::{self, Agreed, Input, EXIT_ERROR, EXIT_STOPPED};
-use crate::simulate::distributed::build_mpi;
-use crate::simulate::{Simulation, StopToken};
 use anyhow::{anyhow, bail, Result};
+use eprop::config::Input;
+use eprop::config::{Scenario, Setup};
+use eprop::diagnostics::short;
+use eprop::distribute::comm::Comm;
+use eprop::distribute::launch::is_root;
+use eprop::distribute::launch::{Agreed, EXIT_ERROR, EXIT_STOPPED};
+use eprop::guard::safety;
+use eprop::simulate::distributed::build_mpi;
+use eprop::simulate::{Simulation, StopToken};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -329,8 +331,8 @@ fn read_curve(path: &Path) -> Result<Curve> {
             if a <= last {
                 bail!(
                     "{name}:{k}: x = {} does not increase (the row before has {}); fix: sort the rows by x and keep one row per x",
-                    crate::diagnostics::short(a),
-                    crate::diagnostics::short(last)
+                    eprop::diagnostics::short(a),
+                    eprop::diagnostics::short(last)
                 );
             }
         }
@@ -1044,7 +1046,7 @@ fn claim(
 ) -> Result<Option<(Curve, Vec<safety::OutputLock>)>> {
     let n = params.len();
     let [json_file, csv_file, png_file] = files_of(prefix);
-    crate::distribute::launch::on_root(w, || {
+    eprop::distribute::launch::on_root(w, || {
         let curve = read_curve(&opts.data)?;
         if curve.x.len() <= n {
             bail!(
@@ -1185,7 +1187,7 @@ fn write_report(
     prefix: &Path,
 ) -> Result<Option<FitReport>> {
     let [json_file, csv_file, png_file] = files_of(prefix);
-    crate::distribute::launch::on_root(w, || {
+    eprop::distribute::launch::on_root(w, || {
         report.files = vec![json_file.display().to_string(), csv_file.display().to_string()];
         if opts.plot {
             report.files.push(png_file.display().to_string());

@@ -3,161 +3,15 @@
 //! `eprop export-operator` (the compact operator as a CSR matrix).
 
 use crate::cli::run::{prepare, RunOptions};
-use crate::config::tissue::Tensor;
-use crate::config::{Scenario, Setup};
-use crate::diagnostics::{fixed, peak_rss};
-use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
-use crate::discretize::operator::{Compact, Operator};
-use crate::guard::limits::Budget;
-use crate::simulate::{scheme_name, Simulation, SAFETY};
 use anyhow::{bail, Result};
-use eprop_io::geom::{cell_quality, cell_volume};
-use eprop_io::Mesh;
+use eprop::config::{Scenario, Setup};
+use eprop::diagnostics::{fixed, peak_rss};
+use eprop::discretize::operator::{Compact, Operator};
+use eprop::guard::limits::Budget;
+use eprop::simulate::{scheme_name, Simulation};
+use eprop_mesh::Mesh;
 use serde::Serialize;
 use std::path::Path;
-use std::time::Instant;
-
-/// What `eprop info` reports about a mesh.
-#[derive(Serialize, Debug)]
-pub struct MeshInfo {
-    pub file: String,
-    pub nodes: usize,
-    pub cells: usize,
-    pub cell_kinds: Vec<(String, usize)>,
-    /// Surface facets stored in the file (gmsh's triangles and quads; none in .vtu/.vtk).
-    pub surface_facets: usize,
-    /// Faces of the volume cells that belong to one cell: the mesh's boundary, computed.
-    pub boundary_faces: usize,
-    pub groups: Vec<(u8, i32, String)>,
-    pub bounds: [[f64; 3]; 2],
-    pub volume: f64,
-    pub control_volume_sum: f64,
-    pub max_closure_error: f64,
-    pub min_quality: f64,
-    pub max_quality: f64,
-    pub stable_h_r005: f64,
-    /// Which nodes and cells set the stable substep (conductivity 0.05).
-    pub stiffness: crate::discretize::quality::Stiffness,
-    pub unreferenced_nodes: usize,
-    pub warnings: Vec<String>,
-}
-
-pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
-    let n = mesh.n_nodes();
-    let inc = Incidence::new(mesh);
-    let dual = Dual::build(mesh, &inc, n, None);
-    let volume: f64 = (0..mesh.n_cells())
-        .map(|c| cell_volume(mesh.kinds[c], mesh.cell(c), &mesh.points))
-        .sum();
-    let (mut qmin, mut qmax) = (f64::INFINITY, 0.0f64);
-    for c in 0..mesh.n_cells() {
-        let q = cell_quality(mesh.kinds[c], mesh.cell(c), &mesh.points);
-        qmin = qmin.min(q);
-        qmax = qmax.max(q);
-    }
-    let r = crate::config::tissue::Materials::uniform(
-        n,
-        crate::config::tissue::Tissue {
-            r: Tensor::identity() * 0.05,
-            ..crate::config::PAPER_TISSUE
-        },
-    );
-    let a = compact_coefficients(mesh, &inc, &dual, &r);
-    let active: Vec<bool> = dual.vol.iter().map(|&v| v > 0.0).collect();
-    let op = Compact::new(&dual, &a, &active);
-    let g = op.gershgorin();
-    let stiffness = crate::discretize::quality::analyse(mesh, &op, &dual.vol, &r, &|c| mesh.cell_id(c));
-    let (lo, hi) = mesh.bounds();
-    let unref = dual.vol.iter().filter(|&&v| v <= 0.0).count();
-    let mut warnings = mesh.warnings.clone();
-    if unref > 0 {
-        warnings.push(format!("{unref} node(s) belong to no cell"));
-    }
-    MeshInfo {
-        file: mesh.source.clone(),
-        nodes: n,
-        cells: mesh.n_cells(),
-        cell_kinds: mesh
-            .kind_counts()
-            .into_iter()
-            .map(|(k, c)| (k.name().to_string(), c))
-            .collect(),
-        surface_facets: mesh.facets.len(),
-        boundary_faces: eprop_io::mesh::boundary_faces(mesh).len(),
-        groups: mesh.group_names.iter().map(|((d, t), s)| (*d, *t, s.clone())).collect(),
-        bounds: [lo, hi],
-        volume,
-        control_volume_sum: dual.vol.iter().sum(),
-        max_closure_error: dual.max_closure_error(),
-        min_quality: qmin,
-        max_quality: qmax,
-        stable_h_r005: SAFETY * 2.0 / g,
-        stiffness,
-        unreferenced_nodes: unref,
-        warnings,
-    }
-}
-
-impl std::fmt::Display for MeshInfo {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "{}", self.file)?;
-        let kinds: Vec<String> = self.cell_kinds.iter().map(|(k, c)| format!("{c} {k}")).collect();
-        writeln!(f, "  nodes            {}", self.nodes)?;
-        writeln!(f, "  cells            {} ({})", self.cells, kinds.join(", "))?;
-        match self.surface_facets {
-            0 => writeln!(
-                f,
-                "  surface facets   none stored in the file; {} boundary faces found",
-                self.boundary_faces
-            )?,
-            n => writeln!(
-                f,
-                "  surface facets   {n} stored; {} boundary faces found",
-                self.boundary_faces
-            )?,
-        }
-        for (d, t, s) in &self.groups {
-            writeln!(f, "  group            {s:?} (dim {d}, tag {t})")?;
-        }
-        writeln!(
-            f,
-            "  bounds           [{}, {}, {}] .. [{}, {}, {}]",
-            fixed(self.bounds[0][0], 4),
-            fixed(self.bounds[0][1], 4),
-            fixed(self.bounds[0][2], 4),
-            fixed(self.bounds[1][0], 4),
-            fixed(self.bounds[1][1], 4),
-            fixed(self.bounds[1][2], 4)
-        )?;
-        writeln!(f, "  volume           {:.12e}", self.volume)?;
-        writeln!(
-            f,
-            "  sum of V_i       {:.12e} (relative difference {:.1e})",
-            self.control_volume_sum,
-            ((self.control_volume_sum - self.volume) / self.volume).abs()
-        )?;
-        writeln!(
-            f,
-            "  closure error    {:.2e} (max |sum_j S_ij + A_i| / dual area)",
-            self.max_closure_error
-        )?;
-        writeln!(
-            f,
-            "  cell quality     {:.4} .. {:.4} (1 = regular)",
-            self.min_quality, self.max_quality
-        )?;
-        write!(
-            f,
-            "  stable h         {:.4e} (compact, conductivity 0.05, {SAFETY} of the bound)\n{}",
-            self.stable_h_r005,
-            self.stiffness.describe(17)
-        )?;
-        for w in &self.warnings {
-            write!(f, "\n  warning          {w}")?;
-        }
-        Ok(())
-    }
-}
 
 /// Quality of one split of the node graph.
 #[derive(Serialize, Debug)]
@@ -264,7 +118,7 @@ pub struct CheckReport {
     /// What `substeps` counts, with its unit ("4 substeps", "14 stages").
     pub per_step: String,
     /// Which nodes and cells set the Euler substep (compact scheme).
-    pub stiffness: Option<crate::discretize::quality::Stiffness>,
+    pub stiffness: Option<eprop::discretize::quality::Stiffness>,
     pub h: f64,
     pub h_bound: f64,
     pub dt: f64,
@@ -286,24 +140,18 @@ pub struct CheckReport {
 /// refuse about its output file or disk, and implausible loads, are warnings.
 pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     let setup = prepare(path, opts)?;
-    let sizes = crate::distribute::parts::GlobalSizes::of(&setup.mesh);
+    let sizes = eprop::distribute::parts::GlobalSizes::of(&setup.mesh);
     let mut sim = Simulation::new(setup)?;
     let budget = Budget::of(&sim, &sizes, opts.steps.is_some(), true).map_err(|e| anyhow::anyhow!(e))?;
     crate::guard::plausible::tool_reach(&sim).map_err(|e| anyhow::anyhow!(e))?;
     let n = sim.n_global();
-    let q: Vec<(u32, [f64; 3])> = vec![];
-    let t = Instant::now();
-    let reps = 5;
-    for _ in 0..reps {
-        sim.prop.substep(sim.step_plan().h, &q);
-    }
-    let per_substep = t.elapsed().as_secs_f64() / reps as f64;
+    let per_substep = sim.time_substeps(5);
     let steps = budget.steps;
     let mesh = sim.global_mesh().unwrap_or(&sim.setup().mesh);
-    let mut warnings = crate::output::summary::warnings(&sim, mesh);
+    let mut warnings = eprop::output::summary::warnings(&sim, mesh);
     warnings.extend(crate::guard::plausible::load_warnings(&sim, mesh));
     warnings.extend(crate::guard::plausible::tool_warnings(&sim));
-    if sim.loads.iter().any(|l| l.nodes.len() == 1) {
+    if sim.loads().iter().any(|l| l.nodes.len() == 1) {
         warnings.push(
             "a load on a single node is mesh-dependent (the source is singular); a `patch = { center, radius }` is not"
                 .into(),
@@ -318,18 +166,18 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
     }
     let file = &sim.setup().output.file;
     let inputs = sim.setup().scenario.inputs();
-    if let Err(e) = crate::guard::safety::refuse_inputs(file, "the output file", &inputs) {
+    if let Err(e) = eprop::guard::safety::refuse_inputs(file, "the output file", &inputs) {
         warnings.push(format!("`eprop run` will refuse: {e:#}"));
     } else if file.exists() {
         let overwrite = sim.setup().output.overwrite;
-        let again = crate::guard::safety::restart_command(path, file, 1, &[]);
-        if let Err(e) = crate::guard::safety::check_existing(file, "the output file", overwrite, &again) {
+        let again = eprop::guard::safety::restart_command(path, file, 1, &[]);
+        if let Err(e) = eprop::guard::safety::check_existing(file, "the output file", overwrite, &again) {
             warnings.push(format!("`eprop run` will refuse: {e:#}"));
         }
     }
     let reclaimed = std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
     let what = format!("{} output steps", budget.output_steps);
-    if let Err(e) = crate::guard::safety::check_space(file, &budget, reclaimed, &what, false) {
+    if let Err(e) = eprop::guard::safety::check_space(file, &budget, reclaimed, &what, false) {
         warnings.push(format!("`eprop run` will refuse without --force: {e:#}"));
     }
     Ok(CheckReport {
@@ -338,16 +186,16 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         nodes: n,
         cells: mesh.n_cells(),
         fixed_nodes: sim.fixed_nodes(),
-        loads: sim.loads.iter().map(|l| (l.nodes.len(), l.area)).collect(),
+        loads: sim.loads().iter().map(|l| (l.nodes.len(), l.area)).collect(),
         tools: sim
-            .tools
+            .tools()
             .iter()
             .map(|t| {
                 let (s, p) = (&t.tool.shape, t.state.position);
                 format!(
                     "{} of radius {} at ({}, {}, {}) at t = 0, indentation {:.4e}{}",
                     s.name(),
-                    crate::diagnostics::short(s.radius()),
+                    eprop::diagnostics::short(s.radius()),
                     fixed(p[0], 4),
                     fixed(p[1], 4),
                     fixed(p[2], 4),
@@ -372,7 +220,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         output_mib: budget.output_bytes / 1048576.0,
         memory_mib: peak_rss() as f64 / 1048576.0,
         estimated_seconds: per_substep * 1.3 * sim.step_plan().cost * steps as f64,
-        output_seconds: crate::guard::limits::write_seconds(
+        output_seconds: eprop::guard::limits::write_seconds(
             &eprop_series::outcome::dir_of(file),
             budget.step_bytes,
             budget.output_steps,
@@ -406,14 +254,14 @@ impl std::fmt::Display for CheckReport {
             writeln!(f, "{}", s.describe(12))?;
         }
         let writing = match self.output_seconds {
-            Some(w) => format!(" ({} s of it writing the output)", crate::diagnostics::fixed(w, 3)),
+            Some(w) => format!(" ({} s of it writing the output)", eprop::diagnostics::fixed(w, 3)),
             None => String::new(),
         };
         writeln!(
             f,
             "  run         {} steps, about {} s on one process{writing}; {:.1} MiB of memory",
             self.steps,
-            crate::diagnostics::fixed(self.estimated_seconds + self.output_seconds.unwrap_or(0.0), 3),
+            eprop::diagnostics::fixed(self.estimated_seconds + self.output_seconds.unwrap_or(0.0), 3),
             self.memory_mib
         )?;
         write!(
@@ -486,7 +334,7 @@ pub fn operator_csr(sim: &Simulation, op: &Compact) -> (Vec<i64>, Vec<i64>, Vec<
 /// mechanics step, and theta, TR-BDF2's implicit weight), built on one process.
 pub fn export_operator(scenario: &Path, output: &Path, overwrite: bool) -> Result<ExportReport> {
     let sc = Scenario::load(scenario)?;
-    let _lock = crate::guard::safety::claim_file(
+    let _lock = eprop::guard::safety::claim_file(
         output,
         "the operator file (export-operator -o)",
         &sc.inputs(),
@@ -494,7 +342,7 @@ pub fn export_operator(scenario: &Path, output: &Path, overwrite: bool) -> Resul
     )?;
     let setup = Setup::new(sc)?;
     let sim = Simulation::new(setup)?;
-    let Operator::Compact(op) = &sim.prop.op else {
+    let Operator::Compact(op) = &sim.prop().op else {
         bail!(
             "{}: export-operator needs [model] scheme = \"compact\"",
             scenario.display()
@@ -512,7 +360,7 @@ pub fn export_operator(scenario: &Path, output: &Path, overwrite: bool) -> Resul
             ("h", h),
             ("nodes", n as f64),
             ("dt", sim.dt()),
-            ("theta", crate::propagate::integrate::implicit::THETA),
+            ("theta", eprop::propagate::integrate::implicit::THETA),
         ],
     )?;
     // the control volumes of the free nodes (0 on fixed rows), in input order: with L they
@@ -547,7 +395,7 @@ mod tests {
     #[test]
     fn the_exported_operator_is_l_with_its_diagonal_in_input_order() {
         let s = sim("");
-        let Operator::Compact(op) = &s.prop.op else {
+        let Operator::Compact(op) = &s.prop().op else {
             unreachable!()
         };
         let (row_ptr, col, val) = operator_csr(&s, op);

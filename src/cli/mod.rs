@@ -14,7 +14,7 @@ pub mod serve;
 /// while a run holds its `SetupNotes`), and with `verbose` 1, 2 or 3 (`-v`, `-vv`, `-vvv`) the
 /// library's events from info, debug or trace on.
 pub fn log_to_stderr(verbose: u8) {
-    use crate::output::progress::{Notes, SETUP};
+    use eprop::output::progress::{Notes, SETUP};
     use tracing::level_filters::LevelFilter;
     use tracing_subscriber::filter::filter_fn;
     use tracing_subscriber::prelude::*;

@@ -3,19 +3,19 @@
 //! scenario's own inputs.
 
 use crate::cli::drive::{self, Batch, Settings};
-use crate::config::integrator::Preconditioner;
-use crate::config::{Fuse, Scenario, Setup, Stop};
-use crate::distribute::comm::Comm;
-use crate::distribute::launch::start_alone;
-use crate::distribute::parts::GlobalSizes;
-use crate::guard::safety::{self, OutputLock};
-use crate::output::progress;
-pub use crate::output::progress::Every;
-use crate::output::series::check_output_dir;
-use crate::output::summary::Summary;
-use crate::simulate::distributed::build_mpi;
-use crate::simulate::{Simulation, StopToken};
 use anyhow::{bail, Result};
+use eprop::config::integrator::Preconditioner;
+use eprop::config::{Fuse, Scenario, Setup, Stop};
+use eprop::distribute::comm::Comm;
+use eprop::distribute::launch::start_alone;
+use eprop::distribute::parts::GlobalSizes;
+use eprop::guard::safety::{self, OutputLock};
+use eprop::output::progress;
+pub use eprop::output::progress::Every;
+use eprop::output::series::check_output_dir;
+use eprop::output::summary::Summary;
+use eprop::simulate::distributed::build_mpi;
+use eprop::simulate::{Simulation, StopToken};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -52,7 +52,7 @@ fn output_of(scenario: &Scenario, opts: &RunOptions) -> (PathBuf, String) {
         Some(_) => format!("the output file ([output] file of {name})"),
         None => format!("the output file (the default for {name})"),
     };
-    (crate::config::output_file(scenario), how)
+    (eprop::config::output_file(scenario), how)
 }
 
 /// Resolves a scenario against its mesh with the command-line overrides applied.

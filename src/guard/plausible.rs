@@ -5,11 +5,11 @@
 //! validity. None of them changes a number. And the checks that stop a run whose state is no
 //! longer finite, or whose tool leaves the range where its contact is computed.
 
-use crate::config::{Reading, CONTINUUM};
-use crate::diagnostics::{fixed, short};
-use crate::simulate::Simulation;
+use eprop::config::{Reading, CONTINUUM};
+use eprop::diagnostics::{fixed, short};
+use eprop::simulate::Simulation;
 use eprop_io::geom::{norm, sub};
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 
 /// max |u| above this fraction of the mesh's bounding-box diagonal is warned about once (the
 /// model is a small-deformation one).
@@ -53,7 +53,7 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
     let young = sim.setup().law.young;
     let metres = metres_hint(sim, diag);
     let entries = &sim.setup().scenario.file.load;
-    for (k, l) in sim.loads.iter().enumerate() {
+    for (k, l) in sim.loads().iter().enumerate() {
         let f = norm(l.force) * peak_scale(&l.ramp);
         let sigma = f / l.area;
         if sigma / young > STRESS_RATIO {
@@ -73,9 +73,9 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
                 diag * diag
             ));
         }
-        if let Some(crate::config::Selector::Nearest(p)) = entries.get(k).map(|e| e.selector.get_ref()) {
+        if let Some(eprop::config::Selector::Nearest(p)) = entries.get(k).map(|e| e.selector.get_ref()) {
             let node = l.nodes[0] as usize;
-            let d = crate::config::distance(mesh.points[node], p.0);
+            let d = eprop::config::distance(mesh.points[node], p.0);
             if d > NEAREST_FRACTION * diag {
                 let x = mesh.points[node];
                 out.push(format!(
@@ -188,8 +188,8 @@ const TOOL_SAMPLES: usize = 1000;
 /// How deep a sphere tool's centre at `at` lies inside the organ when that is deeper than its
 /// radius (None for other shapes, outside, or shallower; every process calls): the case where
 /// the surface behind it counts as pressed by up to that depth once it moves.
-pub(crate) fn sphere_deep_inside(sim: &Simulation, tool: &crate::config::Tool, at: [f64; 3]) -> Option<f64> {
-    let crate::config::Shape::Sphere { radius } = tool.shape else {
+pub(crate) fn sphere_deep_inside(sim: &Simulation, tool: &eprop::config::Tool, at: [f64; 3]) -> Option<f64> {
+    let eprop::config::Shape::Sphere { radius } = tool.shape else {
         return None;
     };
     sim.depth_inside(at).filter(|&d| d > radius)
@@ -201,7 +201,7 @@ pub(crate) fn sphere_deep_inside(sim: &Simulation, tool: &crate::config::Tool, a
 /// Live tools (moved by a client) are not looked at. Every process calls (reductions).
 pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
     let mut out = Vec::new();
-    if sim.tools.is_empty() {
+    if sim.tools().is_empty() {
         return out;
     }
     let (lo, hi) = sim.mesh().bounds();
@@ -210,7 +210,7 @@ pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
     let young = sim.setup().law.young;
     let metres = metres_hint(sim, diag);
     let end = sim.max_steps() as f64 * sim.dt();
-    for (k, run) in sim.tools.iter().enumerate() {
+    for (k, run) in sim.tools().iter().enumerate() {
         let tool = &run.tool;
         let radius = tool.shape.radius();
         if std::f64::consts::PI * radius * radius < AREA_FRACTION * diag * diag {
@@ -236,7 +236,7 @@ pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
             continue;
         }
         let mut times = vec![0.0];
-        if let crate::config::Trajectory::Table(h) = &tool.path {
+        if let eprop::config::Trajectory::Table(h) = &tool.path {
             let rows: Vec<f64> = h.rows().iter().map(|r| r[0]).filter(|&t| t > 0.0 && t < end).collect();
             let stride = rows.len().div_ceil(TOOL_SAMPLES).max(1);
             times.extend(rows.iter().step_by(stride));
@@ -280,8 +280,8 @@ pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
         // the foundation law's pressure (a kinematic tool's contact has none to check: it
         // puts the tissue where it is and the force follows)
         let h = tool.foundation;
-        let p = crate::simulate::contact::pressure(&sim.setup().law, deepest, h);
-        if tool.law == crate::config::ContactLaw::Foundation && p / young > STRESS_RATIO {
+        let p = eprop::simulate::contact::pressure(&sim.setup().law, deepest, h);
+        if tool.law == eprop::config::ContactLaw::Foundation && p / young > STRESS_RATIO {
             out.push(format!(
                 "tool {}: at t = {at:.4e} it is {deepest:.4e} deep in the rest surface, a contact strain of {:.3e} on its foundation {}: the contact pressure {p:.4e} is {:.3e} times [tissue] young = {}, far outside the tissue law's range (up to {STRESS_RATIO}): the source and the displacements will be far too large; fix: check the path, `foundation`, young and the units{metres}",
                 k + 1,
@@ -299,10 +299,10 @@ pub fn tool_warnings(sim: &Simulation) -> Vec<String> {
 /// before the run's last step (tables are bounded row by row when they are read, and a live
 /// tool's samples as they arrive). The same verdict on every process.
 pub fn tool_reach(sim: &Simulation) -> Result<(), String> {
-    use crate::config::{REACH, REACH_WHY};
+    use eprop::config::{REACH, REACH_WHY};
     let end = sim.max_steps() as f64 * sim.dt();
-    for (k, run) in sim.tools.iter().enumerate() {
-        if let crate::config::Trajectory::Linear { .. } = run.tool.path {
+    for (k, run) in sim.tools().iter().enumerate() {
+        if let eprop::config::Trajectory::Linear { .. } = run.tool.path {
             let far = run.tool.path.at(end);
             if far.iter().any(|x| !(x.abs() <= REACH)) {
                 return Err(format!(
@@ -337,7 +337,7 @@ pub fn nonfinite_cause(sim: &Simulation) -> String {
             );
         }
     }
-    for (k, (l, a)) in sim.loads.iter().zip(sim.applied(sim.time())).enumerate() {
+    for (k, (l, a)) in sim.loads().iter().zip(sim.applied(sim.time())).enumerate() {
         let peak = sim
             .setup()
             .law
@@ -412,7 +412,7 @@ impl Watch {
             .tool_states()
             .iter()
             .all(|s| norm(s.position).is_finite() && norm(s.force).is_finite());
-        let bad = !(finite(&sim.u()[..n]) && finite(&sim.v()[..n]) && finite(&sim.prop.phi[..n]) && probes && tools);
+        let bad = !(finite(&sim.u()[..n]) && finite(&sim.v()[..n]) && finite(&sim.phi()[..n]) && probes && tools);
         let umax = sim.u()[..n].iter().map(|p| norm(*p)).fold(0.0f64, f64::max);
         let all = sim.comm().max_each(&[f64::from(u8::from(bad)), umax]);
         if all[0] > 0.0 {
@@ -425,7 +425,7 @@ impl Watch {
         self.warned = true;
         // the cause that applies: a prescribed tool path (its depth), else the loads
         let pressing: Vec<String> = sim
-            .tools
+            .tools()
             .iter()
             .enumerate()
             .filter(|(_, t)| t.state.indentation > 0.0)

@@ -6,7 +6,7 @@
 //! reduction, so every process stops after the same step, which is written and flushed. A
 //! second SIGINT (Ctrl-C twice) ends the process at once.
 
-use crate::simulate::StopToken;
+use eprop::simulate::StopToken;
 use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
 use std::sync::atomic::{AtomicBool, AtomicUsize};
 use std::sync::{Arc, OnceLock};

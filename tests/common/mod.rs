@@ -3,7 +3,7 @@
 
 use eprop::config::{Scenario, Setup};
 use eprop::simulate::Simulation;
-use eprop_io::Mesh;
+use eprop_mesh::Mesh;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};

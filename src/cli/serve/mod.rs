@@ -11,21 +11,20 @@
 //! may ask for the deformed surface (`stream`): rank 0 gathers the surface nodes'
 //! displacements every K steps and the network thread sends them after its answers.
 
-pub mod protocol;
+pub use eprop::protocol;
 pub mod session;
 pub mod stream;
 
 use crate::cli::drive::{self, Feed, Halt, Settings};
 use crate::cli::run::{prepare_claimed, start_mpi_if_needed, RunOptions};
-use crate::config::tables::History;
-use crate::config::{Setup, Trajectory};
-use crate::discretize::operator::V3;
-use crate::distribute::comm::Comm;
-use crate::distribute::parts::GlobalSizes;
-use crate::output::summary::Summary;
-use crate::simulate::distributed::build_mpi;
-use crate::simulate::Simulation;
 use anyhow::{anyhow, bail, Result};
+use eprop::config::Setup;
+use eprop::discretize::operator::V3;
+use eprop::distribute::comm::Comm;
+use eprop::distribute::parts::GlobalSizes;
+use eprop::output::summary::Summary;
+use eprop::simulate::distributed::build_mpi;
+use eprop::simulate::Simulation;
 use protocol::{Hello, MAX_LIVE};
 use serde::Serialize;
 use session::{Entities, Frame, Outcome, Session, SessionSummary};
@@ -163,47 +162,9 @@ pub fn serve_on(world: Option<&dyn Comm>, path: &Path, opts: &ServeOptions) -> R
 
 /// The live inputs, tools first (`Entities`).
 fn entities(sim: &Simulation) -> Entities {
-    let mut live: Vec<bool> = sim.tools.iter().map(|t| t.tool.live).collect();
-    live.extend(sim.loads.iter().map(|l| l.live));
     Entities {
-        tools: sim.tools.len(),
-        live,
-    }
-}
-
-/// Appends samples (entity, [t, x, y, z]) to the live inputs' histories.
-fn apply(sim: &mut Simulation, samples: &[(u32, [f64; 4])]) -> Result<()> {
-    let nt = sim.tools.len();
-    for &(e, row) in samples {
-        let e = e as usize;
-        let h = if e < nt {
-            match &mut sim.tools[e].tool.path {
-                Trajectory::Table(h) => h,
-                Trajectory::Linear { .. } => bail!("internal: live tool {e} has no history"),
-            }
-        } else {
-            sim.loads[e - nt]
-                .history
-                .as_mut()
-                .ok_or_else(|| anyhow!("internal: live load {} has no history", e - nt))?
-        };
-        h.push(row)
-            .map_err(|m| anyhow!("internal: a sample the session accepted: {m}"))?;
-    }
-    Ok(())
-}
-
-/// Drops the samples no time from t on needs.
-fn forget_before(sim: &mut Simulation, t: f64) {
-    for run in sim.tools.iter_mut().filter(|r| r.tool.live) {
-        if let Trajectory::Table(h) = &mut run.tool.path {
-            h.forget_before(t);
-        }
-    }
-    for l in sim.loads.iter_mut().filter(|l| l.live) {
-        if let Some(h) = &mut l.history {
-            h.forget_before(t);
-        }
+        tools: sim.tools().len(),
+        live: sim.live_inputs(),
     }
 }
 
@@ -249,7 +210,7 @@ fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64, every: &m
         .chunks_exact(5)
         .map(|s| (s[0] as u32, [s[1], s[2], s[3], s[4]]))
         .collect();
-    apply(sim, &samples)?;
+    sim.apply_live_samples(&samples)?;
     Ok(None)
 }
 
@@ -269,7 +230,7 @@ fn outcomes(sim: &Simulation, any_live_load: bool) -> Vec<Outcome> {
     let probes: Vec<(V3, V3)> = if any_live_load {
         sim.probes()
     } else {
-        vec![([0.0; 3], [0.0; 3]); sim.loads.len()]
+        vec![([0.0; 3], [0.0; 3]); sim.loads().len()]
     };
     out.extend(probes.iter().map(|&(f, d)| Outcome {
         step: sim.step(),
@@ -301,11 +262,11 @@ impl Live {
     /// its radius (every process calls; checked again only after it moved half a radius, so
     /// a still tool costs nothing).
     fn look_inside(&mut self, sim: &Simulation, t: f64) {
-        for (k, run) in sim.tools.iter().enumerate() {
+        for (k, run) in sim.tools().iter().enumerate() {
             let tool = &run.tool;
             let radius = tool.shape.radius();
             let (last, warned) = &mut self.inside[k];
-            if !tool.live || *warned || !matches!(tool.shape, crate::config::Shape::Sphere { .. }) {
+            if !tool.live || *warned || !matches!(tool.shape, eprop::config::Shape::Sphere { .. }) {
                 continue;
             }
             let c = tool.path.at(t);
@@ -320,9 +281,9 @@ impl Live {
                     eprintln!(
                         "warning: tool {}: the client moved its centre inside the organ at t = {}, {} from the nearest surface node, deeper than its radius {}: the surface behind it counts as pressed by up to that depth, a large foundation force and source; fix: move it from outside onto the surface it should press",
                         k + 1,
-                        crate::diagnostics::short(t),
-                        crate::diagnostics::fixed(depth, 4),
-                        crate::diagnostics::short(radius)
+                        eprop::diagnostics::short(t),
+                        eprop::diagnostics::fixed(depth, 4),
+                        eprop::diagnostics::short(radius)
                     );
                 }
             }
@@ -357,7 +318,7 @@ impl Feed for Live {
         }
         self.look_inside(sim, t_next);
         let now = sim.time();
-        forget_before(sim, now);
+        sim.forget_live_before(now);
         Ok(None)
     }
 
@@ -399,12 +360,7 @@ fn serve_simulation(
     let ents = entities(&sim);
     let any_live_load = ents.live[ents.tools..].iter().any(|&b| b);
     // live inputs start empty: the client's samples are their history
-    for run in sim.tools.iter_mut().filter(|r| r.tool.live) {
-        run.tool.path = Trajectory::Table(History::empty());
-    }
-    for l in sim.loads.iter_mut().filter(|l| l.live) {
-        l.history = Some(History::empty());
-    }
+    sim.start_live_inputs();
     let mask = |from: usize, to: usize| {
         (from..to)
             .filter(|&e| ents.live[e])
@@ -457,7 +413,7 @@ fn serve_simulation(
         surface,
         every: 0,
         gather: None,
-        inside: vec![(None, false); sim.tools.len()],
+        inside: vec![(None, false); sim.tools().len()],
     };
     let summary = drive::drive(sim, &mut feed, settings, checked)?;
     let session = feed.session.map(Session::finish);

@@ -5,8 +5,8 @@
 //! results. The network thread never calls MPI.
 
 use super::protocol::{self as p, Code, Hello, Message, Stream, Topology, CLIENT_SIZE};
-use crate::discretize::operator::V3;
-use crate::simulate::StopToken;
+use eprop::discretize::operator::V3;
+use eprop::simulate::StopToken;
 use serde::Serialize;
 use std::io::{ErrorKind, Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -244,7 +244,7 @@ impl Session {
                                 NOT_READING,
                                 since.elapsed().as_secs_f64(),
                                 self.ents.name(e),
-                                crate::diagnostics::short(t)
+                                eprop::diagnostics::short(t)
                             )
                         } else if g.phase == Phase::Waiting {
                             format!(
@@ -255,7 +255,7 @@ impl Session {
                             format!(
                                 "the client sent no sample of {} at or beyond t = {} within {} s (stalled); fix: keep sending, say bye, or raise --timeout",
                                 self.ents.name(e),
-                                crate::diagnostics::short(t),
+                                eprop::diagnostics::short(t),
                                 self.timeout.as_secs_f64()
                             )
                         };
@@ -268,7 +268,7 @@ impl Session {
                         let msg = format!(
                             "stopped by {} while waiting for the client's samples at t = {}",
                             crate::guard::signals::name(sig),
-                            crate::diagnostics::short(t)
+                            eprop::diagnostics::short(t)
                         );
                         fail(&mut g, Code::Server, &msg);
                         cv.notify_all();
@@ -658,16 +658,16 @@ fn live_tool(ents: &Entities, index: u32, t: f64, position: &[f64; 3]) -> Result
             format!("no live tool {index} (the hello's live_tools mask lists them)"),
         ));
     }
-    if let Some(x) = position.iter().find(|x| !(x.abs() <= crate::config::REACH)) {
+    if let Some(x) = position.iter().find(|x| !(x.abs() <= eprop::config::REACH)) {
         return Err(End::Error(
             Some(Code::Sample),
             format!(
                 "the position of tool {index} at t = {} has the component {}, beyond +-{}, {}; fix: {}",
-                crate::diagnostics::short(t),
-                crate::diagnostics::short(*x),
-                crate::diagnostics::short(crate::config::REACH),
-                crate::config::REACH_WHY,
-                crate::config::REACH_FIX
+                eprop::diagnostics::short(t),
+                eprop::diagnostics::short(*x),
+                eprop::diagnostics::short(eprop::config::REACH),
+                eprop::config::REACH_WHY,
+                eprop::config::REACH_FIX
             ),
         ));
     }
@@ -756,9 +756,9 @@ fn serve_client(
                 Some(Code::Sample),
                 format!(
                     "time {} of {} is not after its last sample's {}",
-                    crate::diagnostics::short(t),
+                    eprop::diagnostics::short(t),
                     ents.name(e),
-                    crate::diagnostics::short(last)
+                    eprop::diagnostics::short(last)
                 ),
             );
         }

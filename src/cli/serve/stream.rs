@@ -4,8 +4,8 @@
 
 use super::protocol::Topology;
 use crate::cli::export::Surface;
-use crate::simulate::Simulation;
 use anyhow::{bail, Result};
+use eprop::simulate::Simulation;
 
 /// The topology a streaming client gets: the surface of the whole mesh with its rest
 /// coordinates (on the process that holds the whole mesh: rank 0).

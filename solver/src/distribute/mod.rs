@@ -1,0 +1,12 @@
+//! Distribution over processes, and every use of MPI: the communicator (`comm`: collectives),
+//! the halo exchange and the block scatter (`halo`), per-node fields in local numbering
+//! (`field`), each process's part of the scenario (`parts`, sent as postcard bytes of its serde
+//! form, `config::wire`), and the launch policy (`launch`: one process or mpirun, MPI's start,
+//! errors and exit statuses). Nothing outside this module names MPI: the rest of the crate
+//! holds a `comm::Comm`.
+
+pub mod comm;
+pub mod field;
+pub mod halo;
+pub mod launch;
+pub mod parts;

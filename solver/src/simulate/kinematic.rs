@@ -1,0 +1,327 @@
+//! The kinematic contact law (docs/tools.md): a tool is a condition on where the tissue is,
+//! and the model finds the energy it takes.
+//!
+//! At the start of a step (state u^n, phi^n; the tool moves from c_n to c_{n+1}) every active
+//! node the tool touches gets a target position on the tool's surface (`hold`): a node inside
+//! the tool at c_{n+1} is pushed onto its surface along the normal; a node on its surface
+//! follows it (a sticky tool carries it along, a sliding one takes it to the nearest surface
+//! point). A node on the surface stays held only while its reaction pushes on the tool: a
+//! tool does not pull (`held_nodes`).
+//!
+//! The potential of a held node is set to the value that holds the node there at
+//! equilibrium, phi*_c = g_c / lambda_c (lambda = kappa / k, so u = lambda phi; p != 1:
+//! |phi| = (|g| / lambda)^(1/p)), and kept there over the step: its row of the operator is
+//! emptied for the step (`Propagation::freeze`), so every integrator holds it (the implicit
+//! one's conjugate gradients keep their search directions zero there), and sources on it are
+//! dropped. That is the paper's Dirichlet condition on the potential at the contact, with the
+//! energy the tool puts in as the unknown. After the mechanics the held nodes are at their
+//! targets, and any other node the tool would contain is pushed out of it
+//! (`super::contact::constrain`, every node, surface and interior).
+//!
+//! The force on the organ is the model's reaction at the end of the step, from the Dirichlet
+//! energy the potential stores: f_c = M lambda_c / D_c (-V_c) (L phi)_c, the outflow of energy
+//! at each node on or in the tool, M = E / (2 (1 - nu^2)) (the harmonic model's modulus that
+//! gives Boussinesq's surface displacement on a half-space), D_c the node's mean
+//! conductivity; normal to the surface for a sliding tool. Every factor but E is fixed by the
+//! displacement, so a prescribed tool path moves the tissue the same whatever young, and the
+//! force scales with young.
+
+use super::contact::{depth, project, ToolRun};
+use crate::config::tissue::Materials;
+use crate::config::{Grip, Shape};
+use crate::discretize::operator::{Operator, V3};
+use eprop_io::geom::{dot, norm, scale, sub};
+
+/// A node counts as touching a tool when it is less than this fraction of the tool's radius
+/// outside it (round-off of a node put on the surface).
+pub const ON_SURFACE: f64 = 1e-9;
+
+/// Whether a point y touches the tool at `c`: inside it, or outside by less than ON_SURFACE
+/// of its radius.
+pub fn touches(shape: &Shape, c: V3, y: V3) -> bool {
+    depth(shape, c, y) >= -ON_SURFACE * shape.radius()
+}
+
+/// A node held over one step.
+#[derive(Clone, Copy, Debug)]
+pub struct Held {
+    pub node: u32,
+    /// The displacement the tool gives it at the step's end.
+    pub target: V3,
+    /// Its displacement at the step's start.
+    pub before: V3,
+}
+
+/// a + b
+fn add(a: V3, b: V3) -> V3 {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// The direction the tool at `c` pushes the tissue at a point y on or near its surface: a
+/// punch's normal; a sphere's outward radius (None at its centre).
+pub fn push_normal(shape: &Shape, c: V3, y: V3) -> Option<V3> {
+    match *shape {
+        Shape::Punch { normal, .. } => Some(normal),
+        Shape::Sphere { .. } => {
+            let d = sub(y, c);
+            let r = norm(d);
+            (r > 0.0 && r.is_finite()).then(|| scale(d, 1.0 / r))
+        }
+    }
+}
+
+/// Where the tool moving from `c_now` to `c_next` puts the point y (a node's position at the
+/// step's start), or None when it does not touch it. A point inside the tool at c_next is
+/// pushed onto its surface along the normal; a point on the surface at c_now follows it: a
+/// sticky tool carries it along (with the tool's whole move), a sliding one takes it to the
+/// nearest point of its surface at c_next. Whether a touching point stays held is the
+/// reaction's to say (`held_nodes`): a tool does not pull.
+pub fn hold(run: &ToolRun, c_now: V3, c_next: V3, y: V3) -> Option<V3> {
+    let shape = run.tool.shape;
+    let tol = ON_SURFACE * shape.radius();
+    let on_now = touches(&shape, c_now, y);
+    let mut y = y;
+    if run.tool.grip == Grip::Stick && on_now {
+        y = add(y, sub(c_next, c_now));
+    }
+    let d = depth(&shape, c_next, y);
+    let p = if d > 0.0 || (on_now && d.is_finite() && d < -tol) {
+        project(&shape, c_next, y)
+    } else if d >= -tol {
+        y
+    } else {
+        return None;
+    };
+    p.iter().all(|x| x.is_finite()).then_some(p)
+}
+
+/// The potential that holds a node at displacement g at equilibrium: kappa |phi|^(p-1) phi
+/// = k g, i.e. phi = g / lambda for p = 1.
+pub fn held_potential(g: V3, stiffness: f64, coupling: f64, p: f64) -> V3 {
+    if p == 1.0 {
+        let s = stiffness / coupling;
+        return [g[0] * s, g[1] * s, g[2] * s];
+    }
+    let m = norm(g);
+    if !(m > 0.0) {
+        return [0.0; 3];
+    }
+    let mag = (stiffness * m / coupling).powf(1.0 / p);
+    scale(g, mag / m)
+}
+
+/// Each owned row's relaxation rate mu_i = sum_j c_ij (the compact operator), or None for the
+/// paper scheme.
+pub fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
+    let Operator::Compact(c) = op else {
+        return None;
+    };
+    let ptr = c.row_ptr();
+    Some(
+        (0..n_rows)
+            .map(|i| (ptr[i] as usize..ptr[i + 1] as usize).map(|p| c.c(p)).sum())
+            .collect(),
+    )
+}
+
+/// The force factor of node i, M lambda_i / D_i with M = E_i / (2 (1 - nu_i^2)) (its
+/// tissue's young and poisson) and D_i the mean of its conductivity's diagonal.
+pub fn force_factor(mat: &Materials, i: usize) -> f64 {
+    let t = mat.at(i);
+    let m = t.law.young / (2.0 * (1.0 - t.poisson * t.poisson));
+    let r = &t.r;
+    let d = (r[(0, 0)] + r[(1, 1)] + r[(2, 2)]) / 3.0;
+    m * (t.coupling / t.stiffness) / d
+}
+
+/// The nodes the kinematic tools hold over the step from t (tools at `now`) to t + dt (at
+/// `next`), among the owned `active` nodes at rest positions `x` displaced by `u`; a node
+/// is held by the first tool that holds it.
+/// `pulls(i, n)`: whether node i, held where it is, would pull the tool along n (a tensile
+/// reaction): such a node on the surface is let go; one inside the tool is always pushed out.
+pub fn held_nodes(
+    tools: &[ToolRun],
+    now: &[V3],
+    next: &[V3],
+    x: &[V3],
+    u: &[V3],
+    active: &[bool],
+    pulls: impl Fn(usize, V3) -> bool,
+) -> Vec<Held> {
+    let mut out = Vec::new();
+    let mut taken = vec![false; u.len()];
+    for (k, run) in tools.iter().enumerate() {
+        if !run.kinematic() {
+            continue;
+        }
+        let reach = run.tool.shape.radius() + norm(sub(next[k], now[k])) + ON_SURFACE * run.tool.shape.radius();
+        for i in 0..u.len() {
+            if !active[i] || taken[i] {
+                continue;
+            }
+            let y = add(x[i], u[i]);
+            // a cheap test first: points farther than the radius and the move from both
+            // positions cannot be held
+            if norm(sub(y, next[k])) > 2.0 * reach && norm(sub(y, now[k])) > 2.0 * reach {
+                continue;
+            }
+            if let Some(p) = hold(run, now[k], next[k], y) {
+                let shape = &run.tool.shape;
+                if depth(shape, next[k], p) <= 0.0 && depth(shape, next[k], y) <= ON_SURFACE * shape.radius() {
+                    // on the surface, not pushed: it stays only while it pushes back
+                    if push_normal(shape, next[k], y).is_some_and(|nn| pulls(i, nn)) {
+                        continue;
+                    }
+                }
+                taken[i] = true;
+                out.push(Held {
+                    node: i as u32,
+                    target: sub(p, x[i]),
+                    before: u[i],
+                });
+            }
+        }
+    }
+    out
+}
+
+/// What the kinematic tools keep between steps on one process.
+pub struct State {
+    /// Each owned row's relaxation rate mu_i.
+    pub mu: Vec<f64>,
+    /// L phi on the owned rows at the current state.
+    pub lphi: Vec<V3>,
+    /// A copy of phi whose halo the operator refreshes.
+    pub scratch: crate::distribute::field::NodeField<V3>,
+    /// The nodes held over the last step.
+    pub held: Vec<Held>,
+}
+
+/// What a kinematic tool at `c` does at the end of a step, from the state (u and lphi =
+/// L phi on the owned rows): the nodes on or in it (surface and interior), their reaction
+/// force f_c = M lambda_c / D_c (-V_c) (L phi)_c (module docs), the contact area and the
+/// mean displacement of its surface nodes (weighted by |A_i|); the indentation is left at
+/// -inf for the caller. Every process calls (exact sums).
+#[allow(clippy::too_many_arguments)]
+pub fn measure(
+    run: &ToolRun,
+    c: V3,
+    n: &super::contact::Nodes,
+    mat: &Materials,
+    u: &[V3],
+    lphi: &[V3],
+    comm: &dyn crate::distribute::comm::Comm,
+) -> super::contact::ToolState {
+    let shape = run.tool.shape;
+    let mut rows = Vec::new();
+    for i in 0..u.len() {
+        if !n.active[i] {
+            continue;
+        }
+        let y = add(n.points[i], u[i]);
+        if !touches(&shape, c, y) {
+            continue;
+        }
+        let s = -force_factor(mat, i) * n.vol[i];
+        let f0 = scale(lphi[i], s);
+        let mut f = f0;
+        if run.tool.grip == Grip::Slide {
+            if let Some(nn) = push_normal(&shape, c, y) {
+                f = scale(nn, dot(f, nn).max(0.0));
+            }
+        }
+        let a = norm(n.area[i]);
+        rows.push([f[0], f[1], f[2], a, 1.0, a * u[i][0], a * u[i][1], a * u[i][2]]);
+    }
+    let s = crate::distribute::comm::reproducible_sums(comm, rows.iter().copied());
+    let area = s[3];
+    super::contact::ToolState {
+        position: c,
+        force: [s[0], s[1], s[2]],
+        contact_nodes: s[4] as u64,
+        contact_area: area,
+        indentation: f64::NEG_INFINITY,
+        displacement: if area > 0.0 {
+            [s[5] / area, s[6] / area, s[7] / area]
+        } else {
+            [0.0; 3]
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{ContactLaw, Tool, Trajectory};
+
+    fn run(shape: Shape, grip: Grip) -> ToolRun {
+        ToolRun::new(Tool {
+            shape,
+            path: Trajectory::Linear {
+                start: [0.0; 3],
+                velocity: [0.0; 3],
+            },
+            live: false,
+            law: ContactLaw::Kinematic,
+            grip,
+            foundation: 1.0,
+        })
+    }
+
+    #[test]
+    fn a_sliding_sphere_pushes_along_its_normal_and_lets_go_when_it_leaves() {
+        let r = run(Shape::Sphere { radius: 1.0 }, Grip::Slide);
+        // a point 0.25 inside the sphere at its new position: onto the surface, radially
+        let p = hold(&r, [0.0, 0.0, 2.0], [0.0, 0.0, 1.5], [0.0, 0.0, 0.75]).unwrap();
+        assert_eq!(p, [0.0, 0.0, 0.5]);
+        // on the surface of the still tool: stays
+        assert_eq!(hold(&r, [0.0; 3], [0.0; 3], [0.0, 0.0, -1.0]), Some([0.0, 0.0, -1.0]));
+        // the tool moves away: the point follows its surface (the reaction decides whether
+        // it stays held)
+        let p = hold(&r, [0.0; 3], [0.0, 0.0, 0.1], [0.0, 0.0, -1.0]).unwrap();
+        assert!((p[2] + 0.9).abs() < 1e-15, "{p:?}");
+        // a point off the surface is not touched
+        assert_eq!(hold(&r, [0.0; 3], [0.0, 0.0, 0.1], [0.0, 0.0, -1.01]), None);
+    }
+
+    #[test]
+    fn a_sticky_punch_carries_its_face_and_leaves_it_when_withdrawn() {
+        let n = [0.0, 0.0, -1.0];
+        let r = run(Shape::Punch { radius: 1.0, normal: n }, Grip::Stick);
+        // on the face, the punch presses 0.1 and moves 0.2 sideways: the point follows
+        let p = hold(&r, [0.0; 3], [0.2, 0.0, -0.1], [0.5, 0.0, 0.0]).unwrap();
+        assert!((p[0] - 0.7).abs() < 1e-15 && (p[2] + 0.1).abs() < 1e-15, "{p:?}");
+        // a sliding punch does not carry the point sideways
+        let s = run(Shape::Punch { radius: 1.0, normal: n }, Grip::Slide);
+        assert_eq!(
+            hold(&s, [0.0; 3], [0.2, 0.0, -0.1], [0.5, 0.0, 0.0]),
+            Some([0.5, 0.0, -0.1])
+        );
+        // beside the face: never
+        assert_eq!(hold(&s, [0.0; 3], [0.0, 0.0, -0.1], [1.5, 0.0, 0.0]), None);
+        // a withdrawal lets go of every point whose reaction pulls, keeps the others
+        let x = [[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0], [0.0, 0.5, 0.0]];
+        let u = [[0.0; 3]; 3];
+        let held = held_nodes(&[r], &[[0.0; 3]], &[[0.0, 0.0, 0.1]], &x, &u, &[true; 3], |i, nn| {
+            assert_eq!(nn, n);
+            i == 1
+        });
+        let ids: Vec<u32> = held.iter().map(|h| h.node).collect();
+        assert_eq!(ids, [0, 2]);
+        assert!((held[0].target[2] - 0.1).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_held_potential_gives_the_target_at_equilibrium() {
+        for p in [1.0, 0.5, 2.0] {
+            let (k, kappa) = (4e5, 15.0);
+            let g = [1e-3, -2e-3, 3e-4];
+            let phi = held_potential(g, k, kappa, p);
+            let m = norm(phi);
+            let u = scale(phi, kappa * m.powf(p - 1.0) / k);
+            for d in 0..3 {
+                assert!((u[d] - g[d]).abs() < 1e-15, "p = {p}: {u:?}");
+            }
+        }
+    }
+}
