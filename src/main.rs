@@ -235,6 +235,10 @@ Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a si
         /// Print JSON
         #[arg(long)]
         json: bool,
+        /// Measure auto's candidates on trial steps under the first loads, as `run` does
+        /// (without it: their models' estimate, which needs no physics)
+        #[arg(long)]
+        measure: bool,
     },
     /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep and the
     /// nodes and cells that set it.
@@ -609,13 +613,14 @@ fn tool_command(cmd: Cmd) -> Result<()> {
             steps,
             set,
             json,
+            measure,
         } => {
             let opts = RunOptions {
                 steps,
                 sets: set,
                 ..Default::default()
             };
-            print(&inspect::check(&scenario, &opts)?, json)?;
+            print(&inspect::check(&scenario, &opts, measure)?, json)?;
         }
         Cmd::Info { mesh, json, strict } => {
             let m = eprop_io::read_mesh_with(&mesh, &eprop_io::ReadOptions { strict })?;
