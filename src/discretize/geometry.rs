@@ -195,22 +195,34 @@ pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64
             f(&v)
         })
     };
-    // two passes (count, then fill in place): no per-row allocation at the peak of the setup
-    let counts: Vec<usize> = (0..n_rows)
+    // one pass over blocks of rows, each block's rows in one buffer, joined in row order (no
+    // per-row allocation; the buffers together are the size of `col`)
+    const BLOCK: usize = 4096;
+    let blocks: Vec<(Vec<u32>, Vec<u32>)> = (0..n_rows.div_ceil(BLOCK))
         .into_par_iter()
-        .map(|i| {
-            let mut n = 0;
-            with_row(i, &mut |v| n = v.len());
-            n
+        .map(|b| {
+            let rows = b * BLOCK..((b + 1) * BLOCK).min(n_rows);
+            let (mut counts, mut cols) = (Vec::with_capacity(rows.len()), Vec::new());
+            for i in rows {
+                with_row(i, &mut |v| {
+                    counts.push(v.len() as u32);
+                    cols.extend_from_slice(v);
+                });
+            }
+            (counts, cols)
         })
         .collect();
     let mut ptr = Vec::with_capacity(n_rows + 1);
     ptr.push(0);
-    for c in counts {
-        ptr.push(ptr[ptr.len() - 1] + c);
+    for (counts, _) in &blocks {
+        for &c in counts {
+            ptr.push(ptr[ptr.len() - 1] + c as usize);
+        }
     }
-    let mut col = vec![0u32; ptr[n_rows]];
-    par_rows(&mut col, &ptr, |i, row| with_row(i, &mut |v| row.copy_from_slice(v)));
+    let mut col = Vec::with_capacity(ptr[n_rows]);
+    for (_, cols) in blocks {
+        col.extend_from_slice(&cols);
+    }
     (ptr, col)
 }
 
@@ -511,30 +523,57 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
     let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
     let order = visit_order(mesh, dual.n_rows);
     let weighs = r.weighs_young();
+    // a cell's tensor: the mean of its nodes', weighed by its young where tissues weigh
+    let tensor = |nodes: &[u32]| {
+        let mut rc = Matrix3::zeros();
+        for &n in nodes {
+            rc += r.r(n as usize);
+        }
+        rc /= nodes.len() as f64;
+        if weighs {
+            rc *= cell_young(nodes, r);
+        }
+        rc
+    };
+    // the tensor and shape-function gradients of each tetrahedron of a block of rows,
+    // computed once for the block (as the dual's cell pieces in `Dual::build`)
+    let tets = |rows: &[u32]| {
+        let mut cells: Vec<u32> = rows
+            .iter()
+            .flat_map(|&i| inc.of(i as usize).iter().copied())
+            .filter(|&c| mesh.kinds[c as usize] == CellKind::Tet)
+            .collect();
+        cells.sort_unstable();
+        cells.dedup();
+        let pieces: Vec<(Matrix3<f64>, [[f64; 3]; 4], f64)> = cells
+            .iter()
+            .map(|&c| {
+                let nodes = mesh.cell(c as usize);
+                let (g, v) = tet_gradients(nodes, pts);
+                (tensor(nodes), g, v)
+            })
+            .collect();
+        (cells, pieces)
+    };
     par_rows_with(
         &mut out,
         &dual.row_ptr[..=dual.n_rows],
         Some(&order),
-        |_| (),
-        |_, i, w| {
+        tets,
+        |ctx, i, w| {
             let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
             for &c in inc.of(i) {
+                let cell = c;
                 let c = c as usize;
                 let kind = mesh.kinds[c];
                 let nodes = mesh.cell(c);
                 let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                let mut rc = Matrix3::zeros();
-                for &n in nodes {
-                    rc += r.r(n as usize);
-                }
-                rc /= nodes.len() as f64;
-                if weighs {
-                    rc *= cell_young(nodes, r);
-                }
                 if kind == CellKind::Tet {
                     // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
                     // that a_ab == a_ba bitwise
-                    let (g, v) = tet_gradients(nodes, pts);
+                    let (cells, pieces) = ctx;
+                    let (rc, g, v) = &pieces[cells.binary_search(&cell).unwrap()];
+                    let (rc, v) = (*rc, *v);
                     for lk in 0..4 {
                         if lk == li {
                             continue;
@@ -546,6 +585,7 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                         w[p] += val;
                     }
                 } else {
+                    let rc = tensor(nodes);
                     let cd = cell_dual(kind, nodes, pts);
                     let gg = green_gauss(kind, nodes, pts, cd.volume);
                     // total outward dual-face vector of node li in this cell
