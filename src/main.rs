@@ -301,6 +301,10 @@ struct CheckArgs {
     /// Print JSON
     #[arg(long)]
     json: bool,
+    /// Measure auto's candidates on trial steps under the first loads, as `run` does
+    /// (without it: their models' estimate, which needs no physics)
+    #[arg(long)]
+    measure: bool,
 }
 
 #[derive(Args)]
@@ -548,7 +552,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 sets: a.set,
                 ..Default::default()
             };
-            print(&inspect::check(&a.scenario, &opts)?, a.json)
+            print(&inspect::check(&a.scenario, &opts, a.measure)?, a.json)
         }
         Cmd::Info(a) => {
             let m = eprop_io::read_mesh_with(&a.mesh, &eprop_io::ReadOptions { strict: a.strict })?;

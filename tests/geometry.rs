@@ -134,3 +134,61 @@ fn cylinder_generator_is_paper_sized() {
     assert_eq!(m.n_cells(), 1782);
     assert!(m.group_tag("bottom").is_some() && m.group_tag("side").is_some());
 }
+
+/// The dual geometry and the compact coefficients built on one thread and on two are the same
+/// bits (the build gathers each row's pieces in a fixed cell order, whatever the threads).
+#[test]
+fn the_geometry_and_operator_are_the_same_bits_on_one_and_two_threads() {
+    use eprop::config::tissue::{Materials, Tensor};
+    use eprop::discretize::geometry::compact_coefficients;
+    let bits3 = |v: &[[f64; 3]]| v.iter().flat_map(|x| x.map(f64::to_bits)).collect::<Vec<u64>>();
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+    let meshes = [
+        box_mesh([1.0, 2.0, 0.5], [22, 20, 10], BoxCells::Tet).unwrap(),
+        box_mesh([1.0, 1.0, 1.0], [6, 5, 4], BoxCells::PyramidTet).unwrap(),
+        box_mesh([1.0, 1.0, 1.0], [6, 5, 4], BoxCells::Hex).unwrap(),
+    ];
+    for mut mesh in meshes {
+        // irregular points and tensors, so that the sums' order shows
+        for (k, p) in mesh.points.iter_mut().enumerate() {
+            let w = 0.01 * (((k * 2654435761) % 1000) as f64 / 1000.0 - 0.5);
+            *p = [p[0] + w, p[1] - 0.5 * w, p[2] + 0.25 * w];
+        }
+        let n = mesh.n_nodes();
+        let r: Vec<Tensor> = (0..n)
+            .map(|k| {
+                Tensor::new(
+                    0.3,
+                    0.05,
+                    -0.02,
+                    0.05,
+                    0.2 + 1e-3 * (k % 7) as f64,
+                    0.04,
+                    -0.02,
+                    0.04,
+                    0.1,
+                )
+            })
+            .collect();
+        let mat = Materials::with_conductivities(&r, eprop::config::PAPER_TISSUE);
+        let build = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let inc = Incidence::new(&mesh);
+                let dual = Dual::build(&mesh, &inc, n, None);
+                let a = compact_coefficients(&mesh, &inc, &dual, &mat);
+                (
+                    dual.row_ptr.clone(),
+                    dual.col.clone(),
+                    bits3(&dual.s),
+                    bits(&dual.vol),
+                    bits3(&dual.area),
+                    bits(&dual.dual_area),
+                    bits(&a),
+                )
+            })
+        };
+        let (one, two) = (build(1), build(2));
+        assert!(one == two, "{}: the build differs on two threads", mesh.source);
+    }
+}

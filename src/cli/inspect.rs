@@ -115,6 +115,9 @@ pub struct CheckReport {
     pub scheme: String,
     pub integrator: String,
     pub integrator_why: String,
+    /// Whether auto's candidates were measured on trial steps (`check --measure`), not
+    /// estimated from their models.
+    pub measured: bool,
     /// What `substeps` counts, with its unit ("4 substeps", "14 stages").
     pub per_step: String,
     /// Which nodes and cells set the Euler substep (compact scheme).
@@ -137,9 +140,12 @@ pub struct CheckReport {
 
 /// Validates a scenario, builds its simulation on one process and times a few substeps. The
 /// limits a run applies (steps, substeps, step sizes) are errors here too; what a run would
-/// refuse about its output file or disk, and implausible loads, are warnings.
-pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
-    let setup = prepare(path, opts)?;
+/// refuse about its output file or disk, and implausible loads, are warnings. `auto`'s choice
+/// is its models' estimate (stability bound, cost per step, one trial solve for implicit)
+/// unless `measure`, which runs its trial steps under the first loads as `run` does.
+pub fn check(path: &Path, opts: &RunOptions, measure: bool) -> Result<CheckReport> {
+    let mut setup = prepare(path, opts)?;
+    setup.integrator.trials = measure;
     let sizes = eprop::distribute::parts::GlobalSizes::of(&setup.mesh);
     let mut sim = Simulation::new(setup)?;
     let budget = Budget::of(&sim, &sizes, opts.steps.is_some(), true).map_err(|e| anyhow::anyhow!(e))?;
@@ -207,6 +213,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
         scheme: scheme_name(sim.setup().model.scheme()).to_string(),
         integrator: sim.step_plan().integrator.name().to_string(),
         integrator_why: sim.step_plan().why.clone(),
+        measured: measure,
         per_step: sim.step_plan().per_step_phrase(),
         stiffness: sim.stiffness(),
         h: sim.step_plan().h,
@@ -250,6 +257,12 @@ impl std::fmt::Display for CheckReport {
             self.scheme, self.h, self.h_bound, self.dt, self.dt_bound, self.per_step
         )?;
         writeln!(f, "  integrator  {}: {}", self.integrator, self.integrator_why)?;
+        if !self.measured && self.integrator_why.starts_with("auto") {
+            writeln!(
+                f,
+                "              (estimated from the models; `check --measure` runs auto's trial steps under the first loads, as `run` does)"
+            )?;
+        }
         if let Some(s) = &self.stiffness {
             writeln!(f, "{}", s.describe(12))?;
         }

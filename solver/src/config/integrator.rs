@@ -86,6 +86,14 @@ pub struct Settings {
     pub max_iterations: usize,
     pub max_stages: usize,
     pub preconditioner: Preconditioner,
+    /// Whether `auto` measures its candidates on trial steps under the first loads (false:
+    /// their models alone, as `eprop check` without --measure estimates). Not a scenario key.
+    #[serde(default = "yes")]
+    pub trials: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 pub const DEFAULT_ACCURACY: f64 = 1e-3;
@@ -107,6 +115,7 @@ impl Default for Settings {
             max_iterations: DEFAULT_MAX_ITERATIONS,
             max_stages: DEFAULT_MAX_STAGES,
             preconditioner: Preconditioner::Auto,
+            trials: true,
         }
     }
 }

@@ -218,6 +218,7 @@ impl IntegratorSec {
             max_iterations: self.max_iterations as usize,
             max_stages: self.max_stages as usize,
             preconditioner: self.preconditioner,
+            trials: true,
         }
     }
 }

@@ -58,31 +58,43 @@ fn edge_faces(kind: CellKind, a: usize, b: usize) -> [usize; 2] {
     out
 }
 
-/// Per-cell median-dual pieces, in the cell's local numbering.
+/// The most edges, nodes and faces of a cell kind (a hexahedron's).
+const MAX_EDGES: usize = 12;
+const MAX_NODES: usize = 8;
+const MAX_FACES: usize = 6;
+
+/// Per-cell median-dual pieces, in the cell's local numbering (fixed arrays: no allocation
+/// per cell; entries past the kind's edges and nodes are zero).
+#[derive(Clone, Copy)]
 pub struct CellDual {
     /// S^cell of each local edge (kind.edges() order), oriented from edge[0] to edge[1].
-    pub s: Vec<[f64; 3]>,
+    pub s: [[f64; 3]; MAX_EDGES],
     /// Dual volume piece of each local node.
-    pub vol: Vec<f64>,
+    pub vol: [f64; MAX_NODES],
     /// Cell volume.
     pub volume: f64,
+}
+
+/// The node ids of a face of a cell, on the stack.
+fn face_nodes(face: &[usize], nodes: &[u32]) -> ([u32; 4], usize) {
+    let mut f = [0u32; 4];
+    for (k, &l) in face.iter().enumerate() {
+        f[k] = nodes[l];
+    }
+    (f, face.len())
 }
 
 pub fn cell_dual(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]]) -> CellDual {
     let x = |l: usize| pts[nodes[l] as usize];
     let c = centroid(nodes, pts);
-    let fc: Vec<[f64; 3]> = kind
-        .faces()
-        .iter()
-        .map(|f| {
-            let fnodes: Vec<u32> = f.iter().map(|&l| nodes[l]).collect();
-            centroid(&fnodes, pts)
-        })
-        .collect();
-    let nn = kind.n_nodes();
-    let mut vol = vec![0.0; nn];
-    let mut s = Vec::with_capacity(kind.edges().len());
-    for e in kind.edges() {
+    let mut fc = [[0.0; 3]; MAX_FACES];
+    for (k, f) in kind.faces().iter().enumerate() {
+        let (fnodes, n) = face_nodes(f, nodes);
+        fc[k] = centroid(&fnodes[..n], pts);
+    }
+    let mut vol = [0.0; MAX_NODES];
+    let mut s = [[0.0; 3]; MAX_EDGES];
+    for (k, e) in kind.edges().iter().enumerate() {
         let (a, b) = (e[0], e[1]);
         let m = scale(add(x(a), x(b)), 0.5);
         let [f1, f2] = edge_faces(kind, a, b);
@@ -99,11 +111,11 @@ pub fn cell_dual(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]]) -> CellDual {
                 vol[node] += sign * (det3(mo, fao, co) + det3(mo, co, fbo)) / 6.0;
             }
         }
-        s.push(sv);
+        s[k] = sv;
     }
     let volume = cell_volume(kind, nodes, pts);
     if kind == CellKind::Tet {
-        vol.iter_mut().for_each(|v| *v = volume / 4.0);
+        vol[..4].iter_mut().for_each(|v| *v = volume / 4.0);
     }
     CellDual { s, vol, volume }
 }
@@ -183,22 +195,34 @@ pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64
             f(&v)
         })
     };
-    // two passes (count, then fill in place): no per-row allocation at the peak of the setup
-    let counts: Vec<usize> = (0..n_rows)
+    // one pass over blocks of rows, each block's rows in one buffer, joined in row order (no
+    // per-row allocation; the buffers together are the size of `col`)
+    const BLOCK: usize = 4096;
+    let blocks: Vec<(Vec<u32>, Vec<u32>)> = (0..n_rows.div_ceil(BLOCK))
         .into_par_iter()
-        .map(|i| {
-            let mut n = 0;
-            with_row(i, &mut |v| n = v.len());
-            n
+        .map(|b| {
+            let rows = b * BLOCK..((b + 1) * BLOCK).min(n_rows);
+            let (mut counts, mut cols) = (Vec::with_capacity(rows.len()), Vec::new());
+            for i in rows {
+                with_row(i, &mut |v| {
+                    counts.push(v.len() as u32);
+                    cols.extend_from_slice(v);
+                });
+            }
+            (counts, cols)
         })
         .collect();
     let mut ptr = Vec::with_capacity(n_rows + 1);
     ptr.push(0);
-    for c in counts {
-        ptr.push(ptr[ptr.len() - 1] + c);
+    for (counts, _) in &blocks {
+        for &c in counts {
+            ptr.push(ptr[ptr.len() - 1] + c as usize);
+        }
     }
-    let mut col = vec![0u32; ptr[n_rows]];
-    par_rows(&mut col, &ptr, |i, row| with_row(i, &mut |v| row.copy_from_slice(v)));
+    let mut col = Vec::with_capacity(ptr[n_rows]);
+    for (_, cols) in blocks {
+        col.extend_from_slice(&cols);
+    }
     (ptr, col)
 }
 
@@ -296,8 +320,11 @@ pub fn par_rows_with<T: Send, R: Send, C>(
 impl Dual {
     /// Median-dual geometry of rows `0..n_rows`. Every cell incident to a row must be present.
     pub fn build(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> Dual {
+        let t = std::time::Instant::now();
         let (row_ptr, col) = pair_graph(mesh, inc, n_rows, gid);
+        let t_pairs = t.elapsed().as_secs_f64();
         let mask = boundary_mask(mesh);
+        let t_mask = t.elapsed().as_secs_f64() - t_pairs;
         let pts = &mesh.points;
         let mut s = vec![[0.0; 3]; col.len()];
         // the dual of each cell of a block of rows, computed once for the block (the rows of a
@@ -361,6 +388,11 @@ impl Dual {
         let vol = rows.iter().map(|r| r.0).collect();
         let area = rows.iter().map(|r| r.1).collect();
         let dual_area = rows.iter().map(|r| r.2).collect();
+        tracing::debug!(
+            "dual geometry of {n_rows} rows in {:.2} s: pair graph {t_pairs:.2} s, boundary faces {t_mask:.2} s, dual faces and volumes {:.2} s",
+            t.elapsed().as_secs_f64(),
+            t.elapsed().as_secs_f64() - t_pairs - t_mask
+        );
         Dual {
             n_rows,
             row_ptr,
@@ -486,34 +518,62 @@ pub fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -
 /// mean of its nodes' tensors and `cell_young` (no weight at all unless
 /// `Materials::weighs_young`).
 pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Materials) -> Vec<f64> {
+    let t = std::time::Instant::now();
     let pts = &mesh.points;
     let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
     let order = visit_order(mesh, dual.n_rows);
     let weighs = r.weighs_young();
+    // a cell's tensor: the mean of its nodes', weighed by its young where tissues weigh
+    let tensor = |nodes: &[u32]| {
+        let mut rc = Matrix3::zeros();
+        for &n in nodes {
+            rc += r.r(n as usize);
+        }
+        rc /= nodes.len() as f64;
+        if weighs {
+            rc *= cell_young(nodes, r);
+        }
+        rc
+    };
+    // the tensor and shape-function gradients of each tetrahedron of a block of rows,
+    // computed once for the block (as the dual's cell pieces in `Dual::build`)
+    let tets = |rows: &[u32]| {
+        let mut cells: Vec<u32> = rows
+            .iter()
+            .flat_map(|&i| inc.of(i as usize).iter().copied())
+            .filter(|&c| mesh.kinds[c as usize] == CellKind::Tet)
+            .collect();
+        cells.sort_unstable();
+        cells.dedup();
+        let pieces: Vec<(Matrix3<f64>, [[f64; 3]; 4], f64)> = cells
+            .iter()
+            .map(|&c| {
+                let nodes = mesh.cell(c as usize);
+                let (g, v) = tet_gradients(nodes, pts);
+                (tensor(nodes), g, v)
+            })
+            .collect();
+        (cells, pieces)
+    };
     par_rows_with(
         &mut out,
         &dual.row_ptr[..=dual.n_rows],
         Some(&order),
-        |_| (),
-        |_, i, w| {
+        tets,
+        |ctx, i, w| {
             let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
             for &c in inc.of(i) {
+                let cell = c;
                 let c = c as usize;
                 let kind = mesh.kinds[c];
                 let nodes = mesh.cell(c);
                 let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                let mut rc = Matrix3::zeros();
-                for &n in nodes {
-                    rc += r.r(n as usize);
-                }
-                rc /= nodes.len() as f64;
-                if weighs {
-                    rc *= cell_young(nodes, r);
-                }
                 if kind == CellKind::Tet {
                     // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
                     // that a_ab == a_ba bitwise
-                    let (g, v) = tet_gradients(nodes, pts);
+                    let (cells, pieces) = ctx;
+                    let (rc, g, v) = &pieces[cells.binary_search(&cell).unwrap()];
+                    let (rc, v) = (*rc, *v);
                     for lk in 0..4 {
                         if lk == li {
                             continue;
@@ -525,6 +585,7 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                         w[p] += val;
                     }
                 } else {
+                    let rc = tensor(nodes);
                     let cd = cell_dual(kind, nodes, pts);
                     let gg = green_gauss(kind, nodes, pts, cd.volume);
                     // total outward dual-face vector of node li in this cell
@@ -548,6 +609,11 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                 }
             }
         },
+    );
+    tracing::debug!(
+        "compact coefficients of {} rows in {:.2} s",
+        dual.n_rows,
+        t.elapsed().as_secs_f64()
     );
     out
 }

@@ -244,6 +244,8 @@ fn build_stepper(
             settings.tolerance = DEFAULT_TOLERANCE * KINEMATIC_ACCURACY / DEFAULT_ACCURACY;
         }
     }
+    // without trials (`eprop check` unless --measure) auto weighs the models alone
+    let trial = trial.filter(|_| settings.trials);
     crate::propagate::integrate::choose::build(&mut crate::propagate::integrate::choose::Context {
         settings: &settings,
         scheme: scheme_name(setup.model.scheme()),
@@ -472,16 +474,22 @@ fn trial_sources(
         Stop::End(t) => Some(crate::config::steps_to(t, dt) as u64),
         Stop::Equilibrium { .. } => None,
     };
+    let steps = steps.map(|n| n.saturating_sub(first));
+    // no more trial steps than the run takes from the first push (a trial never outlasts
+    // the run: a one-step run measures one step, which it then replays)
+    let count = steps.map_or(3, |n| n.clamp(1, 3));
     Some(crate::propagate::integrate::choose::TrialRun {
-        sources: [first, first + 1, first + 2].map(|k| {
-            let mut q = load_sources(loads, load_local, &applied(k), flux);
-            if let Some(t) = planned.get(k as usize) {
-                q.extend_from_slice(t);
-            }
-            q
-        }),
+        sources: (first..first + count)
+            .map(|k| {
+                let mut q = load_sources(loads, load_local, &applied(k), flux);
+                if let Some(t) = planned.get(k as usize) {
+                    q.extend_from_slice(t);
+                }
+                q
+            })
+            .collect(),
         first,
-        steps: steps.map(|n| n.saturating_sub(first)),
+        steps,
     })
 }
 

@@ -10,12 +10,14 @@
 //!   on any number of processes with jacobi and multigrid).
 //!
 //! Under error control, where a load pushes or a tool presses, the candidates that may win are
-//! measured instead on three mechanics steps from phi = 0 under the first sources, and their
-//! mean over the run's length replaces the model (`run_average`): a load switched on at once
-//! starts a transient that costs the first steps many short sub-steps, and most so for
-//! implicit. The candidates are measured in the order of their models, the second only where a
-//! lower bound known beforehand can still win, each trial only while it can, and the chosen
-//! one replays its trial steps in the run (`Replay`).
+//! measured instead on three mechanics steps from phi = 0 under the first sources (fewer when
+//! the run takes fewer), and their mean over the run's length replaces the model
+//! (`run_average`): a load switched on at once starts a transient that costs the first steps
+//! many short sub-steps, and most so for implicit. The candidates are measured in the order of
+//! their models, the second only where a lower bound known beforehand can still win, each
+//! trial only while it can (a step stops inside, at the sub-step past its budget), and the
+//! chosen one replays its trial steps in the run (`Replay`). `eprop check` leaves the trial
+//! out unless asked (`check --measure`): the models alone.
 //!
 //! Only the compact scheme has candidates besides euler; euler stays unless another is MARGIN
 //! times cheaper.
@@ -99,11 +101,11 @@ pub struct Context<'a> {
 pub type Trial = Vec<(u32, V3)>;
 
 /// What the trial steps need: the sources of the first step a load pushes or a tool presses
-/// and of the two steps after it, and the run's steps from that first one (None: not known, a
-/// run to equilibrium).
+/// and of the two steps after it (fewer where the run takes fewer steps from that one), and
+/// the run's steps from that first one (None: not known, a run to equilibrium).
 #[derive(Clone)]
 pub struct TrialRun {
-    pub sources: [Trial; 3],
+    pub sources: Vec<Trial>,
     /// The run's step (from 0) whose sources are `sources[0]`.
     pub first: u64,
     pub steps: Option<u64>,
@@ -120,6 +122,16 @@ pub fn run_average(apps: [usize; 3], steps: Option<u64>) -> f64 {
         Some(0 | 1) => a,
         Some(2) => (a + b) / 2.0,
         Some(n) => (a + b + (n - 2) as f64 * c) / n as f64,
+    }
+}
+
+/// "three trial steps", "one trial step", ... in a message.
+fn trial_words(k: usize) -> String {
+    match k {
+        1 => "one trial step".into(),
+        2 => "two trial steps".into(),
+        3 => "three trial steps".into(),
+        _ => format!("{k} trial steps"),
     }
 }
 
@@ -197,21 +209,43 @@ struct Recorded {
     error: Option<f64>,
 }
 
-/// Three mechanics steps of `st` from phi = 0 under the trial sources: what each did, and
-/// the largest estimated error (phi is zero again afterwards). After each step `go_on` sees
-/// the applications so far; when it says no, the trial stops there (fewer records).
+/// What trial steps did: each whole step, the largest estimated error, and the operator
+/// applications of a step stopped inside (past its budget), if one was.
+struct Steps {
+    recorded: Vec<Recorded>,
+    error: f64,
+    stopped_at: Option<usize>,
+}
+
+/// Mechanics steps of `st` from phi = 0 under the trial sources (phi is zero again
+/// afterwards). Before each step `budget` sees the applications of the steps so far and
+/// bounds the step's own (None: no bound); a step past it stops inside and ends the trial.
 fn trial_steps(
     st: &mut dyn Stepper,
     cx: &mut Context,
-    sources: &[Trial; 3],
-    go_on: &dyn Fn(&[usize]) -> bool,
-) -> Result<(Vec<Recorded>, f64)> {
+    sources: &[Trial],
+    budget: &dyn Fn(&[usize]) -> Option<usize>,
+) -> Result<Steps> {
     let zero = |p: &mut Propagation| p.phi.iter_mut().for_each(|x| *x = [0.0; 3]);
     zero(cx.prop);
-    let mut run = || -> Result<(Vec<Recorded>, f64)> {
-        let (mut steps, mut err) = (Vec::with_capacity(3), 0.0f64);
+    let mut run = || -> Result<Steps> {
+        let (mut steps, mut err) = (Vec::with_capacity(sources.len()), 0.0f64);
         for q in sources {
-            let applications = st.advance(cx.prop, q, cx.comm)?.applications;
+            let apps: Vec<usize> = steps.iter().map(|r: &Recorded| r.applications).collect();
+            st.set_budget(budget(&apps));
+            let applications = match st.advance(cx.prop, q, cx.comm) {
+                Ok(s) => s.applications,
+                Err(e) => match e.downcast_ref::<super::OverBudget>() {
+                    Some(o) => {
+                        return Ok(Steps {
+                            recorded: steps,
+                            error: err,
+                            stopped_at: Some(o.applications),
+                        })
+                    }
+                    None => return Err(e),
+                },
+            };
             let error = st.last_error();
             err = err.max(error.unwrap_or(0.0));
             steps.push(Recorded {
@@ -219,16 +253,46 @@ fn trial_steps(
                 applications,
                 error,
             });
-            let apps: Vec<usize> = steps.iter().map(|r| r.applications).collect();
-            if steps.len() < sources.len() && !go_on(&apps) {
-                break;
-            }
         }
-        Ok((steps, err))
+        Ok(Steps {
+            recorded: steps,
+            error: err,
+            stopped_at: None,
+        })
     };
     let r = run();
+    st.set_budget(None);
     zero(cx.prop);
     r
+}
+
+/// The most applications the next step may take, after steps that took `apps`, for the
+/// candidate still to win: the largest `a` for which `wins_with(apps and a)` (None: any).
+/// `wins_with` falls as `a` grows.
+fn budget_of(apps: &[usize], wins_with: &dyn Fn(&[usize]) -> bool) -> Option<usize> {
+    let with = |a: usize| {
+        let mut v = apps.to_vec();
+        v.push(a);
+        wins_with(&v)
+    };
+    const MOST: usize = 1 << 48;
+    if with(MOST) {
+        return None;
+    }
+    if !with(0) {
+        return Some(0);
+    }
+    // with(lo) and !with(hi)
+    let (mut lo, mut hi) = (0usize, MOST);
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if with(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Some(lo)
 }
 
 /// The least the run's applications per step can average, `steps` steps from the first push,
@@ -245,7 +309,7 @@ fn least_average(apps: &[usize], least: f64, steps: Option<u64>) -> f64 {
     }
 }
 
-/// The operator applications of recorded trial steps.
+/// The operator applications of recorded trial steps (0 for those not taken).
 fn applications(r: &[Recorded]) -> [usize; 3] {
     std::array::from_fn(|k| r.get(k).map_or(0, |r| r.applications))
 }
@@ -270,7 +334,7 @@ pub struct Replay {
 
 impl Replay {
     fn new(inner: Box<dyn Stepper>, trial: TrialRun, recorded: Vec<Recorded>) -> Replay {
-        let mut sources = trial.sources.to_vec();
+        let mut sources = trial.sources;
         sources.truncate(recorded.len());
         Replay {
             inner,
@@ -306,6 +370,9 @@ impl Stepper for Replay {
     }
     fn tighten(&mut self, factor: f64) -> bool {
         self.inner.tighten(factor)
+    }
+    fn set_budget(&mut self, budget: Option<usize>) {
+        self.inner.set_budget(budget)
     }
     fn advance(&mut self, prop: &mut Propagation, q: &Sources, comm: &dyn Comm) -> Result<super::StepStats> {
         if self.wait > 0 {
@@ -405,9 +472,10 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
 struct Measured {
     cost: f64,
     /// the trial steps' applications and largest estimated error, where they ran
-    trial: Option<([usize; 3], f64)>,
+    trial: Option<(Vec<usize>, f64)>,
     record: Option<Vec<Recorded>>,
-    /// the trial steps taken before the candidate could no longer win (its trial stopped)
+    /// the applications of the trial steps taken until the candidate could no longer win (its
+    /// trial stopped; the last one's inside its step)
     stopped: Option<Vec<usize>>,
 }
 
@@ -423,8 +491,9 @@ struct Limit {
 
 /// The candidate's cost: from its trial steps where the error is controlled and a load
 /// pushes or a tool presses (`run_average` of their applications times `per_application`),
-/// else `model`; infinite when the trial fails. The trial stops early once the steps taken
-/// and `limit.least` for the rest of the run cannot beat `limit.best`.
+/// else `model`; infinite when the trial fails. The trial stops early, inside the step that
+/// passes it, once the steps taken and `limit.least` for the rest of the run cannot beat
+/// `limit.best`.
 fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: f64, limit: Limit) -> Measured {
     let (Some(q), true) = (cx.trial.clone(), cx.settings.accuracy.is_finite()) else {
         return Measured {
@@ -435,20 +504,31 @@ fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: 
         };
     };
     let name = st.plan().integrator;
+    let k = q.sources.len();
     tracing::info!(
         target: "eprop::setup",
-        "auto: measuring {name} over three trial steps under the first loads (the chosen integrator replays them)"
+        "auto: measuring {name} over {} under the first loads (the chosen integrator replays them)",
+        trial_words(k)
     );
     let t = std::time::Instant::now();
     let at_least = |apps: &[usize]| per_application * least_average(apps, limit.least, q.steps);
     let go_on = |apps: &[usize]| wins(at_least(apps), limit.euler, limit.best);
-    match trial_steps(st, cx, &q.sources, &go_on) {
-        Ok((rec, _)) if rec.len() < q.sources.len() => {
-            let apps: Vec<usize> = rec.iter().map(|r| r.applications).collect();
+    // a step stops inside once the candidate cannot win; the last too, costed as a whole by
+    // `run_average`, which is at least `least_average` (its last step at least `least`)
+    let budget = |apps: &[usize]| budget_of(apps, &go_on);
+    match trial_steps(st, cx, &q.sources, &budget) {
+        Ok(Steps {
+            recorded,
+            stopped_at: Some(partial),
+            ..
+        }) => {
+            let mut apps: Vec<usize> = recorded.iter().map(|r| r.applications).collect();
+            apps.push(partial);
             tracing::info!(
                 target: "eprop::setup",
-                "auto: {name}: {apps:?} operator applications in {:.1} s: it cannot win, its trial stops",
-                t.elapsed().as_secs_f64()
+                "auto: {name}: {apps:?} operator applications in {:.1} s: it cannot win, its trial stops inside step {}",
+                t.elapsed().as_secs_f64(),
+                apps.len()
             );
             Measured {
                 cost: at_least(&apps),
@@ -457,20 +537,20 @@ fn measure(st: &mut dyn Stepper, cx: &mut Context, model: f64, per_application: 
                 stopped: Some(apps),
             }
         }
-        Ok((rec, err)) => {
-            let apps = applications(&rec);
+        Ok(Steps {
+            recorded, error: err, ..
+        }) => {
+            let apps = applications(&recorded);
+            let taken = apps[..recorded.len()].to_vec();
             tracing::info!(
                 target: "eprop::setup",
-                "auto: {name}: {}, {}, {} operator applications in {:.1} s",
-                apps[0],
-                apps[1],
-                apps[2],
+                "auto: {name}: {taken:?} operator applications in {:.1} s",
                 t.elapsed().as_secs_f64()
             );
             Measured {
                 cost: per_application * run_average(apps, q.steps),
-                trial: Some((apps, err)),
-                record: Some(rec),
+                trial: Some((taken, err)),
+                record: Some(recorded),
                 stopped: None,
             }
         }
@@ -705,16 +785,15 @@ impl Candidates {
     /// Every candidate's cost per step in words (a run of `steps` steps).
     fn describe(&self, steps: Option<u64>) -> String {
         let (st, n, measured) = (self.st, self.n, self.measured);
-        let predicted = |t: &Option<([usize; 3], f64)>| match t {
+        let predicted = |t: &Option<(Vec<usize>, f64)>| match t {
             Some((_, e)) => format!(", predicted error {e:.1e}"),
             None => String::new(),
         };
-        let in_trial = |what: &str, t: &Option<([usize; 3], f64)>, open: &str, close: &str| match t {
+        let in_trial = |what: &str, t: &Option<(Vec<usize>, f64)>, open: &str, close: &str| match t {
             Some((a, _)) => format!(
-                "{open}{what} in three trial steps {}, {}, {}, {}{close}",
-                a[0],
-                a[1],
-                a[2],
+                "{open}{what} in {} {}, {}{close}",
+                trial_words(a.len()),
+                a.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(", "),
                 over(steps)
             ),
             None => String::new(),

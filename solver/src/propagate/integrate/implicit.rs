@@ -259,6 +259,9 @@ impl Stepper for Implicit {
     fn tighten(&mut self, factor: f64) -> bool {
         self.solver.tighten(factor)
     }
+    fn set_budget(&mut self, budget: Option<usize>) {
+        self.errors.budget = budget;
+    }
     fn replayed(&mut self, error: Option<f64>) {
         self.errors.replayed(error)
     }
@@ -286,6 +289,7 @@ impl Stepper for Implicit {
             applications += self.tr_bdf2(prop, q, comm)?;
             let (ratio, apps) = self.estimate(prop, comm, &mut sub)?;
             applications += apps;
+            self.errors.within_budget(applications)?;
             tracing::trace!(
                 "implicit step {} level {} pos {} ratio {ratio:.3e} its {:?}",
                 self.errors.step + 1,

@@ -88,6 +88,10 @@ pub trait Stepper {
     fn tighten(&mut self, _factor: f64) -> bool {
         false
     }
+    /// The most operator applications a step may take before it stops with `OverBudget`
+    /// (None: no limit). Error-controlled integrators check it after each sub-step; the others
+    /// ignore it (`auto` measures only the former).
+    fn set_budget(&mut self, _budget: Option<usize>) {}
 }
 
 pub use crate::config::integrator::{
@@ -222,7 +226,29 @@ pub struct ErrorState {
     pub substeps: (usize, usize),
     /// The estimated relative error of the last mechanics step (sum over its sub-steps).
     pub error: f64,
+    /// The most operator applications a mechanics step may take (`auto`'s trial: past it the
+    /// candidate cannot win, and the step stops with `OverBudget`); None: no limit.
+    pub budget: Option<usize>,
 }
+
+/// A step stopped once its operator applications passed the stepper's budget
+/// (`Stepper::set_budget`): `applications` were taken when it stopped.
+#[derive(Debug, Clone, Copy)]
+pub struct OverBudget {
+    pub applications: usize,
+}
+
+impl std::fmt::Display for OverBudget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the step stopped after {} operator applications, past its budget",
+            self.applications
+        )
+    }
+}
+
+impl std::error::Error for OverBudget {}
 
 impl ErrorState {
     /// No error control yet (`accuracy` infinite); the estimate is to be held to `share` of
@@ -234,6 +260,16 @@ impl ErrorState {
             step: 0,
             substeps: (0, 0),
             error: 0.0,
+            budget: None,
+        }
+    }
+
+    /// Err(`OverBudget`) once a step's `applications` so far pass the budget (checked after
+    /// each sub-step, the same on every process: the counts are).
+    pub fn within_budget(&self, applications: usize) -> Result<()> {
+        match self.budget {
+            Some(b) if applications > b => Err(OverBudget { applications }.into()),
+            _ => Ok(()),
         }
     }
 

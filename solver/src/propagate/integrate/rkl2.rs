@@ -251,6 +251,7 @@ impl Rkl2 {
             self.superstep(prop, q, tau / 2.0);
             self.superstep(prop, q, tau / 2.0);
             apps += one + 2 * half;
+            self.errors.within_budget(apps)?;
             let (p0, p1, f) = (&self.start[..], &prop.phi[..n], &self.full[..]);
             let (ratio, err, scale) = sub.ratio(super::squares(comm, n, |i| {
                 [std::array::from_fn(|d| (p1[i][d] - f[i][d]) / 3.0), p0[i], p1[i]]
@@ -333,6 +334,9 @@ impl Stepper for Rkl2 {
     }
     fn last_error(&self) -> Option<f64> {
         self.errors.last_error()
+    }
+    fn set_budget(&mut self, budget: Option<usize>) {
+        self.errors.budget = budget;
     }
     fn replayed(&mut self, error: Option<f64>) {
         self.errors.replayed(error)
