@@ -140,6 +140,8 @@ def main():
 
 
 def plot(out, figure):
+    if not figure:
+        return  # the fit's presses only (SCAN=1): nothing predicted to draw
     try:
         import matplotlib
 
