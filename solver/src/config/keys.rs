@@ -20,7 +20,8 @@ readings and derives the defaults.
               paper_correction = true, operator_precision = "float64" | "float32",
               stiffness = 4e5 N/m^4 (k_e = 1, per node), coupling = 15 1/m (kappa = 1),
               exponent = 1.0 (p), integrator = "auto" | "euler" | "rkl2" | "implicit"
-              (docs/integrators.md)
+              (docs/integrators.md), screening = l m (none: a sink -(D/l^2) phi in the
+              propagation, docs/model.md section 3)
   [integrator] accuracy = 1e-3 (rkl2, implicit: relative error per step; inf: no error control),
               tolerance = 1e-2 of accuracy (implicit: relative residual of each solve),
               preconditioner = "auto" | "jacobi" | "multigrid" | "amg" (implicit),

@@ -120,6 +120,23 @@ pub struct Model {
     /// The integrator of the propagation (docs/integrators.md).
     #[serde(default)]
     pub integrator: Kind,
+    /// The screening length l (docs/model.md section 3): a sink -(D/l^2) phi in the
+    /// propagation (None: no sink, the paper's equation).
+    #[serde(default, deserialize_with = "screening")]
+    pub screening: Option<f64>,
+}
+
+/// `[model] screening`: a positive, finite length (an Option on the wire, a present key in
+/// TOML).
+fn screening<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+    let l = Option::<f64>::deserialize(d)?;
+    match l {
+        Some(x) if !(x > 0.0 && x.is_finite()) => Err(D::Error::custom(format!(
+            "{} is not a screening length; fix: a positive length (continuum: in m, such as 0.01), or leave it out for none",
+            crate::diagnostics::short(x)
+        ))),
+        _ => Ok(l),
+    }
 }
 
 /// `[integrator]`: the settings of `rkl2` and `implicit`.
@@ -316,6 +333,11 @@ mod tests {
         assert!(model("stiffness = -1.0").unwrap_err().contains("zero or positive"));
         assert!(model("coupling = nan").unwrap_err().contains("finite"));
         assert!(model("exponent = 0.0").unwrap_err().contains("positive"));
+        assert_eq!(model("screening = 0.01").unwrap().screening, Some(0.01));
+        assert_eq!(model("").unwrap().screening, None);
+        for bad in ["screening = 0.0", "screening = -1e-3", "screening = inf"] {
+            assert!(model(bad).unwrap_err().contains("screening length"), "{bad}");
+        }
         assert!(model("integrater = \"euler\"")
             .unwrap_err()
             .contains("unknown field `integrater`"));

@@ -19,12 +19,16 @@ pub use crate::linalg::V3;
 /// Rows per rayon task: large enough to amortise scheduling, small enough to balance.
 const CHUNK: usize = 2048;
 
-/// `compact` scheme: (L u)_i = sum_j c_ij (u_j - u_i), c_ij = a_ij / V_i.
+/// `compact` scheme: (L u)_i = sum_j c_ij (u_j - u_i) - s_i u_i, c_ij = a_ij / V_i, s_i the
+/// screening sink (zero without `[model] screening`).
 #[derive(Clone)]
 pub struct Compact {
     /// c_ij on the stored pairs, in float64 or float32 (`into_f32`); its `n_cols`, one more
     /// than the largest neighbour index, is the least length of the potential.
     coef: AnyCsr,
+    /// The screening sink s_i = D_i / l^2 of each row (`with_sink`; None: no sink, and not a
+    /// bit of the step changes).
+    sink: Option<Vec<f64>>,
     /// Which kernel the step runs (`Kernel::default()`: the fastest this CPU has; `kernel`,
     /// `set_kernel`).
     pub(crate) kernel: Kernel,
@@ -87,8 +91,22 @@ impl Compact {
     pub fn from_csr(coef: AnyCsr) -> Compact {
         Compact {
             coef,
+            sink: None,
             kernel: Kernel::default(),
         }
+    }
+
+    /// The same operator with the screening sink s_i on row i (`sink` has one value per row;
+    /// rows that do not move must have 0).
+    pub fn with_sink(mut self, sink: Vec<f64>) -> Compact {
+        assert_eq!(sink.len(), self.coef.n_rows(), "one sink per row");
+        self.sink = Some(sink);
+        self
+    }
+
+    /// The screening sink of each row (None: none).
+    pub fn sink(&self) -> Option<&[f64]> {
+        self.sink.as_deref()
     }
 
     /// The coefficients c_ij.
@@ -117,10 +135,12 @@ impl Compact {
     }
 
     /// The same pattern with the coefficient `c[p]` on pair p in float32, and this kernel (a
-    /// preconditioner's own operator).
+    /// preconditioner's own operator, without the screening sink: the preconditioner's
+    /// hierarchy is built from the coefficients alone).
     pub fn with_f32(&self, c: Vec<f32>) -> Compact {
         Compact {
             coef: AnyCsr::F32(self.coef.with_values(c)),
+            sink: None,
             kernel: self.kernel,
         }
     }
@@ -148,13 +168,19 @@ impl Compact {
     pub fn into_f32(self) -> Compact {
         Compact {
             coef: self.coef.into_f32(),
+            sink: self.sink,
             kernel: self.kernel,
         }
     }
 
+    /// (L x)_i, the sink included.
     #[inline(always)]
     fn row(&self, i: usize, x: &[V3]) -> V3 {
-        self.row_s::<3>(i, x.as_flattened())
+        let l = self.row_s::<3>(i, x.as_flattened());
+        match &self.sink {
+            None => l,
+            Some(s) => screened(l, s[i], x[i]),
+        }
     }
 
     /// (L x)_i with x given flat, `S` values per node (the first three are the potential).
@@ -179,6 +205,10 @@ impl Compact {
                 saved.push(self.coef.value(p));
                 self.coef.set_value(p, 0.0);
             }
+            if let Some(s) = &mut self.sink {
+                saved.push(s[i as usize]);
+                s[i as usize] = 0.0;
+            }
         }
     }
 
@@ -188,6 +218,10 @@ impl Compact {
         for &i in rows {
             for p in self.coef.row(i as usize) {
                 self.coef.set_value(p, saved[k]);
+                k += 1;
+            }
+            if let Some(s) = &mut self.sink {
+                s[i as usize] = saved[k];
                 k += 1;
             }
         }
@@ -268,17 +302,26 @@ impl Compact {
             y.len().is_multiple_of(SO) && self.row_ptr().len() > start + y.len() / SO,
             "rows out of range"
         );
-        if self.vector_step::<SI, SO>(x, y, h, start) {
-            return;
-        }
-        for (k, yi) in y.chunks_exact_mut(SO).enumerate() {
-            let i = start + k;
-            let l = self.row_s::<SI>(i, x);
-            for d in 0..3 {
-                yi[d] = x[SI * i + d] + h * l[d];
+        if !self.vector_step::<SI, SO>(x, y, h, start) {
+            for (k, yi) in y.chunks_exact_mut(SO).enumerate() {
+                let i = start + k;
+                let l = self.row_s::<SI>(i, x);
+                for d in 0..3 {
+                    yi[d] = x[SI * i + d] + h * l[d];
+                }
+                if SO == 4 {
+                    yi[3] = if SI == 4 { x[SI * i + 3] } else { 0.0 };
+                }
             }
-            if SO == 4 {
-                yi[3] = if SI == 4 { x[SI * i + 3] } else { 0.0 };
+        }
+        // the sink after either kernel's step: y_i <- (x_i + h sum_j c_ij (x_j - x_i)) - h s_i x_i
+        if let Some(s) = &self.sink {
+            for (k, yi) in y.chunks_exact_mut(SO).enumerate() {
+                let i = start + k;
+                let hs = h * s[i];
+                for d in 0..3 {
+                    yi[d] -= hs * x[SI * i + d];
+                }
             }
         }
     }
@@ -290,8 +333,16 @@ impl Compact {
             AnyCsr::F64(a) => AnyCsr::F64(permuted(a, new_of)),
             AnyCsr::F32(a) => AnyCsr::F32(permuted(a, new_of)),
         };
+        let sink = self.sink.as_ref().map(|s| {
+            let mut t = vec![0.0; s.len()];
+            for (i, &v) in s.iter().enumerate() {
+                t[new_of[i] as usize] = v;
+            }
+            t
+        });
         Compact {
             coef,
+            sink,
             kernel: self.kernel,
         }
     }
@@ -306,11 +357,22 @@ impl Compact {
     {
         #[cfg(target_arch = "x86_64")]
         if self.kernel.vector && simd_available() {
+            let Some(s) = &self.sink else {
+                // SAFETY: as in `vector_step`
+                unsafe {
+                    match &self.coef {
+                        AnyCsr::F64(a) => avx_u::update_rows(&a.ptr, &a.col, &a.val, x, y, start, acc, f),
+                        AnyCsr::F32(a) => avx_u::update_rows(&a.ptr, &a.col, &a.val, x, y, start, acc, f),
+                    }
+                }
+                return true;
+            };
+            let g = |acc: &mut A, i: usize, xi: V3, l: V3, yi: &mut V3| f(acc, i, xi, screened(l, s[i], xi), yi);
             // SAFETY: as in `vector_step`
             unsafe {
                 match &self.coef {
-                    AnyCsr::F64(a) => avx_u::update_rows(&a.ptr, &a.col, &a.val, x, y, start, acc, f),
-                    AnyCsr::F32(a) => avx_u::update_rows(&a.ptr, &a.col, &a.val, x, y, start, acc, f),
+                    AnyCsr::F64(a) => avx_u::update_rows(&a.ptr, &a.col, &a.val, x, y, start, acc, &g),
+                    AnyCsr::F32(a) => avx_u::update_rows(&a.ptr, &a.col, &a.val, x, y, start, acc, &g),
                 }
             }
             return true;
@@ -324,17 +386,26 @@ impl Compact {
         self.row_bounds().into_iter().fold(0.0, f64::max)
     }
 
-    /// The Gershgorin bound of every row, |sum_j c_ij| + sum_j |c_ij| (0 for empty rows).
+    /// The Gershgorin bound of every row, |sum_j c_ij + s_i| + sum_j |c_ij| (0 for empty rows).
     pub fn row_bounds(&self) -> Vec<f64> {
         (0..self.coef.n_rows())
             .map(|i| {
                 let r = self.coef.row(i);
                 let sum: f64 = r.clone().map(|p| self.c(p)).sum();
                 let abs: f64 = r.map(|p| self.c(p).abs()).sum();
-                sum.abs() + abs
+                match &self.sink {
+                    None => sum.abs() + abs,
+                    Some(s) => (sum + s[i]).abs() + abs,
+                }
             })
             .collect()
     }
+}
+
+/// l - s x: a row sum with the screening sink s of its node, whose potential is x.
+#[inline(always)]
+fn screened(l: V3, s: f64, x: V3) -> V3 {
+    [l[0] - s * x[0], l[1] - s * x[1], l[2] - s * x[2]]
 }
 
 /// `a` with its rows and columns renumbered (`Compact::permuted`).
@@ -564,6 +635,8 @@ pub struct Paper {
     /// weighs)
     pub inv_cap: Vec<f64>,
     pub update: Vec<bool>,
+    /// The screening sink s_i of each row (None: none; `Compact::with_sink`).
+    pub sink: Option<Vec<f64>>,
 }
 
 impl Paper {
@@ -625,6 +698,7 @@ impl Paper {
             inv_vol,
             inv_cap,
             update: update.to_vec(),
+            sink: None,
         }
     }
 
@@ -681,7 +755,11 @@ impl Paper {
             }
         }
         let iv = self.inv_cap[i];
-        [acc[0] * iv, acc[1] * iv, acc[2] * iv]
+        let l = [acc[0] * iv, acc[1] * iv, acc[2] * iv];
+        match &self.sink {
+            None => l,
+            Some(s) => screened(l, s[i], xi),
+        }
     }
 }
 

@@ -27,8 +27,9 @@ pub struct Shifted<'a> {
     pub bound: f64,
 }
 
-/// max_i V_i (1 + 2 c sum_j |c_ij|) over the owned rows of this process: |(A u)_i| <= this max |u|.
-pub fn row_bound(coef: Option<&AnyCsr>, vol: &[f64], c: f64) -> f64 {
+/// max_i V_i (1 + 2 c sum_j |c_ij| + c s_i) over the owned rows of this process (s_i the
+/// screening sink): |(A u)_i| <= this max |u|.
+pub fn row_bound(coef: Option<&AnyCsr>, sink: Option<&[f64]>, vol: &[f64], c: f64) -> f64 {
     let Some(coef) = coef else {
         return 0.0;
     };
@@ -36,7 +37,10 @@ pub fn row_bound(coef: Option<&AnyCsr>, vol: &[f64], c: f64) -> f64 {
         .into_par_iter()
         .map(|i| {
             let abs: f64 = coef.row(i).map(|p| coef.value(p).abs()).sum();
-            vol[i] * (1.0 + 2.0 * c * abs)
+            match sink {
+                None => vol[i] * (1.0 + 2.0 * c * abs),
+                Some(s) => vol[i] * (1.0 + c * (2.0 * abs + s[i])),
+            }
         })
         .reduce(|| 0.0, f64::max)
 }

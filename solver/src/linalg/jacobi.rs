@@ -13,8 +13,8 @@ pub struct Jacobi {
 impl Jacobi {
     /// The inverse diagonal of A = V - theta_tau W on the owned rows (`vol`: the volumes of the
     /// rows that move, 0 elsewhere; 0 where A_ii is not positive).
-    pub fn new(c: Option<&AnyCsr>, vol: &[f64], theta_tau: f64) -> Jacobi {
-        let d = diagonal(c, vol, theta_tau);
+    pub fn new(c: Option<&AnyCsr>, sink: Option<&[f64]>, vol: &[f64], theta_tau: f64) -> Jacobi {
+        let d = diagonal(c, sink, vol, theta_tau);
         Jacobi {
             inv: d.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect(),
         }
@@ -35,9 +35,10 @@ impl<S: Sweep> Precond<S> for Jacobi {
     }
 }
 
-/// The diagonal of A = V - theta tau W on the owned rows: V_i (1 + theta tau sum_j c_ij)
-/// (zero on rows that do not move, and everywhere without coefficients).
-pub fn diagonal(c: Option<&AnyCsr>, vol: &[f64], theta_tau: f64) -> Vec<f64> {
+/// The diagonal of A = V - theta tau W on the owned rows: V_i (1 + theta tau (sum_j c_ij + s_i))
+/// with s_i the screening sink (zero on rows that do not move, and everywhere without
+/// coefficients).
+pub fn diagonal(c: Option<&AnyCsr>, sink: Option<&[f64]>, vol: &[f64], theta_tau: f64) -> Vec<f64> {
     let Some(c) = c else {
         return vec![0.0; vol.len()];
     };
@@ -45,7 +46,10 @@ pub fn diagonal(c: Option<&AnyCsr>, vol: &[f64], theta_tau: f64) -> Vec<f64> {
         .into_par_iter()
         .map(|i| {
             if vol[i] > 0.0 {
-                let sum: f64 = c.row(i).map(|p| c.value(p)).sum();
+                let mut sum: f64 = c.row(i).map(|p| c.value(p)).sum();
+                if let Some(s) = sink {
+                    sum += s[i];
+                }
                 vol[i] * (1.0 + theta_tau * sum)
             } else {
                 0.0

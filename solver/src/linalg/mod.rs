@@ -53,6 +53,12 @@ pub trait Sweep {
         &[]
     }
 
+    /// The screening sink s_i of the owned rows (L's diagonal beyond -sum_j c_ij), None
+    /// without one.
+    fn sink(&self) -> Option<&[f64]> {
+        None
+    }
+
     /// y_i <- f(acc, i, x_i, (L x)_i, y_i) on the owned rows, the halo of x refreshed first;
     /// each block of rows folds from `A::default()` and `combine` merges blocks in no fixed
     /// order (so the fold must not depend on it, as exact integer sums do).

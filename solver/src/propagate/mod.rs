@@ -434,6 +434,13 @@ impl Sweep for Propagation {
         }
     }
 
+    fn sink(&self) -> Option<&[f64]> {
+        match &self.op {
+            Operator::Compact(c) => c.sink(),
+            Operator::Paper(_) => None,
+        }
+    }
+
     fn twin(&self, w: Vec<f32>) -> Operator {
         let Operator::Compact(c) = &self.op else {
             panic!("an operator of the compact scheme's pattern needs the compact scheme")

@@ -110,8 +110,8 @@ pub fn held_potential(g: V3, stiffness: f64, coupling: f64, p: f64) -> V3 {
     scale(g, mag / m)
 }
 
-/// Each owned row's relaxation rate mu_i = sum_j c_ij (the compact operator), or None for the
-/// paper scheme.
+/// Each owned row's relaxation rate mu_i = sum_j c_ij + s_i (the compact operator, s_i its
+/// screening sink), or None for the paper scheme.
 pub fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
     let Operator::Compact(c) = op else {
         return None;
@@ -119,7 +119,13 @@ pub fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
     let ptr = c.row_ptr();
     Some(
         (0..n_rows)
-            .map(|i| (ptr[i] as usize..ptr[i + 1] as usize).map(|p| c.c(p)).sum())
+            .map(|i| {
+                let mu: f64 = (ptr[i] as usize..ptr[i + 1] as usize).map(|p| c.c(p)).sum();
+                match c.sink() {
+                    None => mu,
+                    Some(s) => mu + s[i],
+                }
+            })
             .collect(),
     )
 }
@@ -129,9 +135,7 @@ pub fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
 pub fn force_factor(mat: &Materials, i: usize) -> f64 {
     let t = mat.at(i);
     let m = t.law.young / (2.0 * (1.0 - t.poisson * t.poisson));
-    let r = &t.r;
-    let d = (r[(0, 0)] + r[(1, 1)] + r[(2, 2)]) / 3.0;
-    m * (t.coupling / t.stiffness) / d
+    m * (t.coupling / t.stiffness) / super::mean_conductivity(mat, i)
 }
 
 /// The nodes the kinematic tools hold over the step from t (tools at `now`) to t + dt (at

@@ -15,6 +15,7 @@ mod stop;
 #[cfg(test)]
 mod tests;
 
+use crate::config::tissue::Materials;
 use crate::config::{Fuse, Load, Precision, Reading, Scheme, Setup, Stop};
 use crate::diagnostics::short;
 use crate::discretize::geometry::{capacities, compact_coefficients, young_faces, Dual, Incidence};
@@ -141,6 +142,7 @@ fn build_operator(
 ) -> (Operator, Option<Vec<f64>>) {
     let (mesh, r) = (&setup.mesh, &setup.materials);
     let capacity = capacities(mesh, inc, dual, r);
+    let sink = setup.model.screening.map(|l| screening_sink(r, active, n_rows, l));
     let op = match setup.model.scheme() {
         Scheme::Compact => {
             dual.release_pairs(); // S_ij are not needed by compact: free them first
@@ -148,7 +150,10 @@ fn build_operator(
             crate::diagnostics::log_memory("the coefficients");
             let col = std::mem::take(&mut dual.col);
             let cap = capacity.as_deref().unwrap_or(&dual.vol);
-            let c = Compact::from_pairs(&dual.row_ptr[..=n_rows], col, a, cap, active);
+            let mut c = Compact::from_pairs(&dual.row_ptr[..=n_rows], col, a, cap, active);
+            if let Some(s) = sink {
+                c = c.with_sink(s);
+            }
             if setup.model.operator_precision == Precision::Float32 {
                 Operator::Compact(c.into_f32())
             } else {
@@ -157,7 +162,7 @@ fn build_operator(
         }
         Scheme::Paper { correction } => {
             let faces = r.weighs_young().then(|| young_faces(mesh, inc, dual, r));
-            Operator::Paper(Paper::new(
+            let mut p = Paper::new(
                 dual,
                 &mesh.points,
                 r,
@@ -165,10 +170,32 @@ fn build_operator(
                 correction,
                 faces.as_deref(),
                 capacity.as_deref().unwrap_or(&dual.vol),
-            ))
+            );
+            p.sink = sink;
+            Operator::Paper(p)
         }
     };
     (op, capacity)
+}
+
+/// The screening sink of each row, s_i = D_i / l^2 (D_i the mean of node i's conductivity's
+/// diagonal, l the screening length; docs/model.md section 3), zero on rows that do not move.
+pub fn screening_sink(mat: &Materials, active: &[bool], n_rows: usize, l: f64) -> Vec<f64> {
+    (0..n_rows)
+        .map(|i| {
+            if active[i] {
+                mean_conductivity(mat, i) / (l * l)
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// D_i: the mean of the diagonal of node i's conductivity tensor.
+pub fn mean_conductivity(mat: &Materials, i: usize) -> f64 {
+    let r = &mat.at(i).r;
+    (r[(0, 0)] + r[(1, 1)] + r[(2, 2)]) / 3.0
 }
 
 /// The mechanics step: the scenario's dt, or 0.9 of the stability bound over all nodes.

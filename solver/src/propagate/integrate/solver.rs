@@ -37,7 +37,7 @@ fn preconditioner(
     let _ = (comm, path);
     Ok(match kind {
         // auto starts on jacobi; the trial solve may switch it to multigrid (`Solver::trial`)
-        Preconditioner::Jacobi | Preconditioner::Auto => Box::new(Jacobi::new(prop.coefficients(), vol, theta_tau)),
+        Preconditioner::Jacobi | Preconditioner::Auto => Box::new(Jacobi::new(prop.coefficients(), prop.sink(), vol, theta_tau)),
         Preconditioner::Multigrid => Box::new(
             Multigrid::new(prop, vol, gid, theta_tau, comm).map_err(|e| anyhow!("{path}: {e}"))?,
         ),
@@ -105,7 +105,7 @@ impl Solver {
         let n = layout.n_owned;
         let theta_tau = THETA * dt;
         let vol: Vec<f64> = (0..n).map(|i| if active[i] { vol[i] } else { 0.0 }).collect();
-        let a_bound = comm.max(cg::row_bound(prop.coefficients(), &vol, theta_tau));
+        let a_bound = comm.max(cg::row_bound(prop.coefficients(), prop.sink(), &vol, theta_tau));
         let pre = preconditioner(settings.preconditioner, prop, &vol, gid, theta_tau, comm, path)?;
         Ok(Solver {
             kind: settings.preconditioner,
@@ -192,7 +192,7 @@ impl Solver {
                 };
                 Level {
                     theta_tau,
-                    a_bound: comm.max(cg::row_bound(prop.coefficients(), &self.vol, theta_tau)),
+                    a_bound: comm.max(cg::row_bound(prop.coefficients(), prop.sink(), &self.vol, theta_tau)),
                     pre,
                 }
             }
