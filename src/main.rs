@@ -264,7 +264,9 @@ Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a si
     /// Split a mesh's node graph for K processes and report the quality of the split.
     #[command(
         long_about = "Split a mesh's node graph for K processes (METIS k-way, as `mpirun -n K eprop run` \
-does) and report, for METIS and for a naive block split of the input numbering side by side:\n\
+does) and report, for METIS, for PT-Scotch (where the build has it; under `mpirun -n P` it splits \
+on P processes, each given a slab of the graph, as `partitioner = \"ptscotch\"` does) and for a \
+naive block split of the input numbering side by side, with the time each split took:\n\
   edge cut      graph edges between nodes of different parts (halo traffic)\n\
   imbalance     largest part / mean part (the slowest process sets the pace)\n\
   per part      owned nodes, halo nodes (copies received every substep), neighbour parts"
@@ -628,8 +630,14 @@ fn tool_command(cmd: Cmd) -> Result<()> {
             overwrite,
         } => convert(&input, &output, strict, overwrite)?,
         Cmd::Partition { mesh, parts, json } => {
-            let m = eprop_io::read_mesh(&mesh)?;
-            print(&inspect::partition_report(&m, parts)?, json)?;
+            // every process reads the mesh: PT-Scotch splits it on all of them
+            let report = launch(|world| {
+                let m = eprop_io::read_mesh(&mesh)?;
+                inspect::partition_report(&m, parts, world)
+            })?;
+            if let Some(r) = report {
+                print(&r, json)?;
+            }
         }
         Cmd::Bench {
             cells,
@@ -642,6 +650,7 @@ fn tool_command(cmd: Cmd) -> Result<()> {
             let perf = eprop::config::Performance {
                 fuse,
                 simd: simd == "on",
+                ..Default::default()
             };
             bench_boxes(&cells, &schemes, perf, json, overwrite)?;
         }
