@@ -622,6 +622,11 @@ fn ptscotch_split_gives_the_bits_of_the_metis_split_on_2_and_3_ranks() {
     )
     .unwrap();
     let sc = sc.to_str().unwrap();
+    // the split's own check on a larger graph (9,261 nodes), where PT-Scotch's threads, left
+    // on, split differently from run to run
+    let boxm = d.path().join("box.msh");
+    let cube = eprop_io::generate::box_mesh([1.0; 3], [20; 3], eprop_io::generate::BoxCells::Tet).unwrap();
+    eprop_io::write_mesh(&cube, &boxm).unwrap();
     let mut other_split = false;
     for n in [2, 3] {
         let metis = d.path().join(format!("metis{n}.h5"));
@@ -647,7 +652,7 @@ fn ptscotch_split_gives_the_bits_of_the_metis_split_on_2_and_3_ranks() {
         let report = || {
             let out = mpirun(
                 n,
-                &["partition", mesh.to_str().unwrap(), "--parts", &n.to_string(), "--json"],
+                &["partition", boxm.to_str().unwrap(), "--parts", &n.to_string(), "--json"],
             );
             assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
             let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -663,8 +668,9 @@ fn ptscotch_split_gives_the_bits_of_the_metis_split_on_2_and_3_ranks() {
             (split("metis"), split("ptscotch"))
         };
         let (m, first) = report();
-        let (_, second) = report();
-        assert_eq!(first, second, "PT-Scotch on {n} processes");
+        for _ in 0..2 {
+            assert_eq!(report().1, first, "PT-Scotch on {n} processes");
+        }
         other_split |= first != m;
     }
     assert!(other_split, "PT-Scotch split as METIS did on 2 and 3 processes");

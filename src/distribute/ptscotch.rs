@@ -80,6 +80,16 @@ mod ffi {
     }
 }
 
+/// PT-Scotch on one thread per process: its threaded stages split differently from run to
+/// run, so its thread count is set to 1 (`SCOTCH_PTHREAD_NUMBER`, which it reads when a call
+/// sets up its threads) before its first call, at a time this process does not read its
+/// environment elsewhere.
+#[cfg(eprop_ptscotch)]
+fn one_thread() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| std::env::set_var("SCOTCH_PTHREAD_NUMBER", "1"));
+}
+
 /// The part (in `0..nparts`) of each row of this process's slab, or why there is none.
 /// Every process of `comm` calls, each with its slab of the same graph.
 #[cfg(eprop_ptscotch)]
@@ -107,6 +117,7 @@ pub fn part_kway(slab: &Slab, nparts: usize, comm: super::comm::RawComm) -> Resu
     // SAFETY: the arrays have the lengths the ParMETIS V3 interface reads (vtxdist: processes
     // + 1, xadj: rows + 1, adjncy: xadj[rows], vwgt and part: rows, tpwgts: nparts), and the
     // communicator is a valid one that every process passes at the same time
+    one_thread();
     let code = unsafe {
         ffi::SCOTCH_randomReset();
         ffi::ParMETIS_V3_PartKway(
