@@ -102,7 +102,9 @@ Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a si
     /// Split a mesh's node graph for K processes and report the quality of the split.
     #[command(
         long_about = "Split a mesh's node graph for K processes (METIS k-way, as `mpirun -n K eprop run` \
-does) and report, for METIS and for a naive block split of the input numbering side by side:\n\
+does) and report, for METIS, for PT-Scotch (where the build has it; under `mpirun -n P` it splits \
+on P processes, each given a slab of the graph, as `partitioner = \"ptscotch\"` does) and for a \
+naive block split of the input numbering side by side, with the time each split took:\n\
   edge cut      graph edges between nodes of different parts (halo traffic)\n\
   imbalance     largest part / mean part (the slowest process sets the pace)\n\
   per part      owned nodes, halo nodes (copies received every substep), neighbour parts"
@@ -560,13 +562,21 @@ fn real_main(cli: Cli) -> Result<()> {
         }
         Cmd::Convert(a) => convert(&a.input, &a.output, a.strict, a.overwrite),
         Cmd::Partition(a) => {
-            let m = eprop_io::read_mesh(&a.mesh)?;
-            print(&inspect::partition_report(&m, a.parts)?, a.json)
+            // every process reads the mesh: PT-Scotch splits it on all of them
+            let report = launch(|world| {
+                let m = eprop_io::read_mesh(&a.mesh)?;
+                inspect::partition_report(&m, a.parts, world)
+            })?;
+            if let Some(r) = report {
+                print(&r, a.json)?;
+            }
+            Ok(())
         }
         Cmd::Bench(a) => {
             let perf = eprop::config::Performance {
                 fuse: a.fuse,
                 simd: a.simd == "on",
+                ..Default::default()
             };
             bench_boxes(&a.cells, &a.schemes, perf, a.json, a.overwrite)
         }

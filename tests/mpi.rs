@@ -575,3 +575,94 @@ fn bench_runs_on_one_and_two_ranks() {
         }
     }
 }
+
+/// Every dataset of two series but the scenario text (whose `[performance]` key differs),
+/// bit for bit (`common::assert_same` without `/eprop/scenario`).
+fn assert_same_results(a: &Path, b: &Path) {
+    let (fa, fb, names) = common::open_pair(a, b);
+    let k = common::steps_complete(a) as usize;
+    assert_eq!(k as i64, common::steps_complete(b));
+    let n = fa.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
+    for name in names.iter().filter(|n| n.as_str() != "/eprop/scenario") {
+        assert_eq!(
+            common::counted_bits(&fa, name, k, n),
+            common::counted_bits(&fb, name, k, n),
+            "{name} of {} and {}",
+            a.display(),
+            b.display()
+        );
+    }
+}
+
+/// `[performance] partitioner = "ptscotch"`: PT-Scotch splits the node graph on every process
+/// (each given a slab); the series has the bits of METIS's split on 2 and 3 ranks, and the
+/// PT-Scotch split is the same on repeated runs (`mpirun eprop partition`), and another split
+/// than METIS's (so the comparison compares something).
+#[test]
+fn ptscotch_split_gives_the_bits_of_the_metis_split_on_2_and_3_ranks() {
+    let d = tempfile::Builder::new().prefix("ptscotch").tempdir().unwrap();
+    let mesh = d.path().join("cyl.msh");
+    eprop_io::write_mesh(&eprop_io::generate::cylinder_mesh(1.0, 4.0, 4, 14).unwrap(), &mesh).unwrap();
+    let sc = d.path().join("s.toml");
+    std::fs::write(
+        &sc,
+        common::paper(&format!(
+            "[mesh]\nfile = \"{}\"\n{CYL}[time]\nsteps = 8\n[output]\nevery = 2\n",
+            mesh.display()
+        )),
+    )
+    .unwrap();
+    let sc = sc.to_str().unwrap();
+    // the split's own check on a larger graph (9,261 nodes), where PT-Scotch's threads, left
+    // on, split differently from run to run
+    let boxm = d.path().join("box.msh");
+    let cube = eprop_io::generate::box_mesh([1.0; 3], [20; 3], eprop_io::generate::BoxCells::Tet).unwrap();
+    eprop_io::write_mesh(&cube, &boxm).unwrap();
+    let mut other_split = false;
+    for n in [2, 3] {
+        let metis = d.path().join(format!("metis{n}.h5"));
+        let out = mpirun(n, &["run", sc, "-v", "-o", metis.to_str().unwrap()]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("into {n} parts (METIS)")));
+        let scotch = d.path().join(format!("scotch{n}.h5"));
+        let set = ["--set", "performance.partitioner=ptscotch"];
+        let out = mpirun(
+            n,
+            &[&["run", sc, "-v", "-o", scotch.to_str().unwrap()][..], &set].concat(),
+        );
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+        if err.contains("this build has no PT-Scotch") {
+            common::skip("this build has no PT-Scotch (libptscotch-dev)");
+            return;
+        }
+        assert!(err.contains(&format!("into {n} parts (PT-Scotch)")), "{err}");
+        assert!(!err.contains("split by METIS"), "{err}");
+        assert_same_results(&metis, &scotch);
+        // the split itself, twice
+        let report = || {
+            let out = mpirun(
+                n,
+                &["partition", boxm.to_str().unwrap(), "--parts", &n.to_string(), "--json"],
+            );
+            assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+            let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            let split = |name: &str| {
+                let s = v["splits"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .find(|s| s["method"] == name)
+                    .unwrap();
+                (s["edge_cut"].clone(), s["owned"].clone(), s["halo"].clone())
+            };
+            (split("metis"), split("ptscotch"))
+        };
+        let (m, first) = report();
+        for _ in 0..2 {
+            assert_eq!(report().1, first, "PT-Scotch on {n} processes");
+        }
+        other_split |= first != m;
+    }
+    assert!(other_split, "PT-Scotch split as METIS did on 2 and 3 processes");
+}

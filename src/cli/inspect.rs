@@ -3,6 +3,7 @@
 //! `eprop export-operator` (the compact operator as a CSR matrix).
 
 use crate::cli::run::{prepare, RunOptions};
+use eprop::distribute::comm::Comm;
 use anyhow::{bail, Result};
 use eprop::config::{Scenario, Setup};
 use eprop::diagnostics::{fixed, peak_rss};
@@ -22,28 +23,32 @@ pub struct SplitQuality {
     pub owned: Vec<usize>,
     pub halo: Vec<usize>,
     pub neighbours: Vec<usize>,
+    /// Wall time of the split, s.
+    pub seconds: f64,
 }
 
-/// What `eprop partition` reports: METIS beside a block split.
+/// What `eprop partition` reports: METIS and PT-Scotch beside a block split.
 #[derive(Serialize, Debug)]
 pub struct PartitionReport {
     pub file: String,
     pub nodes: usize,
     pub graph_edges: usize,
     pub parts: usize,
+    /// Processes that split with PT-Scotch.
+    pub processes: usize,
     pub splits: Vec<SplitQuality>,
 }
 
-pub fn partition_report(mesh: &Mesh, parts: usize) -> Result<PartitionReport> {
+/// The report on rank 0 (`None` on the other processes of `world`, which take part in the
+/// PT-Scotch split).
+pub fn partition_report(mesh: &Mesh, parts: usize, world: Option<&dyn Comm>) -> Result<Option<PartitionReport>> {
     use eprop_partition::{node_graph, quality, Method};
     let (xadj, adj) = node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
+    let root = world.is_none_or(|w| w.rank() == 0);
     let mut splits = Vec::new();
     let weights = eprop_partition::degree_weights(&xadj);
-    for (name, method) in [("metis", Method::Metis), ("block", Method::Block)] {
-        // METIS balances the work per node (its neighbours + 1), as `mpirun eprop run` does
-        let part = eprop_partition::partition_weighted(&xadj, &adj, parts, method, Some(&weights))
-            .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
-        let q = quality(&xadj, &adj, &part, parts);
+    let mut add = |name: &str, part: &[u32], seconds: f64| {
+        let q = quality(&xadj, &adj, part, parts);
         splits.push(SplitQuality {
             method: name.to_string(),
             edge_cut: q.edge_cut,
@@ -51,35 +56,70 @@ pub fn partition_report(mesh: &Mesh, parts: usize) -> Result<PartitionReport> {
             owned: q.owned,
             halo: q.halo,
             neighbours: q.neighbours,
+            seconds,
         });
+    };
+    let mut scotch = None;
+    if eprop::distribute::ptscotch::AVAILABLE && parts > 1 && parts <= mesh.n_nodes() {
+        if world.is_none() {
+            // MPI for PT-Scotch alone, started outside the timed split
+            eprop::distribute::launch::start_alone()?;
+        }
+        let t = std::time::Instant::now();
+        let part = eprop::distribute::ptscotch::split_whole(world, &xadj, &adj, &weights, parts)
+            .map_err(|e| anyhow::anyhow!("{}: {e:#}", mesh.source))?;
+        scotch = Some((part, t.elapsed().as_secs_f64()));
     }
-    Ok(PartitionReport {
+    if !root {
+        return Ok(None);
+    }
+    for (name, method) in [("metis", Method::Metis), ("block", Method::Block)] {
+        // METIS balances the work per node (its neighbours + 1), as `mpirun eprop run` does
+        let t = std::time::Instant::now();
+        let part = eprop_partition::partition_weighted(&xadj, &adj, parts, method, Some(&weights))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.source))?;
+        add(name, &part, t.elapsed().as_secs_f64());
+        if let (Method::Metis, Some((part, seconds))) = (method, &scotch) {
+            add("ptscotch", part, *seconds);
+        }
+    }
+    Ok(Some(PartitionReport {
         file: mesh.source.clone(),
         nodes: mesh.n_nodes(),
         graph_edges: adj.len() / 2,
         parts,
+        processes: world.map_or(1, |w| w.size()),
         splits,
-    })
+    }))
 }
 
 impl std::fmt::Display for PartitionReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "{}: {} nodes, {} graph edges, {} parts",
-            self.file, self.nodes, self.graph_edges, self.parts
+            "{}: {} nodes, {} graph edges, {} parts{}",
+            self.file,
+            self.nodes,
+            self.graph_edges,
+            self.parts,
+            if self.splits.iter().any(|s| s.method == "ptscotch") {
+                format!(" (PT-Scotch on {} process(es))", self.processes)
+            } else {
+                String::new()
+            }
         )?;
         for s in &self.splits {
             let halo: usize = s.halo.iter().sum();
             writeln!(
                 f,
-                "  {:<6} edge cut {} ({:.2}% of edges), imbalance {:.3}, halo nodes {} ({:.2}% of nodes)",
+                "  {:<8} edge cut {} ({:.2}% of edges), imbalance {:.3}, halo nodes {} ({:.2}% of nodes), {:.3} s",
                 s.method,
                 s.edge_cut,
                 100.0 * s.edge_cut as f64 / self.graph_edges.max(1) as f64,
                 s.imbalance,
                 halo,
-                100.0 * halo as f64 / self.nodes.max(1) as f64
+                100.0 * halo as f64 / self.nodes.max(1) as f64,
+                s.seconds
             )?;
         }
         writeln!(
@@ -87,7 +127,13 @@ impl std::fmt::Display for PartitionReport {
             "  part   {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}",
             "metis:own", "halo", "nbrs", "block:own", "halo", "nbrs"
         )?;
-        let (m, b) = (&self.splits[0], &self.splits[1]);
+        let by = |name: &str| {
+            self.splits
+                .iter()
+                .find(|s| s.method == name)
+                .expect("metis and block splits")
+        };
+        let (m, b) = (by("metis"), by("block"));
         for p in 0..self.parts {
             writeln!(
                 f,

@@ -50,7 +50,8 @@ readings and derives the defaults.
               loses at most that much; 0: every output step)
   [performance] fuse = "auto" | 1..16 (explicit Euler substeps per fused sweep; auto: timed on
               one process, 1 on several), simd = true (false: the portable kernel, other
-              rounding)"#;
+              rounding), partitioner = "metis" | "ptscotch" (who splits the nodes among
+              processes: METIS on rank 0, or PT-Scotch on all of them; the same results)"#;
 
 #[cfg(test)]
 mod tests {

@@ -15,7 +15,7 @@
 //! | `[[tool]]` | `tools` | `Tool`s: a rigid indenter's shape and path |
 //! | `[time]` | `time` | `Time`: the stop condition, dt, h |
 //! | `[output]` | `output` | `Output`: file, fields, precision |
-//! | `[performance]` | `performance` | `Performance`: substeps per fused sweep, vector kernel |
+//! | `[performance]` | `performance` | `Performance`: substeps per fused sweep, vector kernel, partitioner |
 //!
 //! Once resolved, `scales` refuses parameters whose products overflow or underflow (a load's
 //! stress and energy density, the coupling's push, the continuum source).
@@ -75,7 +75,7 @@ pub const PAPER_TISSUE: crate::config::tissue::Tissue = crate::config::tissue::T
 pub use mesh::{MeshSec, Unit};
 pub use model::{Defaults, IntegratorSec, Model, Reading, Scheme, SchemeName, TissueSec, CONTINUUM, PAPER};
 pub use output::{file_of as output_file, Field, Output, OutputSec};
-pub use performance::{Fuse, Performance, PerformanceSec, MAX_FUSE};
+pub use performance::{Fuse, Partitioner, Performance, PerformanceSec, MAX_FUSE};
 pub use select::{distance, Entry, Keys, Selector};
 pub use time::{steps_to, Stop, Time, TimeSec};
 pub use tools::{

@@ -1,6 +1,6 @@
-//! `[performance]`: how the propagation is computed, never what it computes (every setting
-//! gives the same bits, except `simd`, which changes the rounding). Rank 0 reads it with the
-//! scenario; it reaches every process with its part.
+//! `[performance]`: how the propagation is computed and how a run is split among processes,
+//! never what it computes (every setting gives the same bits, except `simd`, which changes the
+//! rounding). Rank 0 reads it with the scenario; it reaches every process with its part.
 
 use serde::de::{self, Deserializer, Visitor};
 use serde::{Deserialize, Serialize};
@@ -68,6 +68,18 @@ fn fuse_value<'de, D: Deserializer<'de>>(d: D) -> Result<Fuse, D::Error> {
     d.deserialize_any(V)
 }
 
+/// Who splits the node graph of a run on several processes (one process never splits).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Partitioner {
+    /// METIS k-way on rank 0 (the default).
+    #[default]
+    Metis,
+    /// PT-Scotch through its ParMETIS V3 layer, every process on a slab of the graph; METIS
+    /// where the build has no PT-Scotch or PT-Scotch fails.
+    Ptscotch,
+}
+
 /// `[performance]` as written (every key has a default).
 #[derive(Deserialize, Debug, Clone, Copy, PartialEq, Eq)]
 #[serde(deny_unknown_fields)]
@@ -77,12 +89,23 @@ pub struct PerformanceSec {
     pub fuse: Fuse,
     #[serde(default = "yes")]
     pub simd: bool,
+    /// "metis" (the default) or "ptscotch".
+    #[serde(default)]
+    pub partitioner: Partitioner,
 }
 
 impl Default for PerformanceSec {
     fn default() -> Self {
-        let Performance { fuse, simd } = Performance::default();
-        PerformanceSec { fuse, simd }
+        let Performance {
+            fuse,
+            simd,
+            partitioner,
+        } = Performance::default();
+        PerformanceSec {
+            fuse,
+            simd,
+            partitioner,
+        }
     }
 }
 
@@ -91,6 +114,7 @@ impl PerformanceSec {
         Performance {
             fuse: self.fuse,
             simd: self.simd,
+            partitioner: self.partitioner,
         }
     }
 }
@@ -103,6 +127,8 @@ pub struct Performance {
     /// The AVX2+FMA kernel of the compact step where the CPU has it (the default); false: the
     /// portable kernel (for comparisons; other rounding).
     pub simd: bool,
+    /// Who splits the node graph on several processes.
+    pub partitioner: Partitioner,
 }
 
 fn yes() -> bool {
@@ -114,6 +140,7 @@ impl Default for Performance {
         Performance {
             fuse: Fuse::Auto,
             simd: true,
+            partitioner: Partitioner::Metis,
         }
     }
 }
@@ -136,8 +163,13 @@ mod tests {
             perf("fuse = 4\nsimd = false").unwrap(),
             Performance {
                 fuse: Fuse::Fixed(4),
-                simd: false
+                simd: false,
+                partitioner: Partitioner::Metis,
             }
+        );
+        assert_eq!(
+            perf("partitioner = \"ptscotch\"").unwrap().partitioner,
+            Partitioner::Ptscotch
         );
         assert_eq!(perf("fuse = \"auto\"").unwrap().fuse, Fuse::Auto);
         for bad in [
@@ -147,6 +179,7 @@ mod tests {
             "fuse = 2.5",
             "simd = 1",
             "prefetch = 8",
+            "partitioner = \"parmetis\"",
         ] {
             let e = perf(bad).unwrap_err();
             assert!(e.contains("p.toml:6"), "{bad}: {e}");

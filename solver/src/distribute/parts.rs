@@ -1,5 +1,7 @@
 //! Each process's part of a run. Rank 0 reads the scenario and the mesh, resolves the
-//! scenario on the whole mesh, splits the node graph (METIS) and, one process at a time,
+//! scenario on the whole mesh, splits the node graph (METIS on rank 0, or with
+//! `[performance] partitioner = "ptscotch"` PT-Scotch on every process, each given a slab of
+//! the graph, `ptscotch`) and, one process at a time,
 //! builds that process's plan, restricts the setup to it (`Setup::restrict`) and sends it;
 //! every other process receives its own. A part travels as postcard's compact binary form
 //! of its serde derive (`Part`; the mesh and paths through `config::wire`). A one-process run is one
@@ -9,6 +11,7 @@ use crate::config::Setup;
 use crate::diagnostics::log_memory;
 use crate::distribute::comm::{Comm, Handle, Mpi};
 use crate::distribute::halo::Halo;
+use crate::distribute::ptscotch::{self, Slab};
 use anyhow::{anyhow, bail, Result};
 use eprop_mesh::Mesh;
 use eprop_partition::Plan;
@@ -109,11 +112,19 @@ impl Setup {
     }
 }
 
-/// What rank 0 sends every other process: its part, or the error that stopped rank 0.
+/// What rank 0 sends every other process: its part, or the error that stopped rank 0; before
+/// them, with PT-Scotch, the process's slab of the node graph to split.
 #[derive(Serialize, Deserialize)]
 enum Message<P> {
     Failed(String),
     Part(P),
+    Slab(Slab),
+}
+
+/// A message of rank 0 that is not an error.
+enum Incoming {
+    Part(Box<Part>),
+    Slab(Slab),
 }
 
 /// A part's message.
@@ -121,12 +132,23 @@ fn encode(part: &Part) -> Result<Vec<u8>> {
     postcard::to_allocvec(&Message::Part(part)).map_err(|e| anyhow!("internal: a part cannot be encoded: {e}"))
 }
 
-/// The part in a message (`encode`); `ReportedElsewhere` when rank 0 sent its error instead.
-fn decode(bytes: &[u8]) -> Result<Part> {
+/// The part or slab in a message (`encode`); `ReportedElsewhere` when rank 0 sent its error
+/// instead.
+fn decode_any(bytes: &[u8]) -> Result<Incoming> {
     match postcard::from_bytes::<Message<Part>>(bytes) {
-        Ok(Message::Part(p)) => Ok(p),
+        Ok(Message::Part(p)) => Ok(Incoming::Part(Box::new(p))),
+        Ok(Message::Slab(s)) => Ok(Incoming::Slab(s)),
         Ok(Message::Failed(_)) => Err(ReportedElsewhere.into()),
         Err(e) => Err(anyhow!("internal: a part message is malformed: {e}")),
+    }
+}
+
+/// The part in a message (`encode`).
+#[cfg(test)]
+fn decode(bytes: &[u8]) -> Result<Part> {
+    match decode_any(bytes)? {
+        Incoming::Part(p) => Ok(*p),
+        Incoming::Slab(_) => Err(anyhow!("internal: a part message is malformed: a slab")),
     }
 }
 
@@ -158,16 +180,97 @@ impl std::fmt::Display for Collective {
 
 impl std::error::Error for Collective {}
 
-/// Rank 0's split of the whole mesh: the METIS part of every node and the locality keys.
-fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
+/// Rank 0's split of the whole mesh: the part of every node (METIS, or PT-Scotch with every
+/// process of `world` when the scenario asks for it) and the locality keys.
+fn split(setup: &Setup, world: &Handle) -> Result<(Vec<u32>, Vec<u64>)> {
+    use crate::config::Partitioner;
+    use mpi::topology::Communicator;
+    let size = world.communicator().size() as usize;
     let mesh = &setup.mesh;
     log_memory("reading the scenario and mesh");
-    tracing::info!("splitting {} nodes into {size} parts (METIS)", mesh.n_nodes());
     let (xadj, adj) = eprop_partition::node_graph(mesh.n_nodes(), &mesh.offsets, &mesh.conn);
     let weights = eprop_partition::degree_weights(&xadj);
-    let part = eprop_partition::partition_weighted(&xadj, &adj, size, eprop_partition::Method::Metis, Some(&weights))
-        .map_err(|e| anyhow!("{}: {e}", mesh.source))?;
+    let by_scotch = match setup.performance.partitioner {
+        Partitioner::Ptscotch if size > 1 && !ptscotch::AVAILABLE => {
+            tracing::warn!("this build has no PT-Scotch (see build.rs): the nodes are split by METIS");
+            None
+        }
+        Partitioner::Ptscotch if size > 1 && size <= mesh.n_nodes() => {
+            tracing::info!("splitting {} nodes into {size} parts (PT-Scotch)", mesh.n_nodes());
+            match split_together(world, &xadj, &adj, &weights) {
+                Ok(part) => Some(part),
+                Err(e) => {
+                    tracing::warn!("{}: {e}: the nodes are split by METIS", mesh.source);
+                    None
+                }
+            }
+        }
+        _ => None,
+    };
+    let part = match by_scotch {
+        Some(part) => part,
+        None => {
+            tracing::info!("splitting {} nodes into {size} parts (METIS)", mesh.n_nodes());
+            eprop_partition::partition_weighted(&xadj, &adj, size, eprop_partition::Method::Metis, Some(&weights))
+                .map_err(|e| anyhow!("{}: {e}", mesh.source))?
+        }
+    };
     Ok((part, eprop_partition::rcm_keys(&xadj, &adj)))
+}
+
+/// Rank 0's side of the PT-Scotch split: every other process gets its slab of the graph
+/// (`Message::Slab`), all split together (`split_slab`), and rank 0 gathers the parts; a part
+/// left empty or a failure on any process is an error (the caller falls back to METIS).
+fn split_together(world: &Handle, xadj: &[usize], adj: &[u32], weights: &[u32]) -> Result<Vec<u32>, String> {
+    use mpi::point_to_point::{Destination, Source};
+    use mpi::topology::Communicator;
+    let comm = world.communicator();
+    let size = comm.size() as usize;
+    for r in 1..size {
+        let slab = Slab::of(xadj, adj, weights, size, r);
+        let msg = postcard::to_allocvec(&Message::<()>::Slab(slab))
+            .map_err(|e| format!("internal: a slab cannot be encoded: {e}"))?;
+        comm.process_at_rank(r as i32).send(&msg[..]);
+    }
+    let slab = Slab::of(xadj, adj, weights, size, 0);
+    let mine = split_slab(world, &slab, size);
+    let vtxdist = slab.vtxdist;
+    let mut part = Vec::with_capacity(xadj.len() - 1);
+    let mut failed = mine.as_ref().err().cloned();
+    part.extend(mine.unwrap_or_default());
+    for r in 1..size {
+        let (got, _) = comm.process_at_rank(r as i32).receive_vec::<u32>();
+        let rows = (vtxdist[r + 1] - vtxdist[r]) as usize;
+        if got.len() != rows && failed.is_none() {
+            failed = Some(format!("PT-Scotch failed on process {r}"));
+        }
+        part.extend(got);
+    }
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    let mut count = vec![0usize; size];
+    for &p in &part {
+        count[p as usize] += 1;
+    }
+    if let Some(empty) = count.iter().position(|&c| c == 0) {
+        return Err(format!("PT-Scotch left part {empty} empty"));
+    }
+    Ok(part)
+}
+
+/// Every process's side of the PT-Scotch split: its slab split together with the others on
+/// a communicator of their own (PT-Scotch's messages never meet the parts').
+fn split_slab(world: &Handle, slab: &Slab, size: usize) -> Result<Vec<u32>, String> {
+    let own = world.duplicate();
+    let t = std::time::Instant::now();
+    let part = ptscotch::part_kway(slab, size, own.raw());
+    tracing::debug!(
+        "PT-Scotch split {} rows in {:.3} s",
+        slab.n_rows(),
+        t.elapsed().as_secs_f64()
+    );
+    part
 }
 
 /// Rank 0 makes the whole-mesh setup (`make_setup`, called nowhere else), splits it and
@@ -175,16 +278,25 @@ fn split(setup: &Setup, size: usize) -> Result<(Vec<u32>, Vec<u64>)> {
 /// also the whole mesh. An error of rank 0 before the sends reaches every process: rank 0
 /// returns it as `Collective`, the others `ReportedElsewhere`; an error once sending has
 /// begun is rank 0's alone (the job's policy aborts it, see `launch`).
-fn scatter(world: &Handle, make_setup: impl FnOnce() -> Result<Setup>) -> Result<(Part, Option<Mesh>)> {
+fn scatter(handle: &Handle, make_setup: impl FnOnce() -> Result<Setup>) -> Result<(Part, Option<Mesh>)> {
     use mpi::point_to_point::{Destination, Source};
     use mpi::topology::Communicator;
-    let world = world.communicator();
+    let world = handle.communicator();
     let (rank, size) = (world.rank() as usize, world.size() as usize);
     if rank != 0 {
-        let (msg, _) = world.process_at_rank(0).receive_vec::<u8>();
-        return Ok((decode(&msg)?, None));
+        loop {
+            let (msg, _) = world.process_at_rank(0).receive_vec::<u8>();
+            match decode_any(&msg)? {
+                Incoming::Part(p) => return Ok((*p, None)),
+                Incoming::Slab(slab) => {
+                    // an empty answer says this process failed
+                    let part = split_slab(handle, &slab, size).unwrap_or_default();
+                    world.process_at_rank(0).send(&part[..]);
+                }
+            }
+        }
     }
-    let (setup, (part, keys)) = match make_setup().and_then(|s| split(&s, size).map(|p| (s, p))) {
+    let (setup, (part, keys)) = match make_setup().and_then(|s| split(&s, handle).map(|p| (s, p))) {
         Ok(x) => x,
         Err(e) => {
             let msg = failure(&e);
