@@ -278,7 +278,26 @@ pub struct CheckReport {
     pub estimated_seconds: f64,
     /// Seconds to write the output steps on the output's disk (a probe written there).
     pub output_seconds: Option<f64>,
+    /// In the real-time mode: its steps against euler's at the same dt (`REALTIME_STEPS`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub realtime: Option<crate::simulate::realtime::Comparison>,
     pub warnings: Vec<String>,
+}
+
+/// `eprop check` compares the real-time mode with euler over at most this many steps.
+pub const REALTIME_STEPS: u64 = 100;
+
+/// The scenario in the real-time mode and by euler, stepped side by side on one process
+/// (`simulate::realtime::compare`).
+fn realtime_against_euler(path: &Path, opts: &RunOptions, steps: u64) -> Result<crate::simulate::realtime::Comparison> {
+    let with = |extra: &[&str]| {
+        let mut o = opts.clone();
+        o.sets.extend(extra.iter().map(|s| s.to_string()));
+        prepare(path, &o)
+    };
+    let rt = with(&["time.realtime=true"])?;
+    let eu = with(&["time.realtime=false", "model.integrator=\"euler\""])?;
+    crate::simulate::realtime::compare(rt, eu, steps.min(REALTIME_STEPS))
 }
 
 /// Validates a scenario, builds its simulation on one process and times a few substeps. The
@@ -327,6 +346,20 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
             warnings.push(format!("`eprop run` will refuse: {e:#}"));
         }
     }
+    let realtime = if sim.setup().time.realtime() {
+        let c = realtime_against_euler(path, opts, budget.steps)?;
+        if c.u_error > crate::simulate::realtime::TOLERANCE {
+            warnings.push(format!(
+                "the real-time mode's u differs from euler's at the same dt by {:.2e} (relative, step {}), more than {:.0e}; fix: a smaller dt, or [time] realtime = false",
+                c.u_error,
+                c.u_error_step,
+                crate::simulate::realtime::TOLERANCE
+            ));
+        }
+        Some(c)
+    } else {
+        None
+    };
     let reclaimed = std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
     let what = format!("{} output steps", budget.output_steps);
     if let Err(e) = crate::guard::safety::check_space(file, &budget, reclaimed, &what, false) {
@@ -377,6 +410,7 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
             budget.step_bytes,
             budget.output_steps,
         ),
+        realtime,
         warnings,
     })
 }
@@ -416,6 +450,22 @@ impl std::fmt::Display for CheckReport {
             crate::diagnostics::fixed(self.estimated_seconds + self.output_seconds.unwrap_or(0.0), 3),
             self.memory_mib
         )?;
+        if let Some(c) = &self.realtime {
+            let ms = |x: f64| crate::diagnostics::fixed(1e3 * x, 3);
+            writeln!(
+                f,
+                "  real time   u within {:.2e} of euler's at the same dt (the largest relative L2 error over {} steps, at step {}), tool force within {:.2e} of euler's peak; at most {} operator applications per step ({} taken at most); steps of {} / {} / {} ms (median / p99 / worst, one process)",
+                c.u_error,
+                c.steps,
+                c.u_error_step,
+                c.force_error,
+                c.applications_bound,
+                c.applications_max,
+                ms(c.step_seconds[0]),
+                ms(c.step_seconds[1]),
+                ms(c.step_seconds[2])
+            )?;
+        }
         write!(
             f,
             "  output      {} ({} steps, about {:.1} MiB)",
