@@ -346,7 +346,11 @@ pub fn check(path: &Path, opts: &RunOptions) -> Result<CheckReport> {
             warnings.push(format!("`eprop run` will refuse: {e:#}"));
         }
     }
-    let realtime = if sim.setup().time.realtime() {
+    // in the real-time mode, or a scenario for `eprop serve` that takes it by default
+    let serve_default = live
+        && sim.setup().time.realtime.is_none()
+        && sim.setup().integrator.kind == crate::config::integrator::Kind::Auto;
+    let realtime = if sim.setup().time.realtime() || serve_default {
         let c = realtime_against_euler(path, opts, budget.steps)?;
         if c.u_error > crate::simulate::realtime::TOLERANCE {
             warnings.push(format!(
@@ -454,7 +458,7 @@ impl std::fmt::Display for CheckReport {
             let ms = |x: f64| crate::diagnostics::fixed(1e3 * x, 3);
             writeln!(
                 f,
-                "  real time   u within {:.2e} of euler's at the same dt (the largest relative L2 error over {} steps, at step {}), tool force within {:.2e} of euler's peak; at most {} operator applications per step ({} taken at most); steps of {} / {} / {} ms (median / p99 / worst, one process)",
+                "  real time   u within {:.2e} of euler's at the same dt (the largest relative L2 error over {} steps, at step {}), tool force within {:.2e} of euler's peak; at most {} operator applications per step ({} taken at most); steps of {} / {} / {} ms (median / p99 / worst, one process; CPU {} / {} / {} ms)",
                 c.u_error,
                 c.steps,
                 c.u_error_step,
@@ -463,7 +467,10 @@ impl std::fmt::Display for CheckReport {
                 c.applications_max,
                 ms(c.step_seconds[0]),
                 ms(c.step_seconds[1]),
-                ms(c.step_seconds[2])
+                ms(c.step_seconds[2]),
+                ms(c.step_cpu_seconds[0]),
+                ms(c.step_cpu_seconds[1]),
+                ms(c.step_cpu_seconds[2])
             )?;
         }
         write!(
