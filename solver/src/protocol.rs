@@ -7,9 +7,26 @@
 /// The first 8 bytes of both hellos.
 pub const MAGIC: [u8; 8] = *b"EPROPHAP";
 /// The newest protocol version this server speaks (it answers every version from 1 up).
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 /// Version 1: no stream; its clients get exactly the messages they always got.
 pub const VERSION_1: u32 = 1;
+/// Version 2: the surface stream; its clients get exactly the messages they always got.
+pub const VERSION_2: u32 = 2;
+/// Version 3 (the hello as version 2's): an answer reaches up to `LAG_REACH` steps beyond
+/// the latest physics step while the physics lags, and says so in its flags.
+pub const VERSION_3: u32 = 3;
+/// Version 3: how many physics steps beyond the latest one an answer may be extrapolated
+/// (versions 1 and 2: one).
+pub const LAG_REACH: f64 = 10.0;
+
+/// Version 3: the bits of an answer's flags (bytes 6..8; zero in versions 1 and 2).
+pub mod flags {
+    /// The physics lags: the values are extrapolated linearly from the last two steps more
+    /// than one step beyond the latest (up to `LAG_REACH` steps).
+    pub const EXTRAPOLATED: u16 = 1;
+    /// The physics lags more than `LAG_REACH` steps: t_e is before the message's time.
+    pub const BEHIND: u16 = 2;
+}
 /// Size of every client message (the hello included).
 pub const CLIENT_SIZE: usize = 40;
 /// Size of every server message.
@@ -130,10 +147,10 @@ pub fn read_hello(b: &[u8; CLIENT_SIZE]) -> Result<Opening, (Code, String)> {
             stream: None,
         });
     }
-    if v != VERSION {
+    if v != VERSION_2 && v != VERSION_3 {
         return Err((
             Code::Version,
-            format!("protocol version {v} is not supported; this server speaks versions 1 and {VERSION}"),
+            format!("protocol version {v} is not supported; this server speaks versions 1, 2 and {VERSION}"),
         ));
     }
     let (what, every, width) = (u32_at(b, 12), u32_at(b, 16), u32_at(b, 20));
@@ -175,7 +192,7 @@ pub fn client_hello(version: u32) -> [u8; CLIENT_SIZE] {
 
 /// A version-2 hello that asks for the surface stream.
 pub fn client_hello_stream(s: Stream) -> [u8; CLIENT_SIZE] {
-    let mut b = client_hello(VERSION);
+    let mut b = client_hello(VERSION_2);
     b[12..16].copy_from_slice(&stream::SURFACE.to_le_bytes());
     b[16..20].copy_from_slice(&s.every.to_le_bytes());
     b[20..24].copy_from_slice(&s.width.to_le_bytes());
@@ -372,11 +389,13 @@ pub fn read_topology(h: &Header, b: &[u8]) -> Topology {
 }
 
 /// One answer: the contact force and displacement of a tool or load from physics step
-/// `step` (time `t_step`), extrapolated linearly in time to `t`.
+/// `step` (time `t_step`), extrapolated linearly in time to `t`; `flags` (version 3, bytes
+/// 6..8 above the 16-bit index) say whether the physics lags (`flags::*`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Answer {
     pub kind: u32,
     pub index: u32,
+    pub flags: u16,
     pub step: u64,
     pub t_step: f64,
     pub t: f64,
@@ -387,7 +406,7 @@ pub struct Answer {
 pub fn answer(a: &Answer) -> [u8; SERVER_SIZE] {
     let mut b = [0u8; SERVER_SIZE];
     b[0..4].copy_from_slice(&a.kind.to_le_bytes());
-    b[4..8].copy_from_slice(&a.index.to_le_bytes());
+    b[4..8].copy_from_slice(&(a.index & 0xffff | u32::from(a.flags) << 16).to_le_bytes());
     b[8..16].copy_from_slice(&a.step.to_le_bytes());
     b[16..24].copy_from_slice(&a.t_step.to_le_bytes());
     b[24..32].copy_from_slice(&a.t.to_le_bytes());
@@ -448,7 +467,8 @@ pub fn read_reply(b: &[u8; SERVER_SIZE]) -> Reply {
         }
         _ => Reply::Answer(Answer {
             kind: k,
-            index: u32_at(b, 4),
+            index: u32_at(b, 4) & 0xffff,
+            flags: (u32_at(b, 4) >> 16) as u16,
             step: u64::from_le_bytes(b[8..16].try_into().unwrap()),
             t_step: f64_at(b, 16),
             t: f64_at(b, 24),
@@ -509,6 +529,7 @@ mod tests {
         let a = Answer {
             kind: answer::TOOL,
             index: 1,
+            flags: 0,
             step: 17,
             t_step: 0.017,
             t: 0.0175,
@@ -578,9 +599,16 @@ mod tests {
             })
         );
         assert_eq!(
-            read_hello(&client_hello(VERSION)),
+            read_hello(&client_hello(VERSION_2)),
             Ok(Opening {
                 version: 2,
+                stream: None
+            })
+        );
+        assert_eq!(
+            read_hello(&client_hello(VERSION_3)),
+            Ok(Opening {
+                version: 3,
                 stream: None
             })
         );
@@ -604,7 +632,7 @@ mod tests {
         assert_eq!(bad(&|b| b[12] = 7), Code::Stream); // stream kind 7
         assert_eq!(bad(&|b| b[39] = 1), Code::Stream); // reserved bytes
         assert_eq!(bad(&|b| b[12] = 0), Code::Stream); // no stream, but every and width
-        assert_eq!(bad(&|b| b[8] = 3), Code::Version);
+        assert_eq!(bad(&|b| b[8] = 4), Code::Version);
     }
 
     #[test]

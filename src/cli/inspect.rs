@@ -181,7 +181,26 @@ pub struct CheckReport {
     pub estimated_seconds: f64,
     /// Seconds to write the output steps on the output's disk (a probe written there).
     pub output_seconds: Option<f64>,
+    /// In the real-time mode: its steps against euler's at the same dt (`REALTIME_STEPS`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub realtime: Option<eprop::simulate::realtime::Comparison>,
     pub warnings: Vec<String>,
+}
+
+/// `eprop check` compares the real-time mode with euler over at most this many steps.
+pub const REALTIME_STEPS: u64 = 100;
+
+/// The scenario in the real-time mode and by euler, stepped side by side on one process
+/// (`simulate::realtime::compare`).
+fn realtime_against_euler(path: &Path, opts: &RunOptions, steps: u64) -> Result<eprop::simulate::realtime::Comparison> {
+    let with = |extra: &[&str]| {
+        let mut o = opts.clone();
+        o.sets.extend(extra.iter().map(|s| s.to_string()));
+        prepare(path, &o)
+    };
+    let rt = with(&["time.realtime=true"])?;
+    let eu = with(&["time.realtime=false", "model.integrator=\"euler\""])?;
+    eprop::simulate::realtime::compare(rt, eu, steps.min(REALTIME_STEPS))
 }
 
 /// Validates a scenario, builds its simulation on one process and times a few substeps. The
@@ -227,6 +246,24 @@ pub fn check(path: &Path, opts: &RunOptions, measure: bool) -> Result<CheckRepor
             warnings.push(format!("`eprop run` will refuse: {e:#}"));
         }
     }
+    // in the real-time mode, or a scenario for `eprop serve` that takes it by default
+    let serve_default = live
+        && sim.setup().time.realtime.is_none()
+        && sim.setup().integrator.kind == eprop::config::integrator::Kind::Auto;
+    let realtime = if sim.setup().time.realtime() || serve_default {
+        let c = realtime_against_euler(path, opts, budget.steps)?;
+        if c.u_error > eprop::simulate::realtime::TOLERANCE {
+            warnings.push(format!(
+                "the real-time mode's u differs from euler's at the same dt by {:.2e} (relative, step {}), more than {:.0e}; fix: a smaller dt, or [time] realtime = false",
+                c.u_error,
+                c.u_error_step,
+                eprop::simulate::realtime::TOLERANCE
+            ));
+        }
+        Some(c)
+    } else {
+        None
+    };
     let reclaimed = std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
     let what = format!("{} output steps", budget.output_steps);
     if let Err(e) = eprop::guard::safety::check_space(file, &budget, reclaimed, &what, false) {
@@ -278,6 +315,7 @@ pub fn check(path: &Path, opts: &RunOptions, measure: bool) -> Result<CheckRepor
             budget.step_bytes,
             budget.output_steps,
         ),
+        realtime,
         warnings,
     })
 }
@@ -323,6 +361,25 @@ impl std::fmt::Display for CheckReport {
             eprop::diagnostics::fixed(self.estimated_seconds + self.output_seconds.unwrap_or(0.0), 3),
             self.memory_mib
         )?;
+        if let Some(c) = &self.realtime {
+            let ms = |x: f64| eprop::diagnostics::fixed(1e3 * x, 3);
+            writeln!(
+                f,
+                "  real time   u within {:.2e} of euler's at the same dt (the largest relative L2 error over {} steps, at step {}), tool force within {:.2e} of euler's peak; at most {} operator applications per step ({} taken at most); steps of {} / {} / {} ms (median / p99 / worst, one process; CPU {} / {} / {} ms)",
+                c.u_error,
+                c.steps,
+                c.u_error_step,
+                c.force_error,
+                c.applications_bound,
+                c.applications_max,
+                ms(c.step_seconds[0]),
+                ms(c.step_seconds[1]),
+                ms(c.step_seconds[2]),
+                ms(c.step_cpu_seconds[0]),
+                ms(c.step_cpu_seconds[1]),
+                ms(c.step_cpu_seconds[2])
+            )?;
+        }
         write!(
             f,
             "  output      {} ({} steps, about {:.1} MiB)",

@@ -41,7 +41,10 @@ readings and derives the defaults.
               contact = "slide" (sphere) | "stick" (punch) (kinematic); foundation = radius
               (law = "foundation": its depth, m); live = false (eprop serve: the client moves
               it). See docs/tools.md
-  [time]      steps = N | end = T s | equilibrium = tol m/s; dt, h s optional (automatic)
+  [time]      steps = N | end = T s | equilibrium = tol m/s; dt, h s optional (automatic);
+              realtime = false (eprop serve: true): a fixed, bounded work per step chosen at
+              setup, implicit TR-BDF2 with a fixed number of multigrid-preconditioned
+              iterations, no error control (docs/realtime.md)
   [output]    file = "out.h5" (default: <scenario stem>.h5 beside the scenario), every = 1,
               fields = ["displacement", "velocity", "potential", "energy"] (all),
               precision = "float64" | "float32", compression = 0..9 (gzip),

@@ -42,8 +42,10 @@ impl Field {
 #[serde(deny_unknown_fields)]
 pub struct OutputSec {
     pub file: Option<String>,
-    #[serde(default = "every_step", deserialize_with = "at_least_one")]
-    pub every: u64,
+    /// Every how many steps a step is written (absent: 1, or in `eprop serve`'s real-time
+    /// mode about `REALTIME_RATE` a second of simulated time, `Output::every_for_realtime`).
+    #[serde(default, deserialize_with = "at_least_one")]
+    pub every: Option<u64>,
     /// Point arrays written every output step.
     #[serde(default = "all_fields", deserialize_with = "fields")]
     pub fields: Vec<Field>,
@@ -75,20 +77,20 @@ fn seconds<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     }
 }
 
-fn every_step() -> u64 {
-    1
-}
-
 fn all_fields() -> Vec<Field> {
     Field::ALL.to_vec()
 }
 
-fn at_least_one<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+fn at_least_one<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
     match u64::deserialize(d)? {
         0 => Err(D::Error::custom("must be at least 1")),
-        n => Ok(n),
+        n => Ok(Some(n)),
     }
 }
+
+/// Output steps per second of simulated time that `eprop serve`'s real-time mode writes when
+/// the scenario names no `[output] every` (the physics thread writes the series itself).
+pub const REALTIME_RATE: f64 = 30.0;
 
 fn gzip_level<'de, D: Deserializer<'de>>(d: D) -> Result<u8, D::Error> {
     match u8::deserialize(d) {
@@ -125,6 +127,8 @@ pub struct Output {
     #[serde(with = "crate::config::wire::path")]
     pub file: PathBuf,
     pub every: u64,
+    /// Whether the scenario named `every`.
+    pub every_given: bool,
     pub fields: Vec<Field>,
     pub precision: Precision,
     pub compression: u8,
@@ -135,6 +139,14 @@ pub struct Output {
 }
 
 impl Output {
+    /// In the real-time mode of `eprop serve` with a step dt: every how many steps to write
+    /// when the scenario names no `every` (about `REALTIME_RATE` output steps a second).
+    pub fn every_for_realtime(&mut self, dt: f64) {
+        if !self.every_given && dt > 0.0 {
+            self.every = (1.0 / (REALTIME_RATE * dt)).round().clamp(1.0, 1e9) as u64;
+        }
+    }
+
     /// The fields to write, in the series' order.
     pub fn fields(&self) -> Vec<Field> {
         Field::ALL.into_iter().filter(|f| self.fields.contains(f)).collect()
@@ -158,7 +170,8 @@ pub fn resolve(sc: &Scenario) -> Output {
     let o = &sc.file.output;
     Output {
         file: file_of(sc),
-        every: o.every,
+        every: o.every.unwrap_or(1),
+        every_given: o.every.is_some(),
         fields: o.fields.clone(),
         precision: o.precision,
         compression: o.compression,

@@ -21,6 +21,9 @@ pub struct TimeSec {
     /// Propagation substep; chosen automatically when absent.
     #[serde(default, deserialize_with = "opt_positive")]
     pub h: Option<f64>,
+    /// The real-time mode: a fixed, bounded work per step chosen at setup (docs/realtime.md);
+    /// absent: off for `eprop run`, on for `eprop serve`.
+    pub realtime: Option<bool>,
 }
 
 /// How a run stops.
@@ -41,6 +44,15 @@ pub struct Time {
     pub stop: Stop,
     pub dt: Option<f64>,
     pub h: Option<f64>,
+    /// `realtime` as the scenario says it (None: the command's default, `Time::realtime`).
+    pub realtime: Option<bool>,
+}
+
+impl Time {
+    /// Whether the run is in the real-time mode (the scenario's say, else off).
+    pub fn realtime(&self) -> bool {
+        self.realtime.unwrap_or(false)
+    }
 }
 
 /// The steps of a run to `end` with mechanics step dt: ceil(end / dt), an end a rounding
@@ -81,6 +93,7 @@ pub fn resolve(sc: &Scenario, sec: &Spanned<TimeSec>) -> Result<Time> {
         stop,
         dt: tm.dt,
         h: tm.h,
+        realtime: tm.realtime,
     })
 }
 
@@ -103,7 +116,8 @@ mod tests {
             Time {
                 stop: Stop::End(2.5),
                 dt: Some(0.1),
-                h: None
+                h: None,
+                realtime: None
             }
         );
         assert_eq!(

@@ -10,6 +10,7 @@ pub mod inspect;
 pub mod kinematic;
 mod live;
 mod mesh_info;
+pub mod realtime;
 pub mod steady;
 mod stop;
 #[cfg(test)]
@@ -273,6 +274,22 @@ fn build_stepper(
     }
     // without trials (`eprop check` unless --measure) auto weighs the models alone
     let trial = trial.filter(|_| settings.trials);
+    // the real-time mode: one implicit step per dt, no error control, a multigrid unless the
+    // scenario names a preconditioner (`choose::realtime`)
+    let realtime = setup.time.realtime();
+    if realtime {
+        use crate::config::integrator::{Kind, Preconditioner, DEFAULT_TOLERANCE, UNCONTROLLED_TOLERANCE};
+        settings.kind = Kind::Implicit;
+        settings.accuracy = f64::INFINITY;
+        // a tolerance the scenario left at its default is the real-time mode's
+        let t = setup.integrator.tolerance;
+        if t == DEFAULT_TOLERANCE || t == UNCONTROLLED_TOLERANCE {
+            settings.tolerance = crate::propagate::integrate::choose::REALTIME_TOLERANCE;
+        }
+        if settings.preconditioner == Preconditioner::Auto {
+            settings.preconditioner = Preconditioner::Multigrid;
+        }
+    }
     crate::propagate::integrate::choose::build(&mut crate::propagate::integrate::choose::Context {
         settings: &settings,
         scheme: scheme_name(setup.model.scheme()),
@@ -286,6 +303,7 @@ fn build_stepper(
         active,
         gid,
         trial,
+        realtime,
         comm,
     })
 }

@@ -122,8 +122,17 @@ pub fn serve_on(world: Option<&dyn Comm>, path: &Path, opts: &ServeOptions) -> R
     let claim = std::cell::RefCell::new(None);
     let make = || -> Result<Setup> {
         *listener.borrow_mut() = Some(bind(&opts.listen)?);
-        let (setup, c) = prepare_claimed(path, &opts.run)?;
+        let (mut setup, c) = prepare_claimed(path, &opts.run)?;
         *claim.borrow_mut() = Some(c);
+        // serve runs in the real-time mode unless the scenario says realtime = false or names
+        // an integrator, and then writes about 30 steps a second of simulated time unless it
+        // names `every`
+        let named = setup.integrator.kind != eprop::config::integrator::Kind::Auto;
+        if *setup.time.realtime.get_or_insert(!named) {
+            if let Some(dt) = setup.time.dt {
+                setup.output.every_for_realtime(dt);
+            }
+        }
         check_live(&setup)?;
         Ok(setup)
     };

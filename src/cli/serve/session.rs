@@ -22,6 +22,9 @@ const STUCK: Duration = Duration::from_millis(100);
 /// Steps the physics may lag behind the client's latest sample before it is said to fall
 /// behind (a client a step or two ahead is the normal state of a live session).
 pub const BEHIND: f64 = 10.0;
+/// The window of the lag as it happens: once per window whose worst lag passed `BEHIND`
+/// steps, serve prints a `lag` line on stderr.
+pub const LAG_WINDOW: Duration = Duration::from_secs(1);
 
 /// What a client that sends without reading its answers is told.
 const NOT_READING: &str = "the client does not read its answers: the server could not send one";
@@ -59,6 +62,7 @@ impl Outcome {
         p::Answer {
             kind,
             index: 0,
+            flags: 0,
             step: self.step,
             t_step: self.t,
             t: self.t,
@@ -136,6 +140,9 @@ pub struct SessionSummary {
     pub max_behind_steps: f64,
     /// Said when the physics fell behind the client, with the fix.
     pub warning: Option<String>,
+    /// How many `lag` lines serve printed (one per second in which it lagged more than
+    /// BEHIND steps).
+    pub lag_reports: u64,
 }
 
 /// The network thread and the state it shares with the physics.
@@ -150,6 +157,11 @@ pub struct Session {
     dt: f64,
     behind: f64,
     warned: bool,
+    /// The lag as it happens: the worst lead over the current window of `LAG_WINDOW`, when
+    /// the window started, and the lag lines printed.
+    window_worst: f64,
+    window_start: Instant,
+    lag_reports: u64,
     /// Every how many steps the client wants a frame (0: none), as of the last `wait`.
     every: u64,
     /// The command's stop (a signal), looked at while waiting for the client.
@@ -209,6 +221,9 @@ impl Session {
             dt,
             behind: 0.0,
             warned: false,
+            window_worst: 0.0,
+            window_start: Instant::now(),
+            lag_reports: 0,
             every: 0,
             waited: Duration::ZERO,
             stop,
@@ -298,7 +313,24 @@ impl Session {
                 eprintln!("warning: {}", self.behind_warning());
             }
         }
+        if out.is_ok() {
+            self.lag_as_it_happens(lead, t);
+        }
         out
+    }
+
+    /// Keeps the worst lead of the current window and, once the window is over, prints its
+    /// worst when it passed `BEHIND` steps (`lag_line`).
+    fn lag_as_it_happens(&mut self, lead: f64, t: f64) {
+        self.window_worst = self.window_worst.max(lead);
+        if self.window_start.elapsed() < LAG_WINDOW {
+            return;
+        }
+        if self.dt > 0.0 && self.window_worst / self.dt > BEHIND {
+            self.lag_reports += 1;
+            eprintln!("{}", lag_line(self.window_worst, self.dt, t));
+        }
+        (self.window_worst, self.window_start) = (0.0, Instant::now());
     }
 
     /// The warning when the physics falls behind the client.
@@ -367,6 +399,7 @@ impl Session {
             waited_seconds: self.waited.as_secs_f64(),
             max_behind_steps: if self.dt > 0.0 { self.behind / self.dt } else { 0.0 },
             warning: self.warned.then(|| self.behind_warning()),
+            lag_reports: self.lag_reports,
         }
     }
 }
@@ -393,13 +426,15 @@ fn fail(g: &mut State, code: Code, msg: &str) {
 }
 
 /// The answer to a message about entity `e` at client time `tc`: its latest result,
-/// extrapolated linearly from its last two results to tc, at most one physics interval ahead.
-fn extrapolate(results: &(Option<Outcome>, Outcome), tc: f64) -> (f64, V3, V3) {
+/// extrapolated linearly from its last two results to tc, at most `reach` physics intervals
+/// ahead (1 in protocol versions 1 and 2, `LAG_REACH` in version 3), and its flags: whether it
+/// reaches beyond one interval (the physics lags) and whether tc is beyond the reach.
+fn extrapolate(results: &(Option<Outcome>, Outcome), tc: f64, reach: f64) -> (f64, V3, V3, u16) {
     let (prev, last) = results;
     match prev {
         Some(p) if last.t > p.t => {
             let span = last.t - p.t;
-            let t = tc.clamp(last.t, last.t + span);
+            let t = tc.clamp(last.t, last.t + reach * span);
             let a = (t - last.t) / span;
             let ext = |x: V3, y: V3| {
                 [
@@ -408,10 +443,33 @@ fn extrapolate(results: &(Option<Outcome>, Outcome), tc: f64) -> (f64, V3, V3) {
                     y[2] + a * (y[2] - x[2]),
                 ]
             };
-            (t, ext(p.force, last.force), ext(p.displacement, last.displacement))
+            let mut flags = 0;
+            if reach > 1.0 && a > 1.0 {
+                flags |= p::flags::EXTRAPOLATED;
+            }
+            if reach > 1.0 && t < tc {
+                flags |= p::flags::BEHIND;
+            }
+            (
+                t,
+                ext(p.force, last.force),
+                ext(p.displacement, last.displacement),
+                flags,
+            )
         }
-        _ => (last.t, last.force, last.displacement),
+        _ => (last.t, last.force, last.displacement, 0),
     }
+}
+
+/// The line serve prints while the physics lags: the worst lead of the client over the last
+/// second, in steps and seconds of simulated time, at the step's time t.
+fn lag_line(worst: f64, dt: f64, t: f64) -> String {
+    format!(
+        "lag: the physics is up to {:.0} steps ({} s of simulated time) behind the client over the last second, at t = {}; answers are extrapolated (version 3 flags them)",
+        worst / dt,
+        eprop::diagnostics::short(worst),
+        eprop::diagnostics::short(t)
+    )
 }
 
 /// Writes one server message; false when the client is gone.
@@ -692,6 +750,11 @@ fn serve_client(
         Err(e) => return e,
     };
     let stream_req = opening.stream;
+    let reach = if opening.version >= p::VERSION_3 {
+        p::LAG_REACH
+    } else {
+        1.0
+    };
     let mut hello = Hello {
         version: opening.version,
         ..*hello
@@ -764,7 +827,7 @@ fn serve_client(
         }
         g.latest[e] = t;
         g.pending.push((e as u32, [t, v[0], v[1], v[2]]));
-        let (te, force, displacement) = extrapolate(&g.results[e], t);
+        let (te, force, displacement, flags) = extrapolate(&g.results[e], t, reach);
         let last = g.results[e].1;
         g.answers += 1;
         g.sending = Some(Instant::now());
@@ -778,6 +841,7 @@ fn serve_client(
         let a = p::Answer {
             kind,
             index,
+            flags,
             step: last.step,
             t_step: last.t,
             t: te,
@@ -810,16 +874,54 @@ mod tests {
         };
         // one result: as it is
         assert_eq!(
-            extrapolate(&(None, o(0, 0.0, 1.0)), 0.5),
-            (0.0, [0.0, 0.0, 1.0], [0.1, 0.0, 0.0])
+            extrapolate(&(None, o(0, 0.0, 1.0)), 0.5, 1.0),
+            (0.0, [0.0, 0.0, 1.0], [0.1, 0.0, 0.0], 0)
         );
         let r = (Some(o(3, 0.3, 1.0)), o(4, 0.4, 2.0));
-        let (t, f, d) = extrapolate(&r, 0.45);
-        assert_eq!(t, 0.45);
+        let (t, f, d, flags) = extrapolate(&r, 0.45, 1.0);
+        assert_eq!((t, flags), (0.45, 0));
         assert!((f[2] - 2.5).abs() < 1e-12 && (d[0] - 0.25).abs() < 1e-12, "{f:?} {d:?}");
         // never further than one interval, never back in time
-        assert_eq!(extrapolate(&r, 9.0).0, 0.5);
-        assert!((extrapolate(&r, 9.0).1[2] - 3.0).abs() < 1e-12);
-        assert_eq!(extrapolate(&r, 0.1), (0.4, [0.0, 0.0, 2.0], [0.2, 0.0, 0.0]));
+        assert_eq!(extrapolate(&r, 9.0, 1.0).0, 0.5);
+        assert!((extrapolate(&r, 9.0, 1.0).1[2] - 3.0).abs() < 1e-12);
+        assert_eq!(extrapolate(&r, 0.1, 1.0), (0.4, [0.0, 0.0, 2.0], [0.2, 0.0, 0.0], 0));
+        assert_eq!(extrapolate(&r, 9.0, 1.0).3, 0);
+    }
+
+    #[test]
+    fn a_lagging_physics_is_extrapolated_further_and_flagged_in_version_3() {
+        let o = |step: u64, t: f64, f: f64| Outcome {
+            step,
+            t,
+            force: [0.0, 0.0, f],
+            displacement: [0.0; 3],
+        };
+        let r = (Some(o(3, 0.3, 1.0)), o(4, 0.4, 2.0));
+        let reach = p::LAG_REACH;
+        // within one step: as in versions 1 and 2, no flag
+        assert_eq!(extrapolate(&r, 0.45, reach).3, 0);
+        // three steps behind: extrapolated to the client's time, flagged
+        let (t, f, _, flags) = extrapolate(&r, 0.7, reach);
+        assert!((t - 0.7).abs() < 1e-12 && (f[2] - 5.0).abs() < 1e-9, "{t} {f:?}");
+        assert_eq!(flags, p::flags::EXTRAPOLATED);
+        // beyond the reach: stops there, and says the answer is still behind
+        let (t, f, _, flags) = extrapolate(&r, 9.0, reach);
+        assert!((t - 1.4).abs() < 1e-12 && (f[2] - 12.0).abs() < 1e-9, "{t} {f:?}");
+        assert_eq!(flags, p::flags::EXTRAPOLATED | p::flags::BEHIND);
+        // the flags travel in bytes 6..8 and leave the index as it was
+        let a = p::Answer {
+            kind: p::answer::TOOL,
+            index: 7,
+            flags,
+            step: 4,
+            t_step: 0.4,
+            t,
+            force: f,
+            displacement: [0.0; 3],
+        };
+        let b = p::answer(&a);
+        assert_eq!(u16::from_le_bytes([b[4], b[5]]), 7);
+        assert_eq!(u16::from_le_bytes([b[6], b[7]]), 3);
+        assert_eq!(p::read_reply(&b), p::Reply::Answer(a));
     }
 }

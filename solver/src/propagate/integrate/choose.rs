@@ -94,6 +94,8 @@ pub struct Context<'a> {
     /// The sources (owned rows) of the first step a load pushes or a tool presses and of the
     /// two steps after it, and the run's length: `auto` measures the candidates on these.
     pub trial: Option<TrialRun>,
+    /// The real-time mode (`[time] realtime`): `realtime` builds the stepper.
+    pub realtime: bool,
     pub comm: &'a dyn Comm,
 }
 
@@ -425,6 +427,9 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             s.kind.name()
         );
     }
+    if cx.realtime {
+        return realtime(cx);
+    }
     let layout = cx.prop.layout();
     match s.kind {
         Kind::Euler => euler(cx, String::new()),
@@ -466,6 +471,53 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         }
         Kind::Auto => auto(cx),
     }
+}
+
+/// The real-time mode's relative tolerance: the trial solve that sets the iterations per
+/// stage solves to it, and a stage's solve stops early once there.
+pub const REALTIME_TOLERANCE: f64 = 1e-6;
+/// The real-time mode's iterations per stage solve lie within these (the upper one bounds
+/// the work on a mesh whose trial needs more; a stage starts from the step's potential, so
+/// it needs fewer than a trial from zero).
+pub const REALTIME_ITERATIONS: (usize, usize) = (2, 40);
+
+/// The real-time mode (`[time] realtime`, docs/realtime.md): TR-BDF2 with one step per
+/// mechanics step, no error control, and at most k preconditioned conjugate-gradient
+/// iterations per stage, k fixed here at setup from the iterations a trial solve from zero
+/// takes to `REALTIME_TOLERANCE` (clamped to `REALTIME_ITERATIONS`). Each step is then at
+/// most `Implicit::applications_bound(k)` operator applications and 2 (k + 2) preconditioner
+/// applications, whatever the loads and tools do. The settings (`simulate::build_stepper`)
+/// name the preconditioner (a multigrid unless the scenario names one) and no accuracy.
+fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
+    if !cx.compact {
+        bail!(
+            "{}: [time] realtime = true runs the implicit integrator, which needs the symmetric compact scheme (the {} scheme's spectrum is complex); fix: use [model] scheme = \"compact\", or realtime = false",
+            cx.path,
+            cx.scheme
+        );
+    }
+    if cx.user_h.is_some() {
+        bail!(
+            "{}: [time] h sets forward Euler's substep, and [time] realtime = true takes none (one implicit step per dt); fix: leave h out, or set realtime = false",
+            cx.path
+        );
+    }
+    let mut imp = implicit(cx, 0, String::new())?;
+    let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
+    let k = it.clamp(REALTIME_ITERATIONS.0, REALTIME_ITERATIONS.1);
+    imp.set_fixed(k);
+    let apps = Implicit::applications_bound(k);
+    let cost = imp.cost_of(apps);
+    imp.set_plan(
+        apps,
+        cost,
+        format!(
+            "real time: TR-BDF2, one step per dt, at most {k} iterations per stage ({} applications per step), {}, no error control",
+            apps,
+            imp.preconditioner_phrase(it)
+        ),
+    );
+    Ok(Box::new(imp))
 }
 
 /// A candidate's cost per step in forward Euler substeps and what the message says of it.

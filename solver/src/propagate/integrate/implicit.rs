@@ -112,6 +112,18 @@ impl Implicit {
         (super::choose::CG_COST + self.solver.preconditioner_cost()) * apps as f64
     }
 
+    /// The real-time mode: at most `k` conjugate-gradient iterations per stage
+    /// (`Solver::set_fixed`), so at most `applications_bound` operator applications per step.
+    pub fn set_fixed(&mut self, k: usize) {
+        self.solver.set_fixed(k);
+    }
+
+    /// The most operator applications one step takes in the real-time mode: the stage 1
+    /// right-hand side's, then per stage its iterations and the two that start it.
+    pub fn applications_bound(k: usize) -> usize {
+        1 + 2 * (k + 2)
+    }
+
     /// Numbers the next step 1 again (after the automatic choice's trial steps).
     pub fn restart_count(&mut self) {
         self.errors.step = 0;

@@ -80,6 +80,9 @@ pub struct Solver {
     gid: Vec<u64>,
     tol: f64,
     max_iterations: usize,
+    /// The real-time mode's iterations per solve (`set_fixed`): a solve stops there whether
+    /// or not it reached `tol` (None: to `tol`, failing at `max_iterations`).
+    fixed: Option<usize>,
     path: String,
     work: cg::Work,
 }
@@ -120,6 +123,7 @@ impl Solver {
             gid: gid.to_vec(),
             tol: settings.tolerance,
             max_iterations: settings.max_iterations,
+            fixed: None,
             path: path.to_string(),
             work: cg::Work::new(layout),
         })
@@ -158,6 +162,17 @@ impl Solver {
             self.tol = t;
         }
         tighter
+    }
+
+    /// The real-time mode: every stage's solve takes at most `k` iterations and stops there
+    /// without failing (the work per step is bounded; `tol` still stops it earlier).
+    pub fn set_fixed(&mut self, k: usize) {
+        self.fixed = Some(k);
+    }
+
+    /// The real-time mode's iterations per solve, if it is on.
+    pub fn fixed(&self) -> Option<usize> {
+        self.fixed
     }
 
     /// Whether the preconditioner is diagonal (fused into the iteration).
@@ -228,18 +243,13 @@ impl Solver {
             c: self.theta_tau,
             bound: self.a_bound,
         };
-        cg::solve(
-            prop,
-            a,
-            &mut *self.pre,
-            b,
-            x,
-            &mut self.work,
-            tol,
-            self.max_iterations,
-            comm,
-        )
-        .map_err(|f| self.failed(f, stage, step, tol))
+        // the real-time mode's stages stop after their fixed iterations (not the trial)
+        let fixed = self.fixed.filter(|_| stage == 1 || stage == 2);
+        let limit = fixed.unwrap_or(self.max_iterations);
+        match cg::solve(prop, a, &mut *self.pre, b, x, &mut self.work, tol, limit, comm) {
+            Err(Failure::Unconverged { .. }) if fixed.is_some() => Ok(limit),
+            r => r.map_err(|f| self.failed(f, stage, step, tol)),
+        }
     }
 
     /// The solve's failure as the scenario's error, with its fixes.
