@@ -320,8 +320,9 @@ impl Output {
         }
         let appended = self.series.append(sim, commit);
         appended.map_err(|e| self.failed(e, s))?;
-        // the first output step with inverted cells: one warning (every process takes part)
-        if let Some(w) = self.series.fold_warning(sim) {
+        // the first output step with inverted cells, and the first with nodes across a
+        // support: one warning each (every process takes part)
+        for w in self.series.fold_warnings(sim) {
             if root && !s.quiet {
                 progress.println(&format!("warning: {w}"));
             }

@@ -1,10 +1,31 @@
 //! `[[fixed]]`: the Dirichlet set (the union of every set).
 
-use super::select::{Entry, Keys};
+use super::select::{Entry, Keys, Selector};
 use super::Scenario;
 use anyhow::{bail, Result};
+use eprop_io::geom::{cross, dot, norm, scale, sub};
 use eprop_mesh::Mesh;
 use serde::de::MapAccess;
+use serde::{Deserialize, Serialize};
+
+/// A fixed support's plane (docs/model.md section 6): the organ lies on the side opposite
+/// `normal`; a node whose deformed position lies more than `tol` along `normal` from `point`
+/// has gone through the support.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Plane {
+    pub point: [f64; 3],
+    /// Unit, from the organ into the support.
+    pub normal: [f64; 3],
+    /// 1e-9 of the mesh's diagonal (the half-space selector's own tolerance).
+    pub tol: f64,
+}
+
+impl Plane {
+    /// How far y lies across the plane (positive: through the support).
+    pub fn across(&self, y: [f64; 3]) -> f64 {
+        dot(sub(y, self.point), self.normal)
+    }
+}
 
 /// A `[[fixed]]` table: a selector and nothing else.
 #[derive(Clone, Debug, Default)]
@@ -20,9 +41,9 @@ impl Keys for FixedSet {
     }
 }
 
-/// The fixed flag of every node. Every piece of the mesh needs a fixed node of its own,
-/// otherwise its energy never leaves.
-pub fn resolve(sc: &Scenario, sets: &[Entry<FixedSet>], mesh: &Mesh) -> Result<Vec<bool>> {
+/// The fixed flag of every node, and the supports' planes (`support_plane`). Every piece of
+/// the mesh needs a fixed node of its own, otherwise its energy never leaves.
+pub fn resolve(sc: &Scenario, sets: &[Entry<FixedSet>], mesh: &Mesh) -> Result<(Vec<bool>, Vec<Plane>)> {
     if sets.is_empty() {
         bail!(
             "{}: no [[fixed]] set; fix: fix part of the organ (for example `[[fixed]] group = \"bottom\"`), \
@@ -32,15 +53,63 @@ pub fn resolve(sc: &Scenario, sets: &[Entry<FixedSet>], mesh: &Mesh) -> Result<V
     }
     let n = mesh.n_nodes();
     let mut fixed = vec![false; n];
+    let mut planes = Vec::new();
     for e in sets {
         let none = "selects no node; fix: check it against the mesh (eprop info MESH)";
         let set = sc.select(&e.selector, FixedSet::TABLE, mesh, none)?;
         for i in 0..n {
             fixed[i] |= set[i];
         }
+        planes.extend(support_plane(e.selector.get_ref(), &set, mesh));
     }
     every_piece_held(sc, mesh, &fixed)?;
-    Ok(fixed)
+    Ok((fixed, planes))
+}
+
+/// The plane of a fixed set that supports the organ from one side, or None: a half-space's
+/// boundary (the organ's free nodes lie outside it); any other set whose nodes lie in one
+/// plane (within 1e-9 of the mesh's diagonal) with the whole mesh on one side of it (a fixed
+/// face: `group = "bottom"`, a flat box).
+pub fn support_plane(selector: &Selector, set: &[bool], mesh: &Mesh) -> Option<Plane> {
+    let (lo, hi) = mesh.bounds();
+    let tol = 1e-9 * norm(sub(hi, lo));
+    if let Selector::HalfSpace(h) = selector {
+        let n = norm(h.normal);
+        return Some(Plane {
+            point: h.point,
+            normal: scale(h.normal, 1.0 / n),
+            tol,
+        });
+    }
+    let pts: Vec<[f64; 3]> = (0..set.len()).filter(|&i| set[i]).map(|i| mesh.points[i]).collect();
+    let a = *pts.first()?;
+    let far = |from: &dyn Fn([f64; 3]) -> f64| {
+        pts.iter()
+            .copied()
+            .max_by(|p, q| from(*p).total_cmp(&from(*q)))
+            .unwrap_or(a)
+    };
+    let b = far(&|p| norm(sub(p, a)));
+    let ab = sub(b, a);
+    let c = far(&|p| norm(cross(ab, sub(p, a))));
+    let nn = cross(ab, sub(c, a));
+    let m = norm(nn);
+    if !(m > 0.0) || !m.is_finite() {
+        return None;
+    }
+    let normal = scale(nn, 1.0 / m);
+    if pts.iter().any(|&p| dot(sub(p, a), normal).abs() > tol) {
+        return None;
+    }
+    let side = |p: [f64; 3]| dot(sub(p, a), normal);
+    let normal = if mesh.points.iter().all(|&p| side(p) <= tol) {
+        normal
+    } else if mesh.points.iter().all(|&p| side(p) >= -tol) {
+        scale(normal, -1.0)
+    } else {
+        return None;
+    };
+    Some(Plane { point: a, normal, tol })
 }
 
 fn every_piece_held(sc: &Scenario, mesh: &Mesh, fixed: &[bool]) -> Result<()> {

@@ -45,7 +45,7 @@ mod tools;
 mod values;
 pub(crate) mod wire;
 
-pub use fixed::FixedSet;
+pub use fixed::{FixedSet, Plane};
 pub use loads::{Load, Push, FORCE_COLUMNS};
 pub use material::{Conductivity, MaterialSec, Region};
 
@@ -389,6 +389,8 @@ pub struct Setup {
     pub materials: Materials,
     /// Per node: fixed.
     pub fixed: Vec<bool>,
+    /// The fixed supports' planes no node may cross (`fixed::support_plane`).
+    pub supports: Vec<fixed::Plane>,
     pub loads: Vec<Load>,
     pub tools: Vec<Tool>,
     pub model: Model,
@@ -434,7 +436,7 @@ impl Setup {
         let output = output::resolve(sc);
         let law = f.tissue.law(f.model.reading);
         let materials = material::resolve(sc, &f.material, &f.model, law, f.tissue.poisson, &mesh)?;
-        let fixed = fixed::resolve(sc, &f.fixed, &mesh)?;
+        let (fixed, supports) = fixed::resolve(sc, &f.fixed, &mesh)?;
         let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         let tools = tools::resolve(sc, &f.tool)?;
         let setup = Setup {
@@ -447,6 +449,7 @@ impl Setup {
             performance: f.performance.resolve(),
             materials,
             fixed,
+            supports,
             loads,
             mesh,
             scenario,

@@ -100,6 +100,7 @@ impl Setup {
             mesh: local_mesh(&self.mesh, plan),
             materials: self.materials.pick(&plan.numbering.global),
             fixed: pick(&self.fixed, plan),
+            supports: self.supports.clone(),
             loads: self.loads.clone(),
             tools: self.tools.clone(),
             model: self.model.clone(),

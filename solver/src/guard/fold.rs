@@ -17,9 +17,14 @@ pub struct Record {
     pub most_time: f64,
     /// The largest count of nodes inside each tool at an output step.
     pub most_inside: Vec<u64>,
+    /// The most nodes across a support's plane at an output step.
+    pub most_across: u64,
     /// Inverted cells appeared and were not yet warned of.
     pending: bool,
     warned: bool,
+    /// Nodes across a support appeared and were not yet warned of.
+    across_pending: bool,
+    across_warned: bool,
 }
 
 impl Record {
@@ -35,17 +40,33 @@ impl Record {
         if i.inverted > 0 && !self.warned {
             self.pending = true;
         }
+        self.most_across = self.most_across.max(i.across);
+        if i.across > 0 && !self.across_warned {
+            self.across_pending = true;
+        }
         self.last = i;
     }
 
-    /// The warning of the first output step with inverted cells, once (every process calls:
-    /// the cause takes reductions; the same verdict everywhere).
-    pub fn warning(&mut self, sim: &Simulation) -> Option<String> {
-        if !self.pending {
-            return None;
+    /// The warnings of the first output step with inverted cells and of the first with nodes
+    /// across a support, once each (every process calls: the cause takes reductions; the same
+    /// verdict everywhere).
+    pub fn warnings(&mut self, sim: &Simulation) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.pending {
+            (self.pending, self.warned) = (false, true);
+            out.push(describe(sim, &self.last));
         }
-        (self.pending, self.warned) = (false, true);
-        Some(describe(sim, &self.last))
+        if self.across_pending {
+            (self.across_pending, self.across_warned) = (false, true);
+            out.push(format!(
+                "{} node(s) lie across a fixed support's plane at step {} (t = {:.6e}), up to {:.4e} beyond it: the support is rigid, so this is where a node's update outran it; fix: a smaller dt, or a shallower tool path or smaller load near the support",
+                self.last.across,
+                sim.step(),
+                sim.time(),
+                self.last.farthest
+            ));
+        }
+        out
     }
 }
 

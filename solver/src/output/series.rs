@@ -203,6 +203,10 @@ impl Series {
                 ));
             }
             sim.restore(resume.step, &resume.u, &resume.v, &resume.phi);
+            // the energy account goes on from the restart step's row
+            if let Some(e) = writer.energy_at(writer.steps_complete().saturating_sub(1))? {
+                sim.resume_energy(e[0], e[2]);
+            }
             // a step off the output grid (a run stopped by a signal, or a shorter run's last
             // step) is a restart point only: continuing drops it, so the series is the one an
             // uninterrupted run writes
@@ -231,7 +235,7 @@ impl Series {
                 if !sim.tools.is_empty() {
                     writer.add_tools(sim.tools.len())?;
                 }
-                writer.add_checks(sim.tools.len())?;
+                writer.add_checks(sim.tools.len(), sim.tool_energy().is_some())?;
                 log_memory("the static output");
                 writer.commit_every(flush);
                 let mut series = Series {
@@ -278,8 +282,13 @@ impl Series {
             self.writer.append_tools(sim.time(), sim.step(), &tool_rows(sim))?;
         }
         let checked = sim.inspect();
-        self.writer
-            .append_checks(sim.step(), checked.inverted, &checked.inside)?;
+        self.writer.append_checks(
+            sim.step(),
+            checked.inverted,
+            &checked.inside,
+            checked.across,
+            sim.tool_energy().map(|e| [e.work, e.stored, e.dissipated]),
+        )?;
         self.folds.note(sim.time(), checked);
         let committed = self
             .writer
@@ -303,10 +312,11 @@ impl Series {
         Ok(())
     }
 
-    /// The warning of the first written step with inverted cells or nodes inside a tool, once
-    /// (every process calls: `guard::fold::Record::warning`).
-    pub fn fold_warning(&mut self, sim: &Simulation) -> Option<String> {
-        self.folds.warning(sim)
+    /// The warnings of the first written step with inverted cells or nodes inside a tool, and
+    /// of the first with nodes across a support, once each (every process calls:
+    /// `guard::fold::Record::warnings`).
+    pub fn fold_warnings(&mut self, sim: &Simulation) -> Vec<String> {
+        self.folds.warnings(sim)
     }
 
     /// The simulation step of the last complete output step.

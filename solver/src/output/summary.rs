@@ -93,6 +93,14 @@ pub struct Summary {
     pub inside_nodes: Vec<u64>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub max_inside_nodes: Vec<u64>,
+    /// The fixed supports' planes, the nodes across them at the last output step and the most
+    /// at one.
+    pub supports: usize,
+    pub across_nodes: u64,
+    pub max_across_nodes: u64,
+    /// The kinematic tools' energy account at the end: work, stored, dissipated (J).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub energy: Option<[f64; 3]>,
     pub output: String,
     pub output_steps: usize,
     pub warnings: Vec<String>,
@@ -227,6 +235,24 @@ impl std::fmt::Display for Summary {
                     "  inside      {now} nodes in tools{per} (at most {most} at an output step)"
                 )?,
             }
+        }
+        if self.supports > 0 {
+            match self.max_across_nodes {
+                0 => writeln!(f, "  across      0 nodes through supports")?,
+                m => writeln!(
+                    f,
+                    "  across      {} nodes through supports (at most {m} at an output step)",
+                    self.across_nodes
+                )?,
+            }
+        }
+        if let Some([w, s, d]) = self.energy {
+            let gap = w - (s + d);
+            let rel = if w != 0.0 { gap / w.abs() } else { 0.0 };
+            writeln!(
+                f,
+                "  energy      tools' work {w:.6e} J = stored {s:.6e} J + dissipated {d:.6e} J (balance {rel:.1e} of the work)"
+            )?;
         }
         for w in &self.warnings {
             writeln!(f, "  warning     {w}")?;
@@ -363,6 +389,10 @@ pub fn summarize(
         max_inverted_time: series.folds.most_time,
         inside_nodes: series.folds.last.inside.clone(),
         max_inside_nodes: series.folds.most_inside.clone(),
+        supports: sim.setup().supports.len(),
+        across_nodes: series.folds.last.across,
+        max_across_nodes: series.folds.most_across,
+        energy: sim.tool_energy().map(|e| [e.work, e.stored, e.dissipated]),
         output: series.path().display().to_string(),
         output_steps: series.steps_written(),
         warnings,

@@ -25,6 +25,10 @@ pub struct Inspection {
     /// the deepest one's depth (0 when none).
     pub inside: Vec<u64>,
     pub deepest: Vec<f64>,
+    /// The active free nodes whose deformed position lies across a fixed support's plane
+    /// (farther than its tolerance), and the farthest one's distance (0 when none).
+    pub across: u64,
+    pub farthest: f64,
 }
 
 /// The corners of a cell as tetrahedra: (corner, three of its neighbours along the cell's
@@ -138,12 +142,28 @@ impl Simulation {
             inside.push(c.sum_i128(count) as u64);
             deepest.push(c.max(most));
         }
+        let (mut across, mut farthest) = (0i128, 0.0f64);
+        for i in (0..n).filter(|&i| self.active[i] && !self.setup.fixed[i]) {
+            let y = add(pts[i], self.u[i]);
+            let beyond = self
+                .setup
+                .supports
+                .iter()
+                .map(|p| p.across(y) - p.tol)
+                .fold(f64::NEG_INFINITY, f64::max);
+            if beyond > 0.0 {
+                across += 1;
+                farthest = farthest.max(beyond);
+            }
+        }
         Inspection {
             inverted,
             centroid,
             bounds,
             inside,
             deepest,
+            across: c.sum_i128(across) as u64,
+            farthest: c.max(farthest),
         }
     }
 }

@@ -19,12 +19,20 @@
 //! (`super::contact::constrain`, every node, surface and interior).
 //!
 //! The force on the organ is the model's reaction at the end of the step, from the Dirichlet
-//! energy the potential stores: f_c = M lambda_c / D_c (-V_c) (L phi)_c, the outflow of energy
+//! energy the potential stores: f_c = M lambda_c / D_c (-C_c) (L phi)_c, the outflow of energy
 //! at each node on or in the tool, M = E / (2 (1 - nu^2)) (the harmonic model's modulus that
 //! gives Boussinesq's surface displacement on a half-space), D_c the node's mean
-//! conductivity; normal to the surface for a sliding tool. Every factor but E is fixed by the
-//! displacement, so a prescribed tool path moves the tissue the same whatever young, and the
-//! force scales with young.
+//! conductivity, C_c its capacity (its control volume, weighed by young where tissues differ,
+//! with E the reference young then); normal to the surface for a sliding tool. Every factor
+//! but E is fixed by the displacement, so a prescribed tool path moves the tissue the same
+//! whatever young, and the force scales with young.
+//!
+//! The reaction is the derivative of the stored energy S = 1/2 sum_i Gamma_i phi_i .
+//! (-C_i (L phi)_i), Gamma = M lambda^2 / D, with respect to a held node's displacement
+//! lambda phi (C L is the symmetric conductance matrix): the tools' work over a step, the mean
+//! reaction before and after their move times the move (`step_work`), is S's change over the
+//! move, and the integration over the step with the held nodes still takes S down by what the
+//! propagation dissipates (`Energy`).
 
 use super::contact::{depth, project, ToolRun};
 use crate::config::tissue::Materials;
@@ -130,11 +138,15 @@ pub fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
     )
 }
 
-/// The force factor of node i, M lambda_i / D_i with M = E_i / (2 (1 - nu_i^2)) (its
-/// tissue's young and poisson) and D_i the mean of its conductivity's diagonal.
+/// The force factor of node i, M lambda_i / D_i with M = E / (2 (1 - nu_i^2)) and D_i the
+/// mean of its conductivity's diagonal; E is the node's tissue's young, or the reference E0
+/// where the propagation weighs young (its capacity C_i then carries each cell's E_c / E0:
+/// the force M0 lambda / D (-C_i (L phi)_i) is the derivative of the stored energy, module
+/// docs).
 pub fn force_factor(mat: &Materials, i: usize) -> f64 {
     let t = mat.at(i);
-    let m = t.law.young / (2.0 * (1.0 - t.poisson * t.poisson));
+    let e = if mat.weighs_young() { mat.young0 } else { t.law.young };
+    let m = e / (2.0 * (1.0 - t.poisson * t.poisson));
     m * (t.coupling / t.stiffness) / super::mean_conductivity(mat, i)
 }
 
@@ -199,11 +211,82 @@ pub struct State {
     pub scratch: crate::distribute::field::NodeField<V3>,
     /// The nodes held over the last step.
     pub held: Vec<Held>,
+    /// L phi on the owned rows just after the held potential was set (the energy's jump).
+    pub lplus: Vec<V3>,
+    /// The tools' energy account so far.
+    pub energy: Energy,
+    /// S right after the last step's move, until the step's end counts its dissipation.
+    pub after_move: Option<f64>,
+}
+
+/// The kinematic tools' energy account (docs/tools.md, "Energy"), cumulative from the start of
+/// the run, in joules (the reading's energy unit), the same on every process.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Energy {
+    /// The work the tools did on the organ: sum over the steps and held nodes of the mean of
+    /// the reaction before and after the step's move times the move.
+    pub work: f64,
+    /// The energy the potential stores now, S = 1/2 sum_i Gamma_i phi_i . (-C_i (L phi)_i).
+    pub stored: f64,
+    /// What the propagation's relaxation took out while the held nodes stood still: the
+    /// decrease of S over each step's integration.
+    pub dissipated: f64,
+}
+
+/// Gamma_i = M lambda_i^2 / D_i: the stored energy's factor of node i (`force_factor` times
+/// lambda_i), so that the reaction f_i = Gamma_i / lambda_i (-C_i (L phi)_i) is the
+/// derivative of S with respect to the node's displacement lambda_i phi_i.
+pub fn energy_factor(mat: &Materials, i: usize) -> f64 {
+    let t = mat.at(i);
+    force_factor(mat, i) * (t.coupling / t.stiffness)
+}
+
+/// The stored energy S = 1/2 sum_i Gamma_i phi_i . (-C_i (L phi)_i) over the owned `active`
+/// rows, with `cap` the capacities C_i and `lphi` = L phi (every process calls: an exact sum).
+pub fn stored_energy(
+    mat: &Materials,
+    active: &[bool],
+    cap: &[f64],
+    phi: &[V3],
+    lphi: &[V3],
+    comm: &dyn crate::distribute::comm::Comm,
+) -> f64 {
+    let n = lphi.len();
+    let term = |i: usize| -> [f64; 1] {
+        if !active[i] {
+            return [0.0];
+        }
+        [-0.5 * energy_factor(mat, i) * cap[i] * dot(phi[i], lphi[i])]
+    };
+    crate::distribute::comm::reproducible_sums(comm, (0..n).map(term))[0]
+}
+
+/// The tools' work over one step's move of the held potential from `before` to the value now
+/// in `phi` at each held node: sum_c Gamma_c (phi_c - before_c) . (-C_c (L phi^n + L phi^+)_c / 2),
+/// the mean of the reaction before (`lphi`) and after (`lplus`) the move times the move
+/// (exactly the change of S over the move, S being quadratic). Every process calls.
+#[allow(clippy::too_many_arguments)]
+pub fn step_work(
+    mat: &Materials,
+    cap: &[f64],
+    held: &[(u32, V3)],
+    phi: &[V3],
+    lphi: &[V3],
+    lplus: &[V3],
+    comm: &dyn crate::distribute::comm::Comm,
+) -> f64 {
+    let term = |&(c, before): &(u32, V3)| -> [f64; 1] {
+        let i = c as usize;
+        let moved = sub(phi[i], before);
+        let mean = scale(add(lphi[i], lplus[i]), 0.5);
+        [-energy_factor(mat, i) * cap[i] * dot(moved, mean)]
+    };
+    crate::distribute::comm::reproducible_sums(comm, held.iter().map(term))[0]
 }
 
 /// What a kinematic tool at `c` does at the end of a step, from the state (u and lphi =
 /// L phi on the owned rows): the nodes on or in it (surface and interior), their reaction
-/// force f_c = M lambda_c / D_c (-V_c) (L phi)_c (module docs), the contact area and the
+/// force f_c = M lambda_c / D_c (-C_c) (L phi)_c (module docs), the contact area and the
 /// mean displacement of its surface nodes (weighted by |A_i|); the indentation is left at
 /// -inf for the caller. Every process calls (exact sums).
 #[allow(clippy::too_many_arguments)]
@@ -212,6 +295,7 @@ pub fn measure(
     c: V3,
     n: &super::contact::Nodes,
     mat: &Materials,
+    cap: &[f64],
     u: &[V3],
     lphi: &[V3],
     comm: &dyn crate::distribute::comm::Comm,
@@ -226,7 +310,7 @@ pub fn measure(
         if !touches(&shape, c, y) {
             continue;
         }
-        let s = -force_factor(mat, i) * n.vol[i];
+        let s = -force_factor(mat, i) * cap[i];
         let f0 = scale(lphi[i], s);
         let mut f = f0;
         if run.tool.grip == Grip::Slide {

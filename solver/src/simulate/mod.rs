@@ -718,6 +718,9 @@ impl Simulation {
                 lphi: vec![[0.0; 3]; n_owned],
                 scratch: prop.zeros(),
                 held: Vec::new(),
+                lplus: vec![[0.0; 3]; n_owned],
+                energy: kinematic::Energy::default(),
+                after_move: None,
             })
         } else {
             None
@@ -866,6 +869,9 @@ impl Simulation {
             &mut self.v[..n],
         );
         self.put_held();
+        if !self.tools.is_empty() {
+            self.keep_off_supports();
+        }
         // a stop request rides on the step's reduction, so every process stops after this step
         let signal = self.stop.requested() as f64;
         if self.tools.is_empty() {
@@ -933,16 +939,53 @@ impl Simulation {
             pulls,
         );
         let mut rows = Vec::with_capacity(k.held.len());
+        let mut before = Vec::with_capacity(k.held.len());
         let mut is_held = vec![false; n];
         for h in &k.held {
             let i = h.node as usize;
             let t = mat.at(i);
+            before.push((h.node, self.prop.phi[i]));
             self.prop.phi[i] = kinematic::held_potential(h.target, t.stiffness, t.coupling, p);
             rows.push(h.node);
             is_held[i] = true;
         }
+        // the energy of the move: L phi right after it, on the whole operator
+        self.prop.thaw();
+        k.scratch[..n].copy_from_slice(&self.prop.phi[..n]);
+        self.prop.apply_to(&mut k.scratch, &mut k.lplus);
+        let cap = self.capacity.as_deref().unwrap_or(&self.dual.vol);
+        let c = self.comm.as_ref();
+        let work = kinematic::step_work(mat, cap, &before, &self.prop.phi, &k.lphi, &k.lplus, c);
+        let after = kinematic::stored_energy(mat, &self.active, cap, &self.prop.phi, &k.lplus, c);
+        k.energy.work += work;
+        // what the integration over the step takes out of S is counted at its end
+        k.after_move = Some(after);
         self.prop.freeze(&rows);
         q.retain(|(i, _)| !is_held[*i as usize]);
+    }
+
+    /// Puts every owned active node whose position after the free update lies across a fixed
+    /// support's plane back on the plane (docs/model.md section 6), with the velocity of that
+    /// move: the support is rigid. Nothing moves where no node crossed. Runs with tools only
+    /// (a run with loads alone keeps its results; its crossings are counted and warned of).
+    fn keep_off_supports(&mut self) {
+        let n = self.numbering.n_owned;
+        let (pts, planes) = (&self.setup.mesh.points, &self.setup.supports);
+        for i in 0..n {
+            if !self.active[i] {
+                continue;
+            }
+            for p in planes {
+                let y = eprop_io::geom::add(pts[i], self.u[i]);
+                let d = p.across(y);
+                if d > p.tol {
+                    for k in 0..3 {
+                        self.u[i][k] -= d * p.normal[k];
+                        self.v[i][k] -= d * p.normal[k] / self.dt;
+                    }
+                }
+            }
+        }
     }
 
     /// Puts the nodes the tools held over the step at their targets (after the free
@@ -964,6 +1007,19 @@ impl Simulation {
         self.prop.thaw();
         k.scratch[..n].copy_from_slice(&self.prop.phi[..n]);
         self.prop.apply_to(&mut k.scratch, &mut k.lphi);
+        let cap = self.capacity.as_deref().unwrap_or(&self.dual.vol);
+        let stored = kinematic::stored_energy(
+            &self.setup.materials,
+            &self.active,
+            cap,
+            &self.prop.phi,
+            &k.lphi,
+            self.comm.as_ref(),
+        );
+        if let Some(after) = k.after_move.take() {
+            k.energy.dissipated += after - stored;
+        }
+        k.energy.stored = stored;
         let nodes = nodes_of(&self.surface, &self.active, &self.setup, &self.dual);
         for run in self.tools.iter_mut().filter(|r| r.kinematic()) {
             let c = run.tool.path.at(t);
@@ -973,6 +1029,7 @@ impl Simulation {
                 c,
                 &nodes,
                 &self.setup.materials,
+                cap,
                 &self.u[..n],
                 &k.lphi,
                 self.comm.as_ref(),
@@ -1034,6 +1091,21 @@ impl Simulation {
             self.prop.substep(h, &[]);
         }
         t.elapsed().as_secs_f64() / count.max(1) as f64
+    }
+
+    /// The kinematic tools' energy account at the end of the last step (docs/tools.md,
+    /// "Energy"); None without a kinematic tool.
+    pub fn tool_energy(&self) -> Option<kinematic::Energy> {
+        self.kin.as_ref().map(|k| k.energy)
+    }
+
+    /// Continues the energy account of a restored run with the work and dissipation the
+    /// series holds at the restart step (the stored energy is the restored state's).
+    pub fn resume_energy(&mut self, work: f64, dissipated: f64) {
+        if let Some(k) = &mut self.kin {
+            k.energy.work = work;
+            k.energy.dissipated = dissipated;
+        }
     }
 
     /// Each tool's state at the end of the last step (at rest before the first).

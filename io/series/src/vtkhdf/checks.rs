@@ -1,7 +1,9 @@
 //! `/eprop/checks`: what each output step's state says of itself, a row per output step:
-//! `step`, `inverted` (the cells the deformation inverted) and, with tools, `inside` (output
-//! steps, tools: the nodes inside each tool). Written by rank 0 into the room made at creation,
-//! before the step's commit, like the tools' rows.
+//! `step`, `inverted` (the cells the deformation inverted), `across` (the nodes across a
+//! support's plane) and, with tools, `inside` (output steps, tools: the nodes inside each tool);
+//! with kinematic tools, `/eprop/energy` (`work`, `stored`, `dissipated`: their energy account,
+//! cumulative). Written by rank 0 into the room made at creation, before the step's commit,
+//! like the tools' rows.
 
 use super::{at, table, SeriesWriter};
 use anyhow::{anyhow, Result};
@@ -14,12 +16,23 @@ pub(super) struct CheckSets {
     inverted: Dataset,
     /// (steps, tools); absent without tools
     inside: Option<Dataset>,
+    /// absent in a series written before it was stored
+    across: Option<Dataset>,
+    /// `/eprop/energy`: work, stored, dissipated; absent without a kinematic tool
+    energy: Option<[Dataset; 3]>,
 }
+
+/// The datasets of `/eprop/energy`, in the order of `append_checks`'s energy.
+const ENERGY: [&str; 3] = ["work", "stored", "dissipated"];
 
 impl CheckSets {
     /// Every dataset, each with one row per output step.
     pub(super) fn datasets(&self) -> impl Iterator<Item = &Dataset> {
-        [&self.step, &self.inverted].into_iter().chain(&self.inside)
+        [&self.step, &self.inverted]
+            .into_iter()
+            .chain(&self.inside)
+            .chain(&self.across)
+            .chain(self.energy.iter().flatten())
     }
 
     /// The group of a series to continue (every process calls): None in a series written
@@ -29,18 +42,44 @@ impl CheckSets {
         let Some(g) = t.settle_opt(read(""), ep.group("checks"))? else {
             return Ok(None);
         };
+        let energy = match t.settle_opt(at("reading /eprop/energy"), ep.group("energy"))? {
+            Some(e) => {
+                let open = |what: &str| t.settle(at(format!("reading /eprop/energy/{what}")), e.dataset(what));
+                Some([open(ENERGY[0])?, open(ENERGY[1])?, open(ENERGY[2])?])
+            }
+            None => None,
+        };
         Ok(Some(CheckSets {
             step: t.settle(read("step"), g.dataset("step"))?,
             inverted: t.settle(read("inverted"), g.dataset("inverted"))?,
             inside: t.settle_opt(read("inside"), g.dataset("inside"))?,
+            across: t.settle_opt(read("across"), g.dataset("across"))?,
+            energy,
         }))
+    }
+
+    /// The energy account's row `k` (work, stored, dissipated), or None without one (every
+    /// process calls and reads).
+    pub(super) fn energy_row(&self, t: &crate::outcome::Team, k: usize) -> Result<Option<[f64; 3]>> {
+        let Some(sets) = &self.energy else {
+            return Ok(None);
+        };
+        let mut row = [0.0; 3];
+        for (d, x) in sets.iter().zip(&mut row) {
+            let v: Vec<f64> = t.settle(
+                at(format!("reading /eprop/energy row {k}")),
+                d.read_slice_1d::<f64, _>(s![k..k + 1]).map(|a| a.to_vec()),
+            )?;
+            *x = v.first().copied().unwrap_or(0.0);
+        }
+        Ok(Some(row))
     }
 }
 
 impl SeriesWriter {
     /// Adds `/eprop/checks` to a new series, before its first step (every process calls),
-    /// with `inside` for `tools` tools (none without).
-    pub fn add_checks(&mut self, tools: usize) -> Result<()> {
+    /// with `inside` for `tools` tools (none without), and `/eprop/energy` with `energy`.
+    pub fn add_checks(&mut self, tools: usize, energy: bool) -> Result<()> {
         if self.n_steps > 0 {
             return Err(anyhow!("internal: the checks are added to a new series"));
         }
@@ -57,6 +96,16 @@ impl SeriesWriter {
                 0 => None,
                 n => Some(t.settle(mk("inside"), table::<i64>(&g, "inside", room, &[n], room.clamp(1, 256)))?),
             },
+            across: Some(t.settle(mk("across"), table::<i64>(&g, "across", room, &[], c1))?),
+            energy: match energy {
+                false => None,
+                true => {
+                    let mk = |what: &str| at(format!("creating the output (/eprop/energy/{what})"));
+                    let e = t.settle(mk(""), ep.create_group("energy"))?;
+                    let one = |what: &str| t.settle(mk(what), table::<f64>(&e, what, room, &[], c1));
+                    Some([one(ENERGY[0])?, one(ENERGY[1])?, one(ENERGY[2])?])
+                }
+            },
         };
         t.settle(at("writing the output (flush)"), self.file.flush())?;
         self.checks = Some(sets);
@@ -65,8 +114,16 @@ impl SeriesWriter {
 
     /// Writes the checks' row of the next output step (every process calls; rank 0's values
     /// are written): call before `append`, which completes the step. Nothing in a series
-    /// without them.
-    pub fn append_checks(&mut self, step: u64, inverted: u64, inside: &[u64]) -> Result<()> {
+    /// without them. `energy`: work, stored, dissipated (a series without `/eprop/energy`
+    /// ignores it).
+    pub fn append_checks(
+        &mut self,
+        step: u64,
+        inverted: u64,
+        inside: &[u64],
+        across: u64,
+        energy: Option<[f64; 3]>,
+    ) -> Result<()> {
         self.make_slot()?;
         let (k, root) = (self.n_steps, self.root);
         let Some(cs) = &self.checks else {
@@ -76,6 +133,14 @@ impl SeriesWriter {
         let rows = || -> hdf5::Result<()> {
             cs.step.write_slice(&[step as i64], s![k..k + 1])?;
             cs.inverted.write_slice(&[inverted as i64], s![k..k + 1])?;
+            if let Some(d) = &cs.across {
+                d.write_slice(&[across as i64], s![k..k + 1])?;
+            }
+            if let (Some(sets), Some(e)) = (&cs.energy, energy) {
+                for (d, x) in sets.iter().zip(e) {
+                    d.write_slice(&[x], s![k..k + 1])?;
+                }
+            }
             if let Some(d) = &cs.inside {
                 let v: Vec<i64> = inside.iter().map(|&x| x as i64).collect();
                 if v.len() != d.shape().get(1).copied().unwrap_or(0) {
@@ -87,5 +152,14 @@ impl SeriesWriter {
             Ok(())
         };
         self.team.settle(what, if root { rows() } else { Ok(()) })
+    }
+
+    /// The energy account (work, stored, dissipated) of output step `k`, or None in a series
+    /// without one (every process calls).
+    pub fn energy_at(&self, k: usize) -> Result<Option<[f64; 3]>> {
+        match &self.checks {
+            Some(cs) => cs.energy_row(&self.team, k),
+            None => Ok(None),
+        }
     }
 }
