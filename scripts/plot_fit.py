@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
-"""Measured against fitted curve of an `eprop fit` report (PREFIX.csv and PREFIX.json).
+"""Measured against fitted curves of an `eprop fit` report (PREFIX.csv and PREFIX.json).
 
-PREFIX.csv holds x, measured, fitted, residual (and each parameter's sensitivity) per point; PREFIX.json the fitted parameters and
-the RMS residual (docs/fit.md). The left panel draws the measured points and the fitted curve,
-the right one the residuals. `eprop fit` calls this script itself when python3 has matplotlib.
+PREFIX.csv holds x, measured, fitted, residual (each parameter's sensitivity, and the curve's
+number) per point; PREFIX.json the fitted parameters, the RMS residual and the curves
+(docs/fit.md). One row of panels per curve: on the left the measured points and the fitted
+curve, on the right the residuals. `eprop fit` calls this script itself when python3 has matplotlib.
 
 examples:
   plot_fit.py press_fit -o press_fit.png
@@ -25,7 +26,7 @@ from eprop_series import Fail  # noqa: E402
 
 
 def read_report(prefix):
-    """(x, measured, fitted, residual) arrays and the JSON report of PREFIX."""
+    """(curve, x, measured, fitted, residual) arrays and the JSON report of PREFIX."""
     rows = []
     path = prefix + ".csv"
     try:
@@ -34,11 +35,12 @@ def read_report(prefix):
             header = next(r, None)
             if header is None or header[:4] != ["x", "measured", "fitted", "residual"]:
                 raise Fail(f"{path}: not an eprop fit curve (header {header}); fix: give the PREFIX of `eprop fit -o PREFIX`")
+            which = header.index("curve") if "curve" in header else None
             for k, row in enumerate(r, start=2):
                 try:
-                    rows.append([float(v) for v in row[:4]])
-                except ValueError:
-                    raise Fail(f"{path}:{k}: not four numbers; fix: write the report again with eprop fit")
+                    rows.append([float(row[which]) if which is not None else 1.0] + [float(v) for v in row[:4]])
+                except (ValueError, IndexError):
+                    raise Fail(f"{path}:{k}: not four numbers and a curve; fix: write the report again with eprop fit")
     except FileNotFoundError:
         raise Fail(f"{path}: no such file; fix: give the PREFIX of `eprop fit -o PREFIX`")
     try:
@@ -46,8 +48,8 @@ def read_report(prefix):
             report = json.load(f)
     except FileNotFoundError:
         raise Fail(f"{prefix}.json: no such file; fix: give the PREFIX of `eprop fit -o PREFIX`")
-    a = np.asarray(rows, dtype=float).reshape(-1, 4)
-    return a[:, 0], a[:, 1], a[:, 2], a[:, 3], report
+    a = np.asarray(rows, dtype=float).reshape(-1, 5)
+    return a[:, 0].astype(int), a[:, 1], a[:, 2], a[:, 3], a[:, 4], report
 
 
 def number(v):
@@ -60,22 +62,35 @@ def main():
     ap.add_argument("prefix", help="the PREFIX of `eprop fit -o PREFIX` (PREFIX.csv and PREFIX.json)")
     ap.add_argument("-o", "--output", help="PNG to write (default PREFIX.png)")
     a = ap.parse_args()
-    x, measured, fitted, residual, rep = read_report(a.prefix)
+    curve, x, measured, fitted, residual, rep = read_report(a.prefix)
     out = a.output or a.prefix + ".png"
-    fig, (ax, ar) = plt.subplots(1, 2, figsize=(10, 4.2))
-    ax.plot(x, measured, "o", ms=4, mfc="none", label="measured")
-    ax.plot(x, fitted, "-", lw=1.5, label="fitted")
-    ax.set_xlabel(rep.get("x", "x"))
-    ax.set_ylabel(rep.get("y", "y"))
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ar.axhline(0.0, color="k", lw=0.5)
-    ar.plot(x, residual, ".-", ms=4)
-    ar.set_xlabel(rep.get("x", "x"))
-    ar.set_ylabel("fitted - measured")
-    ar.grid(alpha=0.3)
+    ids = sorted(set(curve.tolist())) or [1]
+    info = rep.get("curves") or [{}]
+    fig, axes = plt.subplots(len(ids), 2, figsize=(10, 4.2 * len(ids)), squeeze=False)
+    for row, c in enumerate(ids):
+        ax, ar = axes[row]
+        on = curve == c
+        about = info[c - 1] if c - 1 < len(info) else {}
+        # the report's values are in the scenario's units (SI in the continuum reading)
+        xl = about.get("x", rep.get("x", "x"))
+        yl = about.get("y", rep.get("y", "y"))
+        ax.plot(x[on], measured[on], "o", ms=4, mfc="none", label="measured")
+        ax.plot(x[on], fitted[on], "-", lw=1.5, label="fitted")
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        if len(ids) > 1:
+            ax.set_title(f"curve {c}: {os.path.basename(about.get('data', ''))} (weight {about.get('weight', 1)})", fontsize=9)
+        ar.axhline(0.0, color="k", lw=0.5)
+        ar.plot(x[on], residual[on], ".-", ms=4)
+        ar.set_xlabel(xl)
+        ar.set_ylabel("fitted - measured")
+        ar.grid(alpha=0.3)
+        rms = about.get("rms", rep.get("rms"))
+        rel = about.get("rms_relative", rep.get("rms_relative"))
+        ar.set_title(f"rms {number(rms):.3g} ({number(rel):.2g} of {about.get('relative_to', rep.get('relative_to', 'the data range'))})", fontsize=9)
     params = ", ".join(f"{p['name']} = {number(p.get('value')):.4g}" for p in rep.get("parameters", []))
-    ar.set_title(f"rms {number(rep.get('rms')):.3g} ({number(rep.get('rms_relative')):.2g} of {rep.get('relative_to', 'the data range')})", fontsize=9)
     fig.suptitle(f"eprop fit: {params}")
     fig.tight_layout()
     fig.savefig(out, dpi=120)

@@ -63,12 +63,20 @@ ends before the `listening on` line. Under mpirun rank 0 holds the socket."
     #[command(
         long_about = "Fit scenario parameters to a measured curve by least squares (bounded \
 Levenberg-Marquardt; docs/fit.md).\n\n\
-The curve (--data) is a CSV file: a header row naming two columns, x then y, and one row per \
-point with x increasing (blank lines and lines starting with # are skipped; a unit in brackets \
-may follow a name: `force (N)`). x is `time` (or `t`) or `indentation` (the depth of tool \
---tool in the undeformed organ, the loading branch: the steps where the tool is deeper than \
-ever before); y is `force` (|F| of tool --tool) or `displacement` (|u| of the probe of load \
---load, or of node --node ID). Any other name is refused.\n\n\
+Each curve (--data, repeatable: several curves are fitted at once) is a CSV file: a header row \
+naming two columns, x then y, and one row per point with x increasing (blank lines and lines \
+starting with # are skipped). A unit in brackets after a name is converted to the scenario's \
+units (`indentation (mm)`, `force (mN)`; m, cm, mm, um, N, mN, uN, kN, s, ms, min); a unit eprop \
+does not know, or any unit in the paper's unit-free reading, is refused. x is `time` (or `t`), \
+`indentation` (the depth of tool --tool in the undeformed organ, the loading branch: the steps \
+where the tool is deeper than ever before), or `x`, `y`, `z` (a profile: the rest coordinate \
+along a line of nodes, read at the step where the tool is deepest); y is `force` (|F| of tool \
+--tool), `displacement` (|u| of the probe of load --load, of node --node ID, or of the \
+profile's nodes) or `ux`, `uy`, `uz` (one component). Any other name is refused. \
+--data CURVE.csv:KEY=VALUE,... sets that curve's weight=W (default 1), tool=K, load=K, node=ID, \
+and a profile's line (the two other rest coordinates, in the x column's unit, e.g. x=1,y=0) and \
+tol=. Each curve's residuals are measured relative to a power of two near its largest |y|, \
+times sqrt(weight).\n\n\
 Each evaluation is a full simulation of the scenario with the parameter values applied as \
 --set would apply them (nothing is written); the quantity is sampled at every step and \
 interpolated linearly at the curve's x. A curve x outside the simulated range is an error at \
@@ -239,10 +247,14 @@ struct ServeArgs {
 struct FitArgs {
     /// Scenario file (TOML)
     scenario: PathBuf,
-    /// The measured curve: CSV with a header `x,y`, x one of time, t, indentation; y one of
-    /// force, displacement
-    #[arg(long, value_name = "CURVE.csv")]
-    data: PathBuf,
+    /// A measured curve (repeatable: the curves are fitted together): CSV with a header
+    /// `x,y`, x one of time, t, indentation, or x, y, z (a profile along a line of nodes at
+    /// the tool's deepest step); y one of force, displacement, ux, uy, uz; a unit in brackets
+    /// is converted (`indentation (mm)`). CURVE.csv:KEY=VALUE,... sets the curve's own
+    /// weight=W (default 1), tool=K, load=K, node=ID, and a profile's line (the two other
+    /// rest coordinates, in the x column's unit: y=0.02,z=0.02) and tol=
+    #[arg(long, value_name = "CURVE.csv[:KEY=VALUE,...]", required = true)]
+    data: Vec<String>,
     /// A fitted parameter and its bounds (repeatable): young=20:500, coupling=0.1:10,
     /// load.1.normal=0.1:2
     #[arg(long = "param", value_name = "NAME=LO:HI", required = true)]

@@ -658,3 +658,39 @@ fn export_respects_a_running_series_and_refuses_a_fifo() {
     assert_eq!(code, Some(1), "{err}");
     assert!(err.contains("is not a regular file") && err.contains("fix:"), "{err}");
 }
+
+/// A lock in the way of an export names export's own fix (another -o prefix), not a series'
+/// `-o FILE.h5`.
+#[test]
+fn a_lock_in_the_way_of_an_export_names_the_export_option() {
+    let d = tempfile::tempdir().unwrap();
+    let sc = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/cylinder_indent.toml");
+    let h5 = d.path().join("s.h5");
+    let (ok, _, err) = eprop(&[
+        "run",
+        sc.to_str().unwrap(),
+        "-q",
+        "--steps",
+        "2",
+        "-o",
+        h5.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let prefix = d.path().join("frame");
+    // a lock file that is not eprop's beside the export's file
+    std::fs::write(d.path().join("frame_000000.obj.lock"), "not a lock").unwrap();
+    let (ok, _, err) = eprop(&[
+        "export",
+        h5.to_str().unwrap(),
+        "--step",
+        "0",
+        "-o",
+        prefix.to_str().unwrap(),
+    ]);
+    assert!(!ok);
+    assert!(
+        err.contains("is not an eprop lock file") && err.contains("another -o PREFIX"),
+        "{err}"
+    );
+    assert!(!err.contains("FILE.h5"), "{err}");
+}

@@ -176,7 +176,7 @@ fn fit_recovers_young_and_damping_from_a_patch_load_displacement_over_time() {
     let rows = std::fs::read_to_string(prefix.with_extension("csv")).unwrap();
     let data = std::fs::read_to_string(&csv).unwrap();
     assert!(
-        rows.starts_with("x,measured,fitted,residual,sensitivity_young,sensitivity_damping\n"),
+        rows.starts_with("x,measured,fitted,residual,sensitivity_young,sensitivity_damping,curve\n"),
         "{rows}"
     );
     assert_eq!(rows.lines().count(), data.lines().count());
@@ -430,7 +430,7 @@ fn bad_curves_and_parameters_are_refused_naming_the_fix() {
         &["young=20:500"],
         &[
             "stress.csv:1: the y column is named `stress`",
-            "`force` or `displacement`",
+            "`force`, `displacement`, or `ux`, `uy`, `uz`",
         ],
     );
     refuse(
@@ -586,4 +586,289 @@ fn fit_reports_huge_flat_and_extreme_curves_sensibly() {
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("the curve's x 1e299 .. 1e300 is beyond"), "{err}");
     assert!(!err.contains("000000000000"), "{err}");
+}
+
+/// The deepest step's |u| of the cylinder's surface nodes on the line x = 1, y = 0 (ids 20, 57,
+/// ..., 427: every 37th), as `z,displacement` rows, and the force against the indentation, from
+/// one run of the demo press.
+fn press_and_profile(scenario: &Path, sets: &[&str], dir: &Path) -> (PathBuf, PathBuf) {
+    let press = dir.join("press.csv");
+    make_curve(scenario, sets, &press, "indentation,force", 3);
+    let h5 = press.with_extension("h5");
+    let f = hdf5::File::open(&h5).unwrap();
+    let depth = read(&f, "eprop/tools/indentation");
+    let deepest = (0..depth.len()).fold(0, |k, i| if depth[i] > depth[k] { i } else { k });
+    let n = f.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
+    let u = read(&f, "VTKHDF/PointData/displacement");
+    let mut rows = vec!["z,displacement".to_string()];
+    for k in 0..12 {
+        let i = 19 + 37 * k; // 0-based index of node id 20 + 37 k, at z = 4 k / 11
+        let d = &u[3 * n * deepest + 3 * i..3 * n * deepest + 3 * i + 3];
+        rows.push(format!(
+            "{:?},{:?}",
+            4.0 * k as f64 / 11.0,
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        ));
+    }
+    let profile = dir.join("profile.csv");
+    std::fs::write(&profile, rows.join("\n") + "\n").unwrap();
+    (press, profile)
+}
+
+/// Two curves at once: the force against the indentation and the surface profile at the deepest
+/// step. The kinematic sphere's force goes with young and (a little) with damping, the dent with
+/// damping only: neither curve alone pins both, together they do (1 and 2 processes alike).
+#[test]
+fn fit_recovers_young_and_damping_from_a_force_and_a_profile_together() {
+    let d = tempfile::tempdir().unwrap();
+    let sc = repo().join("scenarios/cylinder_indent.toml");
+    let sets = ["tissue.young=70.0", "material.damping=3.0", "time.dt=0.5"];
+    let (press, profile) = press_and_profile(&sc, &sets, d.path());
+    let line = format!("{}:x=1,y=0,weight=2", profile.display());
+    let run = |prefix: &Path, ranks: usize| {
+        let args = [
+            "fit",
+            sc.to_str().unwrap(),
+            "--data",
+            press.to_str().unwrap(),
+            "--data",
+            line.as_str(),
+            "--param",
+            "young=20:500",
+            "--param",
+            "damping=0.5:8",
+            "--set",
+            "time.dt=0.5",
+            "-o",
+            prefix.to_str().unwrap(),
+            "--no-plot",
+        ];
+        let out = if ranks == 1 {
+            serial(&args, 1)
+        } else {
+            mpirun(ranks, &args)
+        };
+        assert!(out.status.success(), "{}", text(&out));
+        out
+    };
+    let prefix = d.path().join("both");
+    let out = run(&prefix, 1);
+    let r = report(&prefix);
+    assert_recovered(&r, "young", 70.0);
+    assert_recovered(&r, "damping", 3.0);
+    let curves = r["curves"].as_array().unwrap();
+    assert_eq!(curves.len(), 2, "{r:#}");
+    assert_eq!(
+        (curves[0]["x"].as_str(), curves[0]["y"].as_str()),
+        (Some("indentation"), Some("force"))
+    );
+    assert_eq!(
+        (curves[1]["x"].as_str(), curves[1]["y"].as_str()),
+        (Some("z"), Some("displacement"))
+    );
+    assert_eq!(curves[1]["weight"], 2.0);
+    assert_eq!(curves[1]["points"], 12);
+    for c in curves {
+        assert!(c["rms_relative"].as_f64().unwrap() < 1e-6, "{c}");
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("to 2 curves") && stdout.contains("curve 2"), "{stdout}");
+    // the CSV: every point of both curves, with its curve
+    let rows = std::fs::read_to_string(prefix.with_extension("csv")).unwrap();
+    let points = std::fs::read_to_string(&press).unwrap().lines().count() - 1 + 12;
+    assert_eq!(rows.lines().count(), 1 + points, "{rows}");
+    assert!(rows.lines().next().unwrap().ends_with(",curve"));
+    assert_eq!(rows.lines().filter(|l| l.ends_with(",2")).count(), 12, "{rows}");
+    // the plot script reads a report of several curves
+    let python = repo().join(".venv/bin/python");
+    if python.is_file() {
+        let png = d.path().join("both.png");
+        let out = std::process::Command::new(&python)
+            .arg(repo().join("scripts/plot_fit.py"))
+            .arg(&prefix)
+            .arg("-o")
+            .arg(&png)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", text(&out));
+        assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+    }
+    // two processes: the same fit, value for value
+    let two = d.path().join("both_two");
+    run(&two, 2);
+    let q = report(&two);
+    for (a, b) in r["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(q["parameters"].as_array().unwrap())
+    {
+        assert_eq!(a["value"], b["value"], "{a} against {b}");
+    }
+    assert_eq!(r["evaluations"], q["evaluations"]);
+}
+
+/// A small block in the continuum reading (SI), pressed 1.5 mm by a sphere of 5 mm.
+fn block_scenario(dir: &Path) -> PathBuf {
+    let mesh = dir.join("block.msh");
+    let out = serial(
+        &[
+            "mesh",
+            "box",
+            "--size",
+            "0.04,0.04,0.02",
+            "--cells",
+            "6,6,3",
+            "--kind",
+            "tet",
+            "-o",
+            mesh.to_str().unwrap(),
+        ],
+        1,
+    );
+    assert!(out.status.success(), "{}", text(&out));
+    let sc = dir.join("block.toml");
+    std::fs::write(
+        &sc,
+        "[mesh]\nfile = \"block.msh\"\nunit = \"m\"\n[model]\nreading = \"continuum\"\n[tissue]\nyoung = 5000.0\n\
+[[fixed]]\ngroup = \"zmin\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.005\nstart = [0.02, 0.02, 0.0252]\nvelocity = [0.0, 0.0, -0.01]\n\
+[time]\nend = 0.4\n",
+    )
+    .unwrap();
+    sc
+}
+
+/// A header's units are applied: the same press written in mm and mN, and in m and N, fits the
+/// same young; a unit eprop does not know, or a unit in the paper's unit-free reading, is refused
+/// with the file, the line and the fix.
+#[test]
+fn fit_applies_the_units_of_the_header_and_refuses_unknown_ones() {
+    let d = tempfile::tempdir().unwrap();
+    let sc = block_scenario(d.path());
+    let si = d.path().join("si.csv");
+    make_curve(&sc, &["tissue.young=3000.0"], &si, "indentation,force", 1);
+    let text_si = std::fs::read_to_string(&si).unwrap();
+    // the same points in mm and mN, a comment line first
+    let mut mm = vec![
+        "# the press of the block, in mm and mN".to_string(),
+        "indentation (mm), force (mN)".to_string(),
+    ];
+    for l in text_si.lines().skip(1) {
+        let v: Vec<f64> = l.split(',').map(|s| s.parse().unwrap()).collect();
+        mm.push(format!("{:?},{:?}", v[0] * 1e3, v[1] * 1e3));
+    }
+    let mm_csv = d.path().join("mm.csv");
+    std::fs::write(&mm_csv, mm.join("\n") + "\n").unwrap();
+    let fit = |csv: &Path| {
+        let prefix = csv.with_file_name(format!("{}_fit", csv.file_stem().unwrap().to_str().unwrap()));
+        let out = serial(
+            &[
+                "fit",
+                sc.to_str().unwrap(),
+                "--data",
+                csv.to_str().unwrap(),
+                "--param",
+                "young=500:50000",
+                "-o",
+                prefix.to_str().unwrap(),
+                "--no-plot",
+                "-q",
+            ],
+            1,
+        );
+        (out, prefix)
+    };
+    let (out, p_si) = fit(&si);
+    assert!(out.status.success(), "{}", text(&out));
+    let (out, p_mm) = fit(&mm_csv);
+    assert!(out.status.success(), "{}", text(&out));
+    let (a, b) = (report(&p_si), report(&p_mm));
+    assert_recovered(&a, "young", 3000.0);
+    assert_recovered(&b, "young", 3000.0);
+    assert_eq!(b["curves"][0]["x_unit"], "mm");
+    assert_eq!(b["curves"][0]["y_unit"], "mN");
+    // the report is in the scenario's units (m, N)
+    let rows = std::fs::read_to_string(p_mm.with_extension("csv")).unwrap();
+    let first: Vec<f64> = rows
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .map(|s| s.parse().unwrap())
+        .collect();
+    let orig: Vec<f64> = text_si
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .map(|s| s.parse().unwrap())
+        .collect();
+    assert!(
+        (first[0] - orig[0]).abs() <= 1e-12 * orig[0].abs(),
+        "{first:?} {orig:?}"
+    );
+    // a unit it does not know: the file, the header's line and the fix
+    let bad = d.path().join("inches.csv");
+    std::fs::write(
+        &bad,
+        "# a comment\n\nindentation (in),force (N)\n0.001,0.01\n0.002,0.03\n",
+    )
+    .unwrap();
+    let (out, prefix) = fit(&bad);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(
+        err.contains("inches.csv:3: the column `indentation (in)` has the unit `in`, which eprop does not know for a length; fix: one of m, cm, mm, um"),
+        "{err}"
+    );
+    assert!(!prefix.with_extension("json").exists());
+    let bad = d.path().join("pounds.csv");
+    std::fs::write(&bad, "indentation (mm),force (lbf)\n1,0.01\n2,0.03\n").unwrap();
+    let (out, _) = fit(&bad);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(
+        err.contains("pounds.csv:1: the column `force (lbf)` has the unit `lbf`") && err.contains("fix: one of N, mN"),
+        "{err}"
+    );
+    // the paper's reading has no units to convert to
+    let paper = repo().join("scenarios/cylinder_indent.toml");
+    let curve = d.path().join("paper.csv");
+    std::fs::write(&curve, "indentation (mm),force\n0.1,0.2\n0.2,0.5\n").unwrap();
+    let out = serial(
+        &[
+            "fit",
+            paper.to_str().unwrap(),
+            "--data",
+            curve.to_str().unwrap(),
+            "--param",
+            "young=20:500",
+            "--no-plot",
+        ],
+        1,
+    );
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(
+        err.contains("paper.csv:1: the column `indentation (mm)` has the unit `mm`, and the scenario reads the paper's unit-free model")
+            && err.contains("fix: write the header `indentation`"),
+        "{err}"
+    );
+    // a bad --data suffix
+    let out = serial(
+        &[
+            "fit",
+            paper.to_str().unwrap(),
+            "--data",
+            &format!("{}:weight=-1", curve.display()),
+            "--param",
+            "young=20:500",
+        ],
+        1,
+    );
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(
+        err.contains("`weight=-1` is not a positive weight; fix: FILE:KEY=VALUE"),
+        "{err}"
+    );
 }

@@ -1167,3 +1167,64 @@ fn a_streaming_client_under_mpirun_gets_the_bytes_of_one_process() {
         assert_eq!(stream_equals_series(ranks, 8), one, "{ranks} processes");
     }
 }
+
+/// A client that sends poses, then pauses: the server commits every step it computed when it
+/// starts to wait (within [output] flush + 1 s), so a kill -9 in the pause loses nothing; on 1
+/// and 2 processes (the commit is collective while rank 0 waits for the client).
+#[test]
+fn a_pause_of_the_client_leaves_every_computed_step_complete_and_a_kill_loses_nothing() {
+    let d = tempfile::tempdir().unwrap();
+    let d = d.path();
+    let (sc, _, _) = scenario(d, "");
+    let out = d.join("live.h5");
+    for ranks in [1, 2] {
+        let server = serve(
+            ranks,
+            &sc,
+            &out,
+            &["--timeout", "60", "--set", "output.every=1", "--set", "output.flush=1"],
+        );
+        let mut c = Client::connect(&server.addr);
+        c.hello();
+        // samples to t = 30 (force) and t = 10 (pose), until the physics has used them all
+        c.answer(p::kind::FORCE, 0, 30.0, [0.0, -0.05, 0.0]);
+        let mut latest = 10.0;
+        let mut a = c.answer(p::kind::POSE, 0, latest, [1.5, 0.0, 2.0]);
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let mut k = 0;
+        while a.t_step < 9.5 {
+            k += 1;
+            latest = 10.0 + k as f64 * 1e-6;
+            a = c.answer(p::kind::POSE, 0, latest, [1.5, 0.0, 2.0]);
+            assert!(Instant::now() < deadline, "the physics does not advance: {a:?}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // the pause: flush (1 s) + 1 s
+        let paused = Instant::now();
+        std::thread::sleep(Duration::from_secs(2));
+        let pids: Vec<i32> = if ranks == 1 {
+            vec![server.child.id() as i32]
+        } else {
+            common::children(server.child.id())
+        };
+        for pid in &pids {
+            Command::new("kill").args(["-9", &pid.to_string()]).status().unwrap();
+        }
+        let waited = paused.elapsed().as_secs_f64();
+        let _ = server.wait_all(60);
+        let k = common::steps_complete(&out) as usize;
+        let f = hdf5::File::open(&out).unwrap();
+        let time = f.dataset("eprop/tools/time").unwrap().read_raw::<f64>().unwrap();
+        let step = f.dataset("eprop/tools/step").unwrap().read_raw::<i64>().unwrap();
+        assert!(k >= 2, "{ranks} ranks: {k} steps complete");
+        let dt = time[1] - time[0];
+        let last = time[k - 1];
+        // every step the samples allowed: the next one needs a pose at or beyond last + dt
+        assert!(
+            last <= latest && last + dt > latest,
+            "{ranks} ranks, {waited:.1} s into the pause: {k} complete steps, the last at t = {last} (step {}), but the client's poses reach t = {latest} (dt {dt})",
+            step[k - 1]
+        );
+        assert_eq!(step[k - 1] as usize, k - 1, "every step is an output step");
+    }
+}

@@ -39,6 +39,12 @@ pub trait Feed {
     fn before_step(&mut self, _sim: &mut Simulation) -> Result<Option<Halt>> {
         Ok(None)
     }
+    /// Before each step while written steps are not yet complete in the file: true when the
+    /// inputs of the next step are not there yet (a client that pauses), so that the series
+    /// is committed before the feed waits on. The same answer on every process.
+    fn idle(&mut self, _sim: &mut Simulation) -> Result<bool> {
+        Ok(false)
+    }
     /// After step 0 is written and after each step.
     fn after_step(&mut self, _sim: &Simulation) {}
     /// The run ends in an error; `why` says it in a few words (for a client).
@@ -399,6 +405,10 @@ fn steps(
         budget,
     };
     while !sim.done() {
+        // a feed that would wait: what was written is made complete first (every process)
+        if out.series.pending() && feed.idle(sim)? {
+            out.complete(s)?;
+        }
         if let Some(h) = feed.before_step(sim)? {
             // the series ends with the last step computed
             if out.last_written != sim.step() {

@@ -21,7 +21,8 @@
 use crate::cli::run::start_mpi_if_needed;
 use anyhow::{anyhow, bail, Result};
 use eprop::config::Input;
-use eprop::config::{Scenario, Setup};
+use eprop::config::{Reading, Scenario, Setup};
+use eprop::discretize::operator::V3;
 use eprop::diagnostics::short;
 use eprop::distribute::comm::Comm;
 use eprop::distribute::launch::is_root;
@@ -49,8 +50,8 @@ pub const NAMES: &[(&str, &str)] = &[
 /// What `eprop fit` was asked.
 #[derive(Clone, Debug)]
 pub struct FitOptions {
-    /// The measured curve (CSV).
-    pub data: PathBuf,
+    /// The measured curves: `FILE` or `FILE:KEY=VALUE,...` (`parse_spec`).
+    pub data: Vec<String>,
     /// `NAME=LO:HI`, one per fitted parameter.
     pub params: Vec<String>,
     /// `NAME=VALUE`: starting values (default: the middle of the bounds).
@@ -213,6 +214,10 @@ fn parse_params(params: &[String], starts: &[String]) -> Result<Vec<Param>> {
 pub enum XKind {
     Time,
     Indentation,
+    /// A rest coordinate along a line of nodes (a profile at the tool's deepest step).
+    X,
+    Y,
+    Z,
 }
 
 /// What the curve's y column is.
@@ -221,6 +226,10 @@ pub enum XKind {
 pub enum YKind {
     Force,
     Displacement,
+    /// One component of the displacement (signed).
+    Ux,
+    Uy,
+    Uz,
 }
 
 impl XKind {
@@ -228,7 +237,23 @@ impl XKind {
         match self {
             XKind::Time => "time",
             XKind::Indentation => "indentation",
+            XKind::X => "x",
+            XKind::Y => "y",
+            XKind::Z => "z",
         }
+    }
+    const ALL: [XKind; 5] = [XKind::Time, XKind::Indentation, XKind::X, XKind::Y, XKind::Z];
+    /// The axis of a profile's x (0, 1, 2), None for time and indentation.
+    fn axis(&self) -> Option<usize> {
+        match self {
+            XKind::X => Some(0),
+            XKind::Y => Some(1),
+            XKind::Z => Some(2),
+            _ => None,
+        }
+    }
+    fn is_length(&self) -> bool {
+        *self != XKind::Time
     }
 }
 
@@ -237,31 +262,175 @@ impl YKind {
         match self {
             YKind::Force => "force",
             YKind::Displacement => "displacement",
+            YKind::Ux => "ux",
+            YKind::Uy => "uy",
+            YKind::Uz => "uz",
+        }
+    }
+    const ALL: [YKind; 5] = [YKind::Force, YKind::Displacement, YKind::Ux, YKind::Uy, YKind::Uz];
+    /// The measured component of a displacement (None: its magnitude, or a force).
+    fn component(&self) -> Option<usize> {
+        match self {
+            YKind::Ux => Some(0),
+            YKind::Uy => Some(1),
+            YKind::Uz => Some(2),
+            _ => None,
         }
     }
 }
 
-/// The measured curve.
+/// One `--data FILE[:KEY=VALUE,...]`: a curve file and what it measures.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CurveSpec {
+    pub file: PathBuf,
+    /// Its weight in the sum of squares (default 1).
+    pub weight: f64,
+    /// The tool (1-based) of a force, an indentation or a profile's deepest step.
+    pub tool: usize,
+    /// The load (1-based) whose probe a displacement is.
+    pub load: usize,
+    /// The node (mesh file id) whose displacement is measured instead of a load's probe.
+    pub node: Option<u64>,
+    /// A profile's line: the two rest coordinates other than its x, in the x column's unit.
+    pub line: [Option<f64>; 3],
+    /// A node is on the line within this distance (the x column's unit; default 1e-6 of the
+    /// mesh's extent).
+    pub tol: Option<f64>,
+}
+
+/// The keys a `--data` suffix takes, for messages.
+pub const DATA_KEYS: &str =
+    "weight=W, tool=K, load=K, node=ID, and for a profile x=, y=, z= (two of them: the line) and tol=";
+
+/// `FILE` or `FILE:KEY=VALUE,...` (the tool, load and node default to --tool, --load, --node).
+pub fn parse_spec(s: &str, tool: usize, load: usize, node: Option<u64>) -> Result<CurveSpec> {
+    let mut spec = CurveSpec {
+        file: PathBuf::from(s),
+        weight: 1.0,
+        tool,
+        load,
+        node,
+        line: [None; 3],
+        tol: None,
+    };
+    let Some((file, keys)) = s
+        .rsplit_once(':')
+        .filter(|(_, k)| k.contains('=') && !Path::new(s).exists())
+    else {
+        return Ok(spec);
+    };
+    spec.file = PathBuf::from(file);
+    for kv in keys.split(',') {
+        let bad = |why: &str| {
+            refused(format!(
+                "--data {s}: `{kv}` {why}; fix: FILE:KEY=VALUE,... with the keys {DATA_KEYS}, e.g. --data dent.csv:node=42,weight=0.5"
+            ))
+        };
+        let (k, v) = kv.split_once('=').ok_or_else(|| bad("is not KEY=VALUE"))?;
+        let (k, v) = (k.trim(), v.trim());
+        let count = |v: &str| v.parse::<u64>().ok().filter(|&n| n > 0);
+        match k {
+            "weight" => {
+                spec.weight = number(v)
+                    .filter(|&w| w > 0.0)
+                    .ok_or_else(|| bad("is not a positive weight"))?
+            }
+            "tool" => spec.tool = count(v).ok_or_else(|| bad("is not a tool number (1, 2, ...)"))? as usize,
+            "load" => spec.load = count(v).ok_or_else(|| bad("is not a load number (1, 2, ...)"))? as usize,
+            "node" => spec.node = Some(v.parse().map_err(|_| bad("is not a node id"))?),
+            "x" | "y" | "z" => {
+                let a = usize::from(k.as_bytes()[0] - b'x');
+                spec.line[a] = Some(number(v).ok_or_else(|| bad("is not a finite coordinate"))?)
+            }
+            "tol" => {
+                spec.tol = Some(
+                    number(v)
+                        .filter(|&t| t > 0.0)
+                        .ok_or_else(|| bad("is not a positive distance"))?,
+                )
+            }
+            _ => return Err(bad("is not a known key")),
+        }
+    }
+    Ok(spec)
+}
+
+/// A measured curve: x and y in the scenario's units (the header's units applied).
 #[derive(Clone, Debug)]
 struct Curve {
+    spec: CurveSpec,
     x_kind: XKind,
     y_kind: YKind,
     x: Vec<f64>,
     y: Vec<f64>,
+    /// The factors the file's x and y were multiplied by (its header's units), 1 without.
+    factor: [f64; 2],
+    /// The header's units as written (rank 0; empty without).
+    units: [String; 2],
 }
 
 /// The accepted column names, for messages and --help.
-pub const X_NAMES: &str = "`time` (or `t`) or `indentation`";
-pub const Y_NAMES: &str = "`force` or `displacement`";
+pub const X_NAMES: &str = "`time` (or `t`), `indentation`, or `x`, `y`, `z` (a profile along a line of nodes)";
+pub const Y_NAMES: &str = "`force`, `displacement`, or `ux`, `uy`, `uz` (one component)";
+
+/// A header name without case or spaces, and its unit in brackets: "Force (N)" is (`force`, `N`).
+fn column(s: &str) -> (String, Option<String>) {
+    let s = s.trim();
+    match s.find(['(', '[']) {
+        Some(k) => {
+            let unit = s[k + 1..].trim_end().trim_end_matches([')', ']']).trim().to_string();
+            (s[..k].trim().to_ascii_lowercase(), Some(unit))
+        }
+        None => (s.to_ascii_lowercase(), None),
+    }
+}
 
 /// A header name without case, spaces or a unit in brackets: "Force (N)" is `force`.
 fn column_name(s: &str) -> String {
-    let s = s.trim().to_ascii_lowercase();
-    let s = match s.find(['(', '[']) {
-        Some(k) => s[..k].trim().to_string(),
-        None => s,
-    };
-    s
+    column(s).0
+}
+
+/// The units a column of this kind takes, with their factors to SI.
+fn units_of(length: bool, time: bool) -> &'static [(&'static str, f64)] {
+    const LENGTH: &[(&str, f64)] = &[("m", 1.0), ("cm", 1e-2), ("mm", 1e-3), ("um", 1e-6), ("µm", 1e-6)];
+    const TIME: &[(&str, f64)] = &[("s", 1.0), ("ms", 1e-3), ("min", 60.0)];
+    const FORCE: &[(&str, f64)] = &[("N", 1.0), ("mN", 1e-3), ("uN", 1e-6), ("µN", 1e-6), ("kN", 1e3)];
+    match (length, time) {
+        (true, _) => LENGTH,
+        (_, true) => TIME,
+        _ => FORCE,
+    }
+}
+
+/// The factor of a column's unit in the scenario's units; None without a unit. A unit the
+/// column does not take, or any unit in the paper's unit-free reading, is refused with the fix.
+fn unit_factor(
+    name: &Path,
+    line: usize,
+    col: &str,
+    unit: Option<&str>,
+    length: bool,
+    time: bool,
+    reading: Reading,
+) -> Result<f64> {
+    let name = name.display();
+    let Some(unit) = unit else { return Ok(1.0) };
+    let known = units_of(length, time);
+    let list = known.iter().map(|(u, _)| *u).collect::<Vec<_>>().join(", ");
+    let bare = column_name(col);
+    if reading == Reading::Paper {
+        return Err(refused(format!(
+            "{name}:{line}: the column `{col}` has the unit `{unit}`, and the scenario reads the paper's unit-free model ([model] reading = \"paper\"), whose values have no unit to convert to; fix: write the header `{bare}` and the values in the scenario's own units"
+        )));
+    }
+    match known.iter().find(|(u, _)| *u == unit) {
+        Some((_, f)) => Ok(*f),
+        None => Err(refused(format!(
+            "{name}:{line}: the column `{col}` has the unit `{unit}`, which eprop does not know for a {}; fix: one of {list} (e.g. `{bare} ({})`), or convert the values to one of them",
+            if length { "length" } else if time { "time" } else { "force" },
+            known[0].0
+        ))),
+    }
 }
 
 fn fields(line: &str) -> Vec<&str> {
@@ -273,8 +442,10 @@ fn fields(line: &str) -> Vec<&str> {
 }
 
 /// Reads a curve: a header row naming x and y, then rows of two numbers with x increasing;
-/// blank lines and lines starting with `#` are skipped.
-fn read_curve(path: &Path) -> Result<Curve> {
+/// blank lines and lines starting with `#` are skipped. The header's units are converted to the
+/// scenario's (`reading`: the paper's reading has none).
+fn read_curve(spec: &CurveSpec, reading: Reading) -> Result<Curve> {
+    let path = &spec.file;
     let name = path.display();
     let text = std::fs::read_to_string(path).map_err(|e| {
         anyhow!("{name}: cannot read the measured curve: {e}; fix: give a CSV file with a header row, e.g. `indentation,force`")
@@ -294,26 +465,39 @@ fn read_curve(path: &Path) -> Result<Curve> {
             cols.len()
         );
     }
-    let (xn, yn) = (column_name(cols[0]), column_name(cols[1]));
-    let x_kind = match xn.as_str() {
-        "time" | "t" => XKind::Time,
-        "indentation" => XKind::Indentation,
-        _ if number(cols[0]).is_some() => bail!(
+    let ((xn, xu), (yn, yu)) = (column(cols[0]), column(cols[1]));
+    let x_kind = match XKind::ALL.iter().find(|k| k.name() == xn || (xn == "t" && **k == XKind::Time)) {
+        Some(k) => *k,
+        None if number(cols[0]).is_some() => bail!(
             "{name}:{hl}: the first row is numbers, not a header; fix: add a header row naming the columns, x ({X_NAMES}) then y ({Y_NAMES}), e.g. `time,displacement`"
         ),
-        _ => bail!(
+        None => bail!(
             "{name}:{hl}: the x column is named `{}`; fix: name it {X_NAMES} (a unit in brackets may follow: `indentation (mm)`)",
             cols[0]
         ),
     };
-    let y_kind = match yn.as_str() {
-        "force" => YKind::Force,
-        "displacement" => YKind::Displacement,
-        _ => bail!(
+    let Some(&y_kind) = YKind::ALL.iter().find(|k| k.name() == yn) else {
+        bail!(
             "{name}:{hl}: the y column is named `{}`; fix: name it {Y_NAMES} (a unit in brackets may follow: `force (N)`)",
             cols[1]
-        ),
+        );
     };
+    if x_kind.axis().is_some() && y_kind == YKind::Force {
+        bail!(
+            "{name}:{hl}: a profile along {} measures a displacement, not a force; fix: name the y column `displacement` (or `ux`, `uy`, `uz`)",
+            x_kind.name()
+        );
+    }
+    let fx = unit_factor(
+        path,
+        hl,
+        cols[0],
+        xu.as_deref(),
+        x_kind.is_length(),
+        x_kind == XKind::Time,
+        reading,
+    )?;
+    let fy = unit_factor(path, hl, cols[1], yu.as_deref(), y_kind != YKind::Force, false, reading)?;
     let (mut x, mut y) = (vec![], vec![]);
     for (k, line) in lines {
         let f = fields(line);
@@ -328,16 +512,16 @@ fn read_curve(path: &Path) -> Result<Curve> {
             bail!("{name}:{k}: `{bad}` is not a finite number; fix: two finite numbers per row, x then y");
         };
         if let Some(&last) = x.last() {
-            if a <= last {
+            if a * fx <= last {
                 bail!(
                     "{name}:{k}: x = {} does not increase (the row before has {}); fix: sort the rows by x and keep one row per x",
                     eprop::diagnostics::short(a),
-                    eprop::diagnostics::short(last)
+                    eprop::diagnostics::short(last / fx)
                 );
             }
         }
-        x.push(a);
-        y.push(b);
+        x.push(a * fx);
+        y.push(b * fy);
     }
     if x.len() < 2 {
         bail!(
@@ -345,7 +529,15 @@ fn read_curve(path: &Path) -> Result<Curve> {
             x.len()
         );
     }
-    Ok(Curve { x_kind, y_kind, x, y })
+    Ok(Curve {
+        spec: spec.clone(),
+        x_kind,
+        y_kind,
+        x,
+        y,
+        factor: [fx, fy],
+        units: [xu.unwrap_or_default(), yu.unwrap_or_default()],
+    })
 }
 
 /// Rank 0's values, made every process's (the same length everywhere after).
@@ -358,9 +550,9 @@ fn broadcast(world: Option<&dyn Comm>, v: &mut Vec<f64>) {
     }
 }
 
-/// What is measured in a simulation: its x and y at the current step. With `evaluate` (which
-/// steps the simulation) the only code here that reads a simulation: its public methods, and
-/// the fields `global` (the node ids), `comm`, `u`, `time`, `step` and `stop_signal`.
+/// What is measured of one curve in a simulation. With `evaluate` (which steps the simulation)
+/// the only code here that reads a simulation: its public methods, and the fields `global` (the
+/// node ids), `comm`, `u`, `time`, `step` and `stop_signal`.
 struct Probe {
     x: XKind,
     y: YKind,
@@ -369,24 +561,79 @@ struct Probe {
     /// The measured node's local index where this process owns it (None elsewhere); None for
     /// a load's probe.
     node: Option<Option<usize>>,
+    /// A profile: its nodes' rest coordinates along the axis (increasing) and local indices
+    /// where this process has them.
+    line: Vec<(f64, Option<usize>)>,
+    /// The sampled polyline (time or indentation), or a profile's values at the deepest step.
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    /// A profile: the deepest indentation of its tool so far.
+    deepest: f64,
 }
 
 impl Probe {
-    fn new(sim: &Simulation, scenario: &Path, c: &Curve, o: &FitOptions) -> Result<Probe> {
+    fn new(sim: &Simulation, scenario: &Path, c: &Curve) -> Result<Probe> {
         let path = scenario.display();
+        let s = &c.spec;
+        let file = s.file.display();
         let tools = sim.tool_states().len();
         let loads = sim.probes().len();
         let needs_tool = c.x_kind == XKind::Indentation || c.y_kind == YKind::Force;
-        if needs_tool && !(1..=tools).contains(&o.tool) {
+        if needs_tool && !(1..=tools).contains(&s.tool) {
             bail!(
-                "{path}: the curve's {} is a tool's, and the scenario has {tools} [[tool]] table(s) (--tool {}); fix: a scenario with a [[tool]], or --tool 1..={tools}",
+                "{path}: the curve {file}'s {} is a tool's, and the scenario has {tools} [[tool]] table(s) (tool {}); fix: a scenario with a [[tool]], or --tool 1..={tools} (or --data {file}:tool=K)",
                 if c.y_kind == YKind::Force { "force" } else { "indentation" },
-                o.tool
+                s.tool
             );
         }
         let mut node = None;
-        if c.y_kind == YKind::Displacement {
-            match o.node {
+        let mut line = vec![];
+        if let Some(a) = c.x_kind.axis() {
+            if tools > 0 && !(1..=tools).contains(&s.tool) {
+                bail!("{path}: the profile {file} is taken at the deepest step of tool {}, and the scenario has {tools} [[tool]] table(s); fix: --data {file}:tool=1..={tools}", s.tool);
+            }
+            let others: Vec<usize> = (0..3).filter(|&b| b != a).collect();
+            if others.iter().any(|&b| s.line[b].is_none()) || s.line[a].is_some() {
+                bail!(
+                    "{path}: the profile {file} runs along {}: name its line by the two other rest coordinates, in the x column's unit; fix: --data {file}:{}=VALUE,{}=VALUE",
+                    c.x_kind.name(),
+                    ["x", "y", "z"][others[0]],
+                    ["x", "y", "z"][others[1]]
+                );
+            }
+            // rank 0 has the whole mesh: the nodes on the line, broadcast
+            let mut on: Vec<f64> = vec![];
+            if let Some(m) = sim.global_mesh() {
+                let (lo, hi) = m.bounds();
+                let tol = s
+                    .tol
+                    .map_or(1e-6 * eprop::config::distance(hi, lo), |t| t * c.factor[0]);
+                let mut hits: Vec<(f64, usize)> = m
+                    .points
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, p)| {
+                        others
+                            .iter()
+                            .all(|&b| (p[b] - s.line[b].unwrap_or(0.0) * c.factor[0]).abs() <= tol)
+                    })
+                    .map(|(g, p)| (p[a], g))
+                    .collect();
+                hits.sort_by(|p, q| p.0.total_cmp(&q.0));
+                hits.dedup_by(|p, q| p.0 == q.0);
+                on = hits.iter().flat_map(|&(x, g)| [x, g as f64]).collect();
+            }
+            broadcast(Some(sim.comm()), &mut on);
+            if on.len() < 4 {
+                bail!(
+                    "{path}: the profile {file}: {} node(s) of the mesh lie on its line ({}); fix: the rest coordinates of a line of nodes (in the x column's unit), or a wider tol=",
+                    on.len() / 2,
+                    others.iter().map(|&b| format!("{} = {}", ["x", "y", "z"][b], short(s.line[b].unwrap_or(0.0)))).collect::<Vec<_>>().join(", ")
+                );
+            }
+            line = on.chunks(2).map(|p| (p[0], sim.local(p[1] as u32))).collect();
+        } else if c.y_kind != YKind::Force {
+            match s.node {
                 Some(id) => {
                     // rank 0 has the whole mesh and its node ids
                     let g = match sim.global_mesh() {
@@ -395,13 +642,13 @@ impl Probe {
                     };
                     let g = sim.comm().max(g);
                     if g < 0.0 {
-                        bail!("{path}: --node {id}: the mesh has no node with that id; fix: a node id of the mesh file (as [[load]] node = ID takes it)");
+                        bail!("{path}: --node {id}: the mesh has no node with that id; fix: a node id of the mesh file (as [[load]] node = ID takes it) for the curve {file}");
                     }
                     node = Some(sim.local(g as u32));
                 }
-                None if !(1..=loads).contains(&o.load) => bail!(
-                    "{path}: the curve's displacement is a load's probe, and the scenario has {loads} [[load]] table(s) (--load {}); fix: a scenario with a [[load]], --load 1..={loads}, or --node ID for a node's displacement",
-                    o.load
+                None if !(1..=loads).contains(&s.load) => bail!(
+                    "{path}: the curve {file}'s displacement is a load's probe, and the scenario has {loads} [[load]] table(s) (load {}); fix: a scenario with a [[load]], --load 1..={loads}, or --node ID (or --data {file}:node=ID) for a node's displacement",
+                    s.load
                 ),
                 None => {}
             }
@@ -409,35 +656,101 @@ impl Probe {
         Ok(Probe {
             x: c.x_kind,
             y: c.y_kind,
-            tool: o.tool.saturating_sub(1),
-            load: o.load.saturating_sub(1),
+            tool: s.tool.saturating_sub(1),
+            load: s.load.saturating_sub(1),
             node,
+            line,
+            xs: vec![],
+            ys: vec![],
+            deepest: f64::NEG_INFINITY,
         })
     }
 
-    /// (x, y) now; the same on every process.
-    fn sample(&self, sim: &Simulation) -> (f64, f64) {
-        let norm = eprop_io::geom::norm;
+    /// The measured quantity of a displacement `d`.
+    fn of(&self, d: V3) -> f64 {
+        match self.y.component() {
+            Some(k) => d[k],
+            None => eprop_io::geom::norm(d),
+        }
+    }
+
+    /// Samples the simulation now (after each step); false when what it sampled is not finite.
+    /// The same on every process.
+    fn sample(&mut self, sim: &Simulation) -> bool {
         let tool = || sim.tool_states()[self.tool];
+        if self.x.axis().is_some() {
+            // a profile: at the deepest step of the tool (the last step without a tool)
+            let deeper = match sim.tool_states().get(self.tool) {
+                Some(t) => t.indentation > self.deepest,
+                None => sim.done(),
+            };
+            if deeper {
+                self.deepest = sim.tool_states().get(self.tool).map_or(0.0, |t| t.indentation);
+                let u = sim.u();
+                let local: Vec<f64> = self
+                    .line
+                    .iter()
+                    .map(|(_, l)| l.map_or(f64::NEG_INFINITY, |i| self.of(u[i])))
+                    .collect();
+                self.xs = self.line.iter().map(|p| p.0).collect();
+                self.ys = sim.comm().max_each(&local);
+            }
+            return self.ys.iter().all(|v| v.is_finite());
+        }
         let x = match self.x {
-            XKind::Time => sim.time(),
             XKind::Indentation => tool().indentation,
+            _ => sim.time(),
         };
         let y = match (self.y, self.node) {
-            (YKind::Force, _) => norm(tool().force),
-            (YKind::Displacement, None) => norm(sim.probes()[self.load].1),
-            (YKind::Displacement, Some(local)) => sim.comm().max(local.map_or(0.0, |i| norm(sim.u()[i]))),
+            (YKind::Force, _) => eprop_io::geom::norm(tool().force),
+            (_, None) => self.of(sim.probes()[self.load].1),
+            (_, Some(local)) => {
+                let none = if self.y.component().is_some() {
+                    f64::NEG_INFINITY
+                } else {
+                    0.0
+                };
+                sim.comm().max(local.map_or(none, |i| self.of(sim.u()[i])))
+            }
         };
-        (x, y)
+        // indentation: the loading branch, the steps where the tool passes its deepest so far
+        if self.x == XKind::Time || self.xs.last().is_none_or(|&l| x > l) {
+            self.xs.push(x);
+            self.ys.push(y);
+        }
+        x.is_finite() && y.is_finite()
+    }
+
+    /// The measured y at the curve's x, or why there is none.
+    fn at(&self, c: &Curve) -> std::result::Result<Vec<f64>, String> {
+        c.x.iter()
+            .map(|&x| interpolate(&self.xs, &self.ys, x))
+            .collect::<Option<Vec<f64>>>()
+            .ok_or_else(|| {
+                let what = match c.x_kind {
+                    XKind::Time => "time",
+                    XKind::Indentation => "indentation (loading branch)",
+                    _ => "profile's nodes along its line",
+                };
+                format!(
+                    "the curve's x {} .. {} is beyond the simulated {what} {:.6e} .. {:.6e} ({})",
+                    short(c.x[0]),
+                    short(c.x[c.x.len() - 1]),
+                    self.xs.first().copied().unwrap_or(f64::NAN),
+                    self.xs.last().copied().unwrap_or(f64::NAN),
+                    c.spec.file.display()
+                )
+            })
     }
 }
 
 /// An evaluation that gave no curve: why, in a few words.
 type Outcome = std::result::Result<Vec<f64>, String>;
 
-/// One full simulation with the parameter values `p` applied; the measured y at the curve's x,
-/// or why there is none (a state that is no longer finite, x beyond the simulated range). A
-/// request on `stop` (a signal) ends it after the step in progress.
+/// One full simulation with the parameter values `p` applied; the measured y at every curve's
+/// x (the curves one after the other), or why there is none (a state that is no longer finite,
+/// x beyond the simulated range). A request on `stop` (a signal) ends it after the step in
+/// progress.
 fn evaluate(
     world: Option<&dyn Comm>,
     stop: &StopToken,
@@ -445,7 +758,7 @@ fn evaluate(
     opts: &FitOptions,
     params: &[Param],
     p: &[f64],
-    curve: &Curve,
+    curves: &[Curve],
 ) -> Result<Outcome> {
     let mut p = p.to_vec();
     broadcast(world, &mut p); // rank 0 decides
@@ -461,18 +774,19 @@ fn evaluate(
         Some(w) => build_mpi(w, make)?.sim,
     };
     sim.set_stop(stop.clone());
-    let probe = Probe::new(&sim, scenario, curve, opts)?;
-    let mut xs = vec![];
-    let mut ys = vec![];
-    // indentation: the loading branch, the steps where the tool passes its deepest so far
-    let mut push = |(x, y): (f64, f64)| {
-        if probe.x == XKind::Time || xs.last().is_none_or(|&l| x > l) {
-            xs.push(x);
-            ys.push(y);
+    let mut probes = curves
+        .iter()
+        .map(|c| Probe::new(&sim, scenario, c))
+        .collect::<Result<Vec<_>>>()?;
+    // every probe samples (a profile's is collective), whatever the others found
+    let mut sample_all = |sim: &Simulation| {
+        let mut ok = true;
+        for p in probes.iter_mut() {
+            ok &= p.sample(sim);
         }
-        x.is_finite() && y.is_finite()
+        ok
     };
-    let mut finite = push(probe.sample(&sim));
+    let mut finite = sample_all(&sim);
     while finite && !sim.done() {
         sim.advance()?;
         if sim.stop_signal() != 0 {
@@ -486,35 +800,20 @@ fn evaluate(
                 ),
             ));
         }
-        finite = push(probe.sample(&sim));
-        if !finite {
-            break;
-        }
+        finite = sample_all(&sim);
     }
-    let what = match curve.x_kind {
-        XKind::Time => "time",
-        XKind::Indentation => "indentation (loading branch)",
-    };
     let mut out = match finite {
         false => Err(format!(
             "the state is no longer finite at step {} (t = {:.6e})",
             sim.step(),
             sim.time()
         )),
-        true => curve
-            .x
+        true => probes
             .iter()
-            .map(|&x| interpolate(&xs, &ys, x))
-            .collect::<Option<Vec<f64>>>()
-            .ok_or_else(|| {
-                format!(
-                    "the curve's x {} .. {} is beyond the simulated {what} {:.6e} .. {:.6e}",
-                    short(curve.x[0]),
-                    short(curve.x[curve.x.len() - 1]),
-                    xs.first().copied().unwrap_or(f64::NAN),
-                    xs.last().copied().unwrap_or(f64::NAN)
-                )
-            }),
+            .zip(curves)
+            .map(|(p, c)| p.at(c))
+            .collect::<std::result::Result<Vec<Vec<f64>>, String>>()
+            .map(|v| v.concat()),
     };
     // the curve is rank 0's (it is the same on every process: the simulation is rank independent)
     if world.is_some() {
@@ -827,32 +1126,60 @@ pub struct Fitted {
     /// Whether the value is at one of its bounds (within 1e-9 relative).
     pub at_bound: bool,
     /// Approximate standard error: sqrt of the diagonal of s^2 (J^T J)^-1 (None when J^T J
-    /// is singular: the parameter is not determined by the curve).
+    /// is singular: the parameter is not determined by the curves).
     pub standard_error: Option<f64>,
     /// The RMS over the curve's points of value * dy/d(value): how much y moves for a
-    /// relative change of the parameter.
-    pub sensitivity: f64,
-    /// `sensitivity` over the data's scale (the report's `relative_to`).
+    /// relative change of the parameter (one curve; with several, each curve's is in `curves`).
+    pub sensitivity: Option<f64>,
+    /// `sensitivity` over the data's scale (the report's `relative_to`); with several curves,
+    /// the weighted RMS of each curve's.
     pub sensitivity_relative: f64,
+}
+
+/// One curve of a fit in the report.
+#[derive(Serialize, Debug, Clone)]
+pub struct CurveReport {
+    pub data: String,
+    pub x: XKind,
+    pub y: YKind,
+    /// The header's units as written ("" without), converted to the scenario's units: the
+    /// report's values are in the scenario's units.
+    pub x_unit: String,
+    pub y_unit: String,
+    pub weight: f64,
+    pub points: usize,
+    pub rms: f64,
+    pub rms_relative: f64,
+    pub relative_to: String,
+    /// Per parameter (in `parameters` order): the RMS of value * dy/d(value) over this curve.
+    pub sensitivity: Vec<f64>,
+    /// The scale of the relative figures (`relative_to`).
+    #[serde(skip)]
+    pub range: f64,
 }
 
 /// The report of `eprop fit`.
 #[derive(Serialize, Debug, Clone)]
 pub struct FitReport {
     pub scenario: String,
+    /// The curve files (one: its name; several: joined by ", ").
     pub data: String,
+    /// The first curve's columns.
     pub x: XKind,
     pub y: YKind,
+    /// Over every curve.
     pub points: usize,
     pub parameters: Vec<Fitted>,
-    /// sqrt(mean of the squared residuals).
-    pub rms: f64,
-    /// `rms` over the data's scale (`relative_to`).
+    /// sqrt(mean of the squared residuals) (one curve; None with several: see `curves`).
+    pub rms: Option<f64>,
+    /// `rms` over the data's scale (`relative_to`); with several curves, the weighted RMS of
+    /// each curve's relative RMS.
     pub rms_relative: f64,
     /// What the relative figures are relative to: "the data range" (max y - min y), or, for a
     /// flat curve, "max |y| (a flat curve)"; a curve of zeros has no scale: its relative figures
-    /// are the absolute ones ("1 (a curve of zeros)").
+    /// are the absolute ones ("1 (a curve of zeros)"); several curves: "each curve's scale".
     pub relative_to: String,
+    pub curves: Vec<CurveReport>,
     pub evaluations: usize,
     pub iterations: usize,
     pub stop: String,
@@ -862,50 +1189,84 @@ pub struct FitReport {
     pub files: Vec<String>,
     /// Why there is no PNG, when there is none.
     pub plot_note: Option<String>,
+    /// Per point: its curve (0-based), x, measured, fitted.
     #[serde(skip)]
-    pub fitted_y: Vec<f64>,
-    #[serde(skip)]
-    pub measured: Vec<(f64, f64)>,
+    pub rows: Vec<(usize, f64, f64, f64)>,
     /// Per point, value * dy/d(value) of each parameter (the Jacobian's columns scaled by
-    /// the parameters).
+    /// the parameters, in the point's curve's units).
     #[serde(skip)]
     pub scaled_jacobian: Vec<Vec<f64>>,
 }
 
 impl std::fmt::Display for FitReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(
-            f,
-            "eprop fit {} to {} ({} points, {} against {})",
-            self.scenario,
-            self.data,
-            self.points,
-            self.y.name(),
-            self.x.name()
-        )?;
+        if self.curves.len() == 1 {
+            writeln!(
+                f,
+                "eprop fit {} to {} ({} points, {} against {})",
+                self.scenario,
+                self.data,
+                self.points,
+                self.y.name(),
+                self.x.name()
+            )?;
+        } else {
+            writeln!(
+                f,
+                "eprop fit {} to {} curves ({} points)",
+                self.scenario,
+                self.curves.len(),
+                self.points
+            )?;
+        }
         for p in &self.parameters {
             let se = match p.standard_error {
                 Some(s) => format!("+- {s:.3e} ({:.2e} relative)", s / p.value.abs().max(f64::MIN_POSITIVE)),
-                None => "+- undetermined (the curve does not fix it)".to_string(),
+                None => "+- undetermined (the curves do not fix it)".to_string(),
+            };
+            let sens = match p.sensitivity {
+                Some(s) => format!("{s:.3e} ({:.2e} of {})", p.sensitivity_relative, self.relative_to),
+                None => format!("{:.2e} of {}", p.sensitivity_relative, self.relative_to),
             };
             writeln!(
                 f,
-                "  {:<14} {:.6e} {se}; bounds {}:{}{}; sensitivity {:.3e} ({:.2e} of {})",
+                "  {:<14} {:.6e} {se}; bounds {}:{}{}; sensitivity {sens}",
                 p.name,
                 p.value,
                 short(p.lower),
                 short(p.upper),
                 if p.at_bound { " (AT A BOUND)" } else { "" },
-                p.sensitivity,
-                p.sensitivity_relative,
-                self.relative_to
             )?;
         }
-        writeln!(
-            f,
-            "  rms residual   {:.6e} ({:.3e} of {})",
-            self.rms, self.rms_relative, self.relative_to
-        )?;
+        match self.rms {
+            Some(rms) => writeln!(
+                f,
+                "  rms residual   {rms:.6e} ({:.3e} of {})",
+                self.rms_relative, self.relative_to
+            )?,
+            None => {
+                for (k, c) in self.curves.iter().enumerate() {
+                    writeln!(
+                        f,
+                        "  curve {:<8} {} ({} against {}, weight {}, {} points): rms {:.6e} ({:.3e} of {})",
+                        k + 1,
+                        c.data,
+                        c.y.name(),
+                        c.x.name(),
+                        short(c.weight),
+                        c.points,
+                        c.rms,
+                        c.rms_relative,
+                        c.relative_to
+                    )?;
+                }
+                writeln!(
+                    f,
+                    "  rms residual   {:.3e} relative (weighted over the curves)",
+                    self.rms_relative
+                )?;
+            }
+        }
         writeln!(
             f,
             "  search         {} evaluations, {} iterations, {:.2} s on {} process(es); stopped: {}",
@@ -1035,30 +1396,39 @@ fn power_of_two_near(y: &[f64]) -> f64 {
     }
 }
 
-/// On rank 0: reads the measured curve, checks the scenario with the parameters at their
-/// starting values and claims the report files; None on the other processes.
+/// On rank 0: checks the scenario with the parameters at their starting values, reads the
+/// measured curves (their units converted to the scenario's) and claims the report files; None
+/// on the other processes.
 fn claim(
     w: Option<&dyn Comm>,
     scenario: &Path,
     opts: &FitOptions,
+    specs: &[CurveSpec],
     params: &[Param],
     prefix: &Path,
-) -> Result<Option<(Curve, Vec<safety::OutputLock>)>> {
+) -> Result<Option<(Vec<Curve>, Vec<safety::OutputLock>)>> {
     let n = params.len();
     let [json_file, csv_file, png_file] = files_of(prefix);
     eprop::distribute::launch::on_root(w, || {
-        let curve = read_curve(&opts.data)?;
-        if curve.x.len() <= n {
-            bail!(
-                "{}: {} points for {n} fitted parameter(s); fix: give more points than parameters",
-                opts.data.display(),
-                curve.x.len()
-            );
-        }
         // the scenario with the parameters at their starting values: the keys are checked here
         let mut sets = opts.sets.clone();
         sets.extend(params.iter().map(|q| format!("{}={:?}", q.key, q.start)));
         let sc = Scenario::load_with(scenario, &sets)?;
+        let curves = specs
+            .iter()
+            .map(|s| read_curve(s, sc.file.model.reading))
+            .collect::<Result<Vec<Curve>>>()?;
+        let points: usize = curves.iter().map(|c| c.x.len()).sum();
+        if points <= n {
+            bail!(
+                "{}: {points} points for {n} fitted parameter(s); fix: give more points than parameters",
+                specs
+                    .iter()
+                    .map(|s| s.file.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
         // the automatic dt follows mass, damping and stiffness, and the discretisation with it
         let moves_dt = ["material.mass", "material.damping", "model.stiffness"];
         if sc.file.time.get_ref().dt.is_none() && !opts.quiet {
@@ -1071,10 +1441,12 @@ fn claim(
             }
         }
         let mut inputs = sc.inputs();
-        inputs.push(Input {
-            role: format!("the measured curve (--data {})", opts.data.display()),
-            path: opts.data.clone(),
-        });
+        for s in specs {
+            inputs.push(Input {
+                role: format!("the measured curve (--data {})", s.file.display()),
+                path: s.file.clone(),
+            });
+        }
         let mut locks = vec![];
         for (f, role) in [
             (&json_file, "the report (PREFIX.json)"),
@@ -1090,58 +1462,100 @@ fn claim(
                 opts.overwrite,
             )?);
         }
-        Ok((curve, locks))
+        Ok((curves, locks))
     })
 }
 
-/// Rank 0's curve on every process, and rank 0's locks on the report files.
-fn share_curve(
+/// Rank 0's curves on every process (each process parsed the same `specs`), and rank 0's locks
+/// on the report files.
+fn share_curves(
     w: Option<&dyn Comm>,
-    claimed: Option<(Curve, Vec<safety::OutputLock>)>,
-) -> (Curve, Option<Vec<safety::OutputLock>>) {
-    let (mut x, mut y, mut kinds) = (vec![], vec![], vec![]);
-    let mut locks = None;
-    if let Some((c, l)) = claimed {
-        x = c.x.clone();
-        y = c.y.clone();
-        kinds = vec![
-            f64::from(u8::from(c.x_kind == XKind::Indentation)),
-            f64::from(u8::from(c.y_kind == YKind::Displacement)),
-        ];
-        locks = Some(l);
-    }
-    broadcast(w, &mut x);
-    broadcast(w, &mut y);
-    broadcast(w, &mut kinds);
-    let curve = Curve {
-        x_kind: if kinds[0] > 0.0 {
-            XKind::Indentation
-        } else {
-            XKind::Time
-        },
-        y_kind: if kinds[1] > 0.0 {
-            YKind::Displacement
-        } else {
-            YKind::Force
-        },
-        x,
-        y,
+    specs: &[CurveSpec],
+    claimed: Option<(Vec<Curve>, Vec<safety::OutputLock>)>,
+) -> (Vec<Curve>, Option<Vec<safety::OutputLock>>) {
+    let (curves, locks) = match claimed {
+        Some((c, l)) => (Some(c), Some(l)),
+        None => (None, None),
     };
-    (curve, locks)
+    let shared = specs
+        .iter()
+        .enumerate()
+        .map(|(k, spec)| {
+            let mine = curves.as_ref().map(|c| &c[k]);
+            let mut x = mine.map_or(vec![], |c| c.x.clone());
+            let mut y = mine.map_or(vec![], |c| c.y.clone());
+            let mut kinds = mine.map_or(vec![], |c| {
+                vec![
+                    XKind::ALL.iter().position(|&v| v == c.x_kind).unwrap_or(0) as f64,
+                    YKind::ALL.iter().position(|&v| v == c.y_kind).unwrap_or(0) as f64,
+                    c.factor[0],
+                    c.factor[1],
+                ]
+            });
+            broadcast(w, &mut x);
+            broadcast(w, &mut y);
+            broadcast(w, &mut kinds);
+            Curve {
+                spec: spec.clone(),
+                x_kind: XKind::ALL[kinds[0] as usize],
+                y_kind: YKind::ALL[kinds[1] as usize],
+                x,
+                y,
+                factor: [kinds[2], kinds[3]],
+                units: mine.map_or_else(Default::default, |c| c.units.clone()),
+            }
+        })
+        .collect();
+    (shared, locks)
+}
+
+/// A curve as the search sees it: its residuals divided by `scale` (a power of two near its
+/// largest |y| over sqrt(weight)), its points' range in the residual vector, its relative scale.
+struct Part {
+    scale: f64,
+    start: usize,
+    end: usize,
+    range: f64,
+    relative_to: &'static str,
+}
+
+fn parts(curves: &[Curve]) -> Vec<Part> {
+    let mut start = 0;
+    curves
+        .iter()
+        .map(|c| {
+            let unit = power_of_two_near(&c.y);
+            let scale = if c.spec.weight == 1.0 {
+                unit
+            } else {
+                unit / c.spec.weight.sqrt()
+            };
+            let (range, relative_to) = data_scale(&c.y);
+            let p = Part {
+                scale,
+                start,
+                end: start + c.x.len(),
+                range,
+                relative_to,
+            };
+            start = p.end;
+            p
+        })
+        .collect()
 }
 
 /// The fitted parameters: values, standard errors from the covariance of the sensitivities
-/// `jp` (dy/dp, in units of `unit`), and sensitivities.
+/// `jp` (dy/dp over each curve's scale, as the search sees the residuals) and the weighted
+/// relative sensitivities.
 fn fitted_parameters(
     params: &[Param],
     value: &[f64],
     jp: &[Vec<f64>],
-    unit: f64,
     ssr: f64,
-    m: usize,
-    rel: &dyn Fn(f64) -> f64,
+    curves: &[CurveReport],
 ) -> Vec<Fitted> {
     let n = params.len();
+    let m = jp.len();
     let mut a = vec![vec![0.0; n]; n];
     for row in jp {
         for j in 0..n {
@@ -1152,12 +1566,24 @@ fn fitted_parameters(
     }
     let s2 = ssr / (m - n) as f64;
     let cov = lm::inverse(&a);
+    let weights: f64 = curves.iter().map(|c| c.weight).sum();
     params
         .iter()
         .enumerate()
         .map(|(j, q)| {
             let v = value[j];
-            let sens = unit * (jp.iter().map(|row| (row[j] * v).powi(2)).sum::<f64>() / m as f64).sqrt();
+            let (sensitivity, sensitivity_relative) = match curves {
+                [c] => (Some(c.sensitivity[j]), c.sensitivity[j] / c.range),
+                _ => (
+                    None,
+                    (curves
+                        .iter()
+                        .map(|c| c.weight * (c.sensitivity[j] / c.range).powi(2))
+                        .sum::<f64>()
+                        / weights)
+                        .sqrt(),
+                ),
+            };
             Fitted {
                 name: q.name.clone(),
                 key: q.key.clone(),
@@ -1171,14 +1597,14 @@ fn fitted_parameters(
                     .as_ref()
                     .map(|c| (s2 * c[j][j]).max(0.0).sqrt())
                     .filter(|s| s.is_finite()),
-                sensitivity: sens,
-                sensitivity_relative: rel(sens),
+                sensitivity,
+                sensitivity_relative,
             }
         })
         .collect()
 }
 
-/// On rank 0: writes the report (PREFIX.json), the fitted curve (PREFIX.csv) and the plot
+/// On rank 0: writes the report (PREFIX.json), the fitted curves (PREFIX.csv) and the plot
 /// (PREFIX.png); returns the report as written, None on the other processes.
 fn write_report(
     w: Option<&dyn Comm>,
@@ -1192,23 +1618,19 @@ fn write_report(
         if opts.plot {
             report.files.push(png_file.display().to_string());
         }
-        // x, measured, fitted, residual, then value * dy/d(value) of each parameter
+        // x, measured, fitted, residual, then value * dy/d(value) of each parameter, then the
+        // curve (1-based, in --data order)
         let mut csv = String::from("x,measured,fitted,residual");
         for p in &report.parameters {
             csv.push_str(&format!(",sensitivity_{}", p.name));
         }
-        csv.push('\n');
-        for (((x, y), f), s) in report
-            .measured
-            .iter()
-            .zip(&report.fitted_y)
-            .zip(&report.scaled_jacobian)
-        {
+        csv.push_str(",curve\n");
+        for (&(c, x, y, f), s) in report.rows.iter().zip(&report.scaled_jacobian) {
             csv.push_str(&format!("{x:?},{y:?},{f:?},{:?}", f - y));
             for v in s {
                 csv.push_str(&format!(",{v:?}"));
             }
-            csv.push('\n');
+            csv.push_str(&format!(",{}\n", c + 1));
         }
         std::fs::write(&csv_file, csv).map_err(|e| anyhow!("{}: cannot write: {e}", csv_file.display()))?;
         let write_json = |r: &FitReport| {
@@ -1250,36 +1672,76 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
             2 * n + 2
         )));
     }
-    let prefix = opts.prefix.clone().unwrap_or_else(|| default_prefix(&opts.data));
-    // rank 0 reads the curve and claims the report files; every process gets the curve
-    let claimed = claim(w, scenario, opts, &params, &prefix)?;
-    let (curve, locks) = share_curve(w, claimed);
-    let (range, relative_to) = data_scale(&curve.y);
-    let rel = |v: f64| v / range;
-    // the residuals as the search sees them: divided by a power of two near the data's size,
-    // so their squares do not overflow (values past 1e154) and the search's arithmetic is the
-    // same bit for bit (a power of two scales exactly)
-    let unit = power_of_two_near(&curve.y);
+    if opts.data.is_empty() {
+        return Err(refused(
+            "no measured curve; fix: --data CURVE.csv (repeatable: --data press.csv --data dent.csv:node=42,weight=0.5)".into(),
+        ));
+    }
+    let specs = opts
+        .data
+        .iter()
+        .map(|s| parse_spec(s, opts.tool, opts.load, opts.node))
+        .collect::<Result<Vec<_>>>()?;
+    let prefix = opts.prefix.clone().unwrap_or_else(|| default_prefix(&specs[0].file));
+    // rank 0 reads the curves and claims the report files; every process gets the curves
+    let claimed = claim(w, scenario, opts, &specs, &params, &prefix)?;
+    let (curves, locks) = share_curves(w, &specs, claimed);
+    let parts = parts(&curves);
+    let measured: Vec<f64> = curves.iter().flat_map(|c| c.y.iter().copied()).collect();
+    // the residuals as the search sees them: each curve's divided by a power of two near its
+    // largest |y| (over sqrt(weight)), so that a force in N and a displacement in m weigh alike,
+    // their squares do not overflow (values past 1e154), and one curve's search is the same bit
+    // for bit at any scale (a power of two scales exactly)
+    let scale_of: Vec<f64> = parts
+        .iter()
+        .flat_map(|p| std::iter::repeat_n(p.scale, p.end - p.start))
+        .collect();
     let names: Vec<String> = params.iter().map(|p| p.name.clone()).collect();
     let values = |z: &[f64]| -> Vec<f64> { params.iter().zip(z).map(|(p, &z)| p.p(z)).collect() };
     let show = root && !opts.quiet;
     let mut count = 0usize;
+    // per curve: its RMS, absolute and relative, of the residuals r (as the search sees them)
+    let rms_of = |r: &[f64]| -> Vec<(f64, f64)> {
+        parts
+            .iter()
+            .map(|p| {
+                let rr = &r[p.start..p.end];
+                let rms = p.scale * (rr.iter().map(|v| v * v).sum::<f64>() / rr.len() as f64).sqrt();
+                (rms, rms / p.range)
+            })
+            .collect()
+    };
+    let weights: Vec<f64> = curves.iter().map(|c| c.spec.weight).collect();
+    let weighted = |rel: &[(f64, f64)]| -> f64 {
+        (rel.iter().zip(&weights).map(|((_, r), w)| w * r * r).sum::<f64>() / weights.iter().sum::<f64>()).sqrt()
+    };
     let mut residuals = |z: &[f64], what: &str| -> Result<Outcome> {
         count += 1;
         let p = values(z);
-        let out = evaluate(w, &stop, scenario, opts, &params, &p, &curve)?;
+        let out = evaluate(w, &stop, scenario, opts, &params, &p, &curves)?;
         let r = out.map(|f| {
             f.iter()
-                .zip(&curve.y)
-                .map(|(a, b)| (a - b) / unit)
+                .zip(&measured)
+                .zip(&scale_of)
+                .map(|((a, b), s)| (a - b) / s)
                 .collect::<Vec<f64>>()
         });
         if show {
             let ps: Vec<String> = names.iter().zip(&p).map(|(n, v)| format!("{n} = {v:.6e}")).collect();
             let how = match &r {
                 Ok(r) => {
-                    let rms = unit * (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
-                    format!("rms {rms:.4e} ({:.3e} of {relative_to})", rel(rms))
+                    let each = rms_of(r);
+                    match each.as_slice() {
+                        [(rms, rel)] => format!("rms {rms:.4e} ({rel:.3e} of {})", parts[0].relative_to),
+                        _ => format!(
+                            "rms {:.3e} relative (curves {})",
+                            weighted(&each),
+                            each.iter()
+                                .map(|(_, r)| format!("{r:.3e}"))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        ),
+                    }
                 }
                 Err(why) => format!("rejected: {why}"),
             };
@@ -1314,9 +1776,8 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
     drop(problem);
     let value = values(&sol.z);
     let m = sol.r.len();
-    // in units of `unit`, as the search saw them (the squares finite)
+    // in each curve's scale, as the search saw them (the squares finite)
     let ssr: f64 = sol.r.iter().map(|v| v * v).sum();
-    let rms = unit * (ssr / m as f64).sqrt();
     // dy/dp = dy/dz dz/dp; p dy/dp = dy/dz for log coordinates
     let jp: Vec<Vec<f64>> = jac
         .iter()
@@ -1328,18 +1789,64 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
                 .collect()
         })
         .collect();
-    let parameters = fitted_parameters(&params, &value, &jp, unit, ssr, m, &rel);
-    let fitted_y: Vec<f64> = sol.r.iter().zip(&curve.y).map(|(r, y)| y + unit * r).collect();
+    let each = rms_of(&sol.r);
+    let curve_reports: Vec<CurveReport> = curves
+        .iter()
+        .zip(&parts)
+        .zip(&each)
+        .map(|((c, p), &(rms, rms_relative))| CurveReport {
+            data: c.spec.file.display().to_string(),
+            x: c.x_kind,
+            y: c.y_kind,
+            x_unit: c.units[0].clone(),
+            y_unit: c.units[1].clone(),
+            weight: c.spec.weight,
+            points: c.x.len(),
+            rms,
+            rms_relative,
+            relative_to: p.relative_to.to_string(),
+            sensitivity: (0..n)
+                .map(|j| {
+                    p.scale
+                        * (jp[p.start..p.end]
+                            .iter()
+                            .map(|row| (row[j] * value[j]).powi(2))
+                            .sum::<f64>()
+                            / c.x.len() as f64)
+                            .sqrt()
+                })
+                .collect(),
+            range: p.range,
+        })
+        .collect();
+    let parameters = fitted_parameters(&params, &value, &jp, ssr, &curve_reports);
+    let rows: Vec<(usize, f64, f64, f64)> = curves
+        .iter()
+        .enumerate()
+        .flat_map(|(k, c)| c.x.iter().zip(&c.y).map(move |(&x, &y)| (k, x, y)))
+        .zip(sol.r.iter().zip(&scale_of))
+        .map(|((k, x, y), (r, s))| (k, x, y, y + s * r))
+        .collect();
+    let one = curve_reports.len() == 1;
     let report = FitReport {
         scenario: scenario.display().to_string(),
-        data: opts.data.display().to_string(),
-        x: curve.x_kind,
-        y: curve.y_kind,
+        data: curve_reports
+            .iter()
+            .map(|c| c.data.clone())
+            .collect::<Vec<_>>()
+            .join(", "),
+        x: curves[0].x_kind,
+        y: curves[0].y_kind,
         points: m,
         parameters,
-        rms,
-        rms_relative: rel(rms),
-        relative_to: relative_to.to_string(),
+        rms: one.then_some(each[0].0),
+        rms_relative: if one { each[0].1 } else { weighted(&each) },
+        relative_to: if one {
+            parts[0].relative_to.to_string()
+        } else {
+            "each curve's scale (weighted)".to_string()
+        },
+        curves: curve_reports,
         evaluations,
         iterations: sol.iterations,
         stop: sol.stop.text().to_string(),
@@ -1347,11 +1854,11 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         seconds: t0.elapsed().as_secs_f64(),
         files: vec![],
         plot_note: None,
-        fitted_y,
-        measured: curve.x.iter().copied().zip(curve.y.iter().copied()).collect(),
+        rows,
         scaled_jacobian: jp
             .iter()
-            .map(|row| row.iter().zip(&value).map(|(d, v)| unit * (d * v)).collect())
+            .zip(&scale_of)
+            .map(|(row, s)| row.iter().zip(&value).map(|(d, v)| s * (d * v)).collect())
             .collect(),
     };
     let written = write_report(w, report, opts, &prefix)?;

@@ -67,6 +67,15 @@ pub fn refuse_inputs(out: &Path, role: &str, inputs: &[Input]) -> Result<()> {
     Ok(())
 }
 
+/// The fix that names another output for `out`: `-o FILE.h5` for a series, another `-o` prefix
+/// for the files of export and fit (PREFIX_STEP.obj, PREFIX.json, ...), which take a prefix.
+pub fn elsewhere(out: &Path) -> &'static str {
+    match out.extension().and_then(|e| e.to_str()) {
+        Some("h5") | None => "write another file with -o FILE.h5",
+        Some(_) => "write other files with another -o PREFIX (export and fit write PREFIX_STEP.EXT and PREFIX.EXT)",
+    }
+}
+
 /// Refuses to replace an existing file, unless it is an eprop series and `overwrite` is set.
 /// `role` names how the path was given; `restart` is the command that would continue it (empty
 /// when none can: the advice then leaves it out).
@@ -92,8 +101,9 @@ pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -
                 format!("continue it with `{restart}`, ")
             };
             bail!(
-                "{}: {role} exists and holds an eprop series of {steps} complete step(s); eprop does not replace it silently; fix: {continue_it}replace it with --overwrite (or [output] overwrite = true), or write another file with -o FILE.h5",
-                path.display()
+                "{}: {role} exists and holds an eprop series of {steps} complete step(s); eprop does not replace it silently; fix: {continue_it}replace it with --overwrite (or [output] overwrite = true), or {}",
+                path.display(),
+                elsewhere(path)
             )
         }
         other => {
@@ -103,9 +113,10 @@ pub fn check_existing(path: &Path, role: &str, overwrite: bool, restart: &str) -
                 "is an HDF5 file but not an eprop series"
             };
             bail!(
-                "{}: {role} exists and {what} ({}); eprop never replaces such a file, not even with --overwrite; fix: write another file with -o FILE.h5, or move this one away",
+                "{}: {role} exists and {what} ({}); eprop never replaces such a file, not even with --overwrite; fix: {}, or move this one away",
                 path.display(),
-                human_bytes(meta.len() as f64)
+                human_bytes(meta.len() as f64),
+                elsewhere(path)
             )
         }
     }
@@ -187,10 +198,11 @@ fn lock_inode(output: &Path) -> Result<Option<std::fs::File>> {
     match ofd_lock(&f) {
         Ok(true) => Ok(Some(f)),
         Ok(false) => bail!(
-            "{}: another eprop run is writing this file now, through another name (a hard link to the same file, device {} inode {}); two writers would mix their steps; fix: wait for that run to end, or write another file with -o FILE.h5",
+            "{}: another eprop run is writing this file now, through another name (a hard link to the same file, device {} inode {}); two writers would mix their steps; fix: wait for that run to end, or {}",
             output.display(),
             meta.dev(),
-            meta.ino()
+            meta.ino(),
+            elsewhere(output)
         ),
         Err(e) => {
             tracing::debug!("{}: no inode lock on this file system: {e}", output.display());
@@ -237,9 +249,10 @@ impl OutputLock {
                 .map_err(|e| {
                     if e.raw_os_error() == Some(libc::ELOOP) {
                         anyhow!(
-                            "{}: the lock file of the output is a symbolic link; eprop never writes through a link there (it would overwrite the link's target); fix: remove the link {} if nothing uses it, or write another file with -o FILE.h5",
+                            "{}: the lock file of the output is a symbolic link; eprop never writes through a link there (it would overwrite the link's target); fix: remove the link {} if nothing uses it, or {}",
                             path.display(),
-                            path.display()
+                            path.display(),
+                            elsewhere(output)
                         )
                     } else {
                         anyhow!(
@@ -256,13 +269,14 @@ impl OutputLock {
                 || !(text.is_empty() || text.starts_with(LOCK_MAGIC) || text.starts_with("pid "))
             {
                 bail!(
-                    "{}: the lock file of the output exists and is not an eprop lock file ({}); eprop neither overwrites nor removes it; fix: move it away if nothing uses it, or write another file with -o FILE.h5",
+                    "{}: the lock file of the output exists and is not an eprop lock file ({}); eprop neither overwrites nor removes it; fix: move it away if nothing uses it, or {}",
                     path.display(),
                     if meta.is_file() {
                         human_bytes(meta.len() as f64)
                     } else {
                         "not a regular file".to_string()
-                    }
+                    },
+                    elsewhere(output)
                 );
             }
             if f.try_lock().is_err() {
@@ -273,9 +287,10 @@ impl OutputLock {
                     format!("another eprop run ({})", who.replace('\n', ", "))
                 };
                 bail!(
-                    "{}: {who} is writing this file now (it holds {}); two writers would mix their steps; fix: wait for that run to end, or write another file with -o FILE.h5",
+                    "{}: {who} is writing this file now (it holds {}); two writers would mix their steps; fix: wait for that run to end, or {}",
                     output.display(),
-                    path.display()
+                    path.display(),
+                    elsewhere(output)
                 );
             }
             // the file locked must still be the one at `path` (a run that ended may have

@@ -319,6 +319,12 @@ impl Series {
         self.folds.warnings(sim)
     }
 
+    /// Whether steps were appended that are not complete in the file yet (the same on every
+    /// process: commits are collective).
+    pub fn pending(&self) -> bool {
+        self.appended_step != self.complete_step
+    }
+
     /// The simulation step of the last complete output step.
     pub fn complete_step(&self) -> u64 {
         self.complete_step

@@ -27,7 +27,7 @@ use eprop::simulate::distributed::build_mpi;
 use eprop::simulate::Simulation;
 use protocol::{Hello, MAX_LIVE};
 use serde::Serialize;
-use session::{Entities, Frame, Outcome, Session, SessionSummary};
+use session::{Entities, Frame, Outcome, Session, SessionSummary, Waited};
 use std::net::TcpListener;
 use std::path::Path;
 use std::sync::Arc;
@@ -181,24 +181,37 @@ fn entities(sim: &Simulation) -> Entities {
 /// process appends them and learns every how many steps the client wants a frame of the
 /// surface (`every`, 0: none). `Some`: the session ended (rank 0 has the message), with the
 /// stop signal that ended it (0: the client or a timeout).
-fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64, every: &mut u64) -> Result<Option<Halt>> {
+/// With `poll`, rank 0 gives up waiting after that long and every process hears `NotYet`
+/// (nothing applied), so that they can commit the series together before waiting on.
+fn inputs(
+    sim: &mut Simulation,
+    session: Option<&mut Session>,
+    t: f64,
+    every: &mut u64,
+    poll: Option<Duration>,
+) -> Result<Inputs> {
     let (got, wanted, signal) = match session {
         Some(s) => {
-            let got = s.wait(t);
+            let got = s.wait(t, poll);
             (got, s.stream_every(), s.stop_requested())
         }
-        None => (Ok(Vec::new()), 0, 0),
+        None => (Ok(Waited::Samples(Vec::new())), 0, 0),
     };
     let c = sim.comm();
-    // head: [0 or 1 (the session ended), samples, the stop signal rank 0 has seen, every]
+    // head: [0, 1 (the session ended) or 2 (not yet), samples, the stop signal rank 0 has
+    // seen, every]
     let mut head = match &got {
-        Ok(samples) => [0.0, samples.len() as f64, 0.0, wanted as f64],
+        Ok(Waited::Samples(samples)) => [0.0, samples.len() as f64, 0.0, wanted as f64],
+        Ok(Waited::NotYet) => [2.0, 0.0, 0.0, *every as f64],
         Err(_) => [1.0, 0.0, f64::from(signal), 0.0],
     };
     c.broadcast(0, &mut head);
     *every = head[3] as u64;
+    if head[0] == 2.0 {
+        return Ok(Inputs::NotYet);
+    }
     if head[0] != 0.0 {
-        return Ok(Some(Halt {
+        return Ok(Inputs::Halt(Halt {
             message: match got {
                 Err(msg) => format!("eprop serve: {msg}"),
                 Ok(_) => String::new(),
@@ -207,11 +220,11 @@ fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64, every: &m
         }));
     }
     let mut flat: Vec<f64> = match &got {
-        Ok(samples) => samples
+        Ok(Waited::Samples(samples)) => samples
             .iter()
             .flat_map(|(e, r)| [*e as f64, r[0], r[1], r[2], r[3]])
             .collect(),
-        Err(_) => Vec::new(),
+        _ => Vec::new(),
     };
     flat.resize(5 * head[1] as usize, 0.0);
     c.broadcast(0, &mut flat);
@@ -220,8 +233,23 @@ fn inputs(sim: &mut Simulation, session: Option<&mut Session>, t: f64, every: &m
         .map(|s| (s[0] as u32, [s[1], s[2], s[3], s[4]]))
         .collect();
     sim.apply_live_samples(&samples)?;
-    Ok(None)
+    Ok(Inputs::Ready)
 }
+
+/// What `inputs` found.
+enum Inputs {
+    /// The samples the step needs are applied.
+    Ready,
+    /// None yet within the poll (nothing applied).
+    NotYet,
+    /// The session ended.
+    Halt(Halt),
+}
+
+/// How long the server waits for the client's samples before it commits the written steps (or
+/// `[output] flush`, if shorter): a pausing client leaves every computed step complete in the
+/// file, and a client that keeps up costs no extra commit.
+const IDLE: Duration = Duration::from_millis(100);
 
 /// Each entity's result at the current step (every process calls: the loads' probes are
 /// reductions).
@@ -264,6 +292,8 @@ struct Live {
     /// Per tool: where a live sphere's centre was last checked against the organ's inside
     /// (None: not yet, or not a live sphere), and whether it was found deep inside (said once).
     inside: Vec<(Option<V3>, bool)>,
+    /// The end of the session an `idle` poll found, for the next `before_step`.
+    halt: Option<Halt>,
 }
 
 impl Live {
@@ -301,12 +331,23 @@ impl Live {
 
     /// The inputs of time t, and the surface's owners once a client streams.
     fn inputs(&mut self, sim: &mut Simulation, t: f64) -> Result<Option<Halt>> {
-        let halt = inputs(sim, self.session.as_mut(), t, &mut self.every)?;
-        if halt.is_none() && self.every > 0 && self.gather.is_none() {
+        if let Some(h) = self.halt.take() {
+            return Ok(Some(h));
+        }
+        let halt = match inputs(sim, self.session.as_mut(), t, &mut self.every, None)? {
+            Inputs::Halt(h) => Some(h),
+            _ => None,
+        };
+        self.gather_once(sim)?;
+        Ok(halt)
+    }
+
+    fn gather_once(&mut self, sim: &Simulation) -> Result<()> {
+        if self.every > 0 && self.gather.is_none() {
             let nodes = self.surface.as_ref().map(|s| s.nodes.as_slice());
             self.gather = Some(stream::Gather::new(sim, nodes)?);
         }
-        Ok(halt)
+        Ok(())
     }
 }
 
@@ -318,6 +359,28 @@ impl Feed for Live {
             sim.tools_at_rest();
         }
         Ok(halt)
+    }
+
+    fn idle(&mut self, sim: &mut Simulation) -> Result<bool> {
+        if self.halt.is_some() {
+            return Ok(false);
+        }
+        let t_next = (sim.step() + 1) as f64 * sim.dt();
+        let flush = Duration::from_secs_f64(sim.setup().output.flush.clamp(0.0, 1e9));
+        let poll = Some(IDLE.min(flush));
+        Ok(
+            match inputs(sim, self.session.as_mut(), t_next, &mut self.every, poll)? {
+                Inputs::NotYet => true,
+                Inputs::Ready => {
+                    self.gather_once(sim)?;
+                    false
+                }
+                Inputs::Halt(h) => {
+                    self.halt = Some(h);
+                    false
+                }
+            },
+        )
     }
 
     fn before_step(&mut self, sim: &mut Simulation) -> Result<Option<Halt>> {
@@ -423,6 +486,7 @@ fn serve_simulation(
         every: 0,
         gather: None,
         inside: vec![(None, false); sim.tools().len()],
+        halt: None,
     };
     let summary = drive::drive(sim, &mut feed, settings, checked)?;
     let session = feed.session.map(Session::finish);

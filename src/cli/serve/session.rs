@@ -166,6 +166,15 @@ pub struct Session {
     every: u64,
     /// The command's stop (a signal), looked at while waiting for the client.
     stop: StopToken,
+    /// When the wait for the current step's samples began (a wait cut short by `poll` goes on
+    /// from there: the timeout counts from the first).
+    since: Option<Instant>,
+}
+
+/// What a wait gave: the samples that arrived, or none yet within its poll.
+pub enum Waited {
+    Samples(Vec<(u32, [f64; 4])>),
+    NotYet,
 }
 
 impl Session {
@@ -227,14 +236,17 @@ impl Session {
             every: 0,
             waited: Duration::ZERO,
             stop,
+            since: None,
         })
     }
 
     /// Waits until every live entity has a sample at or beyond time t (or the client said
     /// bye) and takes the samples that arrived; an error when the session failed or the
-    /// client did not deliver within the timeout.
-    pub fn wait(&mut self, t: f64) -> Result<Vec<(u32, [f64; 4])>, String> {
-        let start = Instant::now();
+    /// client did not deliver within the timeout. With `poll`, gives up after that long
+    /// (`Waited::NotYet`); the next wait goes on with the same timeout.
+    pub fn wait(&mut self, t: f64, poll: Option<Duration>) -> Result<Waited, String> {
+        let called = Instant::now();
+        let start = *self.since.get_or_insert(called);
         let cv = &self.shared.1;
         let mut g = lock(&self.shared);
         let out = loop {
@@ -245,10 +257,11 @@ impl Session {
             }
             let missing = (0..self.ents.live.len()).find(|&e| self.ents.live[e] && !(g.latest[e] >= t));
             match missing {
-                None => break Ok(std::mem::take(&mut g.pending)),
+                None => break Ok(Waited::Samples(std::mem::take(&mut g.pending))),
                 // after bye every live input holds its last sample (a bye before any sample
                 // of one ended the session instead: `serve_client`)
-                Some(_) if g.phase == Phase::Bye => break Ok(std::mem::take(&mut g.pending)),
+                Some(_) if g.phase == Phase::Bye => break Ok(Waited::Samples(std::mem::take(&mut g.pending))),
+                Some(_) if poll.is_some_and(|p| called.elapsed() >= p) => break Ok(Waited::NotYet),
                 Some(e) => {
                     let left = self.timeout.saturating_sub(start.elapsed());
                     if left.is_zero() {
@@ -290,7 +303,12 @@ impl Session {
                         break Err(msg);
                     }
                     // in slices, so that a stop signal is seen while the client is quiet
-                    let slice = left.min(Duration::from_millis(100));
+                    let slice = match poll {
+                        Some(p) => left
+                            .min(Duration::from_millis(100))
+                            .min(p.saturating_sub(called.elapsed())),
+                        None => left.min(Duration::from_millis(100)),
+                    };
                     g = cv.wait_timeout(g, slice).unwrap_or_else(|e| e.into_inner()).0;
                 }
             }
@@ -305,8 +323,11 @@ impl Session {
             .map(|e| g.latest[e] - t)
             .fold(0.0f64, f64::max);
         drop(g);
-        self.waited += start.elapsed();
-        if out.is_ok() && lead > self.behind {
+        self.waited += called.elapsed();
+        if !matches!(out, Ok(Waited::NotYet)) {
+            self.since = None;
+        }
+        if matches!(out, Ok(Waited::Samples(_))) && lead > self.behind {
             self.behind = lead;
             if !self.warned && self.dt > 0.0 && lead / self.dt > BEHIND {
                 self.warned = true;
