@@ -3,11 +3,11 @@
 //! `eprop export-operator` (the compact operator as a CSR matrix).
 
 use crate::cli::run::{prepare, RunOptions};
-use eprop::distribute::comm::Comm;
 use anyhow::{bail, Result};
 use eprop::config::{Scenario, Setup};
 use eprop::diagnostics::{fixed, peak_rss};
 use eprop::discretize::operator::{Compact, Operator};
+use eprop::distribute::comm::Comm;
 use eprop::guard::limits::Budget;
 use eprop::simulate::{scheme_name, Simulation};
 use eprop_mesh::Mesh;
