@@ -251,7 +251,7 @@ impl std::fmt::Display for Summary {
             let rel = if w != 0.0 { gap / w.abs() } else { 0.0 };
             writeln!(
                 f,
-                "  energy      tools' work {w:.6e} J = stored {s:.6e} J + dissipated {d:.6e} J (balance {rel:.1e} of the work)"
+                "  work        tools' work {w:.6e} J = stored {s:.6e} J + dissipated {d:.6e} J (balance {rel:.1e} of the work)"
             )?;
         }
         for w in &self.warnings {
