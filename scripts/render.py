@@ -6,7 +6,11 @@ Uses VTK off-screen (vtkUnstructuredGrid -> surface -> PNG, with a scalar bar an
 The camera: --view iso (the default: from +x, a little from -y and above, z up), auto (facing
 the dent: from the side of the point that moved most), +x, -x, +y, -y, +z or -z (looking at
 the mesh from that side); or --azimuth A --elevation E in degrees (A from +x towards +y in the
-x-y plane, E above it), which override --view.
+x-y plane, E above it), which override --view. With tools, auto looks at the first tool's
+contact (from the side the tool comes from).
+
+The tools of the run ([[tool]]: spheres and punches) are drawn where they are at the step, in
+translucent grey (--no-tools leaves them out).
 
 examples:
   render.py run.h5 -o frame.png                    # last complete step, coloured by energy
@@ -25,6 +29,18 @@ def camera_direction(a, s, k):
         az, el = np.radians(a.azimuth or 0.0), np.radians(a.elevation or 0.0)
         return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     if a.view == "auto":
+        tools = tool_solids(s, k)
+        if tools:
+            shape, p, r, n = tools[0]
+            lo, hi = s.points.min(axis=0), s.points.max(axis=0)
+            d = -n if shape == "punch" else p - (lo + hi) / 2
+            if np.linalg.norm(d) > 1e-12 * float(np.linalg.norm(hi - lo)):
+                # from the tool's side but turned about 55 degrees, so that the dent shows in
+                # profile beside the tool instead of hidden behind it
+                d = d / np.linalg.norm(d)
+                side = np.cross([0.0, 0.0, 1.0], d)
+                side = side / np.linalg.norm(side) if np.linalg.norm(side) > 0.3 else np.array([0.0, -1.0, 0.0])
+                return 0.55 * d + 0.8 * side + np.array([0.0, 0.0, 0.25])
         p = s.focus(k)
         if p is not None:
             lo, hi = s.points.min(axis=0), s.points.max(axis=0)
@@ -36,6 +52,70 @@ def camera_direction(a, s, k):
         print("render.py: nothing moved; --view auto falls back to iso", file=sys.stderr)
         return np.array(VIEWS["iso"], dtype=float)
     return np.array(VIEWS[a.view], dtype=float)
+
+
+def tool_solids(s, k):
+    """The tools at output step k: (shape, position, radius, unit normal) from the scenario's
+    [[tool]] tables and /eprop/tools/position; [] without tools."""
+    if s.n_tools() == 0:
+        return []
+    try:
+        import tomllib
+        tables = tomllib.loads(s.scenario()).get("tool", [])
+    except Exception:
+        return []
+    pos = s.tools()["position"][k]
+    out = []
+    for j, t in enumerate(tables[: pos.shape[0]]):
+        n = np.asarray(t.get("normal", [0.0, 0.0, -1.0]), dtype=float)
+        n = n / np.linalg.norm(n) if np.linalg.norm(n) > 0 else np.array([0.0, 0.0, -1.0])
+        shape = str(t.get("shape", "sphere"))
+        r = float(t.get("radius", 0.0))
+        if r > 0 and np.isfinite(pos[j]).all():
+            out.append((shape, np.asarray(pos[j], dtype=float), r, n))
+    return out
+
+
+def tool_actor(vtk, shape, p, r, n, scale_len):
+    """A translucent grey solid: the sphere, or the punch's disc face with a short body behind it
+    (the punch is the half-infinite cylinder behind its face, drawn 1.5 R long)."""
+    if shape == "punch":
+        h = 1.5 * r
+        src = vtk.vtkCylinderSource()
+        src.SetRadius(r)
+        src.SetHeight(h)
+        src.SetResolution(48)
+        # the cylinder source's axis is y; turn it onto n and put its centre behind the face
+        y = np.array([0.0, 1.0, 0.0])
+        axis = np.cross(y, n)
+        angle = np.degrees(np.arctan2(np.linalg.norm(axis), float(np.dot(y, n))))
+        tf = vtk.vtkTransform()
+        tf.Translate(*(p - 0.5 * h * n))
+        if np.linalg.norm(axis) > 1e-12:
+            tf.RotateWXYZ(angle, *axis)
+        elif np.dot(y, n) < 0:
+            tf.RotateWXYZ(180.0, 1.0, 0.0, 0.0)
+        f = vtk.vtkTransformPolyDataFilter()
+        f.SetTransform(tf)
+        f.SetInputConnection(src.GetOutputPort())
+        port = f.GetOutputPort()
+    else:
+        src = vtk.vtkSphereSource()
+        src.SetCenter(*p)
+        src.SetRadius(r)
+        src.SetThetaResolution(48)
+        src.SetPhiResolution(24)
+        port = src.GetOutputPort()
+    m = vtk.vtkPolyDataMapper()
+    m.SetInputConnection(port)
+    m.ScalarVisibilityOff()
+    act = vtk.vtkActor()
+    act.SetMapper(m)
+    act.GetProperty().SetColor(0.55, 0.55, 0.6)
+    act.GetProperty().SetOpacity(0.45)
+    return act
+
+
 import argparse
 import os
 import sys
@@ -60,6 +140,7 @@ def main():
                     help="camera: iso (default), auto (facing the dent) or a side")
     ap.add_argument("--azimuth", type=float, help="camera azimuth in degrees (from +x towards +y)")
     ap.add_argument("--elevation", type=float, help="camera elevation in degrees (above the x-y plane)")
+    ap.add_argument("--no-tools", action="store_true", help="do not draw the run's tools")
     a = ap.parse_args(glued(sys.argv[1:], {"--view", "--azimuth", "--elevation", "--step"}))
     try:
         import vtk
@@ -114,6 +195,9 @@ def main():
     ren = vtk.vtkRenderer()
     ren.SetBackground(1, 1, 1)
     ren.AddActor(actor)
+    if not a.no_tools:
+        for shape, p, r, n in tool_solids(s, k):
+            ren.AddActor(tool_actor(vtk, shape, p, r, n, 1.0))
     ren.AddViewProp(bar)
     ren.AddViewProp(text)
     lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
