@@ -416,6 +416,13 @@ struct ExportArgs {
     /// Replace files that exist (refused otherwise)
     #[arg(long)]
     overwrite: bool,
+    /// The length unit of the written coordinates: m, cm, mm, um, or mesh (the mesh file's own
+    /// unit, from the scenario's [mesh] unit or scale). Without it the coordinates are the
+    /// series' own: metres in the continuum reading (a mesh read in mm is written in m), the
+    /// scenario's units in the paper reading (where --unit is refused). Per-vertex values
+    /// (--scalar) stay in the series' units
+    #[arg(long, value_name = "UNIT")]
+    unit: Option<String>,
 }
 
 #[derive(Args)]
@@ -612,6 +619,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 scalar: a.scalar,
                 prefix: a.output,
                 overwrite: a.overwrite,
+                unit: a.unit,
             };
             export_surface(&a.series, &o)
         }

@@ -694,3 +694,87 @@ fn a_lock_in_the_way_of_an_export_names_the_export_option() {
     );
     assert!(!err.contains("FILE.h5"), "{err}");
 }
+
+/// `export --unit`: a mesh read in mm and run in the continuum reading is written in metres by
+/// default, in mm with `--unit mm` or `--unit mesh` (the same bits times 1000); an unknown unit,
+/// and any unit in the paper's unit-free reading, are refused with the fix.
+#[test]
+fn export_writes_the_mesh_unit_on_request() {
+    let d = workdir("export_unit");
+    let at = |n: &str| d.path().join(n).to_str().unwrap().to_string();
+    let (ok, _, err) = eprop(&[
+        "mesh",
+        "box",
+        "--size",
+        "20,20,10",
+        "--cells",
+        "4,4,2",
+        "-o",
+        &at("b.msh"),
+    ]);
+    assert!(ok, "{err}");
+    std::fs::write(
+        d.path().join("c.toml"),
+        "[mesh]\nfile = \"b.msh\"\nunit = \"mm\"\n[[fixed]]\ngroup = \"zmin\"\n[[load]]\nnearest = [0.02, 0.02, 0.01]\nnormal = 0.01\n[time]\nsteps = 2\n",
+    )
+    .unwrap();
+    let (ok, _, err) = eprop(&["run", &at("c.toml"), "--quiet", "-o", &at("c.h5")]);
+    assert!(ok, "{err}");
+    let vertices = |f: &str| -> Vec<f64> {
+        std::fs::read_to_string(d.path().join(f))
+            .unwrap()
+            .lines()
+            .filter(|l| l.starts_with("v "))
+            .flat_map(|l| {
+                l[2..]
+                    .split_whitespace()
+                    .map(|x| x.parse::<f64>().unwrap())
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    let h5 = at("c.h5");
+    for (name, unit) in [("m.obj", None), ("mm.obj", Some("mm")), ("own.obj", Some("mesh"))] {
+        let out = at(name);
+        let mut args = vec!["export", h5.as_str(), "--step", "2", "-o", out.as_str()];
+        if let Some(u) = unit {
+            args.extend(["--unit", u]);
+        }
+        let (ok, _, err) = eprop(&args);
+        assert!(ok, "{err}");
+    }
+    let (m, mm, own) = (vertices("m.obj"), vertices("mm.obj"), vertices("own.obj"));
+    assert!(!m.is_empty() && m.len() == mm.len());
+    let span = m.iter().fold(0.0f64, |a, &x| a.max(x.abs()));
+    assert!(span > 0.015 && span < 0.03, "metres by default: {span}");
+    for (a, b) in m.iter().zip(&mm) {
+        assert!(
+            (a * 1000.0 - b).abs() <= 1e-9 * b.abs().max(1.0),
+            "{a} m against {b} mm"
+        );
+    }
+    assert_eq!(mm, own, "--unit mesh is the mesh file's unit, mm");
+    let (ok, _, err) = eprop(&[
+        "export",
+        &at("c.h5"),
+        "--step",
+        "1",
+        "-o",
+        &at("x.obj"),
+        "--unit",
+        "inch",
+    ]);
+    assert!(
+        !ok && err.contains("not a length unit") && err.contains("fix:"),
+        "{err}"
+    );
+    // the paper reading has no unit to convert
+    std::fs::write(d.path().join("p.toml"), SCENARIO).unwrap();
+    let (ok, _, err) = eprop(&["run", &at("p.toml"), "--quiet", "-o", &at("p.h5")]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = eprop(&["export", &at("p.h5"), "--step", "1", "-o", &at("y.obj"), "--unit", "mm"]);
+    assert!(
+        !ok && err.contains("unit-free") && err.contains("fix: leave out --unit"),
+        "{err}"
+    );
+}

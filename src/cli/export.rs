@@ -51,6 +51,51 @@ pub struct ExportOptions {
     /// Files are `<prefix>_<step>.<ext>` (one step to a prefix ending in `.<ext>`: the prefix).
     pub prefix: PathBuf,
     pub overwrite: bool,
+    /// The length unit of the written coordinates: m, cm, mm, um, or `mesh` (the mesh file's
+    /// own); None: the series' own (metres in the continuum reading).
+    pub unit: Option<String>,
+}
+
+/// The factor from the series' coordinates to those written: 1 without `--unit`; refused in the
+/// paper's unit-free reading, whose coordinates have no unit to convert.
+pub fn unit_factor(series: &Path, unit: Option<&str>) -> Result<f64> {
+    use eprop::config::Unit;
+    let Some(unit) = unit else { return Ok(1.0) };
+    let text = eprop_series::vtkhdf::read_scenario(series)?;
+    let doc: toml::Table = text.parse().map_err(|e| {
+        anyhow::anyhow!(
+            "{}: its scenario text (/eprop/scenario) does not parse: {e}; fix: leave out --unit",
+            series.display()
+        )
+    })?;
+    let get = |sec: &str, key: &str| doc.get(sec).and_then(|t| t.get(key)).cloned();
+    let reading = get("model", "reading").and_then(|v| v.as_str().map(str::to_string));
+    if reading.as_deref() == Some("paper") {
+        bail!(
+            "--unit {unit}: {} is in the paper's unit-free reading ([model] reading = \"paper\"): its coordinates are the scenario's own units, with nothing to convert; fix: leave out --unit",
+            series.display()
+        );
+    }
+    let named = |u: &str| match u {
+        "m" => Some(Unit::M),
+        "cm" => Some(Unit::Cm),
+        "mm" => Some(Unit::Mm),
+        "um" => Some(Unit::Um),
+        _ => None,
+    };
+    if let Some(u) = named(unit) {
+        return Ok(1.0 / u.metres());
+    }
+    if unit != "mesh" {
+        bail!("--unit {unit}: not a length unit; fix: m, cm, mm, um, or mesh (the mesh file's own unit)");
+    }
+    if let Some(u) = get("mesh", "unit").and_then(|v| v.as_str().and_then(named)) {
+        return Ok(1.0 / u.metres());
+    }
+    match get("mesh", "scale").and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))) {
+        Some(f) if f > 0.0 && f.is_finite() => Ok(1.0 / f),
+        _ => Ok(1.0),
+    }
 }
 
 /// The outer surface of a mesh: its vertices (mesh node ids, in increasing order) and its
@@ -141,6 +186,7 @@ pub fn export(series: &Path, o: &ExportOptions) -> Result<Vec<PathBuf>> {
     for (_, p) in &files {
         drop(claim_file(p, role, &inputs, o.overwrite)?);
     }
+    let factor = unit_factor(series, o.unit.as_deref())?;
     let surf = Surface::of(&mesh);
     if surf.triangles.is_empty() {
         bail!(
@@ -159,7 +205,7 @@ pub fn export(series: &Path, o: &ExportOptions) -> Result<Vec<PathBuf>> {
             .iter()
             .map(|&g| {
                 let (p, g) = (mesh.points[g as usize], g as usize);
-                [p[0] + u[3 * g], p[1] + u[3 * g + 1], p[2] + u[3 * g + 2]]
+                [p[0] + u[3 * g], p[1] + u[3 * g + 1], p[2] + u[3 * g + 2]].map(|x| x * factor)
             })
             .collect();
         let s: Option<Vec<f64>> = scalar.map(|v| surf.nodes.iter().map(|&g| v[g as usize]).collect());

@@ -37,7 +37,7 @@ mod read;
 mod restart;
 
 pub use create::CREATING;
-pub use read::{add_dataset, kind_of, read_mesh, read_step, write_csr, Kind, SeriesFile};
+pub use read::{add_dataset, kind_of, read_mesh, read_scenario, read_step, write_csr, Kind, SeriesFile};
 
 use crate::outcome::Team;
 use hdf5::dataset::{AllocTime, FillTime};

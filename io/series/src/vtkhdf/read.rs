@@ -244,6 +244,17 @@ pub fn read_step(path: &Path, name: &str, k: usize) -> Result<Vec<f64>> {
     SeriesFile::open(path)?.read_step(name, k)
 }
 
+/// The scenario text a series was written with (`/eprop/scenario`: the file's text with its
+/// `--set` overrides; empty when the series holds none).
+pub fn read_scenario(path: &Path) -> Result<String> {
+    let f = SeriesFile::open(path)?;
+    let bytes = match f.file.dataset("eprop/scenario") {
+        Ok(d) => h5(d.read_raw::<u8>(), path, "reading /eprop/scenario")?,
+        Err(_) => Vec::new(),
+    };
+    Ok(String::from_utf8_lossy(&bytes).into_owned())
+}
+
 /// The rest mesh a series was written for, and its complete steps (its header checked:
 /// `SeriesFile`).
 pub fn read_mesh(path: &Path) -> Result<(Mesh, usize)> {
