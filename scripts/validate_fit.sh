@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
-# The fits of docs/validation.md, on the centred press to 4 mm only (the reference's rows a fit
-# may use), in OUT (default out/validation_fit):
-#   1. young against the force-indentation curve (force_centre.csv to 4 mm). The tool's force
-#      depends only on young, beta and the foundation depth h (docs/tools.md), not on u, so the
+# The fits of the elastic-foundation law (law = "foundation", docs/tools.md) of
+# docs/validation.md, on the centred press to 4 mm only (the reference's rows a fit may use), in
+# OUT (default out/validation_fit). The kinematic law (the default) is fitted with `eprop fit`
+# on force and profile curves together (docs/fit.md) and scripts/validate_screening.sh.
+#   1. young against the force-indentation curve (force_centre.csv to 4 mm). Under the
+#      foundation law the tool's force depends only on young, beta and the foundation depth h
+#      (docs/tools.md), not on u, so the
 #      evaluations press fast (0.1 m/s, dt = 1 ms) with the propagation off (coupling 0): the
 #      same force at the same depth, 0.05 s per evaluation instead of a minute.
 #   2. coupling against the reference's |u| at mid-depth under the indenter (0.02, 0.02, 0.01),
@@ -21,7 +24,8 @@ mkdir -p "$out"
 awk -F, 'NR > 1 && $2 == "vertical" && $5 == 0.01 && $1 <= 0.004 {
   printf "%.6g,%.7g\n", $1 / 0.001, sqrt($6 * $6 + $7 * $7 + $8 * $8) }' "$ref/lines_centre.csv" |
   { echo "time,displacement"; cat; } > "$out/displacement.csv"
-fast=(--set 'tool.1.velocity=[0.0,0.0,-0.1]' --set time.dt=1e-3 --set time.end=0.0401
+law=(--set tool.1.law=foundation)
+fast=("${law[@]}" --set 'tool.1.velocity=[0.0,0.0,-0.1]' --set time.dt=1e-3 --set time.end=0.0401
       --set material.conductivity=1e-5 --set model.coupling=0)
 "$eprop" fit scenarios/validation/centre.toml --data "$out/force.csv" --param young=1e3:1e6 \
   -o "$out/young" --overwrite "${fast[@]}"
@@ -36,4 +40,4 @@ done
   --param tool.1.foundation=0.002:0.1 -o "$out/young_foundation" --overwrite --no-plot -q "${fast[@]}"
 [ "${FORCE_ONLY:-0}" = 1 ] && exit 0
 "$eprop" fit scenarios/validation/centre.toml --data "$out/displacement.csv" --node 2426 \
-  --param coupling=1:1000 --start coupling=15 --set time.end=4.0 -o "$out/coupling" --overwrite
+  --param coupling=1:1000 --start coupling=15 --set time.end=4.0 -o "$out/coupling" --overwrite "${law[@]}"
