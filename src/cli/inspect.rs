@@ -184,11 +184,16 @@ pub struct CheckReport {
     /// In the real-time mode: its steps against euler's at the same dt (`REALTIME_STEPS`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub realtime: Option<eprop::simulate::realtime::Comparison>,
+    /// In the real-time mode without --measure: how to measure its error.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub realtime_note: Option<String>,
     pub warnings: Vec<String>,
 }
 
-/// `eprop check` compares the real-time mode with euler over at most this many steps.
+/// `eprop check --measure` compares the real-time mode with euler over at most this many
+/// steps, and for at most `REALTIME_SECONDS` of wall time.
 pub const REALTIME_STEPS: u64 = 100;
+pub const REALTIME_SECONDS: f64 = 60.0;
 
 /// The scenario in the real-time mode and by euler, stepped side by side on one process
 /// (`simulate::realtime::compare`).
@@ -200,7 +205,7 @@ fn realtime_against_euler(path: &Path, opts: &RunOptions, steps: u64) -> Result<
     };
     let rt = with(&["time.realtime=true"])?;
     let eu = with(&["time.realtime=false", "model.integrator=\"euler\""])?;
-    eprop::simulate::realtime::compare(rt, eu, steps.min(REALTIME_STEPS))
+    eprop::simulate::realtime::compare_within(rt, eu, steps.min(REALTIME_STEPS), REALTIME_SECONDS)
 }
 
 /// Validates a scenario, builds its simulation on one process and times a few substeps. The
@@ -250,7 +255,11 @@ pub fn check(path: &Path, opts: &RunOptions, measure: bool) -> Result<CheckRepor
     let serve_default = live
         && sim.setup().time.realtime.is_none()
         && sim.setup().integrator.kind == eprop::config::integrator::Kind::Auto;
-    let realtime = if sim.setup().time.realtime() || serve_default {
+    let in_mode = sim.setup().time.realtime() || serve_default;
+    let realtime_note = (in_mode && !measure).then(|| {
+        "the real-time mode's error is not measured; fix: `eprop check --measure` steps it beside euler at the same dt (up to 100 steps or 60 s)".to_string()
+    });
+    let realtime = if in_mode && measure {
         let c = realtime_against_euler(path, opts, budget.steps)?;
         if c.u_error > eprop::simulate::realtime::TOLERANCE {
             warnings.push(format!(
@@ -316,6 +325,7 @@ pub fn check(path: &Path, opts: &RunOptions, measure: bool) -> Result<CheckRepor
             budget.output_steps,
         ),
         realtime,
+        realtime_note,
         warnings,
     })
 }
@@ -361,6 +371,9 @@ impl std::fmt::Display for CheckReport {
             eprop::diagnostics::fixed(self.estimated_seconds + self.output_seconds.unwrap_or(0.0), 3),
             self.memory_mib
         )?;
+        if let Some(note) = &self.realtime_note {
+            writeln!(f, "  real time   {note}")?;
+        }
         if let Some(c) = &self.realtime {
             let ms = |x: f64| eprop::diagnostics::fixed(1e3 * x, 3);
             writeln!(

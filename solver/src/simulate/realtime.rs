@@ -78,13 +78,21 @@ pub fn percentiles(v: &[f64]) -> [f64; 3] {
 /// `integrator = "euler"`, not in the real-time mode) side by side for at most `steps`
 /// steps (one process) and compares them.
 pub fn compare(realtime: Setup, euler: Setup, steps: u64) -> Result<Comparison> {
+    compare_within(realtime, euler, steps, f64::INFINITY)
+}
+
+/// `compare`, stopped after the step in which the comparison's wall time passes `seconds`
+/// (euler at the real-time mode's dt may need millions of substeps a step on a mesh with
+/// slivers); `Comparison::steps` says how many steps were compared.
+pub fn compare_within(realtime: Setup, euler: Setup, steps: u64, seconds: f64) -> Result<Comparison> {
+    let start = Instant::now();
     let mut rt = Simulation::new(realtime)?;
     let mut eu = Simulation::new(euler)?;
     let bound = rt.step_plan().per_step;
     let (mut u_error, mut u_error_step, mut apps_max) = (0.0f64, 0, 0);
     let (mut forces, mut diffs, mut times, mut cpu) = (0.0f64, 0.0f64, Vec::new(), Vec::new());
     let mut k = 0;
-    while k < steps && !rt.done() && !eu.done() {
+    while k < steps && !rt.done() && !eu.done() && start.elapsed().as_secs_f64() < seconds {
         let (t, c) = (Instant::now(), cpu_seconds());
         let st = rt.advance()?;
         times.push(t.elapsed().as_secs_f64());
