@@ -804,3 +804,25 @@ fn a_kinematic_tool_under_multigrid_runs_on_three_ranks_where_only_one_holds_its
         assert!((x - y).abs() <= 1e-4 * peak, "{a:?} {b:?}");
     }
 }
+
+/// A sphere that starts to press a cylinder whose propagation is fast against dt (conductivity
+/// 5e4, dt = 0.7): the layer each contact step starts needs implicit sub-steps down to about
+/// dt / 2^22. The error control takes them (it allows dt / 2^30) and the run ends with every
+/// node out of the sphere, where it once stopped with "needs TR-BDF2 steps shorter than
+/// dt / 2^16" at the first contact.
+#[test]
+fn a_contact_layer_far_faster_than_dt_is_resolved_by_the_implicit_error_control() {
+    let d = tempfile::tempdir().unwrap();
+    let mut sim = sim_in(
+        d.path(),
+        cylinder_mesh(1.0, 4.0, 4, 14).unwrap(),
+        "[[fixed]]\ngroup = \"bottom\"\n[[tool]]\nshape = \"sphere\"\nradius = 0.8\nstart = [1.85, 0.0, 2.0]\nvelocity = [-0.00875, 0.0, 0.0]\n[material]\nmass = 1.0\ndamping = 2.0\nconductivity = 5e4\n[model]\nintegrator = \"implicit\"\n[time]\ndt = 0.7\nend = 30.0\n",
+    );
+    let mut touched = 0;
+    while !sim.done() {
+        sim.advance().unwrap();
+        assert_eq!(sim.inspect().inside[0], 0);
+        touched = touched.max(sim.tool_states()[0].contact_nodes);
+    }
+    assert!(touched > 0, "the sphere never touched");
+}
