@@ -1657,26 +1657,7 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
     let w = world;
     let root = is_root(w);
     let processes = w.map_or(1, |w| w.size());
-    if !(opts.tolerance > 0.0 && opts.tolerance < 1.0) {
-        return Err(refused(format!(
-            "--tolerance {}: must be between 0 and 1 (relative); fix: e.g. --tolerance 1e-6",
-            opts.tolerance
-        )));
-    }
-    let params = parse_params(&opts.params, &opts.starts)?;
-    let n = params.len();
-    if opts.max_evaluations < 2 * n + 2 {
-        return Err(refused(format!(
-            "--max-evaluations {}: too few for {n} parameter(s) (the start, a derivative per parameter and a step); fix: at least {}",
-            opts.max_evaluations,
-            2 * n + 2
-        )));
-    }
-    if opts.data.is_empty() {
-        return Err(refused(
-            "no measured curve; fix: --data CURVE.csv (repeatable: --data press.csv --data dent.csv:node=42,weight=0.5)".into(),
-        ));
-    }
+    let params = checked_options(opts)?;
     let specs = opts
         .data
         .iter()
@@ -1778,55 +1759,11 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
     let m = sol.r.len();
     // in each curve's scale, as the search saw them (the squares finite)
     let ssr: f64 = sol.r.iter().map(|v| v * v).sum();
-    // dy/dp = dy/dz dz/dp; p dy/dp = dy/dz for log coordinates
-    let jp: Vec<Vec<f64>> = jac
-        .iter()
-        .map(|row| {
-            row.iter()
-                .zip(&params)
-                .zip(&value)
-                .map(|((d, q), v)| if q.log { d / v } else { *d })
-                .collect()
-        })
-        .collect();
+    let jp = parameter_jacobian(&jac, &params, &value);
     let each = rms_of(&sol.r);
-    let curve_reports: Vec<CurveReport> = curves
-        .iter()
-        .zip(&parts)
-        .zip(&each)
-        .map(|((c, p), &(rms, rms_relative))| CurveReport {
-            data: c.spec.file.display().to_string(),
-            x: c.x_kind,
-            y: c.y_kind,
-            x_unit: c.units[0].clone(),
-            y_unit: c.units[1].clone(),
-            weight: c.spec.weight,
-            points: c.x.len(),
-            rms,
-            rms_relative,
-            relative_to: p.relative_to.to_string(),
-            sensitivity: (0..n)
-                .map(|j| {
-                    p.scale
-                        * (jp[p.start..p.end]
-                            .iter()
-                            .map(|row| (row[j] * value[j]).powi(2))
-                            .sum::<f64>()
-                            / c.x.len() as f64)
-                            .sqrt()
-                })
-                .collect(),
-            range: p.range,
-        })
-        .collect();
+    let curve_reports = curve_reports(&curves, &parts, &each, &jp, &value);
     let parameters = fitted_parameters(&params, &value, &jp, ssr, &curve_reports);
-    let rows: Vec<(usize, f64, f64, f64)> = curves
-        .iter()
-        .enumerate()
-        .flat_map(|(k, c)| c.x.iter().zip(&c.y).map(move |(&x, &y)| (k, x, y)))
-        .zip(sol.r.iter().zip(&scale_of))
-        .map(|((k, x, y), (r, s))| (k, x, y, y + s * r))
-        .collect();
+    let rows = report_rows(&curves, &sol.r, &scale_of);
     let one = curve_reports.len() == 1;
     let report = FitReport {
         scenario: scenario.display().to_string(),
@@ -1864,6 +1801,98 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
     let written = write_report(w, report, opts, &prefix)?;
     drop(locks);
     Ok(written)
+}
+
+/// The report's rows: (curve, x, measured y, fitted y), the fitted from the residuals as the
+/// search saw them (each over its curve's scale).
+fn report_rows(curves: &[Curve], r: &[f64], scale_of: &[f64]) -> Vec<(usize, f64, f64, f64)> {
+    curves
+        .iter()
+        .enumerate()
+        .flat_map(|(k, c)| c.x.iter().zip(&c.y).map(move |(&x, &y)| (k, x, y)))
+        .zip(r.iter().zip(scale_of))
+        .map(|((k, x, y), (r, s))| (k, x, y, y + s * r))
+        .collect()
+}
+
+/// The options a fit refuses before anything is read (tolerance, evaluations, curves), and
+/// its parameters.
+fn checked_options(opts: &FitOptions) -> Result<Vec<Param>> {
+    if !(opts.tolerance > 0.0 && opts.tolerance < 1.0) {
+        return Err(refused(format!(
+            "--tolerance {}: must be between 0 and 1 (relative); fix: e.g. --tolerance 1e-6",
+            opts.tolerance
+        )));
+    }
+    let params = parse_params(&opts.params, &opts.starts)?;
+    let n = params.len();
+    if opts.max_evaluations < 2 * n + 2 {
+        return Err(refused(format!(
+            "--max-evaluations {}: too few for {n} parameter(s) (the start, a derivative per parameter and a step); fix: at least {}",
+            opts.max_evaluations,
+            2 * n + 2
+        )));
+    }
+    if opts.data.is_empty() {
+        return Err(refused(
+            "no measured curve; fix: --data CURVE.csv (repeatable: --data press.csv --data dent.csv:node=42,weight=0.5)".into(),
+        ));
+    }
+    Ok(params)
+}
+
+/// The Jacobian in the parameters: dy/dp = dy/dz dz/dp (p dy/dp = dy/dz for log coordinates).
+fn parameter_jacobian(jac: &[Vec<f64>], params: &[Param], value: &[f64]) -> Vec<Vec<f64>> {
+    jac.iter()
+        .map(|row| {
+            row.iter()
+                .zip(params)
+                .zip(value)
+                .map(|((d, q), v)| if q.log { d / v } else { *d })
+                .collect()
+        })
+        .collect()
+}
+
+/// Each curve's report: its RMS (`each`: absolute, relative) and its sensitivity to each
+/// parameter (the RMS of p dy/dp over its points).
+fn curve_reports(
+    curves: &[Curve],
+    parts: &[Part],
+    each: &[(f64, f64)],
+    jp: &[Vec<f64>],
+    value: &[f64],
+) -> Vec<CurveReport> {
+    let n = value.len();
+    curves
+        .iter()
+        .zip(parts)
+        .zip(each)
+        .map(|((c, p), &(rms, rms_relative))| CurveReport {
+            data: c.spec.file.display().to_string(),
+            x: c.x_kind,
+            y: c.y_kind,
+            x_unit: c.units[0].clone(),
+            y_unit: c.units[1].clone(),
+            weight: c.spec.weight,
+            points: c.x.len(),
+            rms,
+            rms_relative,
+            relative_to: p.relative_to.to_string(),
+            sensitivity: (0..n)
+                .map(|j| {
+                    p.scale
+                        * (jp[p.start..p.end]
+                            .iter()
+                            .map(|row| (row[j] * value[j]).powi(2))
+                            .sum::<f64>()
+                            / c.x.len() as f64)
+                            .sqrt()
+                })
+                .collect(),
+            range: p.range,
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -236,6 +236,17 @@ impl std::fmt::Display for Summary {
                 )?,
             }
         }
+        self.supports_and_work(f)?;
+        for w in &self.warnings {
+            writeln!(f, "  warning     {w}")?;
+        }
+        write!(f, "  output      {} ({} steps)", self.output, self.output_steps)
+    }
+}
+
+impl Summary {
+    /// The summary's lines on supports (nodes across) and on the kinematic tools' energy account.
+    fn supports_and_work(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         if self.supports > 0 {
             match self.max_across_nodes {
                 0 => writeln!(f, "  across      0 nodes through supports")?,
@@ -250,14 +261,11 @@ impl std::fmt::Display for Summary {
             let gap = w - (s + d);
             let rel = if w != 0.0 { gap / w.abs() } else { 0.0 };
             writeln!(
-                f,
-                "  work        tools' work {w:.6e} J = stored {s:.6e} J + dissipated {d:.6e} J (balance {rel:.1e} of the work)"
-            )?;
+            f,
+            "  work        tools' work {w:.6e} J = stored {s:.6e} J + dissipated {d:.6e} J (balance {rel:.1e} of the work)"
+        )?;
         }
-        for w in &self.warnings {
-            writeln!(f, "  warning     {w}")?;
-        }
-        write!(f, "  output      {} ({} steps)", self.output, self.output_steps)
+        Ok(())
     }
 }
 
