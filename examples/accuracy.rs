@@ -57,19 +57,9 @@ fn run(path: &std::path::Path, kind: &str) -> anyhow::Result<Run> {
     })
 }
 
+/// ||a - b|| / ||b|| (`simulate::realtime::relative`).
 fn rel(a: &[V3], b: &[V3]) -> f64 {
-    let (mut d, mut s) = (0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        for k in 0..3 {
-            d += (x[k] - y[k]) * (x[k] - y[k]);
-            s += y[k] * y[k];
-        }
-    }
-    if s > 0.0 {
-        (d / s).sqrt()
-    } else {
-        d.sqrt()
-    }
+    eprop::simulate::realtime::relative(a, b)
 }
 
 fn main() -> anyhow::Result<()> {

@@ -55,19 +55,9 @@ fn fmt(e: &[f64]) -> String {
     e.iter().map(|x| format!("{x:.1e}")).collect::<Vec<_>>().join(" ")
 }
 
+/// ||a - b|| / ||b|| (`simulate::realtime::relative`).
 fn rel(a: &[V3], b: &[V3]) -> f64 {
-    let (mut d, mut s) = (0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        for k in 0..3 {
-            d += (x[k] - y[k]) * (x[k] - y[k]);
-            s += y[k] * y[k];
-        }
-    }
-    if s > 0.0 {
-        (d / s).sqrt()
-    } else {
-        d.sqrt()
-    }
+    eprop::simulate::realtime::relative(a, b)
 }
 
 /// Every kind against euler: the largest relative L2 error of u over the steps, and of the
