@@ -39,6 +39,7 @@ use crate::config::tissue::Materials;
 use crate::config::{Grip, Shape};
 use crate::discretize::operator::{Operator, V3};
 use eprop_io::geom::{dot, norm, scale, sub};
+use eprop_series::vtkhdf::ToolState;
 
 /// A node counts as touching a tool when it is less than this fraction of the tool's radius
 /// outside it (round-off of a node put on the surface).
@@ -299,7 +300,7 @@ pub fn measure(
     u: &[V3],
     lphi: &[V3],
     comm: &dyn crate::distribute::comm::Comm,
-) -> super::contact::ToolState {
+) -> ToolState {
     let shape = run.tool.shape;
     let mut rows = Vec::new();
     for i in 0..u.len() {
@@ -323,7 +324,7 @@ pub fn measure(
     }
     let s = crate::distribute::comm::reproducible_sums(comm, rows.iter().copied());
     let area = s[3];
-    super::contact::ToolState {
+    ToolState {
         position: c,
         force: [s[0], s[1], s[2]],
         contact_nodes: s[4] as u64,

@@ -27,10 +27,11 @@ use crate::distribute::halo::{BlockScatter, Halo};
 use crate::propagate::integrate::{stability, StepPlan, StepStats, Stepper};
 use crate::propagate::Propagation;
 use anyhow::{bail, Result};
-use contact::{ToolRun, ToolState};
+use contact::ToolRun;
 use eprop_io::geom::{dot, norm, scale};
 use eprop_mesh::Mesh;
 use eprop_partition::{LocalNumbering, Plan};
+use eprop_series::vtkhdf::ToolState;
 use rayon::prelude::*;
 
 pub use crate::propagate::integrate::euler::SAFETY;
