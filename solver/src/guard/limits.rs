@@ -95,7 +95,7 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
     }
     // the Euler substeps one mechanics step stands for: past MAX_RATIO the operator is too
     // stiff against dt for any integrator in double precision (the implicit solve breaks down)
-    let ratio = dt / (crate::simulate::SAFETY * plan.h_bound);
+    let ratio = dt / (crate::propagate::integrate::euler::SAFETY * plan.h_bound);
     if plan.integrator != Kind::Euler && !(ratio <= MAX_RATIO) {
         return Err(format!(
             "{path}: the mechanics step dt = {dt:.4e} spans {ratio:.3e} stable Euler substeps per mechanics step (Euler bound {:.3e} from [material] conductivity on this mesh), above the limit of {MAX_RATIO:e} for any integrator ({} included): no integrator resolves so stiff an operator in double precision; fix: a smaller [material] conductivity (check its units and the mesh's, [mesh] scale) or a smaller [time] dt",
@@ -104,7 +104,7 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
     }
     if plan.per_step > MAX_SUBSTEPS {
         // a count that saturated says nothing: the ratio it came from does
-        let h_max = user_h.unwrap_or(crate::simulate::SAFETY * plan.h_bound);
+        let h_max = user_h.unwrap_or(crate::propagate::integrate::euler::SAFETY * plan.h_bound);
         let needed = if plan.per_step == usize::MAX {
             dt / h_max
         } else {
@@ -119,7 +119,7 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
             Some(h) => format!("[time] h = {}", crate::diagnostics::short(h)),
             None => format!(
                 "h at most {h_max:.3e}, {} of the stability bound of [material] conductivity on this mesh",
-                crate::simulate::SAFETY
+                crate::propagate::integrate::euler::SAFETY
             ),
         };
         return Err(format!(

@@ -7,11 +7,12 @@ pub mod integrate;
 pub mod wavefront;
 
 use crate::config::Fuse;
-use crate::discretize::operator::{Operator, V3};
+use crate::discretize::operator::Operator;
 use crate::distribute::field::NodeField;
 use crate::distribute::halo::{Exchange, Halo};
 use crate::linalg::csr::AnyCsr;
 use crate::linalg::Sweep;
+use crate::linalg::V3;
 use crate::propagate::wavefront::{drive, Wavefront};
 use eprop_partition::Layout;
 use std::ops::Range;

@@ -14,8 +14,8 @@
 
 use crate::config::tissue::TissueLaw;
 use crate::config::{ContactLaw, Shape, Tool, Trajectory};
-use crate::discretize::operator::V3;
 use crate::distribute::comm::{reproducible_sums, Comm};
+use crate::linalg::V3;
 use eprop_io::geom::{dot, norm, scale, sub};
 use eprop_series::vtkhdf::ToolState;
 

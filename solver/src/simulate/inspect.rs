@@ -4,8 +4,8 @@
 //! global index, the counts are integer sums.
 
 use super::{contact, Simulation};
-use crate::discretize::operator::V3;
 use crate::distribute::comm::reproducible_sums;
+use crate::linalg::V3;
 use eprop_io::geom::{add, det3, sub};
 use eprop_io::mesh::CellKind;
 

@@ -37,7 +37,8 @@
 use super::contact::{depth, project, ToolRun};
 use crate::config::tissue::Materials;
 use crate::config::{Grip, Shape};
-use crate::discretize::operator::{Operator, V3};
+use crate::discretize::operator::Operator;
+use crate::linalg::V3;
 use eprop_io::geom::{dot, norm, scale, sub};
 use eprop_series::vtkhdf::ToolState;
 

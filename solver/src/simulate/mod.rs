@@ -20,10 +20,11 @@ use crate::config::tissue::Materials;
 use crate::config::{Fuse, Load, Precision, Reading, Scheme, Setup, Stop};
 use crate::diagnostics::short;
 use crate::discretize::geometry::{capacities, compact_coefficients, young_faces, Dual, Incidence};
-use crate::discretize::operator::{Compact, Operator, Paper, V3};
+use crate::discretize::operator::{Compact, Operator, Paper};
 use crate::distribute::comm::{reproducible_sum, Comm, Serial};
 use crate::distribute::field::NodeField;
 use crate::distribute::halo::{BlockScatter, Halo};
+use crate::linalg::V3;
 use crate::propagate::integrate::{stability, StepPlan, StepStats, Stepper};
 use crate::propagate::Propagation;
 use anyhow::{bail, Result};
@@ -34,7 +35,7 @@ use eprop_partition::{LocalNumbering, Plan};
 use eprop_series::vtkhdf::ToolState;
 use rayon::prelude::*;
 
-pub use crate::propagate::integrate::euler::SAFETY;
+use crate::propagate::integrate::euler::SAFETY;
 pub use mesh_info::{mesh_info, MeshInfo};
 pub use stop::StopToken;
 

@@ -24,9 +24,10 @@
 
 use super::euler::SAFETY;
 use super::rkl2::{stages_for, STAGE_COST};
-use super::{Euler, Implicit, Kind, Rkl2, Settings, Stepper};
-use crate::discretize::operator::V3;
+use super::{Euler, Implicit, Rkl2, Stepper};
+use crate::config::integrator::{Kind, Settings};
 use crate::distribute::comm::Comm;
+use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::{bail, Result};
 

@@ -14,7 +14,8 @@
 //! the number of processes or threads.
 
 use super::solver::Solver;
-use super::{ErrorState, Settings, StepPlan, StepStats, Stepper};
+use super::{ErrorState, StepPlan, StepStats, Stepper};
+use crate::config::integrator::Settings;
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
 use crate::linalg::V3;

@@ -14,8 +14,9 @@ pub mod rkl2;
 pub mod solver;
 pub mod stability;
 
-use crate::discretize::operator::V3;
+use crate::config::integrator::Kind;
 use crate::distribute::comm::Comm;
+use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::Result;
 
@@ -93,11 +94,6 @@ pub trait Stepper {
     /// ignore it (`auto` measures only the former).
     fn set_budget(&mut self, _budget: Option<usize>) {}
 }
-
-pub use crate::config::integrator::{
-    Kind, Preconditioner, Settings, CG_SHARE, DEFAULT_ACCURACY, DEFAULT_MAX_ITERATIONS, DEFAULT_MAX_STAGES,
-    DEFAULT_TOLERANCE, KINDS, PRECONDITIONERS, UNCONTROLLED_TOLERANCE,
-};
 
 /// forward Euler's substep for the mechanics step dt on an operator whose bound is h_bound:
 /// dt over ceil(dt / (SAFETY h_bound)) substeps.

@@ -14,9 +14,9 @@
 
 use super::euler::SAFETY;
 use super::{ErrorState, StepPlan, StepStats, Stepper};
-use crate::discretize::operator::V3;
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
+use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::{bail, Result};
 use eprop_partition::Layout;

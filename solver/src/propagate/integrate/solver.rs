@@ -5,7 +5,7 @@
 //! failures become messages that name the scenario's fixes.
 
 use super::implicit::THETA;
-use super::{Preconditioner, Settings};
+use crate::config::integrator::{Preconditioner, Settings};
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
 use crate::linalg::cg::{self, Failure, Shifted};

@@ -1,9 +1,10 @@
 //! The largest stable forward Euler substep of an operator (docs/model.md section 3). Other
 //! integrators size their stages from the same spectral bound.
 
-use crate::discretize::operator::{Compact, Operator, V3};
+use crate::discretize::operator::{Compact, Operator};
 use crate::distribute::comm::{reproducible_sum, Comm};
 use crate::distribute::field::NodeField;
+use crate::linalg::V3;
 use crate::propagate::Propagation;
 use eprop_io::geom::{dot, scale};
 
