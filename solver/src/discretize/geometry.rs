@@ -143,7 +143,7 @@ pub fn tet_gradients(nodes: &[u32], pts: &[[f64; 3]]) -> ([[f64; 3]; 4], f64) {
 
 /// Exact Green-Gauss gradient weights of a cell: grad u = sum_k u_k G_k for linear u.
 /// Faces are fans of triangles from their centroids, as in `cell_volume`.
-pub fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64) -> Vec<[f64; 3]> {
+pub(crate) fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64) -> Vec<[f64; 3]> {
     let nn = kind.n_nodes();
     let mut g = vec![[0.0; 3]; nn];
     for face in kind.faces() {
@@ -177,7 +177,7 @@ pub fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64)
 
 /// Builds the sorted neighbour lists of rows `0..n_rows`: every node that shares a cell.
 /// `gid` orders neighbours (global ids); None means local index order.
-pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
+pub(crate) fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
     let key = |j: u32| gid.map_or(j as u64, |g| g[j as usize]);
     thread_local! {
         static SCRATCH: std::cell::RefCell<Vec<u32>> = const { std::cell::RefCell::new(Vec::new()) };
@@ -227,7 +227,7 @@ pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64
 }
 
 /// Per-cell bitmask of boundary faces.
-pub fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
+pub(crate) fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
     let mut mask = vec![0u8; mesh.n_cells()];
     for (c, f) in boundary_faces(mesh) {
         mask[c as usize] |= 1 << f;
@@ -237,7 +237,7 @@ pub fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
 
 /// Runs `f(row, values of the row)` over the rows of a CSR array in parallel, filling `data`
 /// in place (no per-row allocation, so the peak memory is the array itself).
-pub fn par_rows<T: Send, R: Send>(
+pub(crate) fn par_rows<T: Send, R: Send>(
     data: &mut [T],
     row_ptr: &[usize],
     f: impl Fn(usize, &mut [T]) -> R + Sync + Send,
@@ -248,7 +248,7 @@ pub fn par_rows<T: Send, R: Send>(
 /// The rows `0..n` of a local mesh in Morton order of their points: the order in which the
 /// setup visits rows, so that the rows of a block and their cells are near each other whatever
 /// the numbering (the band order of the numbering puts consecutive rows on a thin level).
-pub fn visit_order(mesh: &Mesh, n: usize) -> Vec<u32> {
+pub(crate) fn visit_order(mesh: &Mesh, n: usize) -> Vec<u32> {
     let keys = eprop_partition::morton_keys(&mesh.points[..n]);
     let mut order: Vec<u32> = (0..n as u32).collect();
     order.sort_unstable_by_key(|&i| (keys[i as usize], i));
@@ -268,7 +268,7 @@ impl<T> Shared<T> {
 /// `par_rows` with a context built once per block of rows (`init(rows of the block)`), shared
 /// by the rows of that block, the rows taken in blocks of `order` (a permutation of the rows;
 /// None: increasing). Results come back in row order; a row's work does not depend on the order.
-pub fn par_rows_with<T: Send, R: Send, C>(
+pub(crate) fn par_rows_with<T: Send, R: Send, C>(
     data: &mut [T],
     row_ptr: &[usize],
     order: Option<&[u32]>,
@@ -434,7 +434,7 @@ impl Dual {
 /// nodes' ratio when they all have the same (bit for bit, so exactly 1 in a tissue of the
 /// reference young), otherwise the harmonic mean of its nodes' ratios (a cell is as stiff as
 /// the stiff tissue only when every node of it belongs to that tissue).
-pub fn cell_young(nodes: &[u32], mat: &Materials) -> f64 {
+pub(crate) fn cell_young(nodes: &[u32], mat: &Materials) -> f64 {
     let first = mat.young_ratio(nodes[0] as usize);
     if nodes
         .iter()
@@ -485,7 +485,7 @@ pub fn capacities(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) ->
 /// The dual faces weighted by their cells' Young's modulus, sum over cells of
 /// (E_c / E0) S_ij^cell, on the pair graph of `dual` (the paper scheme's fluxes when
 /// `Materials::weighs_young`; docs/model.md section 3).
-pub fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -> Vec<[f64; 3]> {
+pub(crate) fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -> Vec<[f64; 3]> {
     let pts = &mesh.points;
     let mut out = vec![[0.0; 3]; dual.row_ptr[dual.n_rows]];
     par_rows(&mut out, &dual.row_ptr[..=dual.n_rows], |i, s| {

@@ -14,9 +14,9 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 /// How many of the stiffest nodes a report names.
-pub const NAMED: usize = 5;
+pub(crate) const NAMED: usize = 5;
 /// A node is "far above" the median when its bound is this many times the median's.
-pub const FAR: f64 = 10.0;
+pub(crate) const FAR: f64 = 10.0;
 
 /// A cell, as the mesh file names it.
 #[derive(Serialize, Debug, Clone, PartialEq)]
@@ -61,7 +61,7 @@ pub struct Stiffness {
 }
 
 /// The median of the positive values (0 when there is none).
-pub fn median_positive(g: &[f64]) -> f64 {
+pub(crate) fn median_positive(g: &[f64]) -> f64 {
     let mut v: Vec<f64> = g.iter().copied().filter(|&x| x > 0.0).collect();
     if v.is_empty() {
         return 0.0;
@@ -74,7 +74,13 @@ pub fn median_positive(g: &[f64]) -> f64 {
 /// numbering); `vol` the capacities of its rows (`geometry::capacities`: the control volumes
 /// when no tissue weighs) and `r` the conductivity and young of every node; `cell_id`
 /// the file's id of a cell.
-pub fn analyse(mesh: &Mesh, op: &Compact, vol: &[f64], r: &Materials, cell_id: &dyn Fn(usize) -> u64) -> Stiffness {
+pub(crate) fn analyse(
+    mesh: &Mesh,
+    op: &Compact,
+    vol: &[f64],
+    r: &Materials,
+    cell_id: &dyn Fn(usize) -> u64,
+) -> Stiffness {
     let g = op.row_bounds();
     let med = median_positive(&g);
     let nodes = g.iter().filter(|&&x| x > 0.0).count();

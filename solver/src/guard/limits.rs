@@ -10,17 +10,17 @@ use crate::simulate::Simulation;
 use anyhow::Result;
 
 /// Most mechanics steps a run may take.
-pub const MAX_STEPS: u64 = 1_000_000_000;
+pub(crate) const MAX_STEPS: u64 = 1_000_000_000;
 pub use crate::propagate::integrate::MAX_SUBSTEPS;
 /// Most Euler substeps a mechanics step may stand for, whatever the integrator (the ratio of dt
 /// to the stable Euler substep; the benchmark liver has 1.8e4).
-pub const MAX_RATIO: f64 = 1e12;
+pub(crate) const MAX_RATIO: f64 = 1e12;
 /// Smallest step size (dt or h) accepted: far below any unit system of a tissue simulation, so
 /// a smaller one comes from an overflow or a units mistake and would leave the time at 0.
-pub const MIN_STEP: f64 = 1e-30;
+pub(crate) const MIN_STEP: f64 = 1e-30;
 
 /// `1,000,000`.
-pub fn grouped(n: u64) -> String {
+pub(crate) fn grouped(n: u64) -> String {
     let s = n.to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {
@@ -72,7 +72,7 @@ pub fn steps(stop: &Stop, dt: f64, path: &str, from_cli: bool) -> Result<u64, St
 
 /// Refuses a step size that is not a normal number above `MIN_STEP`, and a substep count
 /// above `MAX_SUBSTEPS`. `user_dt`: the scenario gave dt; `user_h`: the scenario's h.
-pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &str) -> Result<(), String> {
+pub(crate) fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &str) -> Result<(), String> {
     let dt = plan.dt;
     if !(dt.is_normal() && dt >= MIN_STEP) {
         let (what, fix) = if user_dt {
@@ -174,7 +174,7 @@ pub fn output_bytes(sizes: &GlobalSizes, output: &Output, loads: usize, scenario
 
 /// An equilibrium tolerance is refused below this fraction of the velocity a node gains in one
 /// step from the largest load (100 times the rounding floor of max |v| at rest).
-pub const EQUILIBRIUM_FLOOR: f64 = 1e-14;
+pub(crate) const EQUILIBRIUM_FLOOR: f64 = 1e-14;
 
 /// Refuses an equilibrium tolerance that double precision cannot resolve: at rest, rounding
 /// keeps max |v| near 1e-16 of `v_scale` = max |F| dt / min m, so a smaller tolerance is never

@@ -29,7 +29,7 @@ pub struct Shifted<'a> {
 
 /// max_i V_i (1 + 2 c sum_j |c_ij| + c s_i) over the owned rows of this process (s_i the
 /// screening sink): |(A u)_i| <= this max |u|.
-pub fn row_bound(coef: Option<&AnyCsr>, sink: Option<&[f64]>, vol: &[f64], c: f64) -> f64 {
+pub(crate) fn row_bound(coef: Option<&AnyCsr>, sink: Option<&[f64]>, vol: &[f64], c: f64) -> f64 {
     let Some(coef) = coef else {
         return 0.0;
     };
@@ -245,7 +245,7 @@ fn update(
 /// The first conjugate-gradient iterate of A x = b from x = 0, x = alpha M b with
 /// alpha = (b, M b) / (M b, A M b): one preconditioner and one operator application (the
 /// implicit integrator's error filter with a multigrid). Sums exact over every process.
-pub fn first_iterate<S: Sweep>(
+pub(crate) fn first_iterate<S: Sweep>(
     sweep: &mut S,
     a: Shifted,
     pre: &mut dyn Precond<S>,

@@ -51,7 +51,7 @@ pub struct Propagation {
 }
 
 /// The depths (substeps per sweep) the tuner tries.
-pub const DEPTHS: [usize; 5] = [1, 2, 3, 4, 8];
+pub(crate) const DEPTHS: [usize; 5] = [1, 2, 3, 4, 8];
 /// Sweeps of each depth the tuner times before it chooses.
 const TUNE_ROUNDS: usize = 3;
 

@@ -11,7 +11,7 @@ use eprop_io::mesh::CellKind;
 
 /// A node counts as inside a tool when it lies deeper than this fraction of the tool's radius:
 /// the band the kinematic contact leaves a node it puts on the surface in (`ON_SURFACE`).
-pub const INSIDE_TOLERANCE: f64 = super::kinematic::ON_SURFACE;
+pub(crate) const INSIDE_TOLERANCE: f64 = super::kinematic::ON_SURFACE;
 
 /// The inverted cells and the nodes inside tools at one step, over every process.
 #[derive(Clone, Debug, Default, PartialEq)]

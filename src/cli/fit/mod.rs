@@ -209,9 +209,7 @@ fn share_curves(
 /// returns the report on rank 0.
 pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> Result<Option<FitReport>> {
     let stop = crate::guard::signals::install();
-    let t0 = Instant::now();
-    let w = world;
-    let root = is_root(w);
+    let (t0, w) = (Instant::now(), world);
     let processes = w.map_or(1, |w| w.size());
     let params = checked_options(opts)?;
     let specs = opts
@@ -235,7 +233,7 @@ pub fn fit_on(world: Option<&dyn Comm>, scenario: &Path, opts: &FitOptions) -> R
         .collect();
     let names: Vec<String> = params.iter().map(|p| p.name.clone()).collect();
     let values = |z: &[f64]| -> Vec<f64> { params.iter().zip(z).map(|(p, &z)| p.p(z)).collect() };
-    let show = root && !opts.quiet;
+    let show = is_root(w) && !opts.quiet;
     let mut count = 0usize;
     // per curve: its RMS, absolute and relative, of the residuals r (as the search sees them)
     let rms_of = |r: &[f64]| -> Vec<(f64, f64)> {

@@ -22,7 +22,7 @@ use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::{bail, Result};
 
-pub const GAMMA: f64 = 2.0 - std::f64::consts::SQRT_2;
+pub(crate) const GAMMA: f64 = 2.0 - std::f64::consts::SQRT_2;
 /// theta = gamma / 2 = 1 - 1/sqrt 2: the implicit weight of both stages.
 pub const THETA: f64 = 1.0 - std::f64::consts::FRAC_1_SQRT_2;
 
@@ -39,9 +39,9 @@ pub fn amplification(z: f64) -> f64 {
 /// (an estimate needs two digits). With a multigrid each filter pass is one preconditioned
 /// step instead (`Solver::first_iterate`): conjugate gradients to 1e-1 stopped there after one
 /// iteration on the 70^3 box, and one iteration to 1e-2 moved the error ratios by at most 1.2 %.
-pub const FILTER_TOLERANCE: f64 = 1e-2;
+pub(crate) const FILTER_TOLERANCE: f64 = 1e-2;
 /// How often the estimate goes through (V - theta tau W)^-1 V.
-pub const FILTER_PASSES: usize = 2;
+pub(crate) const FILTER_PASSES: usize = 2;
 
 /// Conjugate-gradient iterations of the last step's solves.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -22,7 +22,7 @@ use anyhow::{anyhow, Result};
 pub const MULTIGRID_FROM: usize = 40;
 /// ... and takes it only where its trial solve is this many times cheaper than jacobi's (its
 /// setup, and a recombination per error-control level, are not in the trial).
-pub const MULTIGRID_MARGIN: f64 = 1.5;
+pub(crate) const MULTIGRID_MARGIN: f64 = 1.5;
 
 /// The preconditioner of A = V - theta_tau W (`vol`: the volumes of the rows that move).
 fn preconditioner(
@@ -89,7 +89,7 @@ pub struct Solver {
 
 /// The tightest tolerance `Solver::tighten` sets: conjugate gradients still converge there in
 /// double precision.
-pub const TIGHTEST: f64 = 1e-13;
+pub(crate) const TIGHTEST: f64 = 1e-13;
 
 impl Solver {
     /// The solves of TR-BDF2 steps of dt on `prop`'s operator: `vol` the control volumes,
