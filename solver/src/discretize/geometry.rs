@@ -397,7 +397,14 @@ impl Dual {
                 inc,
                 rows,
                 |_| true,
-                |c| cell_dual(mesh.kinds[c as usize], mesh.cell(c as usize), pts),
+                |c| {
+                    // the cell's nodes, kind and boundary faces beside its dual piece: a row
+                    // then reads nothing of the mesh's cell arrays
+                    let (kind, nodes) = (mesh.kinds[c as usize], mesh.cell(c as usize));
+                    let mut at = [0u32; MAX_NODES];
+                    at[..nodes.len()].copy_from_slice(nodes);
+                    (cell_dual(kind, nodes, pts), at, kind, mask[c as usize])
+                },
             )
         };
         let order = visit_order(mesh, n_rows);
@@ -407,11 +414,10 @@ impl Dual {
                 let mut v = 0.0;
                 let mut a = [0.0; 3];
                 let slots = ctx.row(i);
-                for (&c, &slot) in inc.of(i).iter().zip(slots) {
-                    let cd = &ctx.items[slot as usize];
-                    let c = c as usize;
-                    let kind = mesh.kinds[c];
-                    let nodes = mesh.cell(c);
+                for &slot in slots {
+                    let (cd, nodes, kind, mask) = &ctx.items[slot as usize];
+                    let (kind, mask) = (*kind, *mask);
+                    let nodes = &nodes[..kind.n_nodes()];
                     let li = nodes.iter().position(|&x| x as usize == i).unwrap();
                     v += cd.vol[li];
                     for (e, edge) in kind.edges().iter().enumerate() {
@@ -425,9 +431,9 @@ impl Dual {
                         let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
                         s[p] = add(s[p], scale(cd.s[e], sign));
                     }
-                    if mask[c] != 0 {
+                    if mask != 0 {
                         for (f, face) in kind.faces().iter().enumerate() {
-                            if mask[c] & (1 << f) == 0 {
+                            if mask & (1 << f) == 0 {
                                 continue;
                             }
                             if let Some(k) = face.iter().position(|&l| l == li) {
@@ -623,7 +629,7 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                     let rg = rc * Vector3::from(g[hi]);
                     a[k] = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
                 }
-                a
+                (a, [nodes[0], nodes[1], nodes[2], nodes[3]])
             },
         )
     };
@@ -636,12 +642,10 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
             let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
             let slots = ctx.row(i);
             for (&c, &slot) in inc.of(i).iter().zip(slots) {
-                let c = c as usize;
-                let kind = mesh.kinds[c];
-                let nodes = mesh.cell(c);
-                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                if kind == CellKind::Tet {
-                    let a = &ctx.items[slot as usize];
+                if slot != u32::MAX {
+                    // a tetrahedron: its nodes and coefficients are the block's
+                    let (a, nodes) = &ctx.items[slot as usize];
+                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
                     for lk in 0..4 {
                         if lk == li {
                             continue;
@@ -651,6 +655,10 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                         w[p] += val;
                     }
                 } else {
+                    let c = c as usize;
+                    let kind = mesh.kinds[c];
+                    let nodes = mesh.cell(c);
+                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
                     let rc = tensor(nodes);
                     let cd = cell_dual(kind, nodes, pts);
                     let gg = green_gauss(kind, nodes, pts, cd.volume);
