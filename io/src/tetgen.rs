@@ -251,4 +251,27 @@ mod tests {
         assert_eq!(m.node_ids, vec![0, 1, 2, 3]);
         assert_eq!((m.cell_tags[0], m.facets.tags[0]), (-2, 7));
     }
+
+    #[test]
+    fn ids_out_of_a_run_are_looked_up_and_duplicates_refused() {
+        // consecutive from 1, then a gap: the ids after it are found through the table
+        let node = "5 3 0 0\n1 0 0 0\n2 1 0 0\n7 0 1 0\n3 0 0 1\n9 1 1 1\n";
+        let ele = "2 4 0\n1 1 2 7 3\n2 2 7 3 9\n";
+        let m = super::parse("x", node.as_bytes(), ele.as_bytes(), None).unwrap();
+        assert_eq!(m.conn, vec![0, 1, 2, 3, 1, 2, 3, 4]);
+        // an id outside the run, and one past the last node of a consecutive run
+        let e = super::parse("x", node.as_bytes(), "1 4 0\n1 1 2 8 3\n".as_bytes(), None).unwrap_err();
+        assert!(e.to_string().contains("names node 8"), "{e}");
+        let dense = "2 3 0 0\n0 0 0 0\n1 1 0 0\n";
+        let e = super::parse("x", dense.as_bytes(), "1 4 0\n1 0 1 2 0\n".as_bytes(), None).unwrap_err();
+        assert!(e.to_string().contains("names node 2"), "{e}");
+        // a duplicate inside the run (the table starts there) and after it
+        for node in [
+            "3 3 0 0\n1 0 0 0\n2 1 0 0\n1 0 1 0\n",
+            "4 3 0 0\n1 0 0 0\n5 1 0 0\n6 0 1 0\n5 0 0 1\n",
+        ] {
+            let e = super::parse("x", node.as_bytes(), "0 4 0\n".as_bytes(), None).unwrap_err();
+            assert!(e.to_string().contains("is defined twice"), "{e}");
+        }
+    }
 }
