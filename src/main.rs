@@ -581,8 +581,12 @@ fn real_main(cli: Cli) -> Result<()> {
         }
         Cmd::Convert(a) => convert(&a.input, &a.output, a.strict, a.overwrite),
         Cmd::Partition(a) => {
-            // every process reads the mesh: PT-Scotch splits it on all of them
+            // every process reads the mesh (a .vtkhdf mesh: its slab) and takes part in the split
+            let slabs = a.mesh.extension().is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf"));
             let report = launch(|world| {
+                if slabs {
+                    return inspect::partition_report_slabs(&a.mesh, a.parts, world);
+                }
                 let m = eprop_io::read_mesh(&a.mesh)?;
                 inspect::partition_report(&m, a.parts, world)
             })?;
@@ -731,9 +735,7 @@ fn convert(input: &Path, output: &Path, strict: bool, overwrite: bool) -> Result
     for w in &m.warnings {
         eprintln!("warning: {w}");
     }
-    let vtkhdf = output
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf"));
+    let vtkhdf = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf"));
     if vtkhdf {
         // the mesh that the processes of a job read in slabs
         if m.facets.len() > 0 || !m.group_names.is_empty() {

@@ -11,3 +11,4 @@ pub mod halo;
 pub mod launch;
 pub mod parts;
 pub mod ptscotch;
+pub mod slabs;

@@ -56,19 +56,43 @@ pub fn write_mesh_file(mesh: &Mesh, path: &Path) -> Result<()> {
     ] {
         h5(top.new_dataset_builder().with_data(&[v]).create(name), path, name)?;
     }
-    h5(top.new_dataset_builder().with_data(&conn).create("Connectivity"), path, "Connectivity")?;
+    h5(
+        top.new_dataset_builder().with_data(&conn).create("Connectivity"),
+        path,
+        "Connectivity",
+    )?;
     drop(conn);
-    h5(top.new_dataset_builder().with_data(&offs).create("Offsets"), path, "Offsets")?;
-    h5(top.new_dataset_builder().with_data(&types).create("Types"), path, "Types")?;
+    h5(
+        top.new_dataset_builder().with_data(&offs).create("Offsets"),
+        path,
+        "Offsets",
+    )?;
+    h5(
+        top.new_dataset_builder().with_data(&types).create("Types"),
+        path,
+        "Types",
+    )?;
     let pts = ndarray::Array2::from_shape_vec((n, 3), mesh.points.iter().flatten().copied().collect())
         .map_err(|e| anyhow!("internal: {e}"))?;
-    h5(top.new_dataset_builder().with_data(&pts).create("Points"), path, "Points")?;
+    h5(
+        top.new_dataset_builder().with_data(&pts).create("Points"),
+        path,
+        "Points",
+    )?;
     let cd = h5(top.create_group("CellData"), path, "creating CellData")?;
     let tags: Vec<i64> = mesh.cell_tags.iter().map(|&t| t as i64).collect();
-    h5(cd.new_dataset_builder().with_data(&tags).create("tag"), path, "CellData/tag")?;
+    h5(
+        cd.new_dataset_builder().with_data(&tags).create("tag"),
+        path,
+        "CellData/tag",
+    )?;
     let pd = h5(top.create_group("PointData"), path, "creating PointData")?;
     let ids: Vec<i64> = mesh.node_ids.iter().map(|&i| i as i64).collect();
-    h5(pd.new_dataset_builder().with_data(&ids).create("node_ids"), path, "PointData/node_ids")?;
+    h5(
+        pd.new_dataset_builder().with_data(&ids).create("node_ids"),
+        path,
+        "PointData/node_ids",
+    )?;
     Ok(())
 }
 
@@ -167,10 +191,20 @@ pub fn read_slab(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>) 
         }
         Ok(h5(d.read_slice_1d::<i64, _>(s![a..b]), path, name)?.to_vec())
     };
-    let raw = read_1d(check("Connectivity", &[nconn])?, k0 as usize, k1 as usize, "Connectivity")?;
+    let raw = read_1d(
+        check("Connectivity", &[nconn])?,
+        k0 as usize,
+        k1 as usize,
+        "Connectivity",
+    )?;
     let types: Vec<u8> = match c0 == c1 {
         true => vec![],
-        false => h5(check("Types", &[cells])?.read_slice_1d::<u8, _>(s![c0..c1]), path, "Types")?.to_vec(),
+        false => h5(
+            check("Types", &[cells])?.read_slice_1d::<u8, _>(s![c0..c1]),
+            path,
+            "Types",
+        )?
+        .to_vec(),
     };
     let tags = match top.link_exists("CellData") && top.link_exists("CellData/tag") {
         true => read_1d(check("CellData/tag", &[cells])?, c0, c1, "CellData/tag")?,
@@ -219,9 +253,10 @@ pub fn read_slab(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>) 
         slab.offsets.push(slab.conn.len());
         slab.kinds.push(kind);
         let tag = tags[c];
-        slab.cell_tags.push(i32::try_from(tag).map_err(|_| {
-            anyhow!("{}: cell {} has tag {tag}, outside 32 bits", path.display(), c0 + c)
-        })?);
+        slab.cell_tags.push(
+            i32::try_from(tag)
+                .map_err(|_| anyhow!("{}: cell {} has tag {tag}, outside 32 bits", path.display(), c0 + c))?,
+        );
     }
     drop(raw);
     if p0 < p1 {
@@ -260,7 +295,10 @@ mod tests {
         let whole = read_slab(&path, None).unwrap();
         assert_eq!((whole.nodes, whole.cells), (m.n_nodes(), m.n_cells()));
         assert_eq!((&whole.points, &whole.node_ids), (&m.points, &m.node_ids));
-        assert_eq!((&whole.kinds, &whole.offsets, &whole.conn), (&m.kinds, &m.offsets, &m.conn));
+        assert_eq!(
+            (&whole.kinds, &whole.offsets, &whole.conn),
+            (&m.kinds, &m.offsets, &m.conn)
+        );
         assert_eq!(whole.cell_tags, m.cell_tags);
         // the blocks cover everything once, in order
         for size in 1..5 {
