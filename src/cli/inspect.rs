@@ -40,6 +40,10 @@ pub struct PartitionReport {
     /// Peak resident memory of each process, bytes (a mesh read in slabs).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub peak_memory: Vec<u64>,
+    /// Each process's share after the cells and coordinates moved to their owners (one part
+    /// per process): owned nodes, halo nodes, cells.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub moved: Vec<[usize; 3]>,
 }
 
 /// The report on rank 0 (`None` on the other processes of `world`, which take part in the
@@ -94,6 +98,7 @@ pub fn partition_report(mesh: &Mesh, parts: usize, world: Option<&dyn Comm>) -> 
         processes: world.map_or(1, |w| w.size()),
         splits,
         peak_memory: vec![],
+        moved: vec![],
     }))
 }
 
@@ -137,6 +142,22 @@ impl std::fmt::Display for PartitionReport {
                 first as f64 / mean.max(1.0)
             )?;
         }
+        if !self.moved.is_empty() {
+            let col = |k: usize| {
+                self.moved
+                    .iter()
+                    .map(|m| m[k].to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            writeln!(
+                f,
+                "  moved to the owners: owned nodes {}; halo nodes {}; cells {}",
+                col(0),
+                col(1),
+                col(2)
+            )?;
+        }
         // METIS beside the block split, or the splits there are
         let by = |name: &str| self.splits.iter().find(|s| s.method == name);
         let cols: Vec<&SplitQuality> = match (by("metis"), by("block")) {
@@ -173,11 +194,25 @@ pub fn partition_report_slabs(path: &Path, parts: usize, world: Option<&dyn Comm
     let graph = slabs::node_graph(&cells, &vtxdist, vtxdist[rank], vtxdist[rank + 1])?;
     drop(cells);
     let (nodes, edges) = (slab.nodes, graph.adj.len());
-    drop(slab);
     let (part, how) = slabs::split(&graph, parts, world)?;
     let seconds = world.map_or(0.0, |w| w.max(0.0)).max(t.elapsed().as_secs_f64());
     let q = slabs::quality(&graph, &part, parts, world);
+    drop(graph);
     let edges = world.map_or(edges as i128, |w| w.sum_i128(edges as i128)) as usize;
+    // one part per process: the cells and coordinates move to their owners
+    let moved: Vec<[usize; 3]> = match parts == size {
+        true => {
+            let local = slabs::redistribute(&slab, &part, world.and_then(|w| w.handle()))?;
+            drop(slab);
+            let mine = [local.n_owned, local.global.len() - local.n_owned, local.cells.len()].map(|x| x as f64);
+            world
+                .map_or(mine.to_vec(), |w| w.all_gather(&mine))
+                .chunks_exact(3)
+                .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
+                .collect()
+        }
+        false => vec![],
+    };
     let peak = peak_rss() as f64;
     let peak_memory: Vec<u64> = world
         .map_or(vec![peak], |w| w.all_gather(&[peak]))
@@ -207,6 +242,7 @@ pub fn partition_report_slabs(path: &Path, parts: usize, world: Option<&dyn Comm
             seconds,
         }],
         peak_memory,
+        moved,
     }))
 }
 

@@ -99,14 +99,21 @@ fn all_to_all_u32(world: &Handle, send: &[u32], counts: &[usize]) -> (Vec<u32>, 
 pub fn cells_to_owners(slab: &MeshSlab, world: Option<&Handle>) -> Result<Cells> {
     use mpi::topology::Communicator;
     let size = world.map_or(1, |w| w.communicator().size() as usize);
+    let node_cuts = cuts(slab.nodes, size);
+    send_cells(slab, world, |g| owner(&node_cuts, g as usize))
+}
+
+/// Every cell of the slab sent to the distinct processes `dest` names for its nodes; the
+/// cells received, in increasing global order.
+fn send_cells(slab: &MeshSlab, world: Option<&Handle>, dest: impl Fn(u32) -> usize) -> Result<Cells> {
+    use mpi::topology::Communicator;
+    let size = world.map_or(1, |w| w.communicator().size() as usize);
     if u32::try_from(slab.cells).is_err() {
         bail!("{} cells do not fit the 32-bit cell messages", slab.cells);
     }
-    let node_cuts = cuts(slab.nodes, size);
-    // each cell to the distinct owners of its nodes
     let owners_of = |c: usize, out: &mut Vec<usize>| {
         out.clear();
-        out.extend(slab.cell(c).iter().map(|&g| owner(&node_cuts, g as usize)));
+        out.extend(slab.cell(c).iter().map(|&g| dest(g)));
         out.sort_unstable();
         out.dedup();
     };
@@ -217,6 +224,107 @@ pub fn node_graph(cells: &Cells, vtxdist: &[usize], lo: usize, hi: usize) -> Res
     })
 }
 
+/// Asks the owners (by `cuts`) of the sorted global ids `ids` for `width` words each
+/// (`answer(g)`, which the owner of g computes); the answers in the order of `ids` (every
+/// process of `world` calls; one process answers itself).
+fn lookup(
+    ids: &[u32],
+    cuts: &[usize],
+    width: usize,
+    world: Option<&Handle>,
+    answer: impl Fn(u32, &mut Vec<u32>),
+) -> Vec<u32> {
+    let Some(w) = world else {
+        let mut out = Vec::with_capacity(ids.len() * width);
+        ids.iter().for_each(|&g| answer(g, &mut out));
+        return out;
+    };
+    let size = cuts.len() - 1;
+    let mut counts = vec![0usize; size];
+    ids.iter().for_each(|&j| counts[owner(cuts, j as usize)] += 1);
+    // sorted ids are in owner order (slabs are contiguous); each owner answers in the order asked
+    let (asked, asked_counts) = all_to_all_u32(w, ids, &counts);
+    let mut answers = Vec::with_capacity(asked.len() * width);
+    asked.iter().for_each(|&g| answer(g, &mut answers));
+    let back: Vec<usize> = asked_counts.iter().map(|&n| n * width).collect();
+    all_to_all_u32(w, &answers, &back).0
+}
+
+/// A process's share of the mesh after the split: every cell that touches a node it owns
+/// (one layer of halo cells), and the nodes of those cells: its owned nodes in increasing
+/// global order, then the halo nodes in increasing global order, with their coordinates and
+/// input ids.
+#[derive(Clone, Debug, Default)]
+pub struct Local {
+    pub cells: Cells,
+    /// Global index of each local node.
+    pub global: Vec<u32>,
+    pub n_owned: usize,
+    pub points: Vec<[f64; 3]>,
+    pub node_ids: Vec<u64>,
+}
+
+/// Moves cells and coordinates to their owners (every process of `world` calls, one part per
+/// process): `part` the part of each node of this process's slab (`split`). The parts of the
+/// cells' nodes are asked of the slabs' owners, each cell goes to every part among its nodes,
+/// and the coordinates of the nodes of a process's cells come from the slabs that hold them.
+pub fn redistribute(slab: &MeshSlab, part: &[u32], world: Option<&Handle>) -> Result<Local> {
+    use mpi::topology::Communicator;
+    let (rank, size) = world.map_or((0, 1), |w| {
+        (w.communicator().rank() as usize, w.communicator().size() as usize)
+    });
+    let node_cuts = cuts(slab.nodes, size);
+    let lo = node_cuts[rank] as u32;
+    if part.len() != slab.points.len() || part.iter().any(|&p| p as usize >= size) {
+        bail!("internal: a part per node of the slab, one part per process");
+    }
+    // the parts of the nodes of this slab's cells
+    let mut ids: Vec<u32> = slab.conn.clone();
+    ids.sort_unstable();
+    ids.dedup();
+    let parts = lookup(&ids, &node_cuts, 1, world, |g, out| out.push(part[(g - lo) as usize]));
+    let cells = send_cells(slab, world, |g| parts[ids.binary_search(&g).expect("asked")] as usize)?;
+    drop((ids, parts));
+    // the nodes of the cells received: parts, coordinates and ids from the slabs
+    let mut ids: Vec<u32> = cells.conn.clone();
+    ids.sort_unstable();
+    ids.dedup();
+    let words = lookup(&ids, &node_cuts, 9, world, |g, out| {
+        let k = (g - lo) as usize;
+        out.push(part[k]);
+        for x in slab.points[k] {
+            let b = x.to_bits();
+            out.extend([b as u32, (b >> 32) as u32]);
+        }
+        let i = slab.node_ids[k];
+        out.extend([i as u32, (i >> 32) as u32]);
+    });
+    let word = |w: &[u32]| u64::from(w[0]) | (u64::from(w[1]) << 32);
+    let (mut owned, mut halo) = (Vec::new(), Vec::new());
+    for (k, w) in words.chunks_exact(9).enumerate() {
+        match w[0] as usize == rank {
+            true => owned.push(k),
+            false => halo.push(k),
+        }
+    }
+    let n_owned = owned.len();
+    let order: Vec<usize> = owned.into_iter().chain(halo).collect();
+    let pick = |k: usize| &words[9 * k..9 * k + 9];
+    Ok(Local {
+        global: order.iter().map(|&k| ids[k]).collect(),
+        n_owned,
+        points: order
+            .iter()
+            .map(|&k| {
+                let w = pick(k);
+                [1, 3, 5].map(|a| f64::from_bits(word(&w[a..a + 2])))
+            })
+            .collect(),
+        node_ids: order.iter().map(|&k| word(&pick(k)[7..9])).collect(),
+        cells,
+    })
+}
+
 /// How the slabs were split.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Splitter {
@@ -282,24 +390,16 @@ pub fn split(graph: &Slab, nparts: usize, world: Option<&dyn Comm>) -> Result<(V
 
 /// The parts of the neighbours of this slab's rows that lie in other slabs (every process of
 /// `world` calls): `(ids, parts)`, the ids sorted.
-fn remote_parts(graph: &Slab, part: &[u32], world: Option<&Handle>) -> (Vec<u32>, Vec<u32>) {
-    use mpi::topology::Communicator;
-    let Some(w) = world else {
+fn remote_parts(graph: &Slab, part: &[u32], rank: usize, world: Option<&Handle>) -> (Vec<u32>, Vec<u32>) {
+    if world.is_none() {
         return (vec![], vec![]);
-    };
-    let (rank, size) = (w.communicator().rank() as usize, w.communicator().size() as usize);
+    }
     let cuts: Vec<usize> = graph.vtxdist.iter().map(|&x| x as usize).collect();
     let (lo, hi) = (cuts[rank] as u32, cuts[rank + 1] as u32);
     let mut ids: Vec<u32> = graph.adj.iter().copied().filter(|&j| j < lo || j >= hi).collect();
     ids.sort_unstable();
     ids.dedup();
-    let mut counts = vec![0usize; size];
-    ids.iter().for_each(|&j| counts[owner(&cuts, j as usize)] += 1);
-    // the ids are in owner order already (sorted, slabs contiguous); each owner answers the
-    // ids asked of it in the order asked
-    let (asked, asked_counts) = all_to_all_u32(w, &ids, &counts);
-    let answers: Vec<u32> = asked.iter().map(|&j| part[(j - lo) as usize]).collect();
-    let (parts, _) = all_to_all_u32(w, &answers, &asked_counts);
+    let parts = lookup(&ids, &cuts, 1, world, |g, out| out.push(part[(g - lo) as usize]));
     (ids, parts)
 }
 
@@ -308,7 +408,7 @@ fn remote_parts(graph: &Slab, part: &[u32], world: Option<&Handle>) -> (Vec<u32>
 pub fn quality(graph: &Slab, part: &[u32], nparts: usize, world: Option<&dyn Comm>) -> eprop_partition::Quality {
     let rank = world.map_or(0, |w| w.rank());
     let lo = graph.vtxdist[rank];
-    let (ids, parts) = remote_parts(graph, part, world.and_then(|w| w.handle()));
+    let (ids, parts) = remote_parts(graph, part, rank, world.and_then(|w| w.handle()));
     let part_of = |j: u32| -> u32 {
         match j.checked_sub(lo).map(|k| k as usize).filter(|&k| k < part.len()) {
             Some(k) => part[k],
@@ -435,6 +535,17 @@ mod tests {
             (a.edge_cut, a.imbalance, &a.owned, &a.halo, &a.neighbours),
             (b.edge_cut, b.imbalance, &b.owned, &b.halo, &b.neighbours)
         );
+    }
+
+    #[test]
+    fn one_process_keeps_everything_in_order() {
+        let m = box_mesh([1.0; 3], [2, 3, 2], BoxCells::Tet).unwrap();
+        let slab = slab_of(&m, 1, 0);
+        let local = redistribute(&slab, &vec![0; m.n_nodes()], None).unwrap();
+        assert_eq!(local.n_owned, m.n_nodes());
+        assert_eq!(local.global, (0..m.n_nodes() as u32).collect::<Vec<_>>());
+        assert_eq!((&local.points, &local.node_ids), (&m.points, &m.node_ids));
+        assert_eq!((&local.cells.conn, &local.cells.tags), (&m.conn, &m.cell_tags));
     }
 
     #[test]
