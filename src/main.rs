@@ -738,7 +738,7 @@ fn convert(input: &Path, output: &Path, strict: bool, overwrite: bool) -> Result
     let vtkhdf = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf"));
     if vtkhdf {
         // the mesh that the processes of a job read in slabs
-        if m.facets.len() > 0 || !m.group_names.is_empty() {
+        if !m.facets.is_empty() || !m.group_names.is_empty() {
             eprintln!("warning: {}: a .vtkhdf mesh keeps the volume cells, their tags and the node ids; the boundary facets and group names are left out", output.display());
         }
         eprop_series::vtkhdf::write_mesh_file(&m, output)?;
