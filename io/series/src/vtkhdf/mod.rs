@@ -33,10 +33,12 @@
 mod append;
 mod checks;
 mod create;
+mod mesh;
 mod read;
 mod restart;
 
 pub use create::CREATING;
+pub use mesh::{block, read_slab, write_mesh_file, MeshSlab};
 pub use read::{add_dataset, kind_of, read_mesh, read_scenario, read_step, write_csr, Kind, SeriesFile};
 
 use crate::outcome::Team;
