@@ -18,9 +18,10 @@ typedef struct {
  * rows ascending). supernodal: 0 simplicial LL' (no BLAS: faster for eprop's solves at
  * real-time sizes), 1 supernodal. On success returns the
  * factor and sets *lnz to its entries; on failure returns NULL and sets *status: 1 the matrix
- * is not positive definite, 2 out of memory or another CHOLMOD error. */
+ * is not positive definite, 2 out of memory or another CHOLMOD error, 3 the factor would have
+ * more than max_lnz entries (then in *lnz). */
 void *eprop_cholmod_factor(int n, const int *colp, const int *rowi, const double *val, int supernodal,
-                           double *lnz, int *status) {
+                           double max_lnz, double *lnz, int *status) {
     eprop_cholmod *f = calloc(1, sizeof(eprop_cholmod));
     *status = 2;
     if (!f) return NULL;
@@ -42,6 +43,13 @@ void *eprop_cholmod_factor(int n, const int *colp, const int *rowi, const double
     memcpy(A->x, val, sizeof(double) * (size_t)nnz);
     f->L = cholmod_analyze(A, &f->c);
     if (!f->L) { cholmod_free_sparse(&A, &f->c); goto fail; }
+    if (f->c.lnz > max_lnz) {
+        /* the analysis's count, before the factor's memory is taken */
+        *lnz = f->c.lnz;
+        *status = 3;
+        cholmod_free_sparse(&A, &f->c);
+        goto fail;
+    }
     cholmod_factorize(A, f->L, &f->c);
     cholmod_free_sparse(&A, &f->c);
     if (f->c.status == CHOLMOD_NOT_POSDEF) { *status = 1; goto fail; }

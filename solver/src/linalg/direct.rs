@@ -31,11 +31,15 @@ use nalgebra::DMatrix;
 pub const HAS_DIRECT: bool = cfg!(eprop_cholmod);
 
 /// The most nodes (over every process) the real-time mode factorises; above it it keeps
-/// the fixed multigrid iterations. The factor of a tetgen organ mesh holds about 100-150
-/// entries per node at 10-20k nodes (the fill grows with the mesh), and each step reads it
-/// four times (two stages, two triangular solves each).
+/// the fixed multigrid iterations. The factors of tetgen organ meshes measured 30-100 entries
+/// per node at 1.5k-7k nodes (the fill grows with the mesh), and a step reads the factor four
+/// times (two stages, two triangular solves each), about 1 ms per 1e5 entries on one core
+/// (BENCHMARKS.md): near this limit a step takes tens of milliseconds, still below the fixed
+/// iterations on meshes measured so far, and the factor's memory is on every process.
 pub const MAX_NODES: usize = 60_000;
-/// The most factor entries (8 bytes each, on every process) the real-time mode accepts.
+/// The most factor entries (8 bytes each, and a 4-byte row index, on every process) the
+/// real-time mode accepts: about 720 MB. CHOLMOD's analysis counts them before the factor's
+/// memory is taken.
 pub const MAX_FACTOR_ENTRIES: f64 = 6e7;
 
 #[cfg(eprop_cholmod)]
@@ -48,6 +52,7 @@ mod ffi {
             rowi: *const c_int,
             val: *const c_double,
             supernodal: c_int,
+            max_lnz: c_double,
             lnz: *mut c_double,
             status: *mut c_int,
         ) -> *mut c_void;
@@ -71,8 +76,9 @@ unsafe impl Send for Factor {}
 
 impl Factor {
     /// Factorises the n x n matrix whose upper triangle is given in compressed columns
-    /// (`colp`, rows `rowi` ascending in each column, values `val`).
-    pub fn new(n: usize, colp: &[i32], rowi: &[i32], val: &[f64]) -> Result<Factor> {
+    /// (`colp`, rows `rowi` ascending in each column, values `val`), unless the analysis
+    /// finds that the factor would have more than `max_entries` entries.
+    pub fn new(n: usize, colp: &[i32], rowi: &[i32], val: &[f64], max_entries: f64) -> Result<Factor> {
         assert_eq!(colp.len(), n + 1);
         assert_eq!(rowi.len(), colp[n] as usize);
         assert_eq!(val.len(), rowi.len());
@@ -88,6 +94,7 @@ impl Factor {
                     rowi.as_ptr(),
                     val.as_ptr(),
                     0,
+                    max_entries,
                     &mut lnz,
                     &mut status,
                 )
@@ -95,6 +102,8 @@ impl Factor {
             if h.is_null() {
                 bail!(match status {
                     1 => "the matrix is not positive definite".to_string(),
+                    3 =>
+                        format!("its factor would have {lnz:.3e} entries, above the direct solver's {max_entries:.0e}"),
                     _ => "CHOLMOD could not factorise it (out of memory?)".to_string(),
                 });
             }
@@ -102,7 +111,7 @@ impl Factor {
         }
         #[cfg(not(eprop_cholmod))]
         {
-            let _ = (rowi, val);
+            let _ = (rowi, val, max_entries);
             bail!("this eprop was built without CHOLMOD (Debian: libsuitesparse-dev; it is found at build time) for {n} rows")
         }
     }
@@ -301,13 +310,7 @@ impl Direct {
         }
         let rowi: Vec<i32> = upper.iter().map(|&(_, a, _)| a as i32).collect();
         let val: Vec<f64> = upper.iter().map(|&(_, _, v)| v).collect();
-        let factor = Factor::new(nu, &colp, &rowi, &val)?;
-        if factor.entries > MAX_FACTOR_ENTRIES {
-            bail!(
-                "its factor has {:.3e} entries, above the direct solver's {MAX_FACTOR_ENTRIES:.0e}",
-                factor.entries
-            );
-        }
+        let factor = Factor::new(nu, &colp, &rowi, &val, MAX_FACTOR_ENTRIES)?;
         tracing::debug!(
             "direct solver: {nu} unknowns of {nodes} nodes, {} entries in the upper triangle, {:.3e} in the factor; symmetric to {asym:.1e} of {big:.1e}",
             rowi.len(),
