@@ -504,6 +504,25 @@ fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         );
     }
     let mut imp = implicit(cx, 0, String::new())?;
+    // a direct solver where the mesh is small enough and CHOLMOD is there
+    let no_direct = match imp.set_direct(cx.prop, cx.comm) {
+        Ok((unknowns, factor, entries)) => {
+            // the cost in operator applications: stage 1's right-hand side, then per stage
+            // two triangular solves, each reading the factor once
+            let per_step = 1;
+            let solves = 4.0 * factor / entries.max(1) as f64;
+            imp.set_plan(
+                per_step,
+                CG_COST * (per_step as f64 + solves),
+                format!(
+                    "real time: TR-BDF2, one step per dt, direct solves (a sparse Cholesky factor of {unknowns} unknowns, {factor:.3e} entries, made once; {per_step} operator application and 4 triangular solves per step, about {solves:.0} applications' worth), no error control"
+                ),
+            );
+            return Ok(Box::new(imp));
+        }
+        Err(e) => e.to_string(),
+    };
+    tracing::debug!("real time: no direct solver ({no_direct}): fixed iterations");
     let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
     let k = it.clamp(REALTIME_ITERATIONS.0, REALTIME_ITERATIONS.1);
     imp.set_fixed(k);
@@ -513,7 +532,7 @@ fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         apps,
         cost,
         format!(
-            "real time: TR-BDF2, one step per dt, at most {k} iterations per stage ({} applications per step), {}, no error control",
+            "real time: TR-BDF2, one step per dt, at most {k} iterations per stage ({} applications per step), {}, no error control (no direct solver: {no_direct})",
             apps,
             imp.preconditioner_phrase(it)
         ),

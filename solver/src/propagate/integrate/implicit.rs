@@ -119,6 +119,14 @@ impl Implicit {
         self.solver.set_fixed(k);
     }
 
+    /// The real-time mode with a direct solver (`Solver::set_direct`); Err says why not (the
+    /// solves then stay iterative). Returns the unknowns, the factor's entries and A's.
+    pub fn set_direct(&mut self, prop: &Propagation, comm: &dyn Comm) -> Result<(usize, f64, usize)> {
+        self.solver.set_direct(prop, comm)?;
+        let d = self.solver.direct().expect("set");
+        Ok((d.unknowns(), d.factor_entries(), d.matrix_entries()))
+    }
+
     /// The most operator applications one step takes in the real-time mode: the stage 1
     /// right-hand side's, then per stage its iterations and the two that start it.
     pub fn applications_bound(k: usize) -> usize {
@@ -258,7 +266,7 @@ impl Implicit {
         let it2 = it2?;
         self.last = SolveStats { iterations: [it1, it2] };
         tracing::trace!("implicit step {}: {it1} + {it2} iterations", step + 1);
-        Ok(1 + (it1 + 2) + (it2 + 2))
+        Ok(1 + self.solver.applications(it1) + self.solver.applications(it2))
     }
 }
 
