@@ -64,7 +64,7 @@ pub fn relative(a: &[V3], b: &[V3]) -> f64 {
 }
 
 /// The median, 99th percentile and largest of `v` (zeros when empty).
-pub(crate) fn percentiles(v: &[f64]) -> [f64; 3] {
+pub fn percentiles(v: &[f64]) -> [f64; 3] {
     if v.is_empty() {
         return [0.0; 3];
     }
