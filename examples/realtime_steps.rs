@@ -8,21 +8,10 @@
 //! `--set` overrides a scenario key as `eprop run --set` does (e.g. `--set time.realtime=true`).
 
 use eprop::config::{Scenario, Setup};
-use eprop::simulate::realtime::percentiles;
+use eprop::simulate::realtime::{cpu_seconds, percentiles};
 use eprop::simulate::Simulation;
 use std::path::PathBuf;
 use std::time::Instant;
-
-fn cpu_seconds() -> f64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: clock_gettime writes the timespec it is given
-    let ok = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) } == 0;
-    if ok {
-        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
-    } else {
-        0.0
-    }
-}
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();

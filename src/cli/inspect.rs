@@ -27,6 +27,21 @@ pub struct SplitQuality {
     pub seconds: f64,
 }
 
+impl SplitQuality {
+    /// The report's row of a split by `method` that took `seconds`.
+    fn new(method: &str, q: eprop_partition::Quality, seconds: f64) -> Self {
+        SplitQuality {
+            method: method.to_string(),
+            edge_cut: q.edge_cut,
+            imbalance: q.imbalance,
+            owned: q.owned,
+            halo: q.halo,
+            neighbours: q.neighbours,
+            seconds,
+        }
+    }
+}
+
 /// What `eprop partition` reports: METIS and PT-Scotch beside a block split.
 #[derive(Serialize, Debug)]
 pub struct PartitionReport {
@@ -56,15 +71,7 @@ pub fn partition_report(mesh: &Mesh, parts: usize, world: Option<&dyn Comm>) -> 
     let weights = eprop_partition::degree_weights(&xadj);
     let mut add = |name: &str, part: &[u32], seconds: f64| {
         let q = quality(&xadj, &adj, part, parts);
-        splits.push(SplitQuality {
-            method: name.to_string(),
-            edge_cut: q.edge_cut,
-            imbalance: q.imbalance,
-            owned: q.owned,
-            halo: q.halo,
-            neighbours: q.neighbours,
-            seconds,
-        });
+        splits.push(SplitQuality::new(name, q, seconds));
     };
     let mut scotch = None;
     if eprop::distribute::ptscotch::AVAILABLE && parts > 1 && parts <= mesh.n_nodes() {
@@ -232,15 +239,7 @@ pub fn partition_report_slabs(path: &Path, parts: usize, world: Option<&dyn Comm
         graph_edges: edges / 2,
         parts,
         processes: size,
-        splits: vec![SplitQuality {
-            method: method.into(),
-            edge_cut: q.edge_cut,
-            imbalance: q.imbalance,
-            owned: q.owned,
-            halo: q.halo,
-            neighbours: q.neighbours,
-            seconds,
-        }],
+        splits: vec![SplitQuality::new(method, q, seconds)],
         peak_memory,
         moved,
     }))

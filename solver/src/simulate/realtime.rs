@@ -36,7 +36,7 @@ pub struct Comparison {
 }
 
 /// CPU seconds of this process so far (every thread).
-fn cpu_seconds() -> f64 {
+pub fn cpu_seconds() -> f64 {
     let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
     // SAFETY: clock_gettime writes the timespec it is given
     let ok = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) } == 0;
