@@ -6,7 +6,7 @@
 //!
 //! KIND: euler/2 (euler at half its substep: the reference's own error), rkl2, implicit, auto
 //! (default: all four). `[integrator] accuracy` comes from the scenario.
-use eprop::discretize::operator::V3;
+use eprop::linalg::V3;
 use eprop::simulate::Simulation;
 use std::time::Instant;
 

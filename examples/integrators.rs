@@ -7,9 +7,9 @@
 //! euler runs EULER_STEPS steps only (it is slow); the others STEPS. REFERENCE: a file of u
 //! after STEPS steps of euler (f64, little-endian, input node order); when EULER_STEPS equals
 //! STEPS the run writes it, otherwise it reads it and prints the relative L2 error of u.
+use eprop::config::integrator::{Kind, Preconditioner};
 use eprop::distribute::comm::Comm;
 use eprop::distribute::launch::{launch, start_alone};
-use eprop::propagate::integrate::{Kind, Preconditioner};
 use eprop::simulate::Simulation;
 use std::time::Instant;
 

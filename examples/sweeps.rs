@@ -30,7 +30,7 @@ fn main() -> anyhow::Result<()> {
     let mut times: Vec<Vec<f64>> = vec![vec![]; names.len()];
     let mut rk = eprop::propagate::integrate::Rkl2::new(1e-5, 1e-3, 1, 100000, layout, "x", String::new())?;
     let stages = rk.plan().per_step;
-    let settings = eprop::propagate::integrate::Settings::default();
+    let settings = eprop::config::integrator::Settings::default();
     let active: Vec<bool> = (0..layout.n_local)
         .map(|i| sim.volumes()[i] > 0.0 && !sim.setup().fixed[i])
         .collect();

@@ -7,10 +7,14 @@ time (and back again with --back), sending a pose every 1/--rate seconds of wall
 (simulated time = wall-clock time x --speed), or sends the rows of a table (--path, columns
 t, x, y, z) at their times. Every message gets an answer at once: the contact force and
 displacement of the latest physics step, extrapolated to the message's time. At the end it
-says bye, prints the round-trip times, writes the PNG (force against time and against the
-tool's travel) and prints its path.
+says bye, prints the round-trip times and how many answers were extrapolated beyond the latest
+physics step, writes the PNG (force against time and against the tool's travel) and prints its
+path.
 
-With --stream K it speaks protocol version 2 and asks for the deformed surface: the server sends
+It speaks protocol version 3: while the physics lags, the server extrapolates its answers up to
+10 steps ahead and flags them (bit 0: extrapolated more than one step; bit 1: the lag passes 10
+steps, so the answer is still behind the message's time); the flags go to the CSV. With
+--stream K it also asks for the deformed surface: the server sends
 the outer surface once (rest coordinates, node ids, triangles), then after its answers the
 displacements of the surface nodes of every K-th step it reaches (f32, or f64 with --f64). The
 client prints the sizes, the frames and bytes received, and with --obj writes the last frame's
@@ -38,12 +42,13 @@ import time
 from argv_glue import glued
 
 MAGIC = b"EPROPHAP"
-VERSION, VERSION_STREAM = 1, 2
+VERSION = 3  # version 2's hello and stream, answers flagged while the physics lags
 STREAM_SURFACE = 1
 POSE, FORCE, BYE = 2, 3, 4
 HELLO, A_TOOL, A_LOAD, A_BYE, A_END, TOPOLOGY, FRAME, A_ERROR = 1, 2, 3, 4, 5, 6, 7, 255
 CLIENT = struct.Struct("<IIdddd")  # kind, index, t, x, y, z: 40 bytes
-ANSWER = struct.Struct("<IIQdddddddd")  # kind, index, step, t_step, t, force[3], displacement[3]: 80 bytes
+ANSWER = struct.Struct("<IHHQdddddddd")  # kind, index, flags, step, t_step, t, force[3], displacement[3]: 80 bytes
+EXTRAPOLATED, BEYOND_REACH = 1, 2  # answer flags (version 3)
 HELLO_REPLY = struct.Struct("<II8sIIIIdddQII8x")
 
 
@@ -62,7 +67,7 @@ def recv_exact(s, n):
 
 
 class Surface:
-    """The surface stream (protocol version 2): the topology and the latest frame."""
+    """The surface stream (protocol versions 2 and 3): the topology and the latest frame."""
 
     def __init__(self):
         self.n = self.m = 0
@@ -118,7 +123,7 @@ def read_reply(s, surface=None):
 
 def hello(s, stream=0, width=4, surface=None):
     if stream:
-        s.sendall(MAGIC + struct.pack("<IIII", VERSION_STREAM, STREAM_SURFACE, stream, width) + bytes(16))
+        s.sendall(MAGIC + struct.pack("<IIII", VERSION, STREAM_SURFACE, stream, width) + bytes(16))
     else:
         s.sendall(MAGIC + struct.pack("<I", VERSION) + bytes(28))
     kind, b = read_reply(s, surface)
@@ -127,8 +132,8 @@ def hello(s, stream=0, width=4, surface=None):
     (_, version, magic, tools, loads, live_tools, live_loads, dt, t0, timeout, max_steps, n, m) = HELLO_REPLY.unpack(b)
     if magic != MAGIC:
         raise Fail("the server is not eprop serve")
-    if stream and version != VERSION_STREAM:
-        raise Fail(f"the server answered version {version}; the surface stream needs version 2")
+    if version != VERSION:
+        raise Fail(f"the server answered version {version}; this client speaks version {VERSION}")
     return dict(tools=tools, loads=loads, live_tools=live_tools, live_loads=live_loads, dt=dt, t0=t0,
                 timeout=timeout, max_steps=max_steps, surface_nodes=n, surface_triangles=m)
 
@@ -196,7 +201,7 @@ def main():
     ap.add_argument("-o", "--output", required=True, help="PNG to write")
     ap.add_argument("--csv", help="also write every answer to this CSV file")
     ap.add_argument("--stream", type=int, default=0, metavar="K",
-                    help="ask for the deformed surface (protocol version 2), a frame of every K-th step")
+                    help="ask for the deformed surface (the stream of protocol version 2), a frame of every K-th step")
     ap.add_argument("--f64", action="store_true", help="stream f64 values (default f32)")
     ap.add_argument("--obj", help="write the last frame's deformed surface to this OBJ file (needs --stream)")
     a = ap.parse_args(glued(sys.argv[1:], {"--from", "--to"}))
@@ -242,10 +247,10 @@ def main():
         if k == A_END:
             print("the run reached its end", file=sys.stderr)
             break
-        _, _, step, t_step, t_ans, fx, fy, fz, ux, uy, uz = ANSWER.unpack(b)
+        _, _, flags, step, t_step, t_ans, fx, fy, fz, ux, uy, uz = ANSWER.unpack(b)
         first = first or v
         travel = sum((v[d] - first[d]) ** 2 for d in range(3)) ** 0.5
-        rows.append((t, v, step, t_step, t_ans, (fx, fy, fz), (ux, uy, uz), travel))
+        rows.append((t, v, step, t_step, t_ans, (fx, fy, fz), (ux, uy, uz), travel, flags))
     else:
         s.sendall(CLIENT.pack(BYE, 0, 0.0, 0.0, 0.0, 0.0))
         try:
@@ -261,6 +266,11 @@ def main():
     print(f"{len(rows)} answers in {wall:.2f} s ({len(rows) / wall:.0f}/s); round trip p50 {p(0.5):.3f} ms, "
           f"p99 {p(0.99):.3f} ms, max {r[-1] * 1e3:.3f} ms; physics steps {rows[0][2]}..{rows[-1][2]}",
           file=sys.stderr)
+    extrapolated = sum(1 for row in rows if row[8] & EXTRAPOLATED)
+    beyond = sum(1 for row in rows if row[8] & BEYOND_REACH)
+    print(f"{extrapolated} of {len(rows)} answers extrapolated beyond the latest physics step "
+          f"({beyond} of them still behind the message's time: the physics lagged more than 10 steps)",
+          file=sys.stderr)
     if surface is not None:
         print(f"surface: {surface.n} nodes, {surface.m} triangles; {surface.frames} frames "
               f"(steps {surface.first_step}..{surface.step}), {surface.bytes / 1e6:.2f} MB streamed", file=sys.stderr)
@@ -272,9 +282,10 @@ def main():
     if a.csv:
         with open(a.csv, "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["t", "x", "y", "z", "step", "t_step", "t_answer", "fx", "fy", "fz", "ux", "uy", "uz", "rtt_ms"])
-            for (t, v, step, ts, ta, fo, u, _), rt in zip(rows, rtts):
-                w.writerow([t, *v, step, ts, ta, *fo, *u, rt * 1e3])
+            w.writerow(["t", "x", "y", "z", "step", "t_step", "t_answer", "fx", "fy", "fz", "ux", "uy", "uz", "rtt_ms",
+                        "flags"])
+            for (t, v, step, ts, ta, fo, u, _, fl), rt in zip(rows, rtts):
+                w.writerow([t, *v, step, ts, ta, *fo, *u, rt * 1e3, fl])
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-pkgs=(libopenmpi-dev openmpi-bin libclang-dev libmetis-dev libhdf5-openmpi-dev hdf5-tools pkg-config libhypre-dev libptscotch-dev
+pkgs=(libopenmpi-dev openmpi-bin libclang-dev libmetis-dev libhdf5-openmpi-dev hdf5-tools pkg-config libhypre-dev libptscotch-dev libsuitesparse-dev
       python3-h5py python3-numpy python3-matplotlib python3-venv tetgen gmsh
       libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri)
 missing=()

@@ -12,12 +12,57 @@
 //! directories); `EPROP_PTSCOTCH=0` builds without it. It is linked with plain `-l` flags
 //! (`ptscotchparmetisv3`, `ptscotch`; the declarations are in `src/distribute/ptscotch.rs`).
 //! Without it, `[performance] partitioner = "ptscotch"` falls back to METIS and says so.
+//!
+//! CHOLMOD (SuiteSparse; the real-time mode's direct solver, `src/linalg/direct.rs`) is used
+//! when its header `cholmod.h` is found (`CHOLMOD_DIR/include`, else `/usr/include/suitesparse`,
+//! Debian's libsuitesparse-dev); `EPROP_CHOLMOD=0` builds without it. The thin C layer
+//! `src/linalg/cholmod.c` is compiled here and linked with `-lcholmod`. Without it, the
+//! real-time mode solves with its fixed multigrid-preconditioned iterations.
 
 use std::path::PathBuf;
 
 fn main() {
     ptscotch();
     hypre();
+    cholmod();
+}
+
+/// Sets `eprop_cholmod`, compiles `src/linalg/cholmod.c` and links CHOLMOD when its header is
+/// found.
+fn cholmod() {
+    println!("cargo::rustc-check-cfg=cfg(eprop_cholmod)");
+    println!("cargo::rerun-if-env-changed=EPROP_CHOLMOD");
+    println!("cargo::rerun-if-env-changed=CHOLMOD_DIR");
+    println!("cargo::rerun-if-changed=src/linalg/cholmod.c");
+    if std::env::var("EPROP_CHOLMOD").is_ok_and(|v| v == "0") {
+        return;
+    }
+    let dir = std::env::var_os("CHOLMOD_DIR").map(PathBuf::from);
+    let includes: Vec<PathBuf> = match &dir {
+        Some(d) => vec![d.join("include"), d.join("include/suitesparse")],
+        None => vec![
+            PathBuf::from("/usr/include/suitesparse"),
+            PathBuf::from("/usr/local/include/suitesparse"),
+            PathBuf::from("/usr/local/include"),
+        ],
+    };
+    let Some(include) = includes.iter().find(|d| d.join("cholmod.h").is_file()) else {
+        if dir.is_some() {
+            panic!("CHOLMOD_DIR is set but no cholmod.h is under its include/; fix: point CHOLMOD_DIR at SuiteSparse's install prefix, or unset it");
+        }
+        return;
+    };
+    cc::Build::new()
+        .file("src/linalg/cholmod.c")
+        .include(include)
+        .opt_level(2)
+        .warnings(false)
+        .compile("eprop_cholmod");
+    if let Some(d) = &dir {
+        println!("cargo::rustc-link-search=native={}", d.join("lib").display());
+    }
+    println!("cargo::rustc-link-lib=cholmod");
+    println!("cargo::rustc-cfg=eprop_cholmod");
 }
 
 /// Sets `eprop_ptscotch` and the link flags when PT-Scotch's ParMETIS V3 layer is found.

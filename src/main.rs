@@ -105,7 +105,7 @@ Exit status: 0 fitted, 1 error or refusal, 2 bad command line, 3 stopped by a si
     /// Describe a mesh: counts, volume, control-volume checks, quality, stable substep and the
     /// nodes and cells that set it.
     Info(InfoArgs),
-    /// Convert a mesh: read any supported format, validate, write .msh (Gmsh 4.1) or .vtu.
+    /// Convert a mesh: read any supported format, validate, write .msh (Gmsh 4.1), .vtu or .vtkhdf.
     Convert(ConvertArgs),
     /// Split a mesh's node graph for K processes and report the quality of the split.
     #[command(
@@ -337,7 +337,7 @@ struct InfoArgs {
 struct ConvertArgs {
     /// Input mesh (.msh, .vtk, .vtu, .node/.ele, .mesh)
     input: PathBuf,
-    /// Output mesh (.msh or .vtu); never one of the input's files
+    /// Output mesh (.msh, .vtu, or .vtkhdf: the mesh that `eprop partition` reads in slabs under mpirun); never one of the input's files
     output: PathBuf,
     /// Refuse inverted cells instead of reorienting them
     #[arg(long)]
@@ -581,8 +581,12 @@ fn real_main(cli: Cli) -> Result<()> {
         }
         Cmd::Convert(a) => convert(&a.input, &a.output, a.strict, a.overwrite),
         Cmd::Partition(a) => {
-            // every process reads the mesh: PT-Scotch splits it on all of them
+            // every process reads the mesh (a .vtkhdf mesh: its slab) and takes part in the split
+            let slabs = a.mesh.extension().is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf"));
             let report = launch(|world| {
+                if slabs {
+                    return inspect::partition_report_slabs(&a.mesh, a.parts, world);
+                }
                 let m = eprop_io::read_mesh(&a.mesh)?;
                 inspect::partition_report(&m, a.parts, world)
             })?;
@@ -731,7 +735,16 @@ fn convert(input: &Path, output: &Path, strict: bool, overwrite: bool) -> Result
     for w in &m.warnings {
         eprintln!("warning: {w}");
     }
-    eprop_io::write_mesh(&m, output)?;
+    let vtkhdf = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf"));
+    if vtkhdf {
+        // the mesh that the processes of a job read in slabs
+        if !m.facets.is_empty() || !m.group_names.is_empty() {
+            eprintln!("warning: {}: a .vtkhdf mesh keeps the volume cells, their tags and the node ids; the boundary facets and group names are left out", output.display());
+        }
+        eprop_series::vtkhdf::write_mesh_file(&m, output)?;
+    } else {
+        eprop_io::write_mesh(&m, output)?;
+    }
     println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
     Ok(())
 }

@@ -6,7 +6,7 @@
 
 mod common;
 
-use eprop::discretize::operator::V3;
+use eprop::linalg::V3;
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
 use std::path::Path;

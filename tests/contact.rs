@@ -6,10 +6,11 @@
 
 mod common;
 
-use eprop::simulate::contact::{depth, ToolState};
+use eprop::simulate::contact::depth;
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
 use eprop_io::geom::norm;
+use eprop_series::vtkhdf::ToolState;
 use std::path::Path;
 
 /// A 40 x 40 x 20 mm block in metres (continuum reading), bottom fixed.

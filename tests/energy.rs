@@ -6,10 +6,10 @@
 
 mod common;
 
-use eprop::simulate::contact::ToolState;
 use eprop::simulate::kinematic::Energy;
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
+use eprop_series::vtkhdf::ToolState;
 use std::path::Path;
 
 const PUNCH: &str = "shape = \"punch\"\nradius = 0.005\nnormal = [0, 0, -1]";

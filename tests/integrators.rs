@@ -6,9 +6,10 @@
 mod common;
 
 use common::sim;
-use eprop::discretize::operator::V3;
+use eprop::config::integrator::Settings;
 use eprop::distribute::comm::Serial;
-use eprop::propagate::integrate::{Euler, Implicit, Rkl2, Settings, StepPlan, StepStats, Stepper};
+use eprop::linalg::V3;
+use eprop::propagate::integrate::{Euler, Implicit, Rkl2, StepPlan, StepStats, Stepper};
 use eprop::propagate::{Propagation, Sources};
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
@@ -641,7 +642,7 @@ fn the_error_estimates_match_the_true_error_on_an_eigenvector() {
             } else {
                 let mut set = settings();
                 if kind.ends_with("multigrid") {
-                    set.preconditioner = eprop::propagate::integrate::Preconditioner::Multigrid;
+                    set.preconditioner = eprop::config::integrator::Preconditioner::Multigrid;
                 }
                 let mut imp =
                     Implicit::new(&prop, &vol, &active, &gid, dt, hb, &set, "t", 0, String::new(), &Serial).unwrap();

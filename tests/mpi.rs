@@ -666,3 +666,73 @@ fn ptscotch_split_gives_the_bits_of_the_metis_split_on_2_and_3_ranks() {
     }
     assert!(other_split, "PT-Scotch split as METIS did on 2 and 3 processes");
 }
+
+/// `eprop partition` of a .vtkhdf mesh (`eprop convert`): every process reads its slab and the
+/// node graph is built from the slabs; the split and its measures are those of the whole mesh
+/// (METIS on one process, PT-Scotch on the same slabs under mpirun), and after the cells and
+/// coordinates move to their owners each process holds its owned nodes and exactly the halo
+/// nodes the split's measure counts.
+#[test]
+fn a_vtkhdf_mesh_is_split_in_slabs_as_the_whole_mesh_is() {
+    let d = tempfile::Builder::new().prefix("slabs").tempdir().unwrap();
+    let (msh, h5) = (d.path().join("box.msh"), d.path().join("box.vtkhdf"));
+    let cube = eprop_io::generate::box_mesh([1.0; 3], [20, 18, 16], eprop_io::generate::BoxCells::Tet).unwrap();
+    eprop_io::write_mesh(&cube, &msh).unwrap();
+    let out = serial(&["convert", msh.to_str().unwrap(), h5.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json = |out: std::process::Output| -> serde_json::Value {
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let split = |v: &serde_json::Value, name: &str| {
+        v["splits"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["method"] == name)
+            .map(|s| {
+                (
+                    s["edge_cut"].clone(),
+                    s["owned"].clone(),
+                    s["halo"].clone(),
+                    s["neighbours"].clone(),
+                )
+            })
+    };
+    let whole = json(serial(
+        &["partition", msh.to_str().unwrap(), "--parts", "3", "--json"],
+        1,
+    ));
+    let slabs = json(serial(
+        &["partition", h5.to_str().unwrap(), "--parts", "3", "--json"],
+        1,
+    ));
+    assert_eq!(split(&slabs, "metis").unwrap(), split(&whole, "metis").unwrap());
+    assert_eq!(slabs["graph_edges"], whole["graph_edges"]);
+    for n in [2, 3] {
+        let parts = n.to_string();
+        let whole = json(mpirun(
+            n,
+            &["partition", msh.to_str().unwrap(), "--parts", &parts, "--json"],
+        ));
+        let slabs = json(mpirun(
+            n,
+            &["partition", h5.to_str().unwrap(), "--parts", &parts, "--json"],
+        ));
+        let Some(scotch) = split(&whole, "ptscotch") else {
+            common::skip("this build has no PT-Scotch (libptscotch-dev)");
+            return;
+        };
+        let mine = split(&slabs, "ptscotch").expect("PT-Scotch split the slabs");
+        assert_eq!(mine, scotch, "{n} processes");
+        assert_eq!(slabs["peak_memory"].as_array().unwrap().len(), n);
+        let moved = slabs["moved"].as_array().unwrap();
+        let col = |k: usize| -> Vec<u64> { moved.iter().map(|m| m[k].as_u64().unwrap()).collect() };
+        let as_vec =
+            |v: &serde_json::Value| -> Vec<u64> { v.as_array().unwrap().iter().map(|x| x.as_u64().unwrap()).collect() };
+        assert_eq!(col(0), as_vec(&mine.1));
+        assert_eq!(col(1), as_vec(&mine.2));
+        assert_eq!(col(0).iter().sum::<u64>(), cube.n_nodes() as u64);
+        assert!(col(2).iter().sum::<u64>() > cube.n_cells() as u64);
+    }
+}

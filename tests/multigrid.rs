@@ -5,12 +5,13 @@
 mod common;
 
 use common::sim;
-use eprop::discretize::operator::V3;
+use eprop::config::integrator::{Preconditioner, Settings};
 use eprop::distribute::comm::Serial;
 use eprop::linalg::multigrid::Multigrid;
 use eprop::linalg::Precond;
+use eprop::linalg::V3;
 use eprop::propagate::integrate::implicit::THETA;
-use eprop::propagate::integrate::{Implicit, Preconditioner, Settings, Stepper};
+use eprop::propagate::integrate::{Implicit, Stepper};
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
 

@@ -298,6 +298,12 @@ fn the_tool_scripts_draw_an_indentation_and_drive_a_live_session() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(status.success(), "eprop serve failed");
     assert!(String::from_utf8_lossy(&out.stderr).contains("round trip p50"));
+    // protocol version 3: the client counts the answers the server flagged as extrapolated
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains(" answers extrapolated beyond the latest physics step"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     not_blank(&png);
     let rows = std::fs::read_to_string(&csv).unwrap();
     assert!(rows.lines().count() > 300, "{} answers", rows.lines().count());
@@ -308,6 +314,12 @@ fn the_tool_scripts_draw_an_indentation_and_drive_a_live_session() {
         .map(|l| l.split(',').nth(7).unwrap().parse::<f64>().unwrap())
         .fold(0.0, f64::min);
     assert!(fx_min < -0.1, "{fx_min}");
+    // the flags column: 0 to 3
+    assert!(rows.lines().next().unwrap().ends_with(",flags"));
+    assert!(rows
+        .lines()
+        .skip(1)
+        .all(|l| l.rsplit(',').next().unwrap().parse::<u16>().unwrap() < 4));
     // the streamed surface's last frame, as OBJ: the surface `eprop export` writes at that
     // step (f32 coordinates)
     let err = String::from_utf8_lossy(&out.stderr);

@@ -5,10 +5,10 @@
 
 mod common;
 
-use eprop::simulate::contact::ToolState;
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
 use eprop_io::geom::norm;
+use eprop_series::vtkhdf::ToolState;
 use std::path::Path;
 
 /// On a bar along x the screened operator's steady state is the discrete exponential

@@ -6,10 +6,11 @@
 mod common;
 
 use eprop::config::tissue::TissueLaw;
-use eprop::simulate::contact::{self, ToolState};
+use eprop::simulate::contact;
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, cylinder_mesh, BoxCells};
 use eprop_io::geom::norm;
+use eprop_series::vtkhdf::ToolState;
 use std::path::Path;
 
 fn sim_in(dir: &Path, mesh: eprop_mesh::Mesh, toml: &str) -> Simulation {

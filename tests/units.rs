@@ -8,7 +8,7 @@ mod common;
 
 use common::{mpirun, serial};
 use eprop::config::{Scenario, Setup};
-use eprop::discretize::operator::V3;
+use eprop::linalg::V3;
 use eprop::simulate::Simulation;
 use eprop_io::generate::{box_mesh, BoxCells};
 use eprop_mesh::Mesh;

@@ -22,6 +22,48 @@ fn id_of(sc: &mut Scan, what: &str) -> Result<u64> {
     })
 }
 
+/// The local index of each node id: `Dense(Some(first))` while the ids run first, first + 1,
+/// ... in file order (index = id - first), a table otherwise.
+enum Index {
+    Dense(Option<u64>),
+    Table(HashMap<u64, u32>),
+}
+
+impl Index {
+    /// Records node `id` at index `ids.len()` (`ids`: the ids before it); false when it is
+    /// there already. `cap`: the expected number of nodes (the table's reservation).
+    fn insert(&mut self, id: u64, ids: &[u64], cap: usize) -> Result<bool, String> {
+        let at = ids.len() as u32;
+        match self {
+            Index::Dense(first) => {
+                let f = *first.get_or_insert(id);
+                if f.checked_add(ids.len() as u64) == Some(id) {
+                    return Ok(true);
+                }
+                // out of the run: a table of the ids so far (distinct, being consecutive)
+                let mut t: HashMap<u64, u32> = HashMap::new();
+                t.try_reserve(cap.max(ids.len() + 1)).map_err(|_| {
+                    format!("not enough memory for {cap} nodes; fix: free memory or use a machine with more")
+                })?;
+                t.extend(ids.iter().enumerate().map(|(k, &i)| (i, k as u32)));
+                *self = Index::Table(t);
+                self.insert(id, ids, cap)
+            }
+            Index::Table(t) => Ok(t.insert(id, at).is_none()),
+        }
+    }
+
+    /// The index of node `id` among `n` nodes.
+    #[inline]
+    fn get(&self, id: u64, n: usize) -> Option<u32> {
+        match self {
+            Index::Dense(None) => None,
+            Index::Dense(Some(f)) => id.checked_sub(*f).filter(|&k| k < n as u64).map(|k| k as u32),
+            Index::Table(t) => t.get(&id).copied(),
+        }
+    }
+}
+
 /// Parses the three files (the `.face` part is optional).
 pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result<Mesh> {
     let node_name = format!("{name}.node");
@@ -41,12 +83,9 @@ pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result
     let c = cap(n, sc.remaining(), 8);
     reserve(&mut mesh.points, c, sc.name)?;
     reserve(&mut mesh.node_ids, c, sc.name)?;
-    let mut index: HashMap<u64, u32> = HashMap::new();
-    index.try_reserve(c).map_err(|_| {
-        sc.err(format!(
-            "not enough memory for {c} nodes; fix: free memory or use a machine with more"
-        ))
-    })?;
+    // node ids as the file numbers them: consecutive from the first (tetgen's own numbering)
+    // need no table; the first id out of that run builds one
+    let mut index = Index::Dense(None);
     for _ in 0..n {
         let id = id_of(&mut sc, "a node index")?;
         let mut p = [0.0; 3];
@@ -56,12 +95,13 @@ pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result
         for _ in 0..nattr + nmark {
             sc.num::<f64>("a node attribute or marker")?;
         }
-        if index.insert(id, mesh.points.len() as u32).is_some() {
+        if !index.insert(id, &mesh.node_ids, c).map_err(|e| sc.err(e))? {
             return Err(sc.err(format!("node {id} is defined twice; fix: renumber the nodes")));
         }
         mesh.points.push(p);
         mesh.node_ids.push(id);
     }
+    let n_nodes = mesh.node_ids.len();
     if !sc.at_end() {
         return Err(sc.err(format!(
             "more lines than the {n} nodes announced; fix: the node count is wrong"
@@ -88,7 +128,7 @@ pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result
         let eid = id_of(&mut sc, "a tetrahedron index")?;
         for k in &mut nodes {
             let nid = id_of(&mut sc, "a node index")?;
-            *k = *index.get(&nid).ok_or_else(|| {
+            *k = index.get(nid, n_nodes).ok_or_else(|| {
                 sc.err(format!("tetrahedron {eid} names node {nid}, which the .node file does not define; fix: repair the element or use the matching .node file"))
             })?;
         }
@@ -124,7 +164,7 @@ pub fn parse(name: &str, node: &[u8], ele: &[u8], face: Option<&[u8]>) -> Result
             let fid = id_of(&mut sc, "a face index")?;
             for k in &mut tri {
                 let nid = id_of(&mut sc, "a node index")?;
-                *k = *index.get(&nid).ok_or_else(|| {
+                *k = index.get(nid, n_nodes).ok_or_else(|| {
                     sc.err(format!("face {fid} names node {nid}, which the .node file does not define; fix: use the matching .face file"))
                 })?;
             }
@@ -210,5 +250,28 @@ mod tests {
         let m = super::parse("x", node.as_bytes(), ele.as_bytes(), Some(face.as_bytes())).unwrap();
         assert_eq!(m.node_ids, vec![0, 1, 2, 3]);
         assert_eq!((m.cell_tags[0], m.facets.tags[0]), (-2, 7));
+    }
+
+    #[test]
+    fn ids_out_of_a_run_are_looked_up_and_duplicates_refused() {
+        // consecutive from 1, then a gap: the ids after it are found through the table
+        let node = "5 3 0 0\n1 0 0 0\n2 1 0 0\n7 0 1 0\n3 0 0 1\n9 1 1 1\n";
+        let ele = "2 4 0\n1 1 2 7 3\n2 2 7 3 9\n";
+        let m = super::parse("x", node.as_bytes(), ele.as_bytes(), None).unwrap();
+        assert_eq!(m.conn, vec![0, 1, 2, 3, 1, 2, 3, 4]);
+        // an id outside the run, and one past the last node of a consecutive run
+        let e = super::parse("x", node.as_bytes(), "1 4 0\n1 1 2 8 3\n".as_bytes(), None).unwrap_err();
+        assert!(e.to_string().contains("names node 8"), "{e}");
+        let dense = "2 3 0 0\n0 0 0 0\n1 1 0 0\n";
+        let e = super::parse("x", dense.as_bytes(), "1 4 0\n1 0 1 2 0\n".as_bytes(), None).unwrap_err();
+        assert!(e.to_string().contains("names node 2"), "{e}");
+        // a duplicate inside the run (the table starts there) and after it
+        for node in [
+            "3 3 0 0\n1 0 0 0\n2 1 0 0\n1 0 1 0\n",
+            "4 3 0 0\n1 0 0 0\n5 1 0 0\n6 0 1 0\n5 0 0 1\n",
+        ] {
+            let e = super::parse("x", node.as_bytes(), "0 4 0\n".as_bytes(), None).unwrap_err();
+            assert!(e.to_string().contains("is defined twice"), "{e}");
+        }
     }
 }

@@ -40,6 +40,15 @@ fn vtk_cell(t: i64) -> VtkCell {
     }
 }
 
+/// The volume cell of VTK type `t` and the permutation from VTK's node order to eprop's
+/// (`nodes[i] = vtk_nodes[perm[i]]`); None for a facet, a skipped or an unsupported type.
+pub fn volume_cell(t: i64) -> Option<(CellKind, &'static [usize])> {
+    match vtk_cell(t) {
+        VtkCell::Volume(kind, perm) => Some((kind, perm)),
+        _ => None,
+    }
+}
+
 /// Inverse of the VTK permutation: local node order to write for a cell kind.
 pub fn vtk_order(kind: CellKind, nodes: &[u32]) -> Vec<u32> {
     match kind {

@@ -112,15 +112,27 @@ pub fn partition_weighted(
             }
             g.part_kway(&mut part).map_err(|e| anyhow!("METIS failed: {e:?}"))?;
             let part: Vec<u32> = part.iter().map(|&p| p as u32).collect();
-            let mut count = vec![0usize; nparts];
-            for &p in &part {
-                count[p as usize] += 1;
-            }
-            if let Some(empty) = count.iter().position(|&c| c == 0) {
-                bail!("METIS left part {empty} empty ({nparts} parts of {n} nodes); fix: run on fewer processes");
+            if let Err(e) = check_parts(&part, nparts) {
+                bail!("METIS: {e} ({nparts} parts of {n} nodes); fix: run on fewer processes");
             }
             Ok(part)
         }
+    }
+}
+
+/// Checks a part vector (a part per node): every part in `0..nparts`, and none left empty (each
+/// process owns at least one node). Err names the first fault.
+pub fn check_parts(part: &[u32], nparts: usize) -> std::result::Result<(), String> {
+    let mut count = vec![0usize; nparts];
+    for (i, &p) in part.iter().enumerate() {
+        match count.get_mut(p as usize) {
+            Some(c) => *c += 1,
+            None => return Err(format!("node {i} is in part {p} of {nparts}")),
+        }
+    }
+    match count.iter().position(|&c| c == 0) {
+        Some(empty) => Err(format!("part {empty} is left empty")),
+        None => Ok(()),
     }
 }
 
@@ -530,6 +542,13 @@ mod tests {
             off.push(conn.len());
         }
         (9, off, conn)
+    }
+
+    #[test]
+    fn a_part_vector_is_checked() {
+        assert_eq!(check_parts(&[0, 1, 1, 0], 2), Ok(()));
+        assert_eq!(check_parts(&[0, 0, 2], 3), Err("part 1 is left empty".into()));
+        assert_eq!(check_parts(&[0, 3], 2), Err("node 1 is in part 3 of 2".into()));
     }
 
     #[test]

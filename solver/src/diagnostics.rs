@@ -2,7 +2,7 @@
 //! and the median and spread of timings and counts.
 
 /// Logs (at -vv) the resident and peak memory of this process after a setup phase.
-pub fn log_memory(phase: &str) {
+pub(crate) fn log_memory(phase: &str) {
     if tracing::enabled!(tracing::Level::DEBUG) {
         let now = status_kb("VmRSS:") * 1024;
         tracing::debug!(
@@ -103,7 +103,7 @@ pub fn short(x: f64) -> String {
 
 /// `10^lg` in exponent form with two significant digits (an estimate held as its logarithm:
 /// 10^600 is "1.0e600", a number no f64 holds).
-pub fn power_of_ten(lg: f64) -> String {
+pub(crate) fn power_of_ten(lg: f64) -> String {
     if !lg.is_finite() {
         return if lg > 0.0 { "inf".into() } else { "0".into() };
     }

@@ -37,6 +37,13 @@ pub struct PartitionReport {
     /// Processes that split with PT-Scotch.
     pub processes: usize,
     pub splits: Vec<SplitQuality>,
+    /// Peak resident memory of each process, bytes (a mesh read in slabs).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub peak_memory: Vec<u64>,
+    /// Each process's share after the cells and coordinates moved to their owners (one part
+    /// per process): owned nodes, halo nodes, cells.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub moved: Vec<[usize; 3]>,
 }
 
 /// The report on rank 0 (`None` on the other processes of `world`, which take part in the
@@ -90,6 +97,8 @@ pub fn partition_report(mesh: &Mesh, parts: usize, world: Option<&dyn Comm>) -> 
         parts,
         processes: world.map_or(1, |w| w.size()),
         splits,
+        peak_memory: vec![],
+        moved: vec![],
     }))
 }
 
@@ -122,27 +131,119 @@ impl std::fmt::Display for PartitionReport {
                 s.seconds
             )?;
         }
-        writeln!(
-            f,
-            "  part   {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}",
-            "metis:own", "halo", "nbrs", "block:own", "halo", "nbrs"
-        )?;
-        let by = |name: &str| {
-            self.splits
-                .iter()
-                .find(|s| s.method == name)
-                .expect("metis and block splits")
-        };
-        let (m, b) = (by("metis"), by("block"));
-        for p in 0..self.parts {
+        if let (Some(&first), false) = (self.peak_memory.first(), self.peak_memory.is_empty()) {
+            let mib = |b: u64| b as f64 / 1048576.0;
+            let mean = self.peak_memory.iter().sum::<u64>() as f64 / self.peak_memory.len() as f64;
+            let all: Vec<String> = self.peak_memory.iter().map(|&b| format!("{:.1}", mib(b))).collect();
             writeln!(
                 f,
-                "  {:<4}   {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}",
-                p, m.owned[p], m.halo[p], m.neighbours[p], b.owned[p], b.halo[p], b.neighbours[p]
+                "  peak memory per process: {} MiB (rank 0 {:.2}x the mean)",
+                all.join(", "),
+                first as f64 / mean.max(1.0)
             )?;
+        }
+        if !self.moved.is_empty() {
+            let col = |k: usize| {
+                self.moved
+                    .iter()
+                    .map(|m| m[k].to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            writeln!(
+                f,
+                "  moved to the owners: owned nodes {}; halo nodes {}; cells {}",
+                col(0),
+                col(1),
+                col(2)
+            )?;
+        }
+        // METIS beside the block split, or the splits there are
+        let by = |name: &str| self.splits.iter().find(|s| s.method == name);
+        let cols: Vec<&SplitQuality> = match (by("metis"), by("block")) {
+            (Some(m), Some(b)) => vec![m, b],
+            _ => self.splits.iter().collect(),
+        };
+        write!(f, "  part  ")?;
+        for s in &cols {
+            write!(f, " {:>10} {:>10} {:>10}", format!("{}:own", s.method), "halo", "nbrs")?;
+        }
+        writeln!(f)?;
+        for p in 0..self.parts {
+            write!(f, "  {p:<4}  ")?;
+            for s in &cols {
+                write!(f, " {:>10} {:>10} {:>10}", s.owned[p], s.halo[p], s.neighbours[p])?;
+            }
+            writeln!(f)?;
         }
         Ok(())
     }
+}
+
+/// `eprop partition` of a VTKHDF mesh: every process of `world` reads its slab, the node
+/// graph is built from the slabs and split by PT-Scotch (METIS on one process or where
+/// PT-Scotch is absent); no process holds the whole mesh or graph. The report on rank 0
+/// (`None` on the others), with every process's peak memory.
+pub fn partition_report_slabs(path: &Path, parts: usize, world: Option<&dyn Comm>) -> Result<Option<PartitionReport>> {
+    use eprop::distribute::slabs;
+    let slab = slabs::read(world, path)?;
+    let (rank, size) = world.map_or((0, 1), |w| (w.rank(), w.size()));
+    let t = std::time::Instant::now();
+    let cells = slabs::cells_to_owners(&slab, world.and_then(|w| w.handle()))?;
+    let vtxdist = slabs::cuts(slab.nodes, size);
+    let graph = slabs::node_graph(&cells, &vtxdist, vtxdist[rank], vtxdist[rank + 1])?;
+    drop(cells);
+    let (nodes, edges) = (slab.nodes, graph.adj.len());
+    let (part, how) = slabs::split(&graph, parts, world)?;
+    let seconds = world.map_or(0.0, |w| w.max(0.0)).max(t.elapsed().as_secs_f64());
+    let q = slabs::quality(&graph, &part, parts, world);
+    drop(graph);
+    let edges = world.map_or(edges as i128, |w| w.sum_i128(edges as i128)) as usize;
+    // one part per process: the cells and coordinates move to their owners
+    let moved: Vec<[usize; 3]> = match parts == size {
+        true => {
+            let local = slabs::redistribute(&slab, &part, world.and_then(|w| w.handle()))?;
+            drop(slab);
+            let mine = [local.n_owned, local.global.len() - local.n_owned, local.cells.len()].map(|x| x as f64);
+            world
+                .map_or(mine.to_vec(), |w| w.all_gather(&mine))
+                .chunks_exact(3)
+                .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
+                .collect()
+        }
+        false => vec![],
+    };
+    let peak = peak_rss() as f64;
+    let peak_memory: Vec<u64> = world
+        .map_or(vec![peak], |w| w.all_gather(&[peak]))
+        .iter()
+        .map(|&b| b as u64)
+        .collect();
+    if rank != 0 {
+        return Ok(None);
+    }
+    let method = match how {
+        slabs::Splitter::Ptscotch => "ptscotch",
+        slabs::Splitter::Metis => "metis",
+    };
+    Ok(Some(PartitionReport {
+        file: path.display().to_string(),
+        nodes,
+        graph_edges: edges / 2,
+        parts,
+        processes: size,
+        splits: vec![SplitQuality {
+            method: method.into(),
+            edge_cut: q.edge_cut,
+            imbalance: q.imbalance,
+            owned: q.owned,
+            halo: q.halo,
+            neighbours: q.neighbours,
+            seconds,
+        }],
+        peak_memory,
+        moved,
+    }))
 }
 
 /// What `eprop check` derives from a scenario without running it.

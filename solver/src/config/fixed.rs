@@ -70,7 +70,7 @@ pub fn resolve(sc: &Scenario, sets: &[Entry<FixedSet>], mesh: &Mesh) -> Result<(
 /// boundary (the organ's free nodes lie outside it); any other set whose nodes lie in one
 /// plane (within 1e-9 of the mesh's diagonal) with the whole mesh on one side of it (a fixed
 /// face: `group = "bottom"`, a flat box).
-pub fn support_plane(selector: &Selector, set: &[bool], mesh: &Mesh) -> Option<Plane> {
+pub(crate) fn support_plane(selector: &Selector, set: &[bool], mesh: &Mesh) -> Option<Plane> {
     let (lo, hi) = mesh.bounds();
     let tol = 1e-9 * norm(sub(hi, lo));
     if let Selector::HalfSpace(h) = selector {

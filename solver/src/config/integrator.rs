@@ -16,7 +16,7 @@ pub enum Kind {
 }
 
 /// Every value of `[model] integrator`, as the scenario spells it.
-pub const KINDS: [(&str, Kind); 4] = [
+pub(crate) const KINDS: [(&str, Kind); 4] = [
     ("auto", Kind::Auto),
     ("euler", Kind::Euler),
     ("rkl2", Kind::Rkl2),
@@ -54,7 +54,7 @@ pub enum Preconditioner {
     Amg,
 }
 
-pub const PRECONDITIONERS: [(&str, Preconditioner); 4] = [
+pub(crate) const PRECONDITIONERS: [(&str, Preconditioner); 4] = [
     ("auto", Preconditioner::Auto),
     ("multigrid", Preconditioner::Multigrid),
     ("jacobi", Preconditioner::Jacobi),
@@ -96,15 +96,15 @@ fn yes() -> bool {
     true
 }
 
-pub const DEFAULT_ACCURACY: f64 = 1e-3;
+pub(crate) const DEFAULT_ACCURACY: f64 = 1e-3;
 /// The implicit solves' default tolerance as a share of the accuracy: a solve need not be
 /// much more exact than the step it serves.
-pub const CG_SHARE: f64 = 1e-2;
-pub const DEFAULT_TOLERANCE: f64 = CG_SHARE * DEFAULT_ACCURACY;
+pub(crate) const CG_SHARE: f64 = 1e-2;
+pub(crate) const DEFAULT_TOLERANCE: f64 = CG_SHARE * DEFAULT_ACCURACY;
 /// The implicit solves' default tolerance without error control (`accuracy = inf`).
-pub const UNCONTROLLED_TOLERANCE: f64 = 1e-8;
-pub const DEFAULT_MAX_ITERATIONS: usize = 2000;
-pub const DEFAULT_MAX_STAGES: usize = 4096;
+pub(crate) const UNCONTROLLED_TOLERANCE: f64 = 1e-8;
+pub(crate) const DEFAULT_MAX_ITERATIONS: usize = 2000;
+pub(crate) const DEFAULT_MAX_STAGES: usize = 4096;
 
 impl Default for Settings {
     fn default() -> Self {

@@ -43,7 +43,8 @@ readings and derives the defaults.
               it). See docs/tools.md
   [time]      steps = N | end = T s | equilibrium = tol m/s; dt, h s optional (automatic);
               realtime = false (eprop serve: true): a fixed, bounded work per step chosen at
-              setup, implicit TR-BDF2 with a fixed number of multigrid-preconditioned
+              setup, implicit TR-BDF2 with direct solves (a factor made once; meshes of
+              up to 60,000 nodes) or a fixed number of multigrid-preconditioned
               iterations, no error control (docs/realtime.md)
   [output]    file = "out.h5" (default: <scenario stem>.h5 beside the scenario), every = 1,
               fields = ["displacement", "velocity", "potential", "energy"] (all),

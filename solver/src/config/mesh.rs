@@ -91,7 +91,7 @@ fn scale<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
 }
 
 /// The scaled mesh's bounding-box diagonal must lie in this range.
-pub const EXTENT: (f64, f64) = (1e-60, 1e60);
+pub(crate) const EXTENT: (f64, f64) = (1e-60, 1e60);
 
 /// Reads the mesh the scenario names and scales it (refused if its extent is out of `EXTENT`).
 pub fn read(sc: &Scenario) -> Result<Mesh> {

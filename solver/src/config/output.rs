@@ -90,7 +90,7 @@ fn at_least_one<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error
 
 /// Output steps per second of simulated time that `eprop serve`'s real-time mode writes when
 /// the scenario names no `[output] every` (the physics thread writes the series itself).
-pub const REALTIME_RATE: f64 = 30.0;
+pub(crate) const REALTIME_RATE: f64 = 30.0;
 
 fn gzip_level<'de, D: Deserializer<'de>>(d: D) -> Result<u8, D::Error> {
     match u8::deserialize(d) {

@@ -17,10 +17,10 @@ use anyhow::{anyhow, Result};
 /// A derived magnitude above this is refused: the fields a run writes hold sums of its squares
 /// (|phi|, |u|, the energies), which pass f64's 1.8e308 beyond 1.3e154; the margin covers the
 /// estimates' factors.
-pub const HUGE: f64 = 1e200;
+pub(crate) const HUGE: f64 = 1e200;
 /// An energy density or a source below this (from positive factors) is refused: it underflows
 /// in the run's products, and the load does nothing.
-pub const TINY: f64 = 1e-200;
+pub(crate) const TINY: f64 = 1e-200;
 
 /// The largest force component of a load over the run (its table's rows, or its force or
 /// normal times the ramp's peak scale).

@@ -217,7 +217,7 @@ fn weighted(set: &[bool], w: impl Fn(usize) -> f64) -> (Vec<u32>, Vec<f64>) {
 /// shares a_i (summing to the patch area) and the patch's outward area vector. A disc that no
 /// sample falls in (far smaller than its faces) takes the surface nodes within it with their
 /// boundary dual areas; none is an error.
-pub fn patch_shares(mesh: &Mesh, ball: &Ball) -> Result<(Vec<u32>, Vec<f64>, [f64; 3]), String> {
+pub(crate) fn patch_shares(mesh: &Mesh, ball: &Ball) -> Result<(Vec<u32>, Vec<f64>, [f64; 3]), String> {
     let mut share = vec![0.0; mesh.n_nodes()];
     let mut vector = [0.0; 3];
     let (c, r) = (ball.center, ball.radius);
@@ -336,7 +336,7 @@ fn mark_tags(mesh: &Mesh, tags: &[(Option<u8>, i32)], set: &mut [bool]) {
 
 /// The boundary dual area of every node: each boundary face's area shared equally by its
 /// corners (exact for the median dual of triangles; quadrilaterals are split evenly).
-pub fn surface_node_areas(mesh: &Mesh) -> Vec<f64> {
+pub(crate) fn surface_node_areas(mesh: &Mesh) -> Vec<f64> {
     let mut area = vec![0.0; mesh.n_nodes()];
     for (c, f) in eprop_io::mesh::boundary_faces(mesh) {
         let cell = mesh.cell(c as usize);
@@ -352,7 +352,7 @@ pub fn surface_node_areas(mesh: &Mesh) -> Vec<f64> {
 
 /// A `nearest` point farther than this multiple of the mesh's extent from its centre is
 /// refused.
-pub const NEAREST_FAR: f64 = 1e6;
+pub(crate) const NEAREST_FAR: f64 = 1e6;
 
 /// |a - b| without overflow where |a - b| itself is finite (the difference is scaled by its
 /// largest component first: a point 1e150 away is 1e150 away, not inf).
@@ -367,7 +367,7 @@ pub fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 /// The surface node nearest to a point (surface = on a boundary face of the volume cells;
 /// ties: the lowest index).
-pub fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {
+pub(crate) fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {
     let mut on_surface = vec![false; mesh.n_nodes()];
     for (c, f) in eprop_io::mesh::boundary_faces(mesh) {
         let cell = mesh.cell(c as usize);

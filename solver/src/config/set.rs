@@ -141,7 +141,7 @@ fn put(cur: &mut dyn TableLike, segs: &[&str], value: Value, key: &str) -> Resul
 
 /// The overrides recorded in a scenario text: each key and the byte range of its line (key
 /// and value) in the text; empty for a file as written.
-pub fn recorded(text: &str) -> Vec<(String, Range<usize>)> {
+pub(crate) fn recorded(text: &str) -> Vec<(String, Range<usize>)> {
     let keys: Vec<String> = text
         .lines()
         .filter_map(|l| l.strip_prefix(MARK))
@@ -166,7 +166,7 @@ pub fn recorded(text: &str) -> Vec<(String, Range<usize>)> {
 /// not have, which `--set` adds at the end of the text (`--set time.dt=0.1` without [time]).
 /// An error at its header (a table unknown, a key it lacks) would otherwise name a line past
 /// the end of the file. A table is taken as made when every key it holds is an override.
-pub fn made_by(text: &str, at: usize) -> Option<String> {
+pub(crate) fn made_by(text: &str, at: usize) -> Option<String> {
     let line_start = text.get(..at)?.rfind('\n').map_or(0, |i| i + 1);
     let line = text[line_start..].lines().next()?.trim();
     let name = line.strip_prefix('[')?.trim_start_matches('[');

@@ -106,7 +106,7 @@ pub fn parse_table(name: &str, bytes: &[u8], role: &str, columns: [&str; 4]) -> 
 }
 
 /// `parse_table`, with the values (not the times) within `bound`.
-pub fn parse_bounded(
+pub(crate) fn parse_bounded(
     name: &str,
     bytes: &[u8],
     role: &str,
@@ -207,12 +207,12 @@ pub fn parse_bounded(
 }
 
 /// Reads a table file (a regular file only, `eprop_io::read_input_file`) and parses it.
-pub fn read_table(path: &Path, role: &str, columns: [&str; 4]) -> Result<History> {
+pub(crate) fn read_table(path: &Path, role: &str, columns: [&str; 4]) -> Result<History> {
     read_bounded(path, role, columns, None)
 }
 
 /// `read_table`, with the values (not the times) within `bound`.
-pub fn read_bounded(path: &Path, role: &str, columns: [&str; 4], bound: Option<Bound>) -> Result<History> {
+pub(crate) fn read_bounded(path: &Path, role: &str, columns: [&str; 4], bound: Option<Bound>) -> Result<History> {
     let bytes = read_input_file(path, "table")?;
     parse_bounded(&path.display().to_string(), &bytes, role, columns, bound)
 }

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 pub type Tensor = Matrix3<f64>;
 
 /// Checks that R is symmetric (to 1e-12 relative) and positive definite.
-pub fn check_spd(r: &Tensor) -> Result<(), String> {
+pub(crate) fn check_spd(r: &Tensor) -> Result<(), String> {
     if r.iter().any(|x| !x.is_finite()) {
         return Err("it has a non-finite entry".into());
     }
@@ -127,7 +127,7 @@ pub struct Materials {
 }
 
 /// More distinct tissues than a node's index can name.
-pub const MAX_TISSUES: usize = u16::MAX as usize + 1;
+pub(crate) const MAX_TISSUES: usize = u16::MAX as usize + 1;
 
 impl Materials {
     /// Every one of `n` nodes of one tissue.

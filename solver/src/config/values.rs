@@ -25,14 +25,14 @@ impl TryFrom<f64> for Poisson {
 }
 
 /// The default Poisson's ratio of soft tissue (`[tissue] poisson`).
-pub const POISSON: f64 = 0.45;
+pub(crate) const POISSON: f64 = 0.45;
 
-pub fn poisson<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+pub(crate) fn poisson<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     Poisson::deserialize(d).map(|x| x.0)
 }
 
 /// `[tissue] poisson`'s default, for serde.
-pub fn poisson_default() -> f64 {
+pub(crate) fn poisson_default() -> f64 {
     POISSON
 }
 
@@ -88,18 +88,18 @@ impl TryFrom<f64> for Finite {
 pub fn positive<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     Positive::deserialize(d).map(|x| x.0)
 }
-pub fn non_negative<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+pub(crate) fn non_negative<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     NonNegative::deserialize(d).map(|x| x.0)
 }
-pub fn opt_positive<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+pub(crate) fn opt_positive<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
     positive(d).map(Some)
 }
 // optional checked numbers of a section that is also sent to other processes (an Option
 // on the wire, a present key in TOML)
-pub fn opt_non_negative<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+pub(crate) fn opt_non_negative<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
     Option::<NonNegative>::deserialize(d).map(|o| o.map(|x| x.0))
 }
-pub fn opt_finite<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+pub(crate) fn opt_finite<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
     Option::<Finite>::deserialize(d).map(|o| o.map(|x| x.0))
 }
 
@@ -119,7 +119,7 @@ impl TryFrom<[f64; 3]> for Point {
     }
 }
 
-pub fn finite3(v: &[f64; 3]) -> bool {
+pub(crate) fn finite3(v: &[f64; 3]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
 
@@ -235,7 +235,7 @@ pub fn one() -> f64 {
     1.0
 }
 
-pub fn yes() -> bool {
+pub(crate) fn yes() -> bool {
     true
 }
 

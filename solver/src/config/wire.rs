@@ -7,7 +7,7 @@
 use eprop_io::CellKind;
 
 /// A stable code per cell kind (the mesh hash and the wire use it).
-pub fn kind_code(k: CellKind) -> u8 {
+pub(crate) fn kind_code(k: CellKind) -> u8 {
     match k {
         CellKind::Tet => 0,
         CellKind::Hex => 1,

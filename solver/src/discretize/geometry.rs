@@ -143,7 +143,7 @@ pub fn tet_gradients(nodes: &[u32], pts: &[[f64; 3]]) -> ([[f64; 3]; 4], f64) {
 
 /// Exact Green-Gauss gradient weights of a cell: grad u = sum_k u_k G_k for linear u.
 /// Faces are fans of triangles from their centroids, as in `cell_volume`.
-pub fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64) -> Vec<[f64; 3]> {
+pub(crate) fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64) -> Vec<[f64; 3]> {
     let nn = kind.n_nodes();
     let mut g = vec![[0.0; 3]; nn];
     for face in kind.faces() {
@@ -177,7 +177,7 @@ pub fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volume: f64)
 
 /// Builds the sorted neighbour lists of rows `0..n_rows`: every node that shares a cell.
 /// `gid` orders neighbours (global ids); None means local index order.
-pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
+pub(crate) fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
     let key = |j: u32| gid.map_or(j as u64, |g| g[j as usize]);
     thread_local! {
         static SCRATCH: std::cell::RefCell<Vec<u32>> = const { std::cell::RefCell::new(Vec::new()) };
@@ -227,7 +227,7 @@ pub fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64
 }
 
 /// Per-cell bitmask of boundary faces.
-pub fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
+pub(crate) fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
     let mut mask = vec![0u8; mesh.n_cells()];
     for (c, f) in boundary_faces(mesh) {
         mask[c as usize] |= 1 << f;
@@ -237,7 +237,7 @@ pub fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
 
 /// Runs `f(row, values of the row)` over the rows of a CSR array in parallel, filling `data`
 /// in place (no per-row allocation, so the peak memory is the array itself).
-pub fn par_rows<T: Send, R: Send>(
+pub(crate) fn par_rows<T: Send, R: Send>(
     data: &mut [T],
     row_ptr: &[usize],
     f: impl Fn(usize, &mut [T]) -> R + Sync + Send,
@@ -248,11 +248,74 @@ pub fn par_rows<T: Send, R: Send>(
 /// The rows `0..n` of a local mesh in Morton order of their points: the order in which the
 /// setup visits rows, so that the rows of a block and their cells are near each other whatever
 /// the numbering (the band order of the numbering puts consecutive rows on a thin level).
-pub fn visit_order(mesh: &Mesh, n: usize) -> Vec<u32> {
+pub(crate) fn visit_order(mesh: &Mesh, n: usize) -> Vec<u32> {
     let keys = eprop_partition::morton_keys(&mesh.points[..n]);
     let mut order: Vec<u32> = (0..n as u32).collect();
     order.sort_unstable_by_key(|&i| (keys[i as usize], i));
     order
+}
+
+/// Per-cell pieces of the cells of a block of rows, each computed once for the block (the rows
+/// of a block are near each other in the visit order, so few cells are computed in two
+/// blocks), and for every incident cell of every row the slot of its piece: a row finds its
+/// cells' pieces by position, without a search. The rows must be asked for in the block's
+/// order (`row`), as `par_rows_with` visits them.
+pub struct BlockCells<T> {
+    /// The pieces, in increasing cell order.
+    pub items: Vec<T>,
+    /// Per incidence of the block's rows, in row order then the row's cell order: the slot in
+    /// `items` (u32::MAX for a cell `keep` leaves out).
+    slot: Vec<u32>,
+    /// The block's rows and where each row's incidences start in `slot`.
+    rows: Vec<u32>,
+    start: Vec<usize>,
+    /// The next row `row` expects.
+    next: std::cell::Cell<usize>,
+}
+
+impl<T> BlockCells<T> {
+    /// The pieces `piece(c)` of the cells `c` of `rows` that `keep` keeps.
+    pub fn new(inc: &Incidence, rows: &[u32], keep: impl Fn(u32) -> bool, piece: impl Fn(u32) -> T) -> Self {
+        let mut start = Vec::with_capacity(rows.len() + 1);
+        let mut at: Vec<u64> = Vec::new();
+        for &i in rows {
+            start.push(at.len());
+            for &c in inc.of(i as usize) {
+                at.push((c as u64) << 32 | at.len() as u64);
+            }
+        }
+        start.push(at.len());
+        let mut slot = vec![u32::MAX; at.len()];
+        at.sort_unstable();
+        let mut items = Vec::new();
+        let mut last = u64::MAX;
+        for &key in &at {
+            let c = key >> 32;
+            if !keep(c as u32) {
+                continue;
+            }
+            if c != last {
+                items.push(piece(c as u32));
+                last = c;
+            }
+            slot[(key & 0xffff_ffff) as usize] = (items.len() - 1) as u32;
+        }
+        BlockCells {
+            items,
+            slot,
+            rows: rows.to_vec(),
+            start,
+            next: std::cell::Cell::new(0),
+        }
+    }
+
+    /// The slots of row `i`'s cells (in `inc.of(i)`'s order); `i` must be the block's next row.
+    pub fn row(&self, i: usize) -> &[u32] {
+        let r = self.next.get();
+        assert_eq!(self.rows[r] as usize, i, "rows asked for out of the block's order");
+        self.next.set(r + 1);
+        &self.slot[self.start[r]..self.start[r + 1]]
+    }
 }
 
 /// A pointer that threads may share, each writing its own disjoint entries.
@@ -268,7 +331,7 @@ impl<T> Shared<T> {
 /// `par_rows` with a context built once per block of rows (`init(rows of the block)`), shared
 /// by the rows of that block, the rows taken in blocks of `order` (a permutation of the rows;
 /// None: increasing). Results come back in row order; a row's work does not depend on the order.
-pub fn par_rows_with<T: Send, R: Send, C>(
+pub(crate) fn par_rows_with<T: Send, R: Send, C>(
     data: &mut [T],
     row_ptr: &[usize],
     order: Option<&[u32]>,
@@ -330,27 +393,31 @@ impl Dual {
         // the dual of each cell of a block of rows, computed once for the block (the rows of a
         // block are near each other in the visit order, so few cells are computed in two blocks)
         let cell_duals = |rows: &[u32]| {
-            let mut cells: Vec<u32> = rows.iter().flat_map(|&i| inc.of(i as usize).iter().copied()).collect();
-            cells.sort_unstable();
-            cells.dedup();
-            let duals: Vec<CellDual> = cells
-                .iter()
-                .map(|&c| cell_dual(mesh.kinds[c as usize], mesh.cell(c as usize), pts))
-                .collect();
-            (cells, duals)
+            BlockCells::new(
+                inc,
+                rows,
+                |_| true,
+                |c| {
+                    // the cell's nodes, kind and boundary faces beside its dual piece: a row
+                    // then reads nothing of the mesh's cell arrays
+                    let (kind, nodes) = (mesh.kinds[c as usize], mesh.cell(c as usize));
+                    let mut at = [0u32; MAX_NODES];
+                    at[..nodes.len()].copy_from_slice(nodes);
+                    (cell_dual(kind, nodes, pts), at, kind, mask[c as usize])
+                },
+            )
         };
         let order = visit_order(mesh, n_rows);
         let rows: Vec<(f64, [f64; 3], f64)> =
             par_rows_with(&mut s, &row_ptr[..=n_rows], Some(&order), cell_duals, |ctx, i, s| {
-                let (cells, duals) = ctx;
                 let cols = &col[row_ptr[i]..row_ptr[i + 1]];
                 let mut v = 0.0;
                 let mut a = [0.0; 3];
-                for &c in inc.of(i) {
-                    let cd = &duals[cells.binary_search(&c).unwrap()];
-                    let c = c as usize;
-                    let kind = mesh.kinds[c];
-                    let nodes = mesh.cell(c);
+                let slots = ctx.row(i);
+                for &slot in slots {
+                    let (cd, nodes, kind, mask) = &ctx.items[slot as usize];
+                    let (kind, mask) = (*kind, *mask);
+                    let nodes = &nodes[..kind.n_nodes()];
                     let li = nodes.iter().position(|&x| x as usize == i).unwrap();
                     v += cd.vol[li];
                     for (e, edge) in kind.edges().iter().enumerate() {
@@ -364,9 +431,9 @@ impl Dual {
                         let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
                         s[p] = add(s[p], scale(cd.s[e], sign));
                     }
-                    if mask[c] != 0 {
+                    if mask != 0 {
                         for (f, face) in kind.faces().iter().enumerate() {
-                            if mask[c] & (1 << f) == 0 {
+                            if mask & (1 << f) == 0 {
                                 continue;
                             }
                             if let Some(k) = face.iter().position(|&l| l == li) {
@@ -434,7 +501,7 @@ impl Dual {
 /// nodes' ratio when they all have the same (bit for bit, so exactly 1 in a tissue of the
 /// reference young), otherwise the harmonic mean of its nodes' ratios (a cell is as stiff as
 /// the stiff tissue only when every node of it belongs to that tissue).
-pub fn cell_young(nodes: &[u32], mat: &Materials) -> f64 {
+pub(crate) fn cell_young(nodes: &[u32], mat: &Materials) -> f64 {
     let first = mat.young_ratio(nodes[0] as usize);
     if nodes
         .iter()
@@ -485,7 +552,7 @@ pub fn capacities(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) ->
 /// The dual faces weighted by their cells' Young's modulus, sum over cells of
 /// (E_c / E0) S_ij^cell, on the pair graph of `dual` (the paper scheme's fluxes when
 /// `Materials::weighs_young`; docs/model.md section 3).
-pub fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -> Vec<[f64; 3]> {
+pub(crate) fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -> Vec<[f64; 3]> {
     let pts = &mesh.points;
     let mut out = vec![[0.0; 3]; dual.row_ptr[dual.n_rows]];
     par_rows(&mut out, &dual.row_ptr[..=dual.n_rows], |i, s| {
@@ -512,6 +579,15 @@ pub fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Materials) -
     out
 }
 
+/// The pairs (lo, hi), lo < hi, of a tetrahedron's local nodes, and the index of each in it.
+const TET_PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+const TET_PAIR_OF: [[usize; 4]; 4] = [
+    [usize::MAX, 0, 1, 2],
+    [0, usize::MAX, 3, 4],
+    [1, 3, usize::MAX, 5],
+    [2, 4, 5, usize::MAX],
+];
+
 /// Compact-scheme coefficients a_ij of rows `0..n_rows` on the pair graph of `dual`:
 /// sum_j a_ij (u_j - u_i) is the exact flux of (E/E0) R grad u (cell gradients) into the
 /// control volume of i. `r` gives the tensor and young of every local node; a cell uses the
@@ -535,25 +611,27 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
         }
         rc
     };
-    // the tensor and shape-function gradients of each tetrahedron of a block of rows,
-    // computed once for the block (as the dual's cell pieces in `Dual::build`)
+    // the coefficient a_ab of each pair of nodes of each tetrahedron of a block of rows,
+    // computed once for the block (as the dual's cell pieces in `Dual::build`):
+    // a_ab = -V grad N_a . R grad N_b, for (a, b) in increasing local order so that
+    // a_ab == a_ba bitwise
     let tets = |rows: &[u32]| {
-        let mut cells: Vec<u32> = rows
-            .iter()
-            .flat_map(|&i| inc.of(i as usize).iter().copied())
-            .filter(|&c| mesh.kinds[c as usize] == CellKind::Tet)
-            .collect();
-        cells.sort_unstable();
-        cells.dedup();
-        let pieces: Vec<(Matrix3<f64>, [[f64; 3]; 4], f64)> = cells
-            .iter()
-            .map(|&c| {
+        BlockCells::new(
+            inc,
+            rows,
+            |c| mesh.kinds[c as usize] == CellKind::Tet,
+            |c| {
                 let nodes = mesh.cell(c as usize);
                 let (g, v) = tet_gradients(nodes, pts);
-                (tensor(nodes), g, v)
-            })
-            .collect();
-        (cells, pieces)
+                let rc = tensor(nodes);
+                let mut a = [0.0; 6];
+                for (k, &(lo, hi)) in TET_PAIRS.iter().enumerate() {
+                    let rg = rc * Vector3::from(g[hi]);
+                    a[k] = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
+                }
+                (a, [nodes[0], nodes[1], nodes[2], nodes[3]])
+            },
+        )
     };
     par_rows_with(
         &mut out,
@@ -562,29 +640,25 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
         tets,
         |ctx, i, w| {
             let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
-            for &c in inc.of(i) {
-                let cell = c;
-                let c = c as usize;
-                let kind = mesh.kinds[c];
-                let nodes = mesh.cell(c);
-                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                if kind == CellKind::Tet {
-                    // a_ab = -V grad N_a . R grad N_b, computed for (min, max) local order so
-                    // that a_ab == a_ba bitwise
-                    let (cells, pieces) = ctx;
-                    let (rc, g, v) = &pieces[cells.binary_search(&cell).unwrap()];
-                    let (rc, v) = (*rc, *v);
+            let slots = ctx.row(i);
+            for (&c, &slot) in inc.of(i).iter().zip(slots) {
+                if slot != u32::MAX {
+                    // a tetrahedron: its nodes and coefficients are the block's
+                    let (a, nodes) = &ctx.items[slot as usize];
+                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
                     for lk in 0..4 {
                         if lk == li {
                             continue;
                         }
-                        let (lo, hi) = (li.min(lk), li.max(lk));
-                        let rg = rc * Vector3::from(g[hi]);
-                        let val = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
+                        let val = a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
                         let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
                         w[p] += val;
                     }
                 } else {
+                    let c = c as usize;
+                    let kind = mesh.kinds[c];
+                    let nodes = mesh.cell(c);
+                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
                     let rc = tensor(nodes);
                     let cd = cell_dual(kind, nodes, pts);
                     let gg = green_gauss(kind, nodes, pts, cd.volume);

@@ -14,7 +14,7 @@ use eprop_io::geom::{dot, sub};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-pub use crate::linalg::V3;
+use crate::linalg::V3;
 
 /// Rows per rayon task: large enough to amortise scheduling, small enough to balance.
 const CHUNK: usize = 2048;

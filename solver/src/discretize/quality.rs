@@ -14,9 +14,9 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 /// How many of the stiffest nodes a report names.
-pub const NAMED: usize = 5;
+pub(crate) const NAMED: usize = 5;
 /// A node is "far above" the median when its bound is this many times the median's.
-pub const FAR: f64 = 10.0;
+pub(crate) const FAR: f64 = 10.0;
 
 /// A cell, as the mesh file names it.
 #[derive(Serialize, Debug, Clone, PartialEq)]
@@ -61,7 +61,7 @@ pub struct Stiffness {
 }
 
 /// The median of the positive values (0 when there is none).
-pub fn median_positive(g: &[f64]) -> f64 {
+pub(crate) fn median_positive(g: &[f64]) -> f64 {
     let mut v: Vec<f64> = g.iter().copied().filter(|&x| x > 0.0).collect();
     if v.is_empty() {
         return 0.0;
@@ -74,18 +74,26 @@ pub fn median_positive(g: &[f64]) -> f64 {
 /// numbering); `vol` the capacities of its rows (`geometry::capacities`: the control volumes
 /// when no tissue weighs) and `r` the conductivity and young of every node; `cell_id`
 /// the file's id of a cell.
-pub fn analyse(mesh: &Mesh, op: &Compact, vol: &[f64], r: &Materials, cell_id: &dyn Fn(usize) -> u64) -> Stiffness {
+pub(crate) fn analyse(
+    mesh: &Mesh,
+    op: &Compact,
+    vol: &[f64],
+    r: &Materials,
+    cell_id: &dyn Fn(usize) -> u64,
+) -> Stiffness {
     let g = op.row_bounds();
     let med = median_positive(&g);
     let nodes = g.iter().filter(|&&x| x > 0.0).count();
     let far_above = g.iter().filter(|&&x| x > FAR * med).count();
     let mut order: Vec<usize> = (0..g.len()).filter(|&i| g[i] > 0.0).collect();
+    // stiffest first, ties by index
+    let stiffer = |a: &usize, b: &usize| g[*b].total_cmp(&g[*a]).then(a.cmp(b));
     let k = NAMED.min(order.len());
     if k > 0 && k < order.len() {
-        order.select_nth_unstable_by(k - 1, |&a, &b| g[b].total_cmp(&g[a]).then(a.cmp(&b)));
+        order.select_nth_unstable_by(k - 1, stiffer);
     }
     order.truncate(k);
-    order.sort_by(|&a, &b| g[b].total_cmp(&g[a]).then(a.cmp(&b)));
+    order.sort_by(stiffer);
     // the incident cell of each named node that weighs most in its row
     let mut best: Vec<Option<(f64, usize)>> = vec![None; k];
     for c in 0..mesh.n_cells() {
@@ -255,9 +263,10 @@ mod tests {
                 d(a).total_cmp(&d(b))
             })
             .unwrap();
-        let before = {
-            let inc = Incidence::new(&mesh);
-            let dual = Dual::build(&mesh, &inc, n, None);
+        // the operator of the mesh and its report (cell ids from `first_id`), and the operator
+        let report = |mesh: &Mesh, first_id: u64| {
+            let inc = Incidence::new(mesh);
+            let dual = Dual::build(mesh, &inc, n, None);
             let r = Materials::uniform(
                 n,
                 crate::config::tissue::Tissue {
@@ -265,26 +274,16 @@ mod tests {
                     ..crate::config::PAPER_TISSUE
                 },
             );
-            let a = compact_coefficients(&mesh, &inc, &dual, &r);
+            let a = compact_coefficients(mesh, &inc, &dual, &r);
             let op = Compact::new(&dual, &a, &vec![true; n]);
-            analyse(&mesh, &op, &dual.vol, &r, &|c| c as u64 + 1)
+            (analyse(mesh, &op, &dual.vol, &r, &|c| c as u64 + first_id), op)
         };
+        let (before, _) = report(&mesh, 1);
         assert!(before.stiffest[0].ratio < 3.0, "{before:?}");
         mesh.points[centre][0] += 0.24; // almost onto a neighbour: flat cells around it
         mesh.points[centre][1] += 0.24;
         mesh.points[centre][2] += 0.24;
-        let inc = Incidence::new(&mesh);
-        let dual = Dual::build(&mesh, &inc, n, None);
-        let r = Materials::uniform(
-            n,
-            crate::config::tissue::Tissue {
-                r: Tensor::identity(),
-                ..crate::config::PAPER_TISSUE
-            },
-        );
-        let a = compact_coefficients(&mesh, &inc, &dual, &r);
-        let op = Compact::new(&dual, &a, &vec![true; n]);
-        let s = analyse(&mesh, &op, &dual.vol, &r, &|c| c as u64 + 100);
+        let (s, op) = report(&mesh, 100);
         let worst = &s.stiffest[0];
         let cell = worst.cell.as_ref().unwrap();
         // the stiffest node is the moved one or a node of one of its cells, and the named

@@ -160,7 +160,10 @@ pub fn reproducible_sum(comm: &dyn Comm, local: impl Iterator<Item = f64> + Clon
 }
 
 /// `reproducible_sum` of K sums at once (one reduction of the maxima, one of the sums).
-pub fn reproducible_sums<const K: usize>(comm: &dyn Comm, local: impl Iterator<Item = [f64; K]> + Clone) -> [f64; K] {
+pub(crate) fn reproducible_sums<const K: usize>(
+    comm: &dyn Comm,
+    local: impl Iterator<Item = [f64; K]> + Clone,
+) -> [f64; K] {
     let mut m = [0.0f64; K];
     for x in local.clone() {
         for k in 0..K {

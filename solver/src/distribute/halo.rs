@@ -8,7 +8,7 @@
 //! and `finish` waits and writes the halo entries. Halo entries are written nowhere else.
 
 use crate::distribute::comm::{displacements, Comm, Handle};
-use eprop_partition::HaloPattern;
+use eprop_partition::{HaloPattern, Neighbour};
 use mpi::ffi;
 use mpi::raw::AsRaw;
 use std::cell::{Cell, RefCell, RefMut};
@@ -99,32 +99,12 @@ impl Halo {
             // SAFETY: the buffers stay borrowed (and so neither move nor change) by the
             // returned `Exchange` until every request completes, in `finish` or in its drop.
             unsafe {
-                for ((nb, b), _) in nbs.iter().zip(recv.iter_mut()).zip(&idle).filter(|x| !*x.1) {
-                    let mut r = ffi::RSMPI_REQUEST_NULL;
-                    ffi::MPI_Irecv(
-                        b.as_mut_ptr().cast(),
-                        count(b.len()),
-                        ffi::RSMPI_DOUBLE,
-                        nb.rank as i32,
-                        0,
-                        raw,
-                        &mut r,
-                    );
-                    reqs.push(r);
-                }
-                for ((nb, b), _) in nbs.iter().zip(send.iter()).zip(&idle).filter(|x| !*x.1) {
-                    let mut r = ffi::RSMPI_REQUEST_NULL;
-                    ffi::MPI_Isend(
-                        b.as_ptr().cast(),
-                        count(b.len()),
-                        ffi::RSMPI_DOUBLE,
-                        nb.rank as i32,
-                        0,
-                        raw,
-                        &mut r,
-                    );
-                    reqs.push(r);
-                }
+                post(&mut reqs, nbs, recv, &idle, |b, n, rank, r| {
+                    ffi::MPI_Irecv(b, n, ffi::RSMPI_DOUBLE, rank, 0, raw, r)
+                });
+                post(&mut reqs, nbs, send, &idle, |b, n, rank, r| {
+                    ffi::MPI_Isend(b, n, ffi::RSMPI_DOUBLE, rank, 0, raw, r)
+                });
             }
         }
         Exchange {
@@ -187,6 +167,26 @@ impl Halo {
     /// Seconds spent waiting in `finish` so far.
     pub fn wait_seconds(&self) -> f64 {
         self.waited.get()
+    }
+}
+
+/// Posts one message per neighbour that is not idle, its buffer in `bufs`, with `call`
+/// (`MPI_Irecv` or `MPI_Isend`, given the buffer, its length, the neighbour's rank and the
+/// request to fill) and keeps the requests.
+///
+/// # Safety
+/// Every buffer must neither move nor change until its request completes.
+unsafe fn post(
+    reqs: &mut Vec<ffi::MPI_Request>,
+    nbs: &[Neighbour],
+    bufs: &mut [Vec<f64>],
+    idle: &[bool],
+    call: impl Fn(*mut std::ffi::c_void, i32, i32, &mut ffi::MPI_Request) -> i32,
+) {
+    for ((nb, b), _) in nbs.iter().zip(bufs.iter_mut()).zip(idle).filter(|x| !*x.1) {
+        let mut r = ffi::RSMPI_REQUEST_NULL;
+        call(b.as_mut_ptr().cast(), count(b.len()), nb.rank as i32, &mut r);
+        reqs.push(r);
     }
 }
 

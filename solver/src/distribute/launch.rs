@@ -50,7 +50,7 @@ impl std::fmt::Display for Agreed {
 impl std::error::Error for Agreed {}
 
 /// True when started by an MPI launcher.
-pub fn under_mpirun() -> bool {
+pub(crate) fn under_mpirun() -> bool {
     ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK", "MPI_LOCALNRANKS"]
         .iter()
         .any(|v| std::env::var_os(v).is_some())

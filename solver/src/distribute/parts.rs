@@ -250,13 +250,7 @@ fn split_together(world: &Handle, xadj: &[usize], adj: &[u32], weights: &[u32]) 
     if let Some(e) = failed {
         return Err(e);
     }
-    let mut count = vec![0usize; size];
-    for &p in &part {
-        count[p as usize] += 1;
-    }
-    if let Some(empty) = count.iter().position(|&c| c == 0) {
-        return Err(format!("PT-Scotch left part {empty} empty"));
-    }
+    eprop_partition::check_parts(&part, size).map_err(|e| format!("PT-Scotch: {e}"))?;
     Ok(part)
 }
 

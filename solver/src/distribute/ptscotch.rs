@@ -93,7 +93,7 @@ fn one_thread() {
 /// The part (in `0..nparts`) of each row of this process's slab, or why there is none.
 /// Every process of `comm` calls, each with its slab of the same graph.
 #[cfg(eprop_ptscotch)]
-pub fn part_kway(slab: &Slab, nparts: usize, comm: super::comm::RawComm) -> Result<Vec<u32>, String> {
+pub(crate) fn part_kway(slab: &Slab, nparts: usize, comm: super::comm::RawComm) -> Result<Vec<u32>, String> {
     use ffi::Num;
     let to_num = |v: &[u32]| -> Result<Vec<Num>, String> {
         v.iter()
@@ -154,7 +154,7 @@ pub fn part_kway(slab: &Slab, nparts: usize, comm: super::comm::RawComm) -> Resu
 
 /// Without PT-Scotch in the build: never called (`AVAILABLE` is false).
 #[cfg(not(eprop_ptscotch))]
-pub fn part_kway(_: &Slab, _: usize, _: super::comm::RawComm) -> Result<Vec<u32>, String> {
+pub(crate) fn part_kway(_: &Slab, _: usize, _: super::comm::RawComm) -> Result<Vec<u32>, String> {
     Err("this build has no PT-Scotch".into())
 }
 

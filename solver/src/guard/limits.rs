@@ -10,17 +10,17 @@ use crate::simulate::Simulation;
 use anyhow::Result;
 
 /// Most mechanics steps a run may take.
-pub const MAX_STEPS: u64 = 1_000_000_000;
+pub(crate) const MAX_STEPS: u64 = 1_000_000_000;
 pub use crate::propagate::integrate::MAX_SUBSTEPS;
 /// Most Euler substeps a mechanics step may stand for, whatever the integrator (the ratio of dt
 /// to the stable Euler substep; the benchmark liver has 1.8e4).
-pub const MAX_RATIO: f64 = 1e12;
+pub(crate) const MAX_RATIO: f64 = 1e12;
 /// Smallest step size (dt or h) accepted: far below any unit system of a tissue simulation, so
 /// a smaller one comes from an overflow or a units mistake and would leave the time at 0.
-pub const MIN_STEP: f64 = 1e-30;
+pub(crate) const MIN_STEP: f64 = 1e-30;
 
 /// `1,000,000`.
-pub fn grouped(n: u64) -> String {
+pub(crate) fn grouped(n: u64) -> String {
     let s = n.to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {
@@ -72,7 +72,7 @@ pub fn steps(stop: &Stop, dt: f64, path: &str, from_cli: bool) -> Result<u64, St
 
 /// Refuses a step size that is not a normal number above `MIN_STEP`, and a substep count
 /// above `MAX_SUBSTEPS`. `user_dt`: the scenario gave dt; `user_h`: the scenario's h.
-pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &str) -> Result<(), String> {
+pub(crate) fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &str) -> Result<(), String> {
     let dt = plan.dt;
     if !(dt.is_normal() && dt >= MIN_STEP) {
         let (what, fix) = if user_dt {
@@ -95,7 +95,7 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
     }
     // the Euler substeps one mechanics step stands for: past MAX_RATIO the operator is too
     // stiff against dt for any integrator in double precision (the implicit solve breaks down)
-    let ratio = dt / (crate::simulate::SAFETY * plan.h_bound);
+    let ratio = dt / (crate::propagate::integrate::euler::SAFETY * plan.h_bound);
     if plan.integrator != Kind::Euler && !(ratio <= MAX_RATIO) {
         return Err(format!(
             "{path}: the mechanics step dt = {dt:.4e} spans {ratio:.3e} stable Euler substeps per mechanics step (Euler bound {:.3e} from [material] conductivity on this mesh), above the limit of {MAX_RATIO:e} for any integrator ({} included): no integrator resolves so stiff an operator in double precision; fix: a smaller [material] conductivity (check its units and the mesh's, [mesh] scale) or a smaller [time] dt",
@@ -104,7 +104,7 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
     }
     if plan.per_step > MAX_SUBSTEPS {
         // a count that saturated says nothing: the ratio it came from does
-        let h_max = user_h.unwrap_or(crate::simulate::SAFETY * plan.h_bound);
+        let h_max = user_h.unwrap_or(crate::propagate::integrate::euler::SAFETY * plan.h_bound);
         let needed = if plan.per_step == usize::MAX {
             dt / h_max
         } else {
@@ -119,7 +119,7 @@ pub fn step_sizes(plan: &StepPlan, user_dt: bool, user_h: Option<f64>, path: &st
             Some(h) => format!("[time] h = {}", crate::diagnostics::short(h)),
             None => format!(
                 "h at most {h_max:.3e}, {} of the stability bound of [material] conductivity on this mesh",
-                crate::simulate::SAFETY
+                crate::propagate::integrate::euler::SAFETY
             ),
         };
         return Err(format!(
@@ -174,7 +174,7 @@ pub fn output_bytes(sizes: &GlobalSizes, output: &Output, loads: usize, scenario
 
 /// An equilibrium tolerance is refused below this fraction of the velocity a node gains in one
 /// step from the largest load (100 times the rounding floor of max |v| at rest).
-pub const EQUILIBRIUM_FLOOR: f64 = 1e-14;
+pub(crate) const EQUILIBRIUM_FLOOR: f64 = 1e-14;
 
 /// Refuses an equilibrium tolerance that double precision cannot resolve: at rest, rounding
 /// keeps max |v| near 1e-16 of `v_scale` = max |F| dt / min m, so a smaller tolerance is never

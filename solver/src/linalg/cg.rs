@@ -29,7 +29,7 @@ pub struct Shifted<'a> {
 
 /// max_i V_i (1 + 2 c sum_j |c_ij| + c s_i) over the owned rows of this process (s_i the
 /// screening sink): |(A u)_i| <= this max |u|.
-pub fn row_bound(coef: Option<&AnyCsr>, sink: Option<&[f64]>, vol: &[f64], c: f64) -> f64 {
+pub(crate) fn row_bound(coef: Option<&AnyCsr>, sink: Option<&[f64]>, vol: &[f64], c: f64) -> f64 {
     let Some(coef) = coef else {
         return 0.0;
     };
@@ -113,8 +113,7 @@ pub fn solve<S: Sweep>(
         }
     });
     mask(sweep, r);
-    pre.apply(sweep, r, &mut u[..n]);
-    mask(sweep, u);
+    precondition(pre, sweep, r, &mut u[..n]);
     // The tolerance is relative to ||x||_A^2 = (b, A^-1 b). A diagonal preconditioner
     // measures it as (b, M b), consistently with (r, M r): both see smooth modes scaled
     // alike. A multigrid's (r, M r) is close to the error's A-norm itself (M A is near I
@@ -145,8 +144,7 @@ pub fn solve<S: Sweep>(
             masked = m;
             &masked[..]
         };
-        pre.apply(sweep, b, p);
-        mask(sweep, p);
+        precondition(pre, sweep, b, p);
         let p_ = &p[..];
         let bb: [f64; 3] = reproducible_sums_par(comm, n, |i| {
             [b[i][0] * p_[i][0], b[i][1] * p_[i][1], b[i][2] * p_[i][2]]
@@ -193,8 +191,7 @@ pub fn solve<S: Sweep>(
         let inv = pre.inverse_diagonal();
         let m2 = update(p, s, &mut x[..n], r, &mut u[..n], w, alpha, beta, inv);
         let [mr, mu] = if inv.is_none() {
-            pre.apply(sweep, r, &mut u[..n]);
-            mask(sweep, u);
+            precondition(pre, sweep, r, &mut u[..n]);
             max_abs2(r, &u[..n])
         } else {
             m2
@@ -242,13 +239,13 @@ fn update(
             }
             m
         })
-        .reduce(|| [0.0; 2], |a, b| [a[0].max(b[0]), a[1].max(b[1])])
+        .reduce(|| [0.0; 2], larger2)
 }
 
 /// The first conjugate-gradient iterate of A x = b from x = 0, x = alpha M b with
 /// alpha = (b, M b) / (M b, A M b): one preconditioner and one operator application (the
 /// implicit integrator's error filter with a multigrid). Sums exact over every process.
-pub fn first_iterate<S: Sweep>(
+pub(crate) fn first_iterate<S: Sweep>(
     sweep: &mut S,
     a: Shifted,
     pre: &mut dyn Precond<S>,
@@ -259,8 +256,7 @@ pub fn first_iterate<S: Sweep>(
 ) -> Result<(), Failure> {
     let n = a.vol.len();
     let Work { w, u, .. } = work;
-    pre.apply(sweep, b, &mut u[..n]);
-    mask(sweep, u);
+    precondition(pre, sweep, b, &mut u[..n]);
     let [mb, mu] = max_abs2(b, &u[..n]);
     let (gamma, delta, _) = apply_and_dots(sweep, a, u, w, b, b, [mb, mu, mb], comm);
     if !gamma.is_finite() || !delta.is_finite() {
@@ -284,8 +280,6 @@ pub fn first_iterate<S: Sweep>(
     Ok(())
 }
 
-/// The largest component magnitude of v (infinite for a non-finite one).
-#[inline(always)]
 /// Zero at the rows the operator holds (`Sweep::frozen`): with a zero residual there, the
 /// iteration stays on the free rows, where the matrix is symmetric.
 fn mask<S: Sweep>(sweep: &S, u: &mut [V3]) {
@@ -294,6 +288,14 @@ fn mask<S: Sweep>(sweep: &S, u: &mut [V3]) {
     }
 }
 
+/// z = M r on the owned rows, zero at the held rows (`mask`).
+fn precondition<S: Sweep>(pre: &mut dyn Precond<S>, sweep: &mut S, r: &[V3], z: &mut [V3]) {
+    pre.apply(sweep, r, z);
+    mask(sweep, z);
+}
+
+/// The largest component magnitude of v (infinite for a non-finite one).
+#[inline(always)]
 fn max_abs(v: V3) -> f64 {
     // f64::max skips a NaN: test every component, not the maximum
     if v.iter().all(|x| x.is_finite()) {
@@ -315,7 +317,12 @@ fn max_abs2(r: &[V3], u: &[V3]) -> [f64; 2] {
     r.par_iter()
         .zip(u.par_iter())
         .fold(|| [0.0; 2], |m, (r, u)| max2(m, *r, *u))
-        .reduce(|| [0.0; 2], |a, b| [a[0].max(b[0]), a[1].max(b[1])])
+        .reduce(|| [0.0; 2], larger2)
+}
+
+/// The larger of each pair: two maxima merged.
+fn larger2(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0].max(b[0]), a[1].max(b[1])]
 }
 
 /// w = A u with the dot products (r, u), (w, u) and (b, u) over the three components in the

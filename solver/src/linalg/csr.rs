@@ -311,7 +311,7 @@ fn row3<V: Copy + Into<f64>>(ptr: &[u32], col: &[u32], val: &[V], i: usize, x: &
 }
 
 /// y = A x (three columns).
-pub fn spmv<V: Copy + Into<f64> + Sync>(ptr: &[u32], col: &[u32], val: &[V], x: &[V3], y: &mut [V3]) {
+pub(crate) fn spmv<V: Copy + Into<f64> + Sync>(ptr: &[u32], col: &[u32], val: &[V], x: &[V3], y: &mut [V3]) {
     rows_of(y, |s, y| {
         for (k, yi) in y.iter_mut().enumerate() {
             *yi = row3(ptr, col, val, s + k, x);
@@ -320,7 +320,7 @@ pub fn spmv<V: Copy + Into<f64> + Sync>(ptr: &[u32], col: &[u32], val: &[V], x: 
 }
 
 /// y += A x (three columns).
-pub fn spmv_add<V: Copy + Into<f64> + Sync>(ptr: &[u32], col: &[u32], val: &[V], x: &[V3], y: &mut [V3]) {
+pub(crate) fn spmv_add<V: Copy + Into<f64> + Sync>(ptr: &[u32], col: &[u32], val: &[V], x: &[V3], y: &mut [V3]) {
     rows_of(y, |s, y| {
         for (k, yi) in y.iter_mut().enumerate() {
             let t = row3(ptr, col, val, s + k, x);
@@ -344,7 +344,7 @@ pub fn residual<V: Copy + Into<f64> + Sync>(ptr: &[u32], col: &[u32], val: &[V],
 
 /// d = alpha d + beta D^-1 (b - A x) (three columns): one Chebyshev update in one pass.
 #[allow(clippy::too_many_arguments)]
-pub fn cheb_update<V: Copy + Into<f64> + Sync>(
+pub(crate) fn cheb_update<V: Copy + Into<f64> + Sync>(
     ptr: &[u32],
     col: &[u32],
     val: &[V],
@@ -370,7 +370,7 @@ pub fn cheb_update<V: Copy + Into<f64> + Sync>(
 /// `cheb_update` on the rows `rows` only (the rows of this process), then x += d on them; the
 /// same row sums (`row3`) as the full kernel, so the same bits row for row.
 #[allow(clippy::too_many_arguments)]
-pub fn cheb_step_rows<V: Copy + Into<f64>>(
+pub(crate) fn cheb_step_rows<V: Copy + Into<f64>>(
     rows: &[u32],
     ptr: &[u32],
     col: &[u32],
@@ -399,7 +399,7 @@ pub fn cheb_step_rows<V: Copy + Into<f64>>(
 }
 
 /// `residual` on the rows `rows` only.
-pub fn residual_rows<V: Copy + Into<f64>>(
+pub(crate) fn residual_rows<V: Copy + Into<f64>>(
     rows: &[u32],
     ptr: &[u32],
     col: &[u32],

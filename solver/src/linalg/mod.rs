@@ -1,7 +1,8 @@
 //! Linear algebra of the propagation's solvers, a layer below the integrators as PETSc's Mat,
 //! PC and KSP are below its TS: sparse matrices (`csr`), the operator as the solvers sweep it
-//! (`Sweep`), preconditioners (`Precond`: `jacobi`, `multigrid`, `amg`) and conjugate
-//! gradients with exact dot products (`cg`). It knows nothing of the scenario or the
+//! (`Sweep`), preconditioners (`Precond`: `jacobi`, `multigrid`, `amg`), conjugate
+//! gradients with exact dot products (`cg`) and the real-time mode's direct solver (`direct`:
+//! a sparse Cholesky factor, CHOLMOD's). It knows nothing of the scenario or the
 //! integrators: the discretization stores its operator in a `csr::Csr`, the propagation
 //! (`propagate::Propagation`) is the `Sweep` the solvers run on, and the implicit integrator
 //! says what a failed solve means for the scenario.
@@ -13,6 +14,7 @@ pub const HAS_AMG: bool = cfg!(eprop_hypre);
 pub mod amg;
 pub mod cg;
 pub mod csr;
+pub mod direct;
 pub mod jacobi;
 pub mod multigrid;
 

@@ -17,7 +17,7 @@ use tracing_subscriber::registry::LookupSpan;
 pub const SETUP: &str = "eprop::setup";
 
 /// A setup that has run this long prints its notes; a shorter one prints nothing.
-pub const SETUP_QUIET_FOR: f64 = 2.0;
+pub(crate) const SETUP_QUIET_FOR: f64 = 2.0;
 
 /// The setup notes, on while this lives (`on(Some(start))`: the setup's start; `on(None)`
 /// leaves them off) and off once it is dropped, an error's early return included: a span of

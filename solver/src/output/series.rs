@@ -12,7 +12,7 @@ use crate::simulate::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
 use eprop_series::outcome::WriteFailed;
-use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, ToolRow, CREATING, LIVE_SESSION, TABLE_HASH};
+use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, CREATING, LIVE_SESSION, TABLE_HASH};
 use std::path::Path;
 use std::time::Instant;
 
@@ -57,21 +57,6 @@ pub fn field_blocks(sim: &Simulation, fields: &[Field]) -> Vec<Vec<f64>> {
         }
     }
     out
-}
-
-/// Each tool's row of the output (`/eprop/tools`).
-pub fn tool_rows(sim: &Simulation) -> Vec<ToolRow> {
-    sim.tool_states()
-        .iter()
-        .map(|t| ToolRow {
-            position: t.position,
-            force: t.force,
-            contact_nodes: t.contact_nodes,
-            contact_area: t.contact_area,
-            indentation: t.indentation,
-            displacement: t.displacement,
-        })
-        .collect()
 }
 
 /// Checks that a path's directory exists before a long run starts.
@@ -279,7 +264,7 @@ impl Series {
         let data = field_blocks(sim, &self.fields);
         let refs: Vec<&[f64]> = data.iter().map(|d| d.as_slice()).collect();
         if !sim.tools.is_empty() {
-            self.writer.append_tools(sim.time(), sim.step(), &tool_rows(sim))?;
+            self.writer.append_tools(sim.time(), sim.step(), &sim.tool_states())?;
         }
         let checked = sim.inspect();
         self.writer.append_checks(

@@ -7,6 +7,7 @@ use crate::distribute::parts::GlobalSizes;
 use crate::output::series::Series;
 use crate::simulate::{scheme_name, Simulation};
 use eprop_mesh::Mesh;
+use eprop_series::vtkhdf::ToolState;
 use serde::Serialize;
 
 #[derive(Serialize, Debug, Clone)]
@@ -19,20 +20,13 @@ pub struct LoadSummary {
     pub displacement: [f64; 3],
 }
 
-/// A tool at the end of a run.
+/// A tool at the end of a run: its shape and its last reading.
 #[derive(Serialize, Debug, Clone)]
 pub struct ToolSummary {
     pub shape: String,
     pub radius: f64,
-    pub position: [f64; 3],
-    /// The force the tool exerts on the organ (the kinematic law: the model's reaction at the
-    /// nodes it holds; the elastic foundation: -sum p_i A_i over the surface nodes it overlaps
-    /// at rest; docs/tools.md).
-    pub force: [f64; 3],
-    pub contact_nodes: u64,
-    pub contact_area: f64,
-    pub indentation: f64,
-    pub displacement: [f64; 3],
+    #[serde(flatten)]
+    pub state: ToolState,
 }
 
 /// What a run reports at the end.
@@ -188,13 +182,14 @@ impl std::fmt::Display for Summary {
                 l.displacement[2] + 0.0
             )?;
         }
-        for (k, t) in self.tools.iter().enumerate() {
+        for (k, ts) in self.tools.iter().enumerate() {
+            let t = &ts.state;
             writeln!(
                 f,
                 "  tool {}      {} r = {} at ({}, {}, {}), indentation {:.4e}, {} contact nodes (area {:.4e}), F = ({:.4e}, {:.4e}, {:.4e})",
                 k + 1,
-                t.shape,
-                crate::diagnostics::short(t.radius),
+                ts.shape,
+                crate::diagnostics::short(ts.radius),
                 fixed(t.position[0], 4),
                 fixed(t.position[1], 4),
                 fixed(t.position[2], 4),
@@ -389,12 +384,7 @@ pub fn summarize(
             .map(|t| ToolSummary {
                 shape: t.tool.shape.name().to_string(),
                 radius: t.tool.shape.radius(),
-                position: t.state.position,
-                force: t.state.force,
-                contact_nodes: t.state.contact_nodes,
-                contact_area: t.state.contact_area,
-                indentation: t.state.indentation,
-                displacement: t.state.displacement,
+                state: t.state,
             })
             .collect(),
         inverted_cells: series.folds.last.inverted,

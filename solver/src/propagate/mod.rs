@@ -7,11 +7,12 @@ pub mod integrate;
 pub mod wavefront;
 
 use crate::config::Fuse;
-use crate::discretize::operator::{Operator, V3};
+use crate::discretize::operator::Operator;
 use crate::distribute::field::NodeField;
 use crate::distribute::halo::{Exchange, Halo};
 use crate::linalg::csr::AnyCsr;
 use crate::linalg::Sweep;
+use crate::linalg::V3;
 use crate::propagate::wavefront::{drive, Wavefront};
 use eprop_partition::Layout;
 use std::ops::Range;
@@ -50,7 +51,7 @@ pub struct Propagation {
 }
 
 /// The depths (substeps per sweep) the tuner tries.
-pub const DEPTHS: [usize; 5] = [1, 2, 3, 4, 8];
+pub(crate) const DEPTHS: [usize; 5] = [1, 2, 3, 4, 8];
 /// Sweeps of each depth the tuner times before it chooses.
 const TUNE_ROUNDS: usize = 3;
 

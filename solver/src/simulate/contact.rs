@@ -14,34 +14,15 @@
 
 use crate::config::tissue::TissueLaw;
 use crate::config::{ContactLaw, Shape, Tool, Trajectory};
-use crate::discretize::operator::V3;
 use crate::distribute::comm::{reproducible_sums, Comm};
+use crate::linalg::V3;
 use eprop_io::geom::{dot, norm, scale, sub};
+use eprop_series::vtkhdf::ToolState;
 
 /// Below this contact strain (delta / h) the pressure rises quadratically, so that a node's
 /// pressure, and the force, are continuously differentiable in the tool position when the node
 /// is first touched (`contact_strain`).
 pub const SMOOTH_STRAIN: f64 = 0.01;
-
-/// What a tool did at the end of a mechanics step (the same on every process).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct ToolState {
-    /// The tool position (sphere centre, punch face centre) at the step's time.
-    pub position: V3,
-    /// The force the tool exerts on the organ, F = -sum_i p_i A_i over the pressed surface
-    /// nodes (the organ pushes back on the tool with its opposite).
-    pub force: V3,
-    /// Surface nodes with a contact pressure p_i > 0.
-    pub contact_nodes: u64,
-    /// sum of |A_i| over those nodes: the contact area.
-    pub contact_area: f64,
-    /// How deep the tool is below the undeformed surface along its path: the largest distance
-    /// it must move back along its direction of motion until it overlaps no rest surface node
-    /// (negative: the gap it must still travel; -inf when its path meets no surface node).
-    pub indentation: f64,
-    /// The pressed nodes' displacement, mean weighted by |A_i| (zero without contact).
-    pub displacement: V3,
-}
 
 /// How far a point is inside a tool at `c`: > 0 inside (its depth), <= 0 outside; -inf beside
 /// a punch's face.

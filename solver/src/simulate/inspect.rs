@@ -4,14 +4,14 @@
 //! global index, the counts are integer sums.
 
 use super::{contact, Simulation};
-use crate::discretize::operator::V3;
 use crate::distribute::comm::reproducible_sums;
+use crate::linalg::V3;
 use eprop_io::geom::{add, det3, sub};
 use eprop_io::mesh::CellKind;
 
 /// A node counts as inside a tool when it lies deeper than this fraction of the tool's radius:
 /// the band the kinematic contact leaves a node it puts on the surface in (`ON_SURFACE`).
-pub const INSIDE_TOLERANCE: f64 = super::kinematic::ON_SURFACE;
+pub(crate) const INSIDE_TOLERANCE: f64 = super::kinematic::ON_SURFACE;
 
 /// The inverted cells and the nodes inside tools at one step, over every process.
 #[derive(Clone, Debug, Default, PartialEq)]

@@ -40,12 +40,14 @@
 use super::contact::{depth, project, ToolRun};
 use crate::config::tissue::Materials;
 use crate::config::{Grip, Shape};
-use crate::discretize::operator::{Operator, V3};
+use crate::discretize::operator::Operator;
+use crate::linalg::V3;
 use eprop_io::geom::{dot, norm, scale, sub};
+use eprop_series::vtkhdf::ToolState;
 
 /// A node counts as touching a tool when it is less than this fraction of the tool's radius
 /// outside it (round-off of a node put on the surface).
-pub const ON_SURFACE: f64 = 1e-9;
+pub(crate) const ON_SURFACE: f64 = 1e-9;
 
 /// Whether a point y touches the tool at `c`: inside it, or outside by less than ON_SURFACE
 /// of its radius.
@@ -70,7 +72,7 @@ fn add(a: V3, b: V3) -> V3 {
 
 /// The direction the tool at `c` pushes the tissue at a point y on or near its surface: a
 /// punch's normal; a sphere's outward radius (None at its centre).
-pub fn push_normal(shape: &Shape, c: V3, y: V3) -> Option<V3> {
+pub(crate) fn push_normal(shape: &Shape, c: V3, y: V3) -> Option<V3> {
     match *shape {
         Shape::Punch { normal, .. } => Some(normal),
         Shape::Sphere { .. } => {
@@ -162,7 +164,7 @@ pub fn hold(run: &ToolRun, c_now: V3, c_next: V3, y: V3) -> Option<V3> {
 
 /// The potential that holds a node at displacement g at equilibrium: kappa |phi|^(p-1) phi
 /// = k g, i.e. phi = g / lambda for p = 1.
-pub fn held_potential(g: V3, stiffness: f64, coupling: f64, p: f64) -> V3 {
+pub(crate) fn held_potential(g: V3, stiffness: f64, coupling: f64, p: f64) -> V3 {
     if p == 1.0 {
         let s = stiffness / coupling;
         return [g[0] * s, g[1] * s, g[2] * s];
@@ -177,7 +179,7 @@ pub fn held_potential(g: V3, stiffness: f64, coupling: f64, p: f64) -> V3 {
 
 /// Each owned row's relaxation rate mu_i = sum_j c_ij + s_i (the compact operator, s_i its
 /// screening sink), or None for the paper scheme.
-pub fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
+pub(crate) fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
     let Operator::Compact(c) = op else {
         return None;
     };
@@ -200,7 +202,7 @@ pub fn relaxation_rates(op: &Operator, n_rows: usize) -> Option<Vec<f64>> {
 /// where the propagation weighs young (its capacity C_i then carries each cell's E_c / E0:
 /// the force M0 lambda / D (-C_i (L phi)_i) is the derivative of the stored energy, module
 /// docs).
-pub fn force_factor(mat: &Materials, i: usize) -> f64 {
+pub(crate) fn force_factor(mat: &Materials, i: usize) -> f64 {
     let t = mat.at(i);
     let e = if mat.weighs_young() { mat.young0 } else { t.law.young };
     let m = e / (2.0 * (1.0 - t.poisson * t.poisson));
@@ -212,7 +214,7 @@ pub fn force_factor(mat: &Materials, i: usize) -> f64 {
 /// is held by the first tool that holds it.
 /// `pulls(i, n)`: whether node i, held where it is, would pull the tool along n (a tensile
 /// reaction): such a node on the surface is let go; one inside the tool is always pushed out.
-pub fn held_nodes(
+pub(crate) fn held_nodes(
     tools: &[ToolRun],
     now: &[V3],
     next: &[V3],
@@ -293,14 +295,14 @@ pub struct Energy {
 /// Gamma_i = M lambda_i^2 / D_i: the stored energy's factor of node i (`force_factor` times
 /// lambda_i), so that the reaction f_i = Gamma_i / lambda_i (-C_i (L phi)_i) is the
 /// derivative of S with respect to the node's displacement lambda_i phi_i.
-pub fn energy_factor(mat: &Materials, i: usize) -> f64 {
+pub(crate) fn energy_factor(mat: &Materials, i: usize) -> f64 {
     let t = mat.at(i);
     force_factor(mat, i) * (t.coupling / t.stiffness)
 }
 
 /// The stored energy S = 1/2 sum_i Gamma_i phi_i . (-C_i (L phi)_i) over the owned `active`
 /// rows, with `cap` the capacities C_i and `lphi` = L phi (every process calls: an exact sum).
-pub fn stored_energy(
+pub(crate) fn stored_energy(
     mat: &Materials,
     active: &[bool],
     cap: &[f64],
@@ -323,7 +325,7 @@ pub fn stored_energy(
 /// the mean of the reaction before (`lphi`) and after (`lplus`) the move times the move
 /// (exactly the change of S over the move, S being quadratic). Every process calls.
 #[allow(clippy::too_many_arguments)]
-pub fn step_work(
+pub(crate) fn step_work(
     mat: &Materials,
     cap: &[f64],
     held: &[(u32, V3)],
@@ -356,7 +358,7 @@ pub fn measure(
     u: &[V3],
     lphi: &[V3],
     comm: &dyn crate::distribute::comm::Comm,
-) -> super::contact::ToolState {
+) -> ToolState {
     let shape = run.tool.shape;
     let mut rows = Vec::new();
     for i in 0..u.len() {
@@ -386,7 +388,7 @@ pub fn measure(
     }
     let s = crate::distribute::comm::reproducible_sums(comm, rows.iter().copied());
     let area = s[3];
-    super::contact::ToolState {
+    ToolState {
         position: c,
         force: [s[0], s[1], s[2]],
         contact_nodes: s[4] as u64,

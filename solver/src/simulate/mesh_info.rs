@@ -6,7 +6,7 @@ use crate::config::tissue::Tensor;
 use crate::diagnostics::fixed;
 use crate::discretize::geometry::{compact_coefficients, Dual, Incidence};
 use crate::discretize::operator::Compact;
-use crate::simulate::SAFETY;
+use crate::propagate::integrate::euler::SAFETY;
 use eprop_io::geom::{cell_quality, cell_volume};
 use eprop_mesh::Mesh;
 use serde::Serialize;

@@ -20,20 +20,22 @@ use crate::config::tissue::Materials;
 use crate::config::{Fuse, Load, Precision, Reading, Scheme, Setup, Stop};
 use crate::diagnostics::short;
 use crate::discretize::geometry::{capacities, compact_coefficients, young_faces, Dual, Incidence};
-use crate::discretize::operator::{Compact, Operator, Paper, V3};
+use crate::discretize::operator::{Compact, Operator, Paper};
 use crate::distribute::comm::{reproducible_sum, Comm, Serial};
 use crate::distribute::field::NodeField;
 use crate::distribute::halo::{BlockScatter, Halo};
+use crate::linalg::V3;
 use crate::propagate::integrate::{stability, StepPlan, StepStats, Stepper};
 use crate::propagate::Propagation;
 use anyhow::{bail, Result};
-use contact::{ToolRun, ToolState};
+use contact::ToolRun;
 use eprop_io::geom::{dot, norm, scale};
 use eprop_mesh::Mesh;
 use eprop_partition::{LocalNumbering, Plan};
+use eprop_series::vtkhdf::ToolState;
 use rayon::prelude::*;
 
-pub use crate::propagate::integrate::euler::SAFETY;
+use crate::propagate::integrate::euler::SAFETY;
 pub use mesh_info::{mesh_info, MeshInfo};
 pub use stop::StopToken;
 
@@ -181,7 +183,7 @@ fn build_operator(
 
 /// The screening sink of each row, s_i = D_i / l^2 (D_i the mean of node i's conductivity's
 /// diagonal, l the screening length; docs/model.md section 3), zero on rows that do not move.
-pub fn screening_sink(mat: &Materials, active: &[bool], n_rows: usize, l: f64) -> Vec<f64> {
+pub(crate) fn screening_sink(mat: &Materials, active: &[bool], n_rows: usize, l: f64) -> Vec<f64> {
     (0..n_rows)
         .map(|i| {
             if active[i] {
@@ -194,7 +196,7 @@ pub fn screening_sink(mat: &Materials, active: &[bool], n_rows: usize, l: f64) -
 }
 
 /// D_i: the mean of the diagonal of node i's conductivity tensor.
-pub fn mean_conductivity(mat: &Materials, i: usize) -> f64 {
+pub(crate) fn mean_conductivity(mat: &Materials, i: usize) -> f64 {
     let r = &mat.at(i).r;
     (r[(0, 0)] + r[(1, 1)] + r[(2, 2)]) / 3.0
 }
@@ -243,7 +245,7 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
 /// The stepper of the scenario for the mechanics step dt, on an operator whose forward Euler
 /// stability bound is `h_bound` (`integrate::choose`).
 /// The integrators' default accuracy with a kinematic tool (`build_stepper`).
-pub const KINEMATIC_ACCURACY: f64 = 2.5e-4;
+pub(crate) const KINEMATIC_ACCURACY: f64 = 2.5e-4;
 
 fn build_stepper(
     setup: &Setup,
@@ -314,7 +316,7 @@ fn build_stepper(
 /// conductivity along the force (`d_cond`) and l the contact's length (`length`: a patch's
 /// radius). The steady potential then does not depend on D, and the total flux sum V_i Q_i
 /// = (D / l) q A not on the mesh.
-pub fn flux_source(d_cond: f64, length: f64, q: f64, area: f64, vol: f64) -> f64 {
+pub(crate) fn flux_source(d_cond: f64, length: f64, q: f64, area: f64, vol: f64) -> f64 {
     d_cond / length * q * area / vol
 }
 
@@ -607,7 +609,7 @@ fn nodes_of<'a>(surface: &'a [u32], active: &'a [bool], setup: &'a Setup, dual: 
 /// The order of a process's nodes (`Plan::new`): reverse Cuthill-McKee on the node graph, so
 /// that a row's neighbours lie within a narrow band of rows (the fused substeps of
 /// `Propagation::substeps` need it; the single substep gathers better too).
-pub fn locality_keys(m: &Mesh) -> Vec<u64> {
+pub(crate) fn locality_keys(m: &Mesh) -> Vec<u64> {
     let (xadj, adj) = eprop_partition::node_graph(m.n_nodes(), &m.offsets, &m.conn);
     eprop_partition::rcm_keys(&xadj, &adj)
 }

@@ -5,7 +5,7 @@
 
 use super::Simulation;
 use crate::config::Setup;
-use crate::discretize::operator::V3;
+use crate::linalg::V3;
 use anyhow::Result;
 use serde::Serialize;
 use std::time::Instant;

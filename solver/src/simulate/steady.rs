@@ -8,7 +8,7 @@
 
 use super::{load_sources, Flux, Simulation};
 use crate::config::{Reading, Stop};
-use crate::discretize::operator::V3;
+use crate::linalg::V3;
 use eprop_io::geom::{add, norm, scale};
 
 /// The relative residuals of the steady equations: the potential's and the mechanics'.

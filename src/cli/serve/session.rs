@@ -5,7 +5,7 @@
 //! results. The network thread never calls MPI.
 
 use super::protocol::{self as p, Code, Hello, Message, Stream, Topology, CLIENT_SIZE};
-use eprop::discretize::operator::V3;
+use eprop::linalg::V3;
 use eprop::simulate::StopToken;
 use serde::Serialize;
 use std::io::{ErrorKind, Read, Write};

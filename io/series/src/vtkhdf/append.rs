@@ -1,6 +1,6 @@
 //! Output steps appended into the room made for them, and the commits that count them.
 
-use super::{at, keep, resize, values_set, write_rows, SeriesWriter, ToolRow, COUNT, MAX_ROOM};
+use super::{at, keep, resize, values_set, write_rows, SeriesWriter, ToolState, COUNT, MAX_ROOM};
 use anyhow::{anyhow, Result};
 use ndarray::{s, ArrayView3};
 
@@ -76,7 +76,7 @@ impl SeriesWriter {
     /// Writes the tools' rows of the next output step (every process calls; rank 0's rows are
     /// written): call before `append`, which completes the step. A failure is a `WriteFailed`
     /// on every process.
-    pub fn append_tools(&mut self, time: f64, step: u64, rows: &[ToolRow]) -> Result<()> {
+    pub fn append_tools(&mut self, time: f64, step: u64, rows: &[ToolState]) -> Result<()> {
         self.make_slot()?;
         let (k, root) = (self.n_steps, self.root);
         let tt = self
@@ -91,7 +91,7 @@ impl SeriesWriter {
         let rows_of_root = || -> hdf5::Result<()> {
             tt.time.write_slice(&[time], s![k..k + 1])?;
             tt.step.write_slice(&[step as i64], s![k..k + 1])?;
-            let pick = |f: fn(&ToolRow) -> [f64; 3]| rows.iter().flat_map(f).collect::<Vec<f64>>();
+            let pick = |f: fn(&ToolState) -> [f64; 3]| rows.iter().flat_map(f).collect::<Vec<f64>>();
             let vectors = [pick(|r| r.position), pick(|r| r.force), pick(|r| r.displacement)];
             for (d, v) in tt.vectors.iter().zip(&vectors) {
                 let view = ArrayView3::from_shape((1, n, 3), v).map_err(hdf5::Error::from)?;

@@ -33,10 +33,12 @@
 mod append;
 mod checks;
 mod create;
+mod mesh;
 mod read;
 mod restart;
 
 pub use create::CREATING;
+pub use mesh::{block, read_slab, write_mesh_file, MeshSlab};
 pub use read::{add_dataset, kind_of, read_mesh, read_scenario, read_step, write_csr, Kind, SeriesFile};
 
 use crate::outcome::Team;
@@ -106,14 +108,26 @@ pub struct SeriesSpec<'a> {
 /// system keeps sparse files.
 pub const MAX_ROOM: usize = 1 << 16;
 
-/// One tool's row of an output step (`/eprop/tools`).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct ToolRow {
+/// What a tool did at the end of a mechanics step (the same on every process): the one record
+/// of a tool's reading, which the simulation fills (`eprop::simulate::contact`), the series
+/// writes as the tool's row of an output step (`/eprop/tools`) and the run's summary reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ToolState {
+    /// The tool position (sphere centre, punch face centre) at the step's time.
     pub position: [f64; 3],
+    /// The force the tool exerts on the organ (the kinematic law: the model's reaction at the
+    /// nodes it holds; the elastic foundation: F = -sum_i p_i A_i over the pressed surface
+    /// nodes, docs/tools.md; the organ pushes back on the tool with its opposite).
     pub force: [f64; 3],
+    /// Surface nodes in contact (the elastic foundation: a contact pressure p_i > 0).
     pub contact_nodes: u64,
+    /// sum of |A_i| over those nodes: the contact area.
     pub contact_area: f64,
+    /// How deep the tool is below the undeformed surface along its path: the largest distance
+    /// it must move back along its direction of motion until it overlaps no rest surface node
+    /// (negative: the gap it must still travel; -inf when its path meets no surface node).
     pub indentation: f64,
+    /// The contact nodes' displacement, mean weighted by |A_i| (zero without contact).
     pub displacement: [f64; 3],
 }
 

@@ -19,7 +19,7 @@ fn strong(k_ij: f64, d_i: f64, d_j: f64, eps: f64) -> bool {
 /// 3. nodes still left over form aggregates with their free strong neighbours (alone if none).
 ///
 /// Every node is in exactly one aggregate and no aggregate is empty.
-pub fn aggregate(k: &Csr<f64>, eps: f64) -> (Vec<u32>, usize) {
+pub(crate) fn aggregate(k: &Csr<f64>, eps: f64) -> (Vec<u32>, usize) {
     let n = k.n_rows();
     let d = k.diagonal();
     let mut agg = vec![NONE; n];
@@ -120,7 +120,7 @@ pub fn filtered(k: &Csr<f64>, eps: f64) -> Csr<f64> {
 }
 
 /// The tentative prolongator: P_ia = 1 where node i is in aggregate a.
-pub fn tentative(agg: &[u32], n_agg: usize) -> Csr<f64> {
+pub(crate) fn tentative(agg: &[u32], n_agg: usize) -> Csr<f64> {
     Csr {
         n_cols: n_agg,
         ptr: (0..=agg.len() as u32).collect(),

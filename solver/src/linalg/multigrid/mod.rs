@@ -48,7 +48,7 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 /// Coarsening stops at this many rows (the coarsest level is solved directly).
-pub const COARSE_MAX: usize = 400;
+pub(crate) const COARSE_MAX: usize = 400;
 /// The largest coarsest level factored densely; a stalled coarsening above it is smoothed.
 const DENSE_MAX: usize = 1500;
 /// Strength of connection on the finest level (halved on each coarser one).
@@ -59,9 +59,9 @@ const POWER_ITERATIONS: usize = 12;
 /// V-cycle of 6.33 such applications took 6.0-6.3 times an operator application on the 70^3
 /// box, 5.37 took 5.1 on the tetgen kidney and 6.31 took 5.2 on the liver
 /// (`examples/multigrid.rs`), the operator application about one substep.
-pub const SWEEP_COST: f64 = 0.95;
+pub(crate) const SWEEP_COST: f64 = 0.95;
 /// The Chebyshev degree of the smoother.
-pub const DEGREE: usize = 2;
+pub(crate) const DEGREE: usize = 2;
 
 /// One level: A = V + c K on one pattern, its Chebyshev smoother and its work vectors. The
 /// pattern, V, K and the transfers do not depend on c: hierarchies for other coefficients

@@ -24,34 +24,35 @@
 
 use super::euler::SAFETY;
 use super::rkl2::{stages_for, STAGE_COST};
-use super::{Euler, Implicit, Kind, Rkl2, Settings, Stepper};
-use crate::discretize::operator::V3;
+use super::{Euler, Implicit, Rkl2, Stepper};
+use crate::config::integrator::{Kind, Settings};
 use crate::distribute::comm::Comm;
+use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::{bail, Result};
 
 /// Cost of one conjugate-gradient iteration of `implicit` (Jacobi) in forward Euler
 /// substeps: the operator sweep with its dot products and a pass over eleven vectors.
 /// Measured as `rkl2::STAGE_COST`.
-pub const CG_COST: f64 = 2.4;
+pub(crate) const CG_COST: f64 = 2.4;
 /// `rkl2` takes super-steps short enough that the median node's modes see tau / h <= Z_RKL2
 /// (past that, its stages damp them little and they lose accuracy).
-pub const Z_RKL2: f64 = 20.0;
+pub(crate) const Z_RKL2: f64 = 20.0;
 /// Under error control each rkl2 super-step is taken once and again as two halves (step
 /// doubling): 1 + sqrt 2 times the stages of the super-step alone.
-pub const DOUBLING: f64 = 1.0 + std::f64::consts::SQRT_2;
+pub(crate) const DOUBLING: f64 = 1.0 + std::f64::consts::SQRT_2;
 
 /// The fewest operator applications of a controlled TR-BDF2 step: the right-hand side, two
 /// solves that start converged (two each), the estimate's and its two filter passes (one each
 /// with a multigrid), as at a steady state. A lower bound of every step's.
-pub const LEAST_CONTROLLED: usize = 8;
+pub(crate) const LEAST_CONTROLLED: usize = 8;
 
 /// Operator applications of one controlled TR-BDF2 step whose solves take `it` iterations:
 /// the two stages, the estimate's operator application and its two filter solves (with
 /// jacobi about 0.4 of the iterations of a stage's solve; a multigrid's two filter steps are
 /// one application each, so this overestimates them there, and auto measures before it
 /// chooses).
-pub fn controlled_applications(it: usize, controlled: bool) -> usize {
+pub(crate) fn controlled_applications(it: usize, controlled: bool) -> usize {
     let stages = 2 * (it + 2) + 1;
     if controlled {
         stages + 1 + 2 * ((2 * it).div_ceil(5) + 2)
@@ -70,7 +71,7 @@ fn accuracy_phrase(a: f64) -> String {
 }
 
 /// `auto` keeps euler unless another integrator is estimated this many times cheaper.
-pub const MARGIN: f64 = 1.5;
+pub(crate) const MARGIN: f64 = 1.5;
 
 /// What the choice needs to know about the scenario and its operator.
 pub struct Context<'a> {
@@ -117,7 +118,7 @@ pub struct TrialRun {
 /// `apps` (a trial from phi = 0): the first two as measured (the start's transient, which
 /// error control resolves with short sub-steps) and the third for every later step. A run of
 /// unknown length counts the third alone, the cost it settles to.
-pub fn run_average(apps: [usize; 3], steps: Option<u64>) -> f64 {
+pub(crate) fn run_average(apps: [usize; 3], steps: Option<u64>) -> f64 {
     let [a, b, c] = apps.map(|x| x as f64);
     match steps {
         None => c,
@@ -475,11 +476,11 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
 
 /// The real-time mode's relative tolerance: the trial solve that sets the iterations per
 /// stage solves to it, and a stage's solve stops early once there.
-pub const REALTIME_TOLERANCE: f64 = 1e-6;
+pub(crate) const REALTIME_TOLERANCE: f64 = 1e-6;
 /// The real-time mode's iterations per stage solve lie within these (the upper one bounds
 /// the work on a mesh whose trial needs more; a stage starts from the step's potential, so
 /// it needs fewer than a trial from zero).
-pub const REALTIME_ITERATIONS: (usize, usize) = (2, 40);
+pub(crate) const REALTIME_ITERATIONS: (usize, usize) = (2, 40);
 
 /// The real-time mode (`[time] realtime`, docs/realtime.md): TR-BDF2 with one step per
 /// mechanics step, no error control, and at most k preconditioned conjugate-gradient
@@ -503,6 +504,25 @@ fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         );
     }
     let mut imp = implicit(cx, 0, String::new())?;
+    // a direct solver where the mesh is small enough and CHOLMOD is there
+    let no_direct = match imp.set_direct(cx.prop, cx.comm) {
+        Ok((unknowns, factor, entries)) => {
+            // the cost in operator applications: stage 1's right-hand side, then per stage
+            // two triangular solves, each reading the factor once
+            let per_step = 1;
+            let solves = 4.0 * factor / entries.max(1) as f64;
+            imp.set_plan(
+                per_step,
+                CG_COST * (per_step as f64 + solves),
+                format!(
+                    "real time: TR-BDF2, one step per dt, direct solves (a sparse Cholesky factor of {unknowns} unknowns, {factor:.3e} entries, made once; {per_step} operator application and 4 triangular solves per step, about {solves:.0} applications' worth), no error control"
+                ),
+            );
+            return Ok(Box::new(imp));
+        }
+        Err(e) => e.to_string(),
+    };
+    tracing::debug!("real time: no direct solver ({no_direct}): fixed iterations");
     let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
     let k = it.clamp(REALTIME_ITERATIONS.0, REALTIME_ITERATIONS.1);
     imp.set_fixed(k);
@@ -512,7 +532,7 @@ fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         apps,
         cost,
         format!(
-            "real time: TR-BDF2, one step per dt, at most {k} iterations per stage ({} applications per step), {}, no error control",
+            "real time: TR-BDF2, one step per dt, at most {k} iterations per stage ({} applications per step), {}, no error control (no direct solver: {no_direct})",
             apps,
             imp.preconditioner_phrase(it)
         ),

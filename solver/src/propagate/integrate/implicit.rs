@@ -14,14 +14,15 @@
 //! the number of processes or threads.
 
 use super::solver::Solver;
-use super::{ErrorState, Settings, StepPlan, StepStats, Stepper};
+use super::{ErrorState, StepPlan, StepStats, Stepper};
+use crate::config::integrator::Settings;
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
 use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::{bail, Result};
 
-pub const GAMMA: f64 = 2.0 - std::f64::consts::SQRT_2;
+pub(crate) const GAMMA: f64 = 2.0 - std::f64::consts::SQRT_2;
 /// theta = gamma / 2 = 1 - 1/sqrt 2: the implicit weight of both stages.
 pub const THETA: f64 = 1.0 - std::f64::consts::FRAC_1_SQRT_2;
 
@@ -38,9 +39,9 @@ pub fn amplification(z: f64) -> f64 {
 /// (an estimate needs two digits). With a multigrid each filter pass is one preconditioned
 /// step instead (`Solver::first_iterate`): conjugate gradients to 1e-1 stopped there after one
 /// iteration on the 70^3 box, and one iteration to 1e-2 moved the error ratios by at most 1.2 %.
-pub const FILTER_TOLERANCE: f64 = 1e-2;
+pub(crate) const FILTER_TOLERANCE: f64 = 1e-2;
 /// How often the estimate goes through (V - theta tau W)^-1 V.
-pub const FILTER_PASSES: usize = 2;
+pub(crate) const FILTER_PASSES: usize = 2;
 
 /// Conjugate-gradient iterations of the last step's solves.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -116,6 +117,14 @@ impl Implicit {
     /// (`Solver::set_fixed`), so at most `applications_bound` operator applications per step.
     pub fn set_fixed(&mut self, k: usize) {
         self.solver.set_fixed(k);
+    }
+
+    /// The real-time mode with a direct solver (`Solver::set_direct`); Err says why not (the
+    /// solves then stay iterative). Returns the unknowns, the factor's entries and A's.
+    pub fn set_direct(&mut self, prop: &Propagation, comm: &dyn Comm) -> Result<(usize, f64, usize)> {
+        self.solver.set_direct(prop, comm)?;
+        let d = self.solver.direct().expect("set");
+        Ok((d.unknowns(), d.factor_entries(), d.matrix_entries()))
     }
 
     /// The most operator applications one step takes in the real-time mode: the stage 1
@@ -257,7 +266,7 @@ impl Implicit {
         let it2 = it2?;
         self.last = SolveStats { iterations: [it1, it2] };
         tracing::trace!("implicit step {}: {it1} + {it2} iterations", step + 1);
-        Ok(1 + (it1 + 2) + (it2 + 2))
+        Ok(1 + self.solver.applications(it1) + self.solver.applications(it2))
     }
 }
 

@@ -14,8 +14,9 @@ pub mod rkl2;
 pub mod solver;
 pub mod stability;
 
-use crate::discretize::operator::V3;
+use crate::config::integrator::Kind;
 use crate::distribute::comm::Comm;
+use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::Result;
 
@@ -94,14 +95,9 @@ pub trait Stepper {
     fn set_budget(&mut self, _budget: Option<usize>) {}
 }
 
-pub use crate::config::integrator::{
-    Kind, Preconditioner, Settings, CG_SHARE, DEFAULT_ACCURACY, DEFAULT_MAX_ITERATIONS, DEFAULT_MAX_STAGES,
-    DEFAULT_TOLERANCE, KINDS, PRECONDITIONERS, UNCONTROLLED_TOLERANCE,
-};
-
 /// forward Euler's substep for the mechanics step dt on an operator whose bound is h_bound:
 /// dt over ceil(dt / (SAFETY h_bound)) substeps.
-pub fn euler_substep(dt: f64, h_bound: f64) -> f64 {
+pub(crate) fn euler_substep(dt: f64, h_bound: f64) -> f64 {
     if h_bound.is_finite() {
         dt / (dt / (euler::SAFETY * h_bound)).ceil().max(1.0)
     } else {
@@ -124,11 +120,11 @@ where
 /// dt / 2^MAX_LEVEL that is still not accurate enough is an error that names the fixes. The
 /// layer a tool's contact starts is as fast as the cells it touches relax: the head atlas under
 /// a sphere (dt = 0.03 s) needs dt / 2^18, so 16 levels refused it (docs/integrators.md).
-pub const MAX_LEVEL: u32 = 30;
+pub(crate) const MAX_LEVEL: u32 = 30;
 
 /// A step that changes phi by so little against its size is accurate whatever its estimate:
 /// relative errors below this (roundoff of the norms) are taken as zero.
-pub const ROUNDOFF: f64 = 1e-13;
+pub(crate) const ROUNDOFF: f64 = 1e-13;
 
 /// Error control over the levels of one mechanics step: sub-steps of dt / 2^level, the level
 /// raised after a rejected sub-step (by as many halvings as the estimate asks for, order `p`

@@ -14,16 +14,16 @@
 
 use super::euler::SAFETY;
 use super::{ErrorState, StepPlan, StepStats, Stepper};
-use crate::discretize::operator::V3;
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
+use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
 use anyhow::{bail, Result};
 use eprop_partition::Layout;
 
 /// Cost of one RKL2 stage in forward Euler substeps: the same operator sweep, plus three
 /// more vectors read (Y(j-2), Y0, M(Y0)). Measured (examples/sweeps.rs) on a 271k-node liver.
-pub const STAGE_COST: f64 = 1.3;
+pub(crate) const STAGE_COST: f64 = 1.3;
 
 /// Coefficients of one stage j >= 2: (mu, nu, mu~, gamma~).
 type Stage = (f64, f64, f64, f64);
@@ -71,7 +71,7 @@ pub fn amplification(s: usize, z: f64) -> f64 {
 /// whose forward Euler bound is `h_bound`: SAFETY h_bound (s^2 + s - 2) / 4 >= tau.
 /// A count past `MAX_COUNT` (or a ratio that is not finite) is `usize::MAX`: the callers
 /// refuse it by its size (`crate::guard::limits`), and no arithmetic on it wraps.
-pub fn stages_for(tau: f64, h_bound: f64) -> usize {
+pub(crate) fn stages_for(tau: f64, h_bound: f64) -> usize {
     if !h_bound.is_finite() {
         return 2;
     }
@@ -93,10 +93,10 @@ pub fn stages_for(tau: f64, h_bound: f64) -> usize {
 /// in; at the full accuracy a sphere pressing the SOFA liver (scenarios/organs/liver_indent.toml)
 /// left u 2.0e-2 and the force 3.2e-2 of the peak from euler's, at a tenth of it 1.9e-4 and
 /// 8.4e-4.
-pub const DOUBLING_SHARE: f64 = 0.1;
+pub(crate) const DOUBLING_SHARE: f64 = 0.1;
 
 /// Stage and super-step counts above this are saturated to `usize::MAX` (far above any limit).
-pub const MAX_COUNT: f64 = 1e15;
+pub(crate) const MAX_COUNT: f64 = 1e15;
 
 pub struct Rkl2 {
     plan: StepPlan,

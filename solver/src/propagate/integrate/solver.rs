@@ -5,10 +5,11 @@
 //! failures become messages that name the scenario's fixes.
 
 use super::implicit::THETA;
-use super::{Preconditioner, Settings};
+use crate::config::integrator::{Preconditioner, Settings};
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
 use crate::linalg::cg::{self, Failure, Shifted};
+use crate::linalg::direct::Direct;
 use crate::linalg::jacobi::Jacobi;
 use crate::linalg::multigrid::Multigrid;
 use crate::linalg::{Precond, Sweep, V3};
@@ -22,7 +23,7 @@ use anyhow::{anyhow, Result};
 pub const MULTIGRID_FROM: usize = 40;
 /// ... and takes it only where its trial solve is this many times cheaper than jacobi's (its
 /// setup, and a recombination per error-control level, are not in the trial).
-pub const MULTIGRID_MARGIN: f64 = 1.5;
+pub(crate) const MULTIGRID_MARGIN: f64 = 1.5;
 
 /// The preconditioner of A = V - theta_tau W (`vol`: the volumes of the rows that move).
 fn preconditioner(
@@ -83,13 +84,16 @@ pub struct Solver {
     /// The real-time mode's iterations per solve (`set_fixed`): a solve stops there whether
     /// or not it reached `tol` (None: to `tol`, failing at `max_iterations`).
     fixed: Option<usize>,
+    /// The real-time mode's direct solver of level 0's matrix (`set_direct`): the stages
+    /// solve with it instead of conjugate gradients.
+    direct: Option<Direct>,
     path: String,
     work: cg::Work,
 }
 
 /// The tightest tolerance `Solver::tighten` sets: conjugate gradients still converge there in
 /// double precision.
-pub const TIGHTEST: f64 = 1e-13;
+pub(crate) const TIGHTEST: f64 = 1e-13;
 
 impl Solver {
     /// The solves of TR-BDF2 steps of dt on `prop`'s operator: `vol` the control volumes,
@@ -124,6 +128,7 @@ impl Solver {
             tol: settings.tolerance,
             max_iterations: settings.max_iterations,
             fixed: None,
+            direct: None,
             path: path.to_string(),
             work: cg::Work::new(layout),
         })
@@ -168,6 +173,31 @@ impl Solver {
     /// without failing (the work per step is bounded; `tol` still stops it earlier).
     pub fn set_fixed(&mut self, k: usize) {
         self.fixed = Some(k);
+    }
+
+    /// The real-time mode with a direct solver: factorises level 0's matrix (`Direct::new`)
+    /// and solves the stages with it; on failure (returned: why) the solves stay iterative.
+    pub fn set_direct(&mut self, prop: &Propagation, comm: &dyn Comm) -> Result<()> {
+        if self.level != 0 {
+            anyhow::bail!("not at level 0");
+        }
+        self.direct = Some(Direct::new(prop, &self.vol, self.theta_tau, &self.gid, comm)?);
+        Ok(())
+    }
+
+    /// The direct solver, if the stages use one.
+    pub fn direct(&self) -> Option<&Direct> {
+        self.direct.as_ref()
+    }
+
+    /// The operator applications of a stage's solve that took `it` iterations: the two that
+    /// start conjugate gradients and one per iteration, none with the direct solver.
+    pub fn applications(&self, it: usize) -> usize {
+        if self.direct.is_some() {
+            0
+        } else {
+            it + 2
+        }
     }
 
     /// The real-time mode's iterations per solve, if it is on.
@@ -243,6 +273,17 @@ impl Solver {
             c: self.theta_tau,
             bound: self.a_bound,
         };
+        // the real-time mode's direct solver takes the stages (at level 0, its matrix)
+        if let (Some(d), 1 | 2, 0) = (&mut self.direct, stage, self.level) {
+            d.solve(&*prop, x, b, comm).map_err(|e| {
+                anyhow!(
+                    "{}: implicit: the solve of stage {stage} of step {}: {e}",
+                    self.path,
+                    step + 1
+                )
+            })?;
+            return Ok(0);
+        }
         // the real-time mode's stages stop after their fixed iterations (not the trial)
         let fixed = self.fixed.filter(|_| stage == 1 || stage == 2);
         let limit = fixed.unwrap_or(self.max_iterations);

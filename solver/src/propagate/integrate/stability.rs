@@ -1,9 +1,10 @@
 //! The largest stable forward Euler substep of an operator (docs/model.md section 3). Other
 //! integrators size their stages from the same spectral bound.
 
-use crate::discretize::operator::{Compact, Operator, V3};
+use crate::discretize::operator::{Compact, Operator};
 use crate::distribute::comm::{reproducible_sum, Comm};
 use crate::distribute::field::NodeField;
+use crate::linalg::V3;
 use crate::propagate::Propagation;
 use eprop_io::geom::{dot, scale};
 
@@ -25,7 +26,7 @@ pub fn hash_unit(mut x: u64) -> f64 {
 /// repeated substeps of I + hL no longer grow a random vector. Start vectors hash the
 /// global node id and norms are exact sums: the same h on any number of processes.
 /// `active` and `gid` cover the local nodes (owned, then halo).
-pub fn euler_bound(prop: &mut Propagation, active: &[bool], gid: &[u64], comm: &dyn Comm) -> f64 {
+pub(crate) fn euler_bound(prop: &mut Propagation, active: &[bool], gid: &[u64], comm: &dyn Comm) -> f64 {
     match &prop.op {
         Operator::Compact(c) => {
             let g = comm.max(c.gershgorin());
@@ -105,7 +106,7 @@ fn paper_bound(prop: &mut Propagation, active: &[bool], gid: &[u64], comm: &dyn 
 
 /// The median of the Gershgorin bounds of the owned rows `0..n_owned` over every process
 /// (empty rows left out): a bisection on the value with exact counts, so the same on any number of processes.
-pub fn median_bound(op: &Compact, n_owned: usize, comm: &dyn Comm) -> f64 {
+pub(crate) fn median_bound(op: &Compact, n_owned: usize, comm: &dyn Comm) -> f64 {
     let mut g = op.row_bounds();
     g.truncate(n_owned);
     g.retain(|&x| x > 0.0);
