@@ -210,16 +210,24 @@ pub(crate) fn force_factor(mat: &Materials, i: usize) -> f64 {
 }
 
 /// The nodes the kinematic tools hold over the step from t (tools at `now`) to t + dt (at
-/// `next`), among the owned `active` nodes at rest positions `x` displaced by `u`; a node
-/// is held by the first tool that holds it.
+/// `next`), among the owned `active` nodes at rest positions `x` displaced by `u` and moving
+/// at `v`; a node is held by the first tool that holds it.
+/// A node the tool does not touch at t is judged where its own motion takes it over the step,
+/// y + v dt: a node is caught when the tool's move and its own would overlap, and is put on
+/// the tool from there. So a node just outside the catch moves freely by about v dt and a node
+/// just inside it is put on the surface near y + v dt: the catch is continuous in the node's
+/// gap (judged from y alone, a node running ahead of the tool would stop dead when caught,
+/// a jump of v dt between a node caught and one just missed).
 /// `pulls(i, n)`: whether node i, held where it is, would pull the tool along n (a tensile
 /// reaction): such a node on the surface is let go; one inside the tool is always pushed out.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn held_nodes(
     tools: &[ToolRun],
     now: &[V3],
     next: &[V3],
     x: &[V3],
     u: &[V3],
+    (v, dt): (&[V3], f64),
     active: &[bool],
     pulls: impl Fn(usize, V3) -> bool,
 ) -> Vec<Held> {
@@ -234,11 +242,16 @@ pub(crate) fn held_nodes(
             if !active[i] || taken[i] {
                 continue;
             }
-            let y = add(x[i], u[i]);
-            // a cheap test first: points farther than the radius and the move from both
+            let mut y = add(x[i], u[i]);
+            let drift = scale(v[i], dt);
+            // a cheap test first: points farther than the radius and the moves from both
             // positions cannot be held
-            if norm(sub(y, next[k])) > 2.0 * reach && norm(sub(y, now[k])) > 2.0 * reach {
+            let r = 2.0 * reach + norm(drift);
+            if norm(sub(y, next[k])) > r && norm(sub(y, now[k])) > r {
                 continue;
+            }
+            if !touches(&run.tool.shape, now[k], y) {
+                y = add(y, drift);
             }
             if let Some(p) = hold(run, now[k], next[k], y) {
                 let shape = &run.tool.shape;
@@ -485,7 +498,7 @@ mod tests {
         // a withdrawal lets go of every point whose reaction pulls, keeps the others
         let x = [[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0], [0.0, 0.5, 0.0]];
         let u = [[0.0; 3]; 3];
-        let held = held_nodes(&[r], &[[0.0; 3]], &[[0.0, 0.0, 0.1]], &x, &u, &[true; 3], |i, nn| {
+        let held = held_nodes(&[r], &[[0.0; 3]], &[[0.0, 0.0, 0.1]], &x, &u, (&u, 1.0), &[true; 3], |i, nn| {
             assert_eq!(nn, n);
             i == 1
         });
