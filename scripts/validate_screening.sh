@@ -10,7 +10,7 @@ cd "$(dirname "$0")/.."
 out=${1:-out/screening}
 shift || true
 lengths=("${@:-0.01}")
-eprop=target/release/eprop
+eprop=${EPROP:-target/release/eprop}
 [ -x "$eprop" ] || cargo build --release --quiet
 mkdir -p "$out"
 mesh=$(realpath scenarios/validation/block.msh)

@@ -322,9 +322,11 @@ fn a_tool_lets_go_when_it_retreats() {
         }
     }
     assert!(pressed >= 2 && released_at.is_some());
-    // once let go, the organ springs back (k_e = 1)
+    // once let go, the organ springs back (k_e = 1): 5.3 % of the peak is left at t = 200
+    // (4.8 % when the sphere took the nodes it pressed to its nearest point: they slid away
+    // along it and less of the organ was deformed at the release; the decay rate is the same)
     let end = sim.max_displacement().0;
-    assert!(end < 0.05 * peak, "peak {peak}, end {end}");
+    assert!(end < 0.06 * peak, "peak {peak}, end {end}");
 }
 
 #[test]

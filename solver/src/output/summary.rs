@@ -95,6 +95,10 @@ pub struct Summary {
     /// The kinematic tools' energy account at the end: work, stored, dissipated (J).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub energy: Option<[f64; 3]>,
+    /// The energy's unit in the printed summary: " J" in the continuum reading, nothing in
+    /// the paper's unit-free one.
+    #[serde(skip)]
+    pub energy_unit: &'static str,
     pub output: String,
     pub output_steps: usize,
     pub warnings: Vec<String>,
@@ -257,7 +261,8 @@ impl Summary {
             let rel = if w != 0.0 { gap / w.abs() } else { 0.0 };
             writeln!(
             f,
-            "  work        tools' work {w:.6e} J = stored {s:.6e} J + dissipated {d:.6e} J (balance {rel:.1e} of the work)"
+            "  work        tools' work {w:.6e}{j} = stored {s:.6e}{j} + dissipated {d:.6e}{j} (balance {rel:.1e} of the work)",
+            j = self.energy_unit
         )?;
         }
         Ok(())
@@ -391,6 +396,10 @@ pub fn summarize(
         across_nodes: series.folds.last.across,
         max_across_nodes: series.folds.most_across,
         energy: sim.tool_energy().map(|e| [e.work, e.stored, e.dissipated]),
+        energy_unit: match sim.setup().model.reading {
+            crate::config::Reading::Continuum => " J",
+            crate::config::Reading::Paper => "",
+        },
         output: series.path().display().to_string(),
         output_steps: series.steps_written(),
         warnings,

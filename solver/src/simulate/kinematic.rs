@@ -3,9 +3,10 @@
 //!
 //! At the start of a step (state u^n, phi^n; the tool moves from c_n to c_{n+1}) every active
 //! node the tool touches gets a target position on the tool's surface (`hold`): a node inside
-//! the tool at c_{n+1} is pushed onto its surface along the normal; a node on its surface
-//! follows it (a sticky tool carries it along, a sliding one takes it to the nearest surface
-//! point). A node on the surface stays held only while its reaction pushes on the tool: a
+//! the tool at c_{n+1} is pushed onto its surface (a punch along its normal, a moving sphere
+//! along its move, `push_out`); a node on its surface follows it (a sticky tool carries it
+//! along, a sliding one pushes it out where it moves into it and takes it to the nearest
+//! surface point where it moves away). A node on the surface stays held only while its reaction pushes on the tool: a
 //! tool does not pull (`held_nodes`).
 //!
 //! The potential of a held node is set to the value that holds the node there at
@@ -23,7 +24,9 @@
 //! at each node on or in the tool, M = E / (2 (1 - nu^2)) (the harmonic model's modulus that
 //! gives Boussinesq's surface displacement on a half-space), D_c the node's mean
 //! conductivity, C_c its capacity (its control volume, weighed by young where tissues differ,
-//! with E the reference young then); normal to the surface for a sliding tool. Every factor
+//! with E the reference young then); for a sliding tool only the nodes that push on it (a
+//! punch: the part along its normal; a sphere, which carries them along its move: their
+//! whole reaction, by virtual work). Every factor
 //! but E is fixed by the displacement, so a prescribed tool path moves the tissue the same
 //! whatever young, and the force scales with young.
 //!
@@ -80,11 +83,63 @@ pub(crate) fn push_normal(shape: &Shape, c: V3, y: V3) -> Option<V3> {
     }
 }
 
+/// A moving sphere moves the tissue along its move where its surface faces the move within
+/// 60 degrees (the cosine of that angle; `along_move`).
+pub const ALONG_MOVE: f64 = 0.5;
+
+/// Where a sphere moving from `c_now` to `c_next` (unit move m) takes a point y along its
+/// move, or None where it does not: with w = y - c_next and w_perp its part across m, the
+/// line y + s m meets the sphere at s = -w.m -+ h, h = sqrt(R^2 - |w_perp|^2). A point inside
+/// it (`inside`) in front of its centre (w.m >= 0) is pushed forward to where the line
+/// leaves it, s = h - w.m; a point it moves away from follows it to where the line enters it,
+/// s = -h - w.m >= 0; either only where the sphere's surface there faces the move within 60
+/// degrees (h >= ALONG_MOVE R): beside the move (a sphere dragged across the surface), the
+/// nearest point instead (the caller's `project`), so a frictionless sphere does not plough.
+/// Along the move rather than to the nearest point: a node the sphere presses stays under the
+/// point of the sphere that met it instead of sliding out along its surface step after step
+/// (the harmonic model has no stiffness against that sliding; the elastic reference's surface
+/// hardly slides, docs/validation.md), and a withdrawal takes the nodes back the way they came.
+pub fn along_move(shape: &Shape, c_now: V3, c_next: V3, y: V3, inside: bool) -> Option<V3> {
+    let Shape::Sphere { radius } = *shape else {
+        return None;
+    };
+    let mv = sub(c_next, c_now);
+    let len = norm(mv);
+    if !(len > 0.0 && len.is_finite()) {
+        return None;
+    }
+    let m = scale(mv, 1.0 / len);
+    let w = sub(y, c_next);
+    let b = dot(w, m);
+    let perp = norm(sub(w, scale(m, b)));
+    if !(perp < radius) {
+        return None;
+    }
+    let h = ((radius - perp) * (radius + perp)).sqrt();
+    if h < ALONG_MOVE * radius {
+        return None;
+    }
+    let s = if inside {
+        (b >= 0.0).then(|| (h - b).max(0.0))?
+    } else {
+        Some(-h - b).filter(|&s| s >= 0.0)?
+    };
+    Some(add(y, scale(m, s)))
+}
+
+/// Where the tool moving from `c_now` to `c_next` pushes a point y inside it at `c_next`: a
+/// moving sphere along its move where it faces it (`along_move`), else onto the nearest point
+/// of its surface; a punch onto its face along its normal (`project`).
+pub fn push_out(shape: &Shape, c_now: V3, c_next: V3, y: V3) -> V3 {
+    along_move(shape, c_now, c_next, y, true).unwrap_or_else(|| project(shape, c_next, y))
+}
+
 /// Where the tool moving from `c_now` to `c_next` puts the point y (a node's position at the
 /// step's start), or None when it does not touch it. A point inside the tool at c_next is
-/// pushed onto its surface along the normal; a point on the surface at c_now follows it: a
-/// sticky tool carries it along (with the tool's whole move), a sliding one takes it to the
-/// nearest point of its surface at c_next. Whether a touching point stays held is the
+/// pushed onto its surface (`push_out`); a point on the surface at c_now follows it: a
+/// sticky tool carries it along (with the tool's whole move), a sliding one pushes it out
+/// where it moves into it and, where it moves away from it, takes it along its move
+/// (`along_move`) or else to the nearest point of its surface at c_next. Whether a touching point stays held is the
 /// reaction's to say (`held_nodes`): a tool does not pull.
 pub fn hold(run: &ToolRun, c_now: V3, c_next: V3, y: V3) -> Option<V3> {
     let shape = run.tool.shape;
@@ -95,8 +150,10 @@ pub fn hold(run: &ToolRun, c_now: V3, c_next: V3, y: V3) -> Option<V3> {
         y = add(y, sub(c_next, c_now));
     }
     let d = depth(&shape, c_next, y);
-    let p = if d > 0.0 || (on_now && d.is_finite() && d < -tol) {
-        project(&shape, c_next, y)
+    let p = if d > 0.0 {
+        push_out(&shape, c_now, c_next, y)
+    } else if on_now && d.is_finite() && d < -tol {
+        along_move(&shape, c_now, c_next, y, false).unwrap_or_else(|| project(&shape, c_next, y))
     } else if d >= -tol {
         y
     } else {
@@ -153,16 +210,24 @@ pub(crate) fn force_factor(mat: &Materials, i: usize) -> f64 {
 }
 
 /// The nodes the kinematic tools hold over the step from t (tools at `now`) to t + dt (at
-/// `next`), among the owned `active` nodes at rest positions `x` displaced by `u`; a node
-/// is held by the first tool that holds it.
+/// `next`), among the owned `active` nodes at rest positions `x` displaced by `u` and moving
+/// at `v`; a node is held by the first tool that holds it.
+/// A node the tool does not touch at t is judged where its own motion takes it over the step,
+/// y + v dt: a node is caught when the tool's move and its own would overlap, and is put on
+/// the tool from there. So a node just outside the catch moves freely by about v dt and a node
+/// just inside it is put on the surface near y + v dt: the catch is continuous in the node's
+/// gap (judged from y alone, a node running ahead of the tool would stop dead when caught,
+/// a jump of v dt between a node caught and one just missed).
 /// `pulls(i, n)`: whether node i, held where it is, would pull the tool along n (a tensile
 /// reaction): such a node on the surface is let go; one inside the tool is always pushed out.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn held_nodes(
     tools: &[ToolRun],
     now: &[V3],
     next: &[V3],
     x: &[V3],
     u: &[V3],
+    (v, dt): (&[V3], f64),
     active: &[bool],
     pulls: impl Fn(usize, V3) -> bool,
 ) -> Vec<Held> {
@@ -177,11 +242,16 @@ pub(crate) fn held_nodes(
             if !active[i] || taken[i] {
                 continue;
             }
-            let y = add(x[i], u[i]);
-            // a cheap test first: points farther than the radius and the move from both
+            let mut y = add(x[i], u[i]);
+            let drift = scale(v[i], dt);
+            // a cheap test first: points farther than the radius and the moves from both
             // positions cannot be held
-            if norm(sub(y, next[k])) > 2.0 * reach && norm(sub(y, now[k])) > 2.0 * reach {
+            let r = 2.0 * reach + norm(drift);
+            if norm(sub(y, next[k])) > r && norm(sub(y, now[k])) > r {
                 continue;
+            }
+            if !touches(&run.tool.shape, now[k], y) {
+                y = add(y, drift);
             }
             if let Some(p) = hold(run, now[k], next[k], y) {
                 let shape = &run.tool.shape;
@@ -317,7 +387,13 @@ pub fn measure(
         let mut f = f0;
         if run.tool.grip == Grip::Slide {
             if let Some(nn) = push_normal(&shape, c, y) {
-                f = scale(nn, dot(f, nn).max(0.0));
+                let pushes = dot(f, nn);
+                f = match shape {
+                    // a sphere carries the nodes it pushes along its move (`push_out`): by
+                    // virtual work its force is their whole reaction, while they push
+                    Shape::Sphere { .. } if pushes > 0.0 => f0,
+                    _ => scale(nn, pushes.max(0.0)),
+                };
             }
         }
         let a = norm(n.area[i]);
@@ -359,9 +435,9 @@ mod tests {
     }
 
     #[test]
-    fn a_sliding_sphere_pushes_along_its_normal_and_lets_go_when_it_leaves() {
+    fn a_sliding_sphere_pushes_out_and_lets_go_when_it_leaves() {
         let r = run(Shape::Sphere { radius: 1.0 }, Grip::Slide);
-        // a point 0.25 inside the sphere at its new position: onto the surface, radially
+        // a point 0.25 inside the sphere at its new position: onto the surface
         let p = hold(&r, [0.0, 0.0, 2.0], [0.0, 0.0, 1.5], [0.0, 0.0, 0.75]).unwrap();
         assert_eq!(p, [0.0, 0.0, 0.5]);
         // on the surface of the still tool: stays
@@ -372,6 +448,36 @@ mod tests {
         assert!((p[2] + 0.9).abs() < 1e-15, "{p:?}");
         // a point off the surface is not touched
         assert_eq!(hold(&r, [0.0; 3], [0.0, 0.0, 0.1], [0.0, 0.0, -1.01]), None);
+    }
+
+    #[test]
+    fn a_moving_sphere_pushes_along_its_move_and_carries_what_it_presses() {
+        let r = run(Shape::Sphere { radius: 1.0 }, Grip::Slide);
+        // off the axis, in front of the centre: down along the move (x kept), not radially
+        let p = hold(&r, [0.0, 0.0, 1.0], [0.0, 0.0, 0.5], [0.6, 0.0, 0.0]).unwrap();
+        assert_eq!(p[0], 0.6);
+        assert!((p[2] - (0.5 - 0.8)).abs() < 1e-15, "{p:?}");
+        // a point on the sphere in front of its centre moves with it, as a sticky one would
+        let p = hold(&r, [0.0; 3], [0.0, 0.0, -0.1], [0.6, 0.0, -0.8]).unwrap();
+        assert!((p[0] - 0.6).abs() < 1e-15 && (p[2] + 0.9).abs() < 1e-15, "{p:?}");
+        // withdrawn, it takes the point back along its move (x kept)
+        let p = hold(&r, [0.0; 3], [0.0, 0.0, 0.1], [0.6, 0.0, -0.8]).unwrap();
+        assert!((p[0] - 0.6).abs() < 1e-15 && (p[2] + 0.7).abs() < 1e-15, "{p:?}");
+        // dragged sideways, a point under it goes to the nearest point, not ahead of it
+        let y = [0.1, 0.0, -0.99];
+        let c = [0.1, 0.0, 0.0];
+        assert_eq!(push_out(&r.tool.shape, [0.0; 3], c, y), project(&r.tool.shape, c, y));
+        // behind the centre, or the sphere still: the nearest point
+        let y = [0.9, 0.0, 0.2];
+        assert_eq!(
+            push_out(&r.tool.shape, [0.0, 0.0, 0.1], [0.0; 3], y),
+            project(&r.tool.shape, [0.0; 3], y)
+        );
+        let y = [0.5, 0.0, -0.5];
+        assert_eq!(
+            push_out(&r.tool.shape, [0.0; 3], [0.0; 3], y),
+            project(&r.tool.shape, [0.0; 3], y)
+        );
     }
 
     #[test]
@@ -392,7 +498,7 @@ mod tests {
         // a withdrawal lets go of every point whose reaction pulls, keeps the others
         let x = [[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0], [0.0, 0.5, 0.0]];
         let u = [[0.0; 3]; 3];
-        let held = held_nodes(&[r], &[[0.0; 3]], &[[0.0, 0.0, 0.1]], &x, &u, &[true; 3], |i, nn| {
+        let held = held_nodes(&[r], &[[0.0; 3]], &[[0.0, 0.0, 0.1]], &x, &u, (&u, 1.0), &[true; 3], |i, nn| {
             assert_eq!(nn, n);
             i == 1
         });

@@ -937,6 +937,7 @@ impl Simulation {
             &next,
             &self.setup.mesh.points[..n],
             &self.u[..n],
+            (&self.v[..n], self.dt),
             &self.active[..n],
             pulls,
         );
