@@ -498,10 +498,19 @@ mod tests {
         // a withdrawal lets go of every point whose reaction pulls, keeps the others
         let x = [[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0], [0.0, 0.5, 0.0]];
         let u = [[0.0; 3]; 3];
-        let held = held_nodes(&[r], &[[0.0; 3]], &[[0.0, 0.0, 0.1]], &x, &u, (&u, 1.0), &[true; 3], |i, nn| {
-            assert_eq!(nn, n);
-            i == 1
-        });
+        let held = held_nodes(
+            &[r],
+            &[[0.0; 3]],
+            &[[0.0, 0.0, 0.1]],
+            &x,
+            &u,
+            (&u, 1.0),
+            &[true; 3],
+            |i, nn| {
+                assert_eq!(nn, n);
+                i == 1
+            },
+        );
         let ids: Vec<u32> = held.iter().map(|h| h.node).collect();
         assert_eq!(ids, [0, 2]);
         assert!((held[0].target[2] - 0.1).abs() < 1e-15);
