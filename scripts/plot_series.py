@@ -3,6 +3,7 @@
 import argparse
 import os
 import sys
+import tomllib
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np  # noqa: E402
@@ -39,8 +40,43 @@ def read(path, step):
             k=k, n=s.n, points=xyz, tris=tris, time=s.times[k], solver_step=int(s.solver_steps()[k]),
             u=s.field("displacement", k), energy=energy[k], nodes=loads["node"],
             probe_time=loads["time"], probe_u=loads["displacement"],
-            volumes=s.control_volumes(), all_energy=energy,
+            volumes=s.control_volumes(), all_energy=energy, tools=tools_at(s, k),
         )
+
+
+def tools_at(s, k):
+    """The scenario's tools where they are at output step k: (shape, radius, normal, position)."""
+    if not s.n_tools():
+        return []
+    defs = tomllib.loads(s.scenario()).get("tool", [])
+    pos = s.tools()["position"][k]
+    out = []
+    for d, c in zip(defs, pos):
+        shape = d.get("shape", "sphere")
+        out.append((shape, float(d.get("radius", 0.0)), np.asarray(d.get("normal", [0, 0, -1]), float), c))
+    return out
+
+
+def draw_tools(ax, tools):
+    """Each tool as a grey wire: a sphere, or a punch's face (a disc, its normal drawn)."""
+    for shape, r, normal, c in tools:
+        if not r > 0:
+            continue
+        if shape == "sphere":
+            a, b = np.mgrid[0:2 * np.pi:25j, 0:np.pi:13j]
+            ax.plot_wireframe(c[0] + r * np.cos(a) * np.sin(b), c[1] + r * np.sin(a) * np.sin(b),
+                              c[2] + r * np.cos(b), color="0.35", linewidth=0.5, zorder=20)
+        else:
+            n = normal / np.linalg.norm(normal)
+            e1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(n, e1)
+            t = np.linspace(0, 2 * np.pi, 49)
+            for rr in (r, 0.5 * r):
+                ring = c + rr * (np.outer(np.cos(t), e1) + np.outer(np.sin(t), e2))
+                ax.plot(ring[:, 0], ring[:, 1], ring[:, 2], color="0.35", lw=0.8, zorder=20)
+            back = np.array([c, c - r * n])
+            ax.plot(back[:, 0], back[:, 1], back[:, 2], color="0.35", lw=0.8, zorder=20)
 
 
 def surface_panel(fig, ax, xyz, tris, values, label, d, title):
@@ -71,10 +107,13 @@ def plot_deformed(d, scale, out, stem):
               (np.linalg.norm(d["u"], axis=1), "|displacement|", "|displacement|")]
     for i, (vals, label, name) in enumerate(panels):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d", computed_zorder=False)
-        if len(d["nodes"]):  # turn the loaded side towards the viewer
-            r = d["points"][d["nodes"][0]] - d["points"].mean(axis=0)
+        # turn the loaded side (or the first tool) towards the viewer
+        focus = d["points"][d["nodes"][0]] if len(d["nodes"]) else (d["tools"][0][3] if d["tools"] else None)
+        if focus is not None:
+            r = focus - d["points"].mean(axis=0)
             ax.view_init(elev=15, azim=np.degrees(np.arctan2(r[1], r[0])) - 25)
         surface_panel(fig, ax, xyz, d["tris"], vals, label, d, f"{name}\n{when}{sfx}")
+        draw_tools(ax, d["tools"])
     path = os.path.join(out, stem + "_deformed.png")
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
