@@ -790,7 +790,7 @@ fn a_kinematic_tool_under_multigrid_runs_on_three_ranks_where_only_one_holds_its
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let three = d.path().join("three.h5");
     let job = common::spawn(3, &["run", sc, "-q", "-o", three.to_str().unwrap()]);
-    let out = common::finish(job, 120, "three processes");
+    let out = common::finish(job, 600, "three processes");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let force = |h5: &Path| {
         hdf5::File::open(h5)
