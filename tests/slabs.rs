@@ -25,6 +25,16 @@ fn assert_same(a: &Path, b: &Path) {
         compared += 1;
     }
     assert!(compared >= 20, "{names:?}");
+    // the mesh's hash (a restart checks it) is the whole mesh's, from the slabs too
+    let hash = |f: &hdf5::File| {
+        f.group("eprop")
+            .unwrap()
+            .attr("mesh_hash")
+            .unwrap()
+            .read_scalar::<u64>()
+            .unwrap()
+    };
+    assert_eq!(hash(&fa), hash(&fb));
 }
 
 /// The box mesh as .msh and converted to .vtkhdf in `dir`.

@@ -601,7 +601,7 @@ pub fn start(world: &Handle, setup: Setup) -> Result<(Part, Option<Mesh>)> {
     let made = start_here(world, &comm, setup);
     let made = agree(world, &comm, made)?;
     let global = match rank {
-        0 => Some(crate::config::mesh::read(&made.setup.scenario)),
+        0 => Some(whole_mesh(&made.setup)),
         _ => None,
     };
     let failed = comm.max(f64::from(u8::from(global.as_ref().is_some_and(|g| g.is_err()))));
@@ -613,6 +613,25 @@ pub fn start(world: &Handle, setup: Setup) -> Result<(Part, Option<Mesh>)> {
     }
     tracing::debug!("rank {rank} of {size}: part made from the slabs");
     Ok((made, global.map(|g| g.expect("checked"))))
+}
+
+/// The whole mesh for rank 0's static output and summary, scaled as the slabs were, and
+/// checked as one process checks a mesh it reads, strictly: an inverted cell, which one
+/// process would turn over, is refused here rather than run as it is on the slabs.
+fn whole_mesh(setup: &Setup) -> Result<Mesh> {
+    let sc = &setup.scenario;
+    let path = sc.mesh_path();
+    let factor = sc
+        .file
+        .mesh
+        .factor(sc.file.model.reading)
+        .map_err(|e| anyhow!("{}: {e}", sc.path.display()))?;
+    let opts = eprop_io::ReadOptions { strict: true };
+    let mut mesh = crate::config::mesh::read_vtkhdf(&path, &opts)?;
+    if factor != 1.0 {
+        mesh.points.iter_mut().flatten().for_each(|x| *x *= factor);
+    }
+    Ok(mesh)
 }
 
 fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
