@@ -504,3 +504,60 @@ fn every_piece_held(sc: &Scenario, mesh: &Mesh, fixed: &[bool], g: &Global) -> R
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use eprop_io::generate::{box_mesh, BoxCells};
+
+    /// One process: every collective is the identity.
+    struct One;
+
+    impl Reduce for One {
+        fn max(&self, x: f64) -> f64 {
+            x
+        }
+        fn max_each(&self, x: &[f64]) -> Vec<f64> {
+            x.to_vec()
+        }
+        fn all_gather_var(&self, x: &[f64]) -> Vec<f64> {
+            x.to_vec()
+        }
+        fn exchange(&self, _: &mut [f64]) {}
+    }
+
+    #[test]
+    fn a_local_resolution_of_the_whole_mesh_is_the_whole_resolution() {
+        let text =
+            "[mesh]\nfile = \"m.vtkhdf\"\n[[fixed]]\nhalfspace = { point = [0, 0, 0.01], normal = [0, 0, -1] }\n\
+                    [[fixed]]\nbox = [[0.99, -1, -1], [2, 2, 2]]\n\
+                    [[load]]\nnearest = [0.5, 0.5, 1.0]\nnormal = 1.0\n\
+                    [[load]]\npatch = { center = [0.5, 0.0, 0.5], radius = 0.3 }\nforce = [0, 1, 0]\n\
+                    [[load]]\nnode = 77\nforce = [1, 0, 0]\n\
+                    [model]\nreading = \"paper\"\n[time]\nsteps = 1\n";
+        let parse = || Scenario::parse(std::path::Path::new("s.toml"), text.into()).unwrap();
+        let mesh = box_mesh([1.0; 3], [8, 7, 6], BoxCells::Tet).unwrap();
+        let whole = Setup::with_mesh(parse(), mesh.clone()).unwrap();
+        let deferred = Setup::deferred(parse()).unwrap();
+        assert!(deferred.is_deferred());
+        let gid: Vec<u32> = (0..mesh.n_nodes() as u32).collect();
+        let g = Global {
+            n_owned: mesh.n_nodes(),
+            gid: &gid,
+            n_nodes: mesh.n_nodes(),
+            bounds: mesh.bounds(),
+            red: &One,
+        };
+        let local = deferred.resolve_local(mesh, &g).unwrap();
+        assert!(!local.is_deferred());
+        assert_eq!(local.fixed, whole.fixed);
+        assert_eq!(local.supports, whole.supports);
+        assert_eq!(whole.supports.len(), 2);
+        assert_eq!(local.loads, whole.loads);
+        assert_eq!(local.materials, whole.materials);
+        assert_eq!(
+            (local.tools, local.time, local.law),
+            (whole.tools, whole.time, whole.law)
+        );
+    }
+}
