@@ -171,15 +171,25 @@ impl std::fmt::Display for PartitionReport {
             (Some(m), Some(b)) => vec![m, b],
             _ => self.splits.iter().collect(),
         };
+        // a column as wide as its header ("ptscotch:own" is longer than the numbers' 10)
+        let own = |s: &SplitQuality| format!("{}:own", s.method);
         write!(f, "  part  ")?;
         for s in &cols {
-            write!(f, " {:>10} {:>10} {:>10}", format!("{}:own", s.method), "halo", "nbrs")?;
+            write!(
+                f,
+                " {:>w$} {:>10} {:>10}",
+                own(s),
+                "halo",
+                "nbrs",
+                w = own(s).len().max(10)
+            )?;
         }
         writeln!(f)?;
         for p in 0..self.parts {
             write!(f, "  {p:<4}  ")?;
             for s in &cols {
-                write!(f, " {:>10} {:>10} {:>10}", s.owned[p], s.halo[p], s.neighbours[p])?;
+                let w = own(s).len().max(10);
+                write!(f, " {:>w$} {:>10} {:>10}", s.owned[p], s.halo[p], s.neighbours[p])?;
             }
             writeln!(f)?;
         }

@@ -55,18 +55,26 @@ fn output_of(scenario: &Scenario, opts: &RunOptions) -> (PathBuf, String) {
     (eprop::config::output_file(scenario), how)
 }
 
-/// Resolves a scenario against its mesh with the command-line overrides applied.
-fn resolve(scenario: Scenario, opts: &RunOptions) -> Result<Setup> {
+/// Resolves a scenario against its mesh with the command-line overrides applied. With
+/// `slabs` and a VTKHDF mesh the mesh is not read: the setup is `Setup::deferred`, which every
+/// process of the job finishes on its slab of the mesh (`distribute::slabs::start`).
+fn resolve(scenario: Scenario, opts: &RunOptions, slabs: bool) -> Result<Setup> {
     let path = scenario.path.clone();
-    tracing::info!("scenario {} read; reading the mesh", path.display());
     let (file, _) = output_of(&scenario, opts);
-    let mut setup = Setup::new(scenario)?;
-    tracing::info!(
-        "mesh {}: {} nodes, {} cells; scenario resolved",
-        setup.mesh.source,
-        setup.mesh.n_nodes(),
-        setup.mesh.n_cells()
-    );
+    let mut setup = if slabs && eprop::config::local::slab_mesh(&scenario) {
+        tracing::info!("scenario {} read; the mesh is read in slabs", path.display());
+        Setup::deferred(scenario)?
+    } else {
+        tracing::info!("scenario {} read; reading the mesh", path.display());
+        let setup = Setup::new(scenario)?;
+        tracing::info!(
+            "mesh {}: {} nodes, {} cells; scenario resolved",
+            setup.mesh.source,
+            setup.mesh.n_nodes(),
+            setup.mesh.n_cells()
+        );
+        setup
+    };
     setup.output.file = file;
     if let Some(s) = opts.steps {
         setup.time.stop = Stop::Steps(s);
@@ -99,7 +107,7 @@ fn again(scenario: &Path, file: &Path, procs: usize, opts: &RunOptions) -> Strin
 /// Reads and resolves a scenario with the command-line overrides applied.
 pub fn prepare(path: &Path, opts: &RunOptions) -> Result<Setup> {
     let scenario = Scenario::load_with(path, &opts.sets)?;
-    let setup = resolve(scenario, opts)?;
+    let setup = resolve(scenario, opts, false)?;
     check_output_dir(&setup.output.file)?;
     Ok(setup)
 }
@@ -145,6 +153,12 @@ fn restartable(r: &Path) -> Result<()> {
 /// another run (the lock), and an existing file is replaced only when it is a series and the
 /// user said so (or continued, with --restart).
 pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)> {
+    prepare_claimed_on(path, opts, false)
+}
+
+/// `prepare_claimed` for a run whose processes start from a VTKHDF mesh in slabs (`slabs`:
+/// under mpirun; `resolve`).
+fn prepare_claimed_on(path: &Path, opts: &RunOptions, slabs: bool) -> Result<(Setup, Claim)> {
     let scenario = Scenario::load_with(path, &opts.sets)?;
     let (file, role) = output_of(&scenario, opts);
     check_output_dir(&file)?;
@@ -163,7 +177,7 @@ pub fn prepare_claimed(path: &Path, opts: &RunOptions) -> Result<(Setup, Claim)>
             safety::check_existing(&file, &role, overwrite, &again)?;
         }
     }
-    let setup = resolve(scenario, opts)?;
+    let setup = resolve(scenario, opts, slabs)?;
     Ok((setup, Claim { lock }))
 }
 
@@ -211,7 +225,7 @@ pub fn run_mpi(world: &dyn Comm, path: &Path, opts: &RunOptions, stop: StopToken
     let mut claim = None;
     let notes = progress::SetupNotes::on((world.rank() == 0 && !opts.quiet).then_some(t0));
     let b = build_mpi(world, || {
-        let (setup, c) = prepare_claimed(path, opts)?;
+        let (setup, c) = prepare_claimed_on(path, opts, world.size() > 1)?;
         claim = Some(c);
         Ok(setup)
     })?;

@@ -90,6 +90,27 @@ fn scale<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
     }
 }
 
+/// A VTKHDF mesh (`eprop convert MESH FILE.vtkhdf`) read whole by one process: points, node
+/// ids, volume cells and their tags (its format keeps no facets or group names).
+pub fn read_vtkhdf(path: &std::path::Path, opts: &eprop_io::ReadOptions) -> Result<Mesh> {
+    let slab = eprop_series::vtkhdf::read_slab(path, None)?;
+    let mut mesh = mesh_of_slab(path, slab);
+    eprop_io::validate(&mut mesh, opts)?;
+    Ok(mesh)
+}
+
+/// The mesh of a slab that holds a whole VTKHDF mesh (global node indices are local ones).
+pub fn mesh_of_slab(path: &std::path::Path, slab: eprop_series::vtkhdf::MeshSlab) -> Mesh {
+    let mut mesh = Mesh::new(path.display().to_string());
+    mesh.conn.reserve(slab.conn.len());
+    for c in 0..slab.n_cells() {
+        mesh.push_cell(slab.kinds[c], slab.cell(c), slab.cell_tags[c]);
+    }
+    mesh.points = slab.points;
+    mesh.node_ids = slab.node_ids;
+    mesh
+}
+
 /// The scaled mesh's bounding-box diagonal must lie in this range.
 pub(crate) const EXTENT: (f64, f64) = (1e-60, 1e60);
 
@@ -100,8 +121,12 @@ pub fn read(sc: &Scenario) -> Result<Mesh> {
         .factor(sc.file.model.reading)
         .map_err(|e| anyhow!("{}: {e}", sc.path.display()))?;
     let opts = eprop_io::ReadOptions { strict: ms.strict };
-    let mut mesh = eprop_io::read_mesh_with(&sc.mesh_path(), &opts)
-        .map_err(|e| anyhow!("{e}\n  (mesh named by {} [mesh] file)", sc.path.display()))?;
+    let path = sc.mesh_path();
+    let mesh = match super::local::slab_mesh(sc) {
+        true => read_vtkhdf(&path, &opts),
+        false => eprop_io::read_mesh_with(&path, &opts),
+    };
+    let mut mesh = mesh.map_err(|e| anyhow!("{e}\n  (mesh named by {} [mesh] file)", sc.path.display()))?;
     if factor != 1.0 {
         for p in mesh.points.iter_mut() {
             for x in p.iter_mut() {

@@ -41,16 +41,20 @@ fn peak_force(l: &Load) -> f64 {
 
 /// log10 of the mesh's typical node spacing: the cube root of its bounding box's volume per
 /// node (a flat side counts as a millionth of the diagonal).
-fn lg_spacing(setup: &Setup) -> f64 {
-    let (lo, hi) = setup.mesh.bounds();
+fn lg_spacing((lo, hi): ([f64; 3], [f64; 3]), n_nodes: usize) -> f64 {
     let diag = super::distance(hi, lo);
     let lg_vol: f64 = (0..3).map(|d| (hi[d] - lo[d]).max(diag * 1e-6).log10()).sum();
-    (lg_vol - (setup.mesh.n_nodes().max(1) as f64).log10()) / 3.0
+    (lg_vol - (n_nodes.max(1) as f64).log10()) / 3.0
 }
 
 /// Refuses a scenario whose derived magnitudes overflow or underflow (module docs).
 pub fn check(setup: &Setup) -> Result<()> {
-    if setup.mesh.points.is_empty() {
+    check_with(setup, setup.mesh.bounds(), setup.mesh.n_nodes())
+}
+
+/// `check` of a setup on a process's share of a mesh whose whole has these bounds and nodes.
+pub fn check_with(setup: &Setup, bounds: ([f64; 3], [f64; 3]), n_nodes: usize) -> Result<()> {
+    if n_nodes == 0 {
         return Ok(());
     }
     let path = setup.scenario.path.display();
@@ -58,7 +62,7 @@ pub fn check(setup: &Setup) -> Result<()> {
     let continuum = file.model.reading == Reading::Continuum;
     let (young, beta) = (setup.law.young, setup.law.beta);
     let (kappa, p) = (setup.model.coupling(), setup.model.exponent);
-    let lg_ell = lg_spacing(setup);
+    let lg_ell = lg_spacing(bounds, n_nodes);
     let refuse = |what: String, fix: &str| Err(anyhow!("{path}: {what}; fix: {fix}"));
     let (huge, tiny) = (HUGE.log10(), TINY.log10());
     for (k, l) in setup.loads.iter().enumerate() {

@@ -365,9 +365,8 @@ pub fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     m * norm([d[0] / m, d[1] / m, d[2] / m])
 }
 
-/// The surface node nearest to a point (surface = on a boundary face of the volume cells;
-/// ties: the lowest index).
-pub(crate) fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {
+/// Whether each node is on a boundary face of the volume cells (`nearest`'s surface).
+pub(crate) fn nearest_surface_flags(mesh: &Mesh) -> Vec<bool> {
     let mut on_surface = vec![false; mesh.n_nodes()];
     for (c, f) in eprop_io::mesh::boundary_faces(mesh) {
         let cell = mesh.cell(c as usize);
@@ -375,6 +374,13 @@ pub(crate) fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {
             on_surface[cell[l] as usize] = true;
         }
     }
+    on_surface
+}
+
+/// The surface node nearest to a point (surface = on a boundary face of the volume cells;
+/// ties: the lowest index).
+pub(crate) fn nearest_surface_node(mesh: &Mesh, p: [f64; 3]) -> Option<u32> {
+    let on_surface = nearest_surface_flags(mesh);
     (0..mesh.n_nodes())
         .filter(|&i| on_surface[i])
         .min_by(|&a, &b| {

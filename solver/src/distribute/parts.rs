@@ -53,6 +53,10 @@ impl StableHash {
     pub fn bytes(&mut self, b: &[u8]) {
         std::hash::Hasher::write(&mut self.0, b);
     }
+    /// A hash that continues from `state` (what `finish` gave).
+    pub fn resume(state: u64) -> StableHash {
+        StableHash(fnv::FnvHasher::with_key(state))
+    }
     pub fn u64(&mut self, x: u64) {
         self.bytes(&x.to_le_bytes());
     }
@@ -116,21 +120,24 @@ impl Setup {
 /// What rank 0 sends every other process: its part, or the error that stopped rank 0; before
 /// them, with PT-Scotch, the process's slab of the node graph to split.
 #[derive(Serialize, Deserialize)]
-enum Message<P> {
+enum Message<P, S = Box<Setup>> {
     Failed(String),
     Part(P),
     Slab(Slab),
+    /// The setup of a run that starts from a VTKHDF mesh in slabs (`Setup::deferred`).
+    Deferred(S),
 }
 
 /// A message of rank 0 that is not an error.
 enum Incoming {
     Part(Box<Part>),
     Slab(Slab),
+    Deferred(Box<Setup>),
 }
 
 /// A part's message.
 fn encode(part: &Part) -> Result<Vec<u8>> {
-    postcard::to_allocvec(&Message::Part(part)).map_err(|e| anyhow!("internal: a part cannot be encoded: {e}"))
+    postcard::to_allocvec(&Message::<_, ()>::Part(part)).map_err(|e| anyhow!("internal: a part cannot be encoded: {e}"))
 }
 
 /// The part or slab in a message (`encode`); `ReportedElsewhere` when rank 0 sent its error
@@ -139,6 +146,7 @@ fn decode_any(bytes: &[u8]) -> Result<Incoming> {
     match postcard::from_bytes::<Message<Part>>(bytes) {
         Ok(Message::Part(p)) => Ok(Incoming::Part(Box::new(p))),
         Ok(Message::Slab(s)) => Ok(Incoming::Slab(s)),
+        Ok(Message::Deferred(s)) => Ok(Incoming::Deferred(s)),
         Ok(Message::Failed(_)) => Err(ReportedElsewhere.into()),
         Err(e) => Err(anyhow!("internal: a part message is malformed: {e}")),
     }
@@ -149,7 +157,7 @@ fn decode_any(bytes: &[u8]) -> Result<Incoming> {
 fn decode(bytes: &[u8]) -> Result<Part> {
     match decode_any(bytes)? {
         Incoming::Part(p) => Ok(*p),
-        Incoming::Slab(_) => Err(anyhow!("internal: a part message is malformed: a slab")),
+        _ => Err(anyhow!("internal: a part message is malformed: not a part")),
     }
 }
 
@@ -283,6 +291,7 @@ fn scatter(handle: &Handle, make_setup: impl FnOnce() -> Result<Setup>) -> Resul
             let (msg, _) = world.process_at_rank(0).receive_vec::<u8>();
             match decode_any(&msg)? {
                 Incoming::Part(p) => return Ok((*p, None)),
+                Incoming::Deferred(s) => return super::slabs::start(handle, *s),
                 Incoming::Slab(slab) => {
                     // an empty answer says this process failed
                     let part = split_slab(handle, &slab, size).unwrap_or_default();
@@ -291,7 +300,17 @@ fn scatter(handle: &Handle, make_setup: impl FnOnce() -> Result<Setup>) -> Resul
             }
         }
     }
-    let (setup, (part, keys)) = match make_setup().and_then(|s| split(&s, handle).map(|p| (s, p))) {
+    let made = make_setup();
+    if let Some(s) = made.as_ref().ok().filter(|s| s.is_deferred() && size > 1) {
+        // a VTKHDF mesh: every process reads its slab and builds its own part
+        let msg = postcard::to_allocvec(&Message::<(), &Setup>::Deferred(s))
+            .map_err(|e| anyhow!("internal: a setup cannot be encoded: {e}"))?;
+        for r in 1..size {
+            world.process_at_rank(r as i32).send(&msg[..]);
+        }
+        return super::slabs::start(handle, made.expect("checked"));
+    }
+    let (setup, (part, keys)) = match made.and_then(|s| split(&s, handle).map(|p| (s, p))) {
         Ok(x) => x,
         Err(e) => {
             let msg = failure(&e);

@@ -187,8 +187,13 @@ pub fn split_whole(
             part_kway(&slab, nparts, raw)
         }
     };
+    // a part left empty is an error, as on every other path of the split
+    let checked = |part: Vec<u32>| -> anyhow::Result<Vec<u32>> {
+        eprop_partition::check_parts(&part, nparts).map_err(|e| anyhow!("PT-Scotch: {e}"))?;
+        Ok(part)
+    };
     let Some(w) = world else {
-        return mine.map_err(|e| anyhow!(e));
+        return mine.map_err(|e| anyhow!(e)).and_then(checked);
     };
     let failed = w.max(f64::from(u8::from(mine.is_err())));
     if failed > 0.0 {
@@ -199,7 +204,7 @@ pub fn split_whole(
     }
     let local: Vec<f64> = mine.unwrap_or_default().iter().map(|&p| p as f64).collect();
     let (all, _) = w.all_gather_var(&local);
-    Ok(all.iter().map(|&p| p as u32).collect())
+    checked(all.iter().map(|&p| p as u32).collect())
 }
 
 #[cfg(test)]

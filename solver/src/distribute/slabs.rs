@@ -15,10 +15,14 @@
 //!   `eprop_partition::quality` measures them on the whole graph, from the slabs (the parts of
 //!   the neighbours in other slabs asked of their owners).
 
-use super::comm::{Comm, Handle};
+use super::comm::{Comm, Handle, Mpi};
+use super::parts::{GlobalSizes, Part, StableHash};
 use super::ptscotch::{self, Slab};
+use crate::config::Setup;
 use anyhow::{anyhow, bail, Result};
 use eprop_mesh::CellKind;
+use eprop_mesh::Mesh;
+use eprop_partition::Plan;
 use eprop_series::vtkhdf::{block, read_slab, MeshSlab};
 use std::path::Path;
 
@@ -260,6 +264,8 @@ pub struct Local {
     /// Global index of each local node.
     pub global: Vec<u32>,
     pub n_owned: usize,
+    /// The part (process) that owns each local node.
+    pub part: Vec<u32>,
     pub points: Vec<[f64; 3]>,
     pub node_ids: Vec<u64>,
 }
@@ -313,6 +319,7 @@ pub fn redistribute(slab: &MeshSlab, part: &[u32], world: Option<&Handle>) -> Re
     Ok(Local {
         global: order.iter().map(|&k| ids[k]).collect(),
         n_owned,
+        part: order.iter().map(|&k| pick(k)[0]).collect(),
         points: order
             .iter()
             .map(|&k| {
@@ -465,6 +472,261 @@ pub fn quality(graph: &Slab, part: &[u32], nparts: usize, world: Option<&dyn Com
             })
             .collect(),
     }
+}
+
+/// The collectives of a local resolution (`config::local::Reduce`) on a `Comm`, and the halo
+/// exchange of the plan.
+struct Reducer<'a>(&'a dyn Comm, &'a super::halo::Halo);
+
+impl crate::config::local::Reduce for Reducer<'_> {
+    fn max(&self, x: f64) -> f64 {
+        self.0.max(x)
+    }
+    fn max_each(&self, x: &[f64]) -> Vec<f64> {
+        self.0.max_each(x)
+    }
+    fn all_gather_var(&self, x: &[f64]) -> Vec<f64> {
+        self.0.all_gather_var(x).0
+    }
+    fn exchange(&self, x: &mut [f64]) {
+        self.1.exchange(x, 1);
+    }
+}
+
+/// A process's plan from its share of the mesh after `redistribute`: `Plan::new` on the local
+/// nodes numbered by increasing global index (so its halo and its send and receive lists come
+/// in global order, as on the whole mesh), owned nodes ordered by reverse Cuthill-McKee on
+/// the local graph; its ids then mapped back to global ones.
+pub fn plan_of(local: &Local, rank: usize) -> Plan {
+    let mut sorted = local.global.clone();
+    sorted.sort_unstable();
+    let n = sorted.len();
+    let index = |g: u32| sorted.binary_search(&g).expect("a local node") as u32;
+    let mut part = vec![0u32; n];
+    for (l, &g) in local.global.iter().enumerate() {
+        part[index(g) as usize] = local.part[l];
+    }
+    let conn: Vec<u32> = local.cells.conn.iter().map(|&g| index(g)).collect();
+    let (xadj, adj) = eprop_partition::node_graph(n, &local.cells.offsets, &conn);
+    let keys = eprop_partition::rcm_keys(&xadj, &adj);
+    drop((xadj, adj));
+    let mut plan = Plan::new(n, &local.cells.offsets, &conn, &part, rank, Some(&keys));
+    for g in plan.numbering.global.iter_mut() {
+        *g = sorted[*g as usize];
+    }
+    for c in plan.cells.iter_mut() {
+        *c = local.cells.ids[*c as usize] as u32;
+    }
+    plan
+}
+
+/// The local mesh of a plan (its numbering: owned, then halo nodes) from the share.
+fn local_mesh(local: &Local, plan: &Plan, source: &str) -> Mesh {
+    let at: std::collections::HashMap<u32, u32> =
+        local.global.iter().enumerate().map(|(k, &g)| (g, k as u32)).collect();
+    let ids = &plan.numbering.global;
+    let to_plan: std::collections::HashMap<u32, u32> = ids.iter().enumerate().map(|(l, &g)| (g, l as u32)).collect();
+    let mut m = Mesh::new(source);
+    m.points = ids.iter().map(|g| local.points[at[g] as usize]).collect();
+    m.node_ids = ids.iter().map(|g| local.node_ids[at[g] as usize]).collect();
+    let cells = &local.cells;
+    m.conn.reserve(cells.conn.len());
+    let mut buf = Vec::with_capacity(8);
+    for c in 0..cells.len() {
+        buf.clear();
+        buf.extend(cells.cell(c).iter().map(|g| to_plan[g]));
+        m.push_cell(cells.kinds[c], &buf, cells.tags[c]);
+    }
+    m
+}
+
+/// `GlobalSizes::of` the whole mesh from the slabs: the hash runs through the slabs in rank
+/// order, one section (points, cells, kinds, ids) after the other, each process continuing
+/// its predecessor's state.
+fn sizes_of(slab: &MeshSlab, world: &Handle, comm: &dyn Comm) -> GlobalSizes {
+    use mpi::point_to_point::{Destination, Source};
+    use mpi::topology::Communicator;
+    use mpi::traits::Root;
+    let c = world.communicator();
+    let (rank, size) = (c.rank() as usize, c.size() as usize);
+    let sections: [&dyn Fn(&mut StableHash); 4] = [
+        &|h| slab.points.iter().flatten().for_each(|x| h.u64(x.to_bits())),
+        &|h| slab.conn.iter().for_each(|&x| h.u64(u64::from(x))),
+        &|h| {
+            slab.kinds
+                .iter()
+                .for_each(|&k| h.u64(u64::from(crate::config::wire::kind_code(k))))
+        },
+        &|h| slab.node_ids.iter().for_each(|&i| h.u64(i)),
+    ];
+    let mut state = StableHash::default().finish();
+    for (k, section) in sections.iter().enumerate() {
+        if rank > 0 {
+            (state, _) = c.process_at_rank(rank as i32 - 1).receive::<u64>();
+        } else if k > 0 && size > 1 {
+            (state, _) = c.process_at_rank(size as i32 - 1).receive::<u64>();
+        }
+        let mut h = StableHash::resume(state);
+        section(&mut h);
+        state = h.finish();
+        if rank + 1 < size {
+            c.process_at_rank(rank as i32 + 1).send(&state);
+        } else if k + 1 < sections.len() && size > 1 {
+            c.process_at_rank(0).send(&state);
+        }
+    }
+    c.process_at_rank(size as i32 - 1).broadcast_into(&mut state);
+    GlobalSizes {
+        nodes: slab.nodes,
+        cells: slab.cells,
+        conn: comm.sum_i128(slab.conn.len() as i128) as usize,
+        mesh_hash: state,
+    }
+}
+
+/// The start of a run from a VTKHDF mesh in slabs (every process of `world` calls, each with
+/// the `deferred` setup rank 0 made): each reads its slab, the node graph is built and split
+/// into one part per process, cells and coordinates move to their owners (`redistribute`),
+/// and each process builds its plan and resolves the scenario on its local mesh
+/// (`Setup::resolve_local`). Returns the process's part; rank 0 also reads the whole mesh for
+/// the static output and the summary (the one array of size N left: points, cells and ids).
+/// An error on any process is every process's (printed once, by rank 0).
+pub fn start(world: &Handle, setup: Setup) -> Result<(Part, Option<Mesh>)> {
+    use mpi::topology::Communicator;
+    let comm = Mpi::new(world.duplicate());
+    let (rank, size) = (
+        world.communicator().rank() as usize,
+        world.communicator().size() as usize,
+    );
+    let made = start_here(world, &comm, setup);
+    let made = agree(world, &comm, made)?;
+    let global = match rank {
+        0 => Some(whole_mesh(&made.setup)),
+        _ => None,
+    };
+    let failed = comm.max(f64::from(u8::from(global.as_ref().is_some_and(|g| g.is_err()))));
+    if failed > 0.0 {
+        return match global {
+            Some(Err(e)) => Err(super::parts::Collective(format!("{e:#}")).into()),
+            _ => Err(super::parts::ReportedElsewhere.into()),
+        };
+    }
+    tracing::debug!("rank {rank} of {size}: part made from the slabs");
+    Ok((made, global.map(|g| g.expect("checked"))))
+}
+
+/// The whole mesh for rank 0's static output and summary, scaled as the slabs were, and
+/// checked as one process checks a mesh it reads, strictly: an inverted cell, which one
+/// process would turn over, is refused here rather than run as it is on the slabs.
+fn whole_mesh(setup: &Setup) -> Result<Mesh> {
+    let sc = &setup.scenario;
+    let path = sc.mesh_path();
+    let factor = sc
+        .file
+        .mesh
+        .factor(sc.file.model.reading)
+        .map_err(|e| anyhow!("{}: {e}", sc.path.display()))?;
+    let opts = eprop_io::ReadOptions { strict: true };
+    let mut mesh = crate::config::mesh::read_vtkhdf(&path, &opts)?;
+    if factor != 1.0 {
+        mesh.points.iter_mut().flatten().for_each(|x| *x *= factor);
+    }
+    Ok(mesh)
+}
+
+fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
+    let (rank, size) = (comm.rank(), comm.size());
+    let sc = &setup.scenario;
+    let path = sc.mesh_path();
+    let factor = sc
+        .file
+        .mesh
+        .factor(sc.file.model.reading)
+        .map_err(|e| anyhow!("{}: {e}", sc.path.display()))?;
+    let mut slab = read(Some(comm), &path).map_err(|e| match e.is::<super::parts::ReportedElsewhere>() {
+        true => e,
+        false => anyhow!("{e:#}\n  (mesh named by {} [mesh] file)", sc.path.display()),
+    })?;
+    crate::diagnostics::log_memory("reading the slab of the mesh");
+    if factor != 1.0 {
+        slab.points.iter_mut().flatten().for_each(|x| *x *= factor);
+    }
+    let sizes = sizes_of(&slab, world, comm);
+    let cells = cells_to_owners(&slab, Some(world))?;
+    let vtxdist = cuts(slab.nodes, size);
+    let graph = node_graph(&cells, &vtxdist, vtxdist[rank], vtxdist[rank + 1])?;
+    drop(cells);
+    let (part, how) = split(&graph, size, Some(comm))?;
+    tracing::info!("{} nodes split into {size} parts ({how:?}) from the slabs", slab.nodes);
+    drop(graph);
+    let local = redistribute(&slab, &part, Some(world))?;
+    let (n_slab_nodes, source) = (slab.nodes, path.display().to_string());
+    drop((slab, part));
+    let found = comm.sum_i128(local.n_owned as i128) as usize;
+    if found != n_slab_nodes {
+        bail!(
+            "{source}: {} of its {n_slab_nodes} nodes are in no cell, which a run under mpirun from a .vtkhdf mesh does not handle yet; fix: run from the mesh file it was converted from, or on one process",
+            n_slab_nodes - found
+        );
+    }
+    let plan = plan_of(&local, rank);
+    let mesh = local_mesh(&local, &plan, &source);
+    drop(local);
+    crate::diagnostics::log_memory("the local mesh from the slabs");
+    let owned = &mesh.points[..plan.numbering.n_owned];
+    let mut ends = [f64::INFINITY; 6];
+    for p in owned {
+        for d in 0..3 {
+            ends[d] = ends[d].min(p[d]);
+            ends[d + 3] = ends[d + 3].min(-p[d]);
+        }
+    }
+    let ends: Vec<f64> = comm.max_each(&ends.map(|x| -x));
+    let bounds = ([-ends[0], -ends[1], -ends[2]], [ends[3], ends[4], ends[5]]);
+    let halo = super::halo::Halo::new(plan.pattern.clone(), world.duplicate());
+    let setup = {
+        let global = crate::config::local::Global {
+            n_owned: plan.numbering.n_owned,
+            gid: &plan.numbering.global,
+            n_nodes: n_slab_nodes,
+            bounds,
+            red: &Reducer(comm, &halo),
+        };
+        setup.resolve_local(mesh, &global)?
+    };
+    Ok(Part { setup, plan, sizes })
+}
+
+/// Every process's outcome agreed: an error anywhere is reported by rank 0 (`Collective`, the
+/// message of the lowest process that has one) and is `ReportedElsewhere` on the others.
+fn agree<T>(world: &Handle, comm: &dyn Comm, made: Result<T>) -> Result<T> {
+    use mpi::point_to_point::{Destination, Source};
+    use mpi::topology::Communicator;
+    let (rank, size) = (comm.rank(), comm.size());
+    let own = match &made {
+        Err(e) if !e.is::<super::parts::ReportedElsewhere>() => Some(format!("{e:#}")),
+        _ => None,
+    };
+    let failed = comm.max(f64::from(u8::from(made.is_err())));
+    if failed == 0.0 {
+        return made;
+    }
+    let first = comm.min(if own.is_some() { rank as f64 } else { size as f64 }) as usize;
+    let c = world.communicator();
+    if first == size {
+        return Err(super::parts::ReportedElsewhere.into());
+    }
+    if rank == first && rank != 0 {
+        c.process_at_rank(0).send(own.as_deref().unwrap_or_default().as_bytes());
+    }
+    if rank == 0 {
+        let msg = match first {
+            0 => own.unwrap_or_default(),
+            q => String::from_utf8_lossy(&c.process_at_rank(q as i32).receive_vec::<u8>().0).into_owned(),
+        };
+        return Err(super::parts::Collective(msg).into());
+    }
+    Err(super::parts::ReportedElsewhere.into())
 }
 
 #[cfg(test)]

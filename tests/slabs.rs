@@ -1,0 +1,185 @@
+//! A run under mpirun from a VTKHDF mesh starts from slabs (each process reads its share, the
+//! graph is split by PT-Scotch or METIS, every process resolves the scenario on its own part):
+//! its series must be bitwise the series of the same mesh in .msh, on 1, 2 and 3 processes.
+//! What this start does not resolve yet is refused by name.
+
+mod common;
+
+use common::{counted_bits, mpirun, open_pair, serial, steps_complete};
+use std::path::Path;
+
+/// Every dataset of two series the same bits (`common::assert_same`) but the scenario's text,
+/// which names another mesh file.
+fn assert_same(a: &Path, b: &Path) {
+    let (fa, fb, names) = open_pair(a, b);
+    let k = steps_complete(a);
+    assert_eq!(k, steps_complete(b));
+    let n = fa.dataset("VTKHDF/NumberOfPoints").unwrap().read_raw::<i64>().unwrap()[0] as usize;
+    let mut compared = 0;
+    for name in names.iter().filter(|n| *n != "/eprop/scenario") {
+        let (x, y) = (
+            counted_bits(&fa, name, k as usize, n),
+            counted_bits(&fb, name, k as usize, n),
+        );
+        assert!(x == y, "{name} differs between {} and {}", a.display(), b.display());
+        compared += 1;
+    }
+    assert!(compared >= 20, "{names:?}");
+    // the mesh's hash (a restart checks it) is the whole mesh's, from the slabs too
+    let hash = |f: &hdf5::File| {
+        f.group("eprop")
+            .unwrap()
+            .attr("mesh_hash")
+            .unwrap()
+            .read_scalar::<u64>()
+            .unwrap()
+    };
+    assert_eq!(hash(&fa), hash(&fb));
+}
+
+/// The box mesh as .msh and converted to .vtkhdf in `dir`.
+fn meshes(dir: &Path) -> (String, String) {
+    let msh = dir.join("box.msh");
+    let mesh = eprop_io::generate::box_mesh([1.0; 3], [8, 7, 6], eprop_io::generate::BoxCells::Tet).unwrap();
+    eprop_io::write_mesh(&mesh, &msh).unwrap();
+    let vtkhdf = dir.join("box.vtkhdf");
+    let out = serial(&["convert", msh.to_str().unwrap(), vtkhdf.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    (msh.display().to_string(), vtkhdf.display().to_string())
+}
+
+/// Runs `body` (the scenario without its [mesh]) from the .msh on one process and from the
+/// .vtkhdf on 1, 2 and 3: every series the same bits.
+fn same_from_both(tag: &str, body: &str) {
+    let d = tempfile::Builder::new().prefix(tag).tempdir().unwrap();
+    let (msh, vtkhdf) = meshes(d.path());
+    let scenario = |name: &str, mesh: &str| {
+        let sc = d.path().join(name);
+        std::fs::write(&sc, format!("[mesh]\nfile = \"{mesh}\"\n{body}")).unwrap();
+        sc.display().to_string()
+    };
+    let (a, b) = (scenario("msh.toml", &msh), scenario("vtkhdf.toml", &vtkhdf));
+    let reference = d.path().join("msh.h5");
+    let out = serial(&["run", &a, "-q", "-o", reference.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for n in 1..=3 {
+        let f = d.path().join(format!("vtkhdf{n}.h5"));
+        let out = match n {
+            1 => serial(&["run", &b, "-q", "-o", f.to_str().unwrap()], 1),
+            _ => mpirun(n, &["run", &b, "-q", "-o", f.to_str().unwrap()]),
+        };
+        assert!(
+            out.status.success(),
+            "{n} processes: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("on {n} process")));
+        assert_same(&reference, &f);
+    }
+}
+
+#[test]
+fn loads_and_supports_from_slabs_are_the_bits_of_the_msh() {
+    same_from_both(
+        "slab-loads",
+        "[material]\nmass = 1.0\ndamping = 2.0\nconductivity = 0.05\n\
+         [[fixed]]\nhalfspace = { point = [0, 0, 0.01], normal = [0, 0, -1] }\n\
+         [[fixed]]\nbox = [[0.99, -1, -1], [2, 2, 2]]\n\
+         [[load]]\nnearest = [0.5, 0.5, 1.0]\nnormal = 0.05\nramp = [[0, 0], [1, 1]]\n\
+         [[load]]\npatch = { center = [0.5, 0.0, 0.5], radius = 0.3 }\nforce = [0, 0.02, 0.01]\n\
+         [[load]]\nnode = 77\nforce = [0.01, 0, 0]\n\
+         [model]\nreading = \"paper\"\n[time]\nsteps = 6\n[output]\nevery = 2\n",
+    );
+}
+
+#[test]
+fn a_tool_from_slabs_is_the_bits_of_the_msh() {
+    same_from_both(
+        "slab-tool",
+        "[[fixed]]\nhalfspace = { point = [0, 0, 0.01], normal = [0, 0, -1] }\n\
+         [[tool]]\nshape = \"sphere\"\nradius = 0.3\nstart = [0.5, 0.5, 1.31]\nvelocity = [0, 0, -0.02]\n\
+         [model]\nreading = \"paper\"\n[time]\nsteps = 5\n",
+    );
+}
+
+#[test]
+fn what_slabs_do_not_resolve_yet_is_refused_by_key() {
+    let d = tempfile::tempdir().unwrap();
+    let (_, vtkhdf) = meshes(d.path());
+    for (body, key, alone) in [
+        ("[[fixed]]\ntag = 1\n", "[fixed] tag", false),
+        (
+            "[[fixed]]\nhalfspace = { point = [0, 0, 0.01], normal = [0, 0, -1] }\n[[material.region]]\nbox = [[0, 0, 0], [1, 1, 0.5]]\nmass = 2.0\n",
+            "[material.region] box",
+            true,
+        ),
+    ] {
+        let sc = d.path().join("s.toml");
+        std::fs::write(
+            &sc,
+            format!("[mesh]\nfile = \"{vtkhdf}\"\n{body}[model]\nreading = \"paper\"\n[time]\nsteps = 1\n"),
+        )
+        .unwrap();
+        let out = mpirun(2, &["run", sc.to_str().unwrap(), "-q", "-o", d.path().join("o.h5").to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success());
+        assert!(err.contains(key) && err.contains(".vtkhdf mesh") && err.contains("fix:"), "{err}");
+        // printed once
+        assert_eq!(err.matches(key).count(), 1, "{err}");
+        if !alone {
+            continue;
+        }
+        // one process reads the whole .vtkhdf and resolves it
+        let out = serial(&["run", sc.to_str().unwrap(), "-q", "-o", d.path().join("o1.h5").to_str().unwrap()], 1);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+}
+
+/// Two separate boxes, one of them without a fixed node: the slabs' refusal is the whole
+/// mesh's, word for word.
+#[test]
+fn an_unheld_piece_is_refused_as_on_the_whole_mesh() {
+    let d = tempfile::tempdir().unwrap();
+    let gen = |x: f64| {
+        let mut m = eprop_io::generate::box_mesh([1.0; 3], [3, 3, 3], eprop_io::generate::BoxCells::Tet).unwrap();
+        m.points.iter_mut().for_each(|p| p[0] += x);
+        m
+    };
+    let (mut a, b) = (gen(0.0), gen(2.0));
+    let base = a.n_nodes() as u32;
+    for c in 0..b.n_cells() {
+        let nodes: Vec<u32> = b.cell(c).iter().map(|&v| v + base).collect();
+        a.push_cell(b.kinds[c], &nodes, b.cell_tags[c]);
+    }
+    a.points.extend(&b.points);
+    a.node_ids = (1..=a.points.len() as u64).collect();
+    a.facets = eprop_mesh::mesh::Facets::new();
+    let msh = d.path().join("two.msh");
+    eprop_io::write_mesh(&a, &msh).unwrap();
+    let vtkhdf = d.path().join("two.vtkhdf");
+    let out = serial(&["convert", msh.to_str().unwrap(), vtkhdf.to_str().unwrap()], 1);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let mut errors = vec![];
+    for (mesh, n) in [(&msh, 1), (&vtkhdf, 2), (&vtkhdf, 3)] {
+        let sc = d.path().join("s.toml");
+        std::fs::write(
+            &sc,
+            format!(
+                "[mesh]\nfile = \"{}\"\n[[fixed]]\nbox = [[-1, -1, -1], [1.5, 2, 0.01]]\n[model]\nreading = \"paper\"\n[time]\nsteps = 1\n",
+                mesh.display()
+            ),
+        )
+        .unwrap();
+        let o = d.path().join("o.h5");
+        let out = match n {
+            1 => serial(&["run", sc.to_str().unwrap(), "-q", "-o", o.to_str().unwrap()], 1),
+            _ => mpirun(n, &["run", sc.to_str().unwrap(), "-q", "-o", o.to_str().unwrap()]),
+        };
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(err.contains("separate pieces"), "{err}");
+        errors.push(err.lines().next().unwrap_or_default().to_string());
+    }
+    assert_eq!(errors[1], errors[0]);
+    assert_eq!(errors[2], errors[0]);
+}
