@@ -25,7 +25,7 @@
 use super::euler::SAFETY;
 use super::rkl2::{stages_for, STAGE_COST};
 use super::{Euler, Implicit, Rkl2, Stepper};
-use crate::config::integrator::{Kind, Settings};
+use crate::config::integrator::{Kind, Preconditioner, Settings};
 use crate::distribute::comm::Comm;
 use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
@@ -503,7 +503,26 @@ fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             cx.path
         );
     }
-    let mut imp = implicit(cx, 0, String::new())?;
+    // the stepper starts on jacobi (nothing to build): the preconditioner the fixed
+    // iterations need (a multigrid unless the scenario names one) is built only when they
+    // are taken, after the direct solver is refused
+    let light = Settings {
+        preconditioner: Preconditioner::Jacobi,
+        ..cx.settings.clone()
+    };
+    let mut imp = Implicit::new(
+        cx.prop,
+        cx.vol,
+        cx.active,
+        cx.gid,
+        cx.dt,
+        cx.h_bound,
+        &light,
+        cx.path,
+        0,
+        String::new(),
+        cx.comm,
+    )?;
     // a direct solver where the mesh is small enough and CHOLMOD is there
     let no_direct = match imp.set_direct(cx.prop, cx.comm) {
         Ok((unknowns, factor, entries)) => {
@@ -523,6 +542,7 @@ fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
         Err(e) => e.to_string(),
     };
     tracing::debug!("real time: no direct solver ({no_direct}): fixed iterations");
+    imp.set_preconditioner(cx.settings.preconditioner, cx.prop, cx.comm)?;
     let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
     let k = it.clamp(REALTIME_ITERATIONS.0, REALTIME_ITERATIONS.1);
     imp.set_fixed(k);
