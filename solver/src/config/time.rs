@@ -76,6 +76,7 @@ pub struct Time {
     /// `realtime` as the scenario says it (None: the command's default, `Time::realtime`).
     pub realtime: Option<bool>,
     /// `realtime_solver` (auto where the scenario does not say).
+    #[serde(default)]
     pub realtime_solver: RealtimeSolver,
 }
 
