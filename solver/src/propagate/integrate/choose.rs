@@ -487,12 +487,13 @@ pub(crate) const REALTIME_ITERATIONS: (usize, usize) = (2, 40);
 /// The real-time mode (`[time] realtime`, docs/realtime.md): TR-BDF2 with one step per
 /// mechanics step, no error control, and direct solves (`linalg::direct`: a factor made
 /// here once) where `solver` allows them and they can be made (`Auto` falls back to the
-/// iterations, `Direct` fails with the reason); otherwise at most k preconditioned conjugate-gradient
-/// iterations per stage, k fixed here at setup from the iterations a trial solve from zero
-/// takes to `REALTIME_TOLERANCE` (clamped to `REALTIME_ITERATIONS`). Each step is then at
-/// most `Implicit::applications_bound(k)` operator applications and 2 (k + 2) preconditioner
-/// applications, whatever the loads and tools do. The settings (`simulate::build_stepper`)
-/// name the preconditioner (a multigrid unless the scenario names one) and no accuracy.
+/// iterations, `Direct` fails with the reason); otherwise at most k preconditioned
+/// conjugate-gradient iterations per stage, k fixed here at setup from the iterations a
+/// trial solve from zero takes to `REALTIME_TOLERANCE` (clamped to `REALTIME_ITERATIONS`).
+/// Each step is then at most `Implicit::applications_bound(k)` operator applications and
+/// 2 (k + 2) preconditioner applications, whatever the loads and tools do. The settings
+/// (`simulate::build_stepper`) name the preconditioner (a multigrid unless the scenario
+/// names one, built only for the iterations) and no accuracy.
 fn realtime(cx: &mut Context, solver: RealtimeSolver) -> Result<Box<dyn Stepper>> {
     if !cx.compact {
         bail!(
