@@ -45,7 +45,9 @@ readings and derives the defaults.
               realtime = false (eprop serve: true): a fixed, bounded work per step chosen at
               setup, implicit TR-BDF2 with direct solves (a factor made once; meshes of
               up to 60,000 nodes) or a fixed number of multigrid-preconditioned
-              iterations, no error control (docs/realtime.md)
+              iterations, no error control (docs/realtime.md); realtime_solver = "auto"
+              (direct where it can be) | "direct" (an error where it cannot) | "iterative"
+              (the fixed iterations)
   [output]    file = "out.h5" (default: <scenario stem>.h5 beside the scenario), every = 1,
               fields = ["displacement", "velocity", "potential", "energy"] (all),
               precision = "float64" | "float32", compression = 0..9 (gzip),

@@ -78,7 +78,7 @@ pub use model::{Defaults, IntegratorSec, Model, Reading, Scheme, SchemeName, Tis
 pub use output::{file_of as output_file, Field, Output, OutputSec};
 pub use performance::{Fuse, Partitioner, Performance, PerformanceSec, MAX_FUSE};
 pub use select::{distance, Entry, Keys, Selector};
-pub use time::{steps_to, Stop, Time, TimeSec};
+pub use time::{steps_to, RealtimeSolver, Stop, Time, TimeSec};
 pub use tools::{
     ContactLaw, Grip, Shape, ShapeName, Tool, ToolSec, Trajectory, PATH_COLUMNS, REACH, REACH_FIX, REACH_WHY,
 };

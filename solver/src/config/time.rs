@@ -24,6 +24,35 @@ pub struct TimeSec {
     /// The real-time mode: a fixed, bounded work per step chosen at setup (docs/realtime.md);
     /// absent: off for `eprop run`, on for `eprop serve`.
     pub realtime: Option<bool>,
+    /// How the real-time mode solves its stages (docs/realtime.md); ignored outside it.
+    #[serde(default)]
+    pub realtime_solver: Option<RealtimeSolver>,
+}
+
+/// `[time] realtime_solver`: how the real-time mode solves the stages of its steps
+/// (docs/realtime.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RealtimeSolver {
+    /// Direct where it can be (CHOLMOD built in, the mesh within `linalg::direct`'s limits),
+    /// else the fixed iterations.
+    #[default]
+    Auto,
+    /// Direct, or an error that says why it cannot be.
+    Direct,
+    /// A fixed number of preconditioned conjugate-gradient iterations per stage (the
+    /// preconditioner of `[integrator] preconditioner`, a multigrid unless it names one).
+    Iterative,
+}
+
+impl RealtimeSolver {
+    pub fn name(self) -> &'static str {
+        match self {
+            RealtimeSolver::Auto => "auto",
+            RealtimeSolver::Direct => "direct",
+            RealtimeSolver::Iterative => "iterative",
+        }
+    }
 }
 
 /// How a run stops.
@@ -46,6 +75,9 @@ pub struct Time {
     pub h: Option<f64>,
     /// `realtime` as the scenario says it (None: the command's default, `Time::realtime`).
     pub realtime: Option<bool>,
+    /// `realtime_solver` (auto where the scenario does not say).
+    #[serde(default)]
+    pub realtime_solver: RealtimeSolver,
 }
 
 impl Time {
@@ -94,6 +126,7 @@ pub fn resolve(sc: &Scenario, sec: &Spanned<TimeSec>) -> Result<Time> {
         dt: tm.dt,
         h: tm.h,
         realtime: tm.realtime,
+        realtime_solver: tm.realtime_solver.unwrap_or_default(),
     })
 }
 
@@ -117,7 +150,8 @@ mod tests {
                 stop: Stop::End(2.5),
                 dt: Some(0.1),
                 h: None,
-                realtime: None
+                realtime: None,
+                realtime_solver: RealtimeSolver::Auto,
             }
         );
         assert_eq!(
@@ -133,6 +167,15 @@ mod tests {
                 tol: 1e-3,
                 max_steps: 7
             }
+        );
+        assert_eq!(
+            time("steps = 1\nrealtime_solver = \"direct\"").unwrap().realtime_solver,
+            RealtimeSolver::Direct
+        );
+        let bad = time("steps = 1\nrealtime_solver = \"cholesky\"").unwrap_err();
+        assert!(
+            bad.contains("realtime_solver") && bad.contains("\"auto\", \"direct\" or \"iterative\""),
+            "{bad}"
         );
         let none = time("dt = 0.1").unwrap_err();
         assert!(none.starts_with("t.toml:3: [time]: say when to stop"), "{none}");

@@ -305,7 +305,7 @@ fn build_stepper(
         active,
         gid,
         trial,
-        realtime,
+        realtime: realtime.then_some(setup.time.realtime_solver),
         comm,
     })
 }

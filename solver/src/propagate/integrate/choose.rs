@@ -25,7 +25,8 @@
 use super::euler::SAFETY;
 use super::rkl2::{stages_for, STAGE_COST};
 use super::{Euler, Implicit, Rkl2, Stepper};
-use crate::config::integrator::{Kind, Settings};
+use crate::config::integrator::{Kind, Preconditioner, Settings};
+use crate::config::RealtimeSolver;
 use crate::distribute::comm::Comm;
 use crate::linalg::V3;
 use crate::propagate::{Propagation, Sources};
@@ -95,8 +96,9 @@ pub struct Context<'a> {
     /// The sources (owned rows) of the first step a load pushes or a tool presses and of the
     /// two steps after it, and the run's length: `auto` measures the candidates on these.
     pub trial: Option<TrialRun>,
-    /// The real-time mode (`[time] realtime`): `realtime` builds the stepper.
-    pub realtime: bool,
+    /// The real-time mode (`[time] realtime`; None: off) and how it solves its stages
+    /// (`[time] realtime_solver`): `realtime` builds the stepper.
+    pub realtime: Option<RealtimeSolver>,
     pub comm: &'a dyn Comm,
 }
 
@@ -428,8 +430,8 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             s.kind.name()
         );
     }
-    if cx.realtime {
-        return realtime(cx);
+    if let Some(solver) = cx.realtime {
+        return realtime(cx, solver);
     }
     let layout = cx.prop.layout();
     match s.kind {
@@ -483,13 +485,16 @@ pub(crate) const REALTIME_TOLERANCE: f64 = 1e-6;
 pub(crate) const REALTIME_ITERATIONS: (usize, usize) = (2, 40);
 
 /// The real-time mode (`[time] realtime`, docs/realtime.md): TR-BDF2 with one step per
-/// mechanics step, no error control, and at most k preconditioned conjugate-gradient
-/// iterations per stage, k fixed here at setup from the iterations a trial solve from zero
-/// takes to `REALTIME_TOLERANCE` (clamped to `REALTIME_ITERATIONS`). Each step is then at
-/// most `Implicit::applications_bound(k)` operator applications and 2 (k + 2) preconditioner
-/// applications, whatever the loads and tools do. The settings (`simulate::build_stepper`)
-/// name the preconditioner (a multigrid unless the scenario names one) and no accuracy.
-fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
+/// mechanics step, no error control, and direct solves (`linalg::direct`: a factor made
+/// here once) where `solver` allows them and they can be made (`Auto` falls back to the
+/// iterations, `Direct` fails with the reason); otherwise at most k preconditioned
+/// conjugate-gradient iterations per stage, k fixed here at setup from the iterations a
+/// trial solve from zero takes to `REALTIME_TOLERANCE` (clamped to `REALTIME_ITERATIONS`).
+/// Each step is then at most `Implicit::applications_bound(k)` operator applications and
+/// 2 (k + 2) preconditioner applications, whatever the loads and tools do. The settings
+/// (`simulate::build_stepper`) name the preconditioner (a multigrid unless the scenario
+/// names one, built only for the iterations) and no accuracy.
+fn realtime(cx: &mut Context, solver: RealtimeSolver) -> Result<Box<dyn Stepper>> {
     if !cx.compact {
         bail!(
             "{}: [time] realtime = true runs the implicit integrator, which needs the symmetric compact scheme (the {} scheme's spectrum is complex); fix: use [model] scheme = \"compact\", or realtime = false",
@@ -503,9 +508,33 @@ fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             cx.path
         );
     }
-    let mut imp = implicit(cx, 0, String::new())?;
-    // a direct solver where the mesh is small enough and CHOLMOD is there
-    let no_direct = match imp.set_direct(cx.prop, cx.comm) {
+    // the stepper starts on jacobi (nothing to build): the preconditioner the fixed
+    // iterations need (a multigrid unless the scenario names one) is built only when they
+    // are taken, after the direct solver is refused
+    let light = Settings {
+        preconditioner: Preconditioner::Jacobi,
+        ..cx.settings.clone()
+    };
+    let mut imp = Implicit::new(
+        cx.prop,
+        cx.vol,
+        cx.active,
+        cx.gid,
+        cx.dt,
+        cx.h_bound,
+        &light,
+        cx.path,
+        0,
+        String::new(),
+        cx.comm,
+    )?;
+    // a direct solver where the mesh is small enough and CHOLMOD is there (unless the
+    // scenario asks for the iterations)
+    let tried = match solver {
+        RealtimeSolver::Iterative => Err(anyhow::anyhow!("[time] realtime_solver = \"iterative\"")),
+        _ => imp.set_direct(cx.prop, cx.comm),
+    };
+    let no_direct = match tried {
         Ok((unknowns, factor, entries)) => {
             // the cost in operator applications: stage 1's right-hand side, then per stage
             // two triangular solves, each reading the factor once
@@ -520,9 +549,14 @@ fn realtime(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             );
             return Ok(Box::new(imp));
         }
+        Err(e) if solver == RealtimeSolver::Direct => bail!(
+            "{}: [time] realtime_solver = \"direct\": the real-time mode cannot solve this scenario directly: {e}; fix: realtime_solver = \"auto\" or \"iterative\" (the fixed iterations)",
+            cx.path
+        ),
         Err(e) => e.to_string(),
     };
     tracing::debug!("real time: no direct solver ({no_direct}): fixed iterations");
+    imp.set_preconditioner(cx.settings.preconditioner, cx.prop, cx.comm)?;
     let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
     let k = it.clamp(REALTIME_ITERATIONS.0, REALTIME_ITERATIONS.1);
     imp.set_fixed(k);

@@ -15,7 +15,7 @@
 
 use super::solver::Solver;
 use super::{ErrorState, StepPlan, StepStats, Stepper};
-use crate::config::integrator::Settings;
+use crate::config::integrator::{Preconditioner, Settings};
 use crate::distribute::comm::Comm;
 use crate::distribute::field::NodeField;
 use crate::linalg::V3;
@@ -117,6 +117,11 @@ impl Implicit {
     /// (`Solver::set_fixed`), so at most `applications_bound` operator applications per step.
     pub fn set_fixed(&mut self, k: usize) {
         self.solver.set_fixed(k);
+    }
+
+    /// Builds `kind` as the preconditioner (`Solver::set_preconditioner`).
+    pub fn set_preconditioner(&mut self, kind: Preconditioner, prop: &Propagation, comm: &dyn Comm) -> Result<()> {
+        self.solver.set_preconditioner(kind, prop, comm)
     }
 
     /// The real-time mode with a direct solver (`Solver::set_direct`); Err says why not (the

@@ -175,6 +175,15 @@ impl Solver {
         self.fixed = Some(k);
     }
 
+    /// Makes `kind` the preconditioner of the current level (built here): the real-time
+    /// mode starts on jacobi, which costs nothing to build, and builds the one it will
+    /// iterate with only once the direct solver is refused (`choose::realtime`).
+    pub fn set_preconditioner(&mut self, kind: Preconditioner, prop: &Propagation, comm: &dyn Comm) -> Result<()> {
+        self.pre = preconditioner(kind, prop, &self.vol, &self.gid, self.theta_tau, comm, &self.path)?;
+        self.kind = kind;
+        Ok(())
+    }
+
     /// The real-time mode with a direct solver: factorises level 0's matrix (`Direct::new`)
     /// and solves the stages with it; on failure (returned: why) the solves stay iterative.
     pub fn set_direct(&mut self, prop: &Propagation, comm: &dyn Comm) -> Result<()> {
