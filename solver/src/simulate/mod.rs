@@ -871,7 +871,9 @@ impl Simulation {
             &mut self.v[..n],
         );
         self.put_held();
-        self.keep_off_supports();
+        if !self.tools.is_empty() {
+            self.keep_off_supports();
+        }
         // a stop request rides on the step's reduction, so every process stops after this step
         let signal = self.stop.requested() as f64;
         if self.tools.is_empty() {
@@ -967,8 +969,8 @@ impl Simulation {
 
     /// Puts every owned active node whose position after the free update lies across a fixed
     /// support's plane back on the plane (docs/model.md section 6), with the velocity of that
-    /// move: the support is rigid, under tools and loads alike. Nothing moves where no node
-    /// crossed.
+    /// move: the support is rigid. Nothing moves where no node crossed. Runs with tools only
+    /// (a run with loads alone keeps its results; its crossings are counted and warned of).
     fn keep_off_supports(&mut self) {
         let n = self.numbering.n_owned;
         let (pts, planes) = (&self.setup.mesh.points, &self.setup.supports);
