@@ -32,6 +32,12 @@ impl Simulation {
         self.global.as_ref()
     }
 
+    /// This process's slab of the mesh, on a start from the slabs (`distribute::slabs`): the
+    /// static output is written by every process, each its slab's rows.
+    pub fn static_rows(&self) -> Option<&eprop_series::vtkhdf::MeshSlab> {
+        self.rows.as_ref()
+    }
+
     /// Nodes of the whole mesh.
     pub fn n_global(&self) -> usize {
         self.n_global
