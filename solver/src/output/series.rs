@@ -12,7 +12,7 @@ use crate::simulate::Simulation;
 use anyhow::{anyhow, Result};
 use eprop_io::geom::norm;
 use eprop_series::outcome::WriteFailed;
-use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, StaticMesh, CREATING, LIVE_SESSION, TABLE_HASH};
+use eprop_series::vtkhdf::{Layout, SeriesSpec, SeriesWriter, CREATING, LIVE_SESSION, TABLE_HASH};
 use std::path::Path;
 use std::time::Instant;
 
@@ -211,33 +211,30 @@ impl Series {
                 folds: Default::default(),
             });
         }
-        let mesh = match sim.static_rows() {
-            Some(rows) => StaticMesh::Slabs(rows),
-            None => StaticMesh::Whole(sim.global_mesh()),
-        };
-        let created = SeriesWriter::create_from(&file, layout(sizes), mesh, &spec, io).and_then(|mut writer| {
-            // a new file is a new inode: the writer lock covers its hard links from now on
-            if let Some(lock) = claim {
-                lock.hold_output(&file);
-            }
-            if !sim.tools.is_empty() {
-                writer.add_tools(sim.tools.len())?;
-            }
-            writer.add_checks(sim.tools.len(), sim.tool_energy().is_some())?;
-            log_memory("the static output");
-            writer.commit_every(flush);
-            let mut series = Series {
-                writer,
-                fields,
-                appends: Vec::new(),
-                appended_step: sim.step(),
-                complete_step: sim.step(),
-                folds: Default::default(),
-            };
-            series.append(sim, true)?;
-            log_memory("the first output step");
-            Ok(series)
-        });
+        let created =
+            SeriesWriter::create_from(&file, layout(sizes), sim.static_mesh(), &spec, io).and_then(|mut writer| {
+                // a new file is a new inode: the writer lock covers its hard links from now on
+                if let Some(lock) = claim {
+                    lock.hold_output(&file);
+                }
+                if !sim.tools.is_empty() {
+                    writer.add_tools(sim.tools.len())?;
+                }
+                writer.add_checks(sim.tools.len(), sim.tool_energy().is_some())?;
+                log_memory("the static output");
+                writer.commit_every(flush);
+                let mut series = Series {
+                    writer,
+                    fields,
+                    appends: Vec::new(),
+                    appended_step: sim.step(),
+                    complete_step: sim.step(),
+                    folds: Default::default(),
+                };
+                series.append(sim, true)?;
+                log_memory("the first output step");
+                Ok(series)
+            });
         match created {
             // a file this run began holds no complete step: it goes (once every process has
             // closed it), so that running again needs no --overwrite

@@ -32,10 +32,15 @@ impl Simulation {
         self.global.as_ref()
     }
 
-    /// This process's slab of the mesh, on a start from the slabs (`distribute::slabs`): the
-    /// static output is written by every process, each its slab's rows.
-    pub fn static_rows(&self) -> Option<&eprop_series::vtkhdf::MeshSlab> {
-        self.rows.as_ref()
+    /// Where the static mesh of an output comes from: every process's slab on a start from
+    /// the slabs (`distribute::slabs`: each writes its slab's rows), else the whole mesh on
+    /// the process that holds it.
+    pub fn static_mesh(&self) -> eprop_series::vtkhdf::StaticMesh<'_> {
+        use eprop_series::vtkhdf::StaticMesh;
+        match &self.rows {
+            Some(rows) => StaticMesh::Slabs(rows),
+            None => StaticMesh::Whole(self.global.as_ref()),
+        }
     }
 
     /// Nodes of the whole mesh.
