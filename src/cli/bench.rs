@@ -170,7 +170,7 @@ pub fn measure(
         output_steps: 5,
     };
     let io = sim.comm().handle().map(Handle::communicator);
-    let mut out = SeriesWriter::create(&file, layout(&sizes), sim.global_mesh(), &spec, io)?;
+    let mut out = SeriesWriter::create_from(&file, layout(&sizes), sim.static_mesh(), &spec, io)?;
     let mut writes = Vec::new();
     for _ in 0..5 {
         let t = Instant::now();

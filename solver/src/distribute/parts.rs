@@ -71,6 +71,10 @@ pub struct Part {
     pub setup: Setup,
     pub plan: Plan,
     pub sizes: GlobalSizes,
+    /// The process's slab of the mesh, kept for the static output of a start from the slabs
+    /// (`slabs::start`: every process writes its rows); never sent.
+    #[serde(skip)]
+    pub rows: Option<eprop_series::vtkhdf::MeshSlab>,
 }
 
 /// The cells of a plan, renumbered locally (owned nodes, then halo nodes).
@@ -330,6 +334,7 @@ fn scatter(handle: &Handle, make_setup: impl FnOnce() -> Result<Setup>) -> Resul
             setup: setup.restrict(&plan),
             plan,
             sizes,
+            rows: None,
         })?;
         tracing::debug!(
             "part {r}: {owned} owned, {halo} halo, {neighbours} neighbours; {} bytes",
@@ -342,6 +347,7 @@ fn scatter(handle: &Handle, make_setup: impl FnOnce() -> Result<Setup>) -> Resul
         setup: setup.restrict(&plan),
         plan,
         sizes,
+        rows: None,
     };
     Ok((mine, Some(setup.mesh)))
 }
@@ -406,6 +412,7 @@ mod tests {
             setup: whole.restrict(&plan),
             sizes: GlobalSizes::of(&whole.mesh),
             plan,
+            rows: None,
         };
         let got = decode(&encode(&part).unwrap()).unwrap();
         assert_eq!(got.plan, part.plan);
@@ -444,6 +451,7 @@ mod tests {
             setup: s.restrict(&plan),
             plan,
             sizes: GlobalSizes::default(),
+            rows: None,
         };
         assert_eq!(
             decode(&encode(&part).unwrap()).unwrap().setup.output.file,
@@ -461,6 +469,7 @@ mod tests {
             setup: whole.restrict(&plan),
             plan,
             sizes: GlobalSizes::default(),
+            rows: None,
         })
         .unwrap();
         for cut in [1, msg.len() / 2, msg.len() - 1] {

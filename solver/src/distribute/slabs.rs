@@ -588,8 +588,9 @@ fn sizes_of(slab: &MeshSlab, world: &Handle, comm: &dyn Comm) -> GlobalSizes {
 /// the `deferred` setup rank 0 made): each reads its slab, the node graph is built and split
 /// into one part per process, cells and coordinates move to their owners (`redistribute`),
 /// and each process builds its plan and resolves the scenario on its local mesh
-/// (`Setup::resolve_local`). Returns the process's part; rank 0 also reads the whole mesh for
-/// the static output and the summary (the one array of size N left: points, cells and ids).
+/// (`Setup::resolve_local`). Returns the process's part, with its slab for the static output
+/// (every process writes its slab's rows); rank 0 also reads the whole mesh for the summary
+/// and the load warnings (the one array of size N left: points, cells and ids).
 /// An error on any process is every process's (printed once, by rank 0).
 pub fn start(world: &Handle, setup: Setup) -> Result<(Part, Option<Mesh>)> {
     use mpi::topology::Communicator;
@@ -615,7 +616,7 @@ pub fn start(world: &Handle, setup: Setup) -> Result<(Part, Option<Mesh>)> {
     Ok((made, global.map(|g| g.expect("checked"))))
 }
 
-/// The whole mesh for rank 0's static output and summary, scaled as the slabs were, and
+/// The whole mesh for rank 0's summary and warnings, scaled as the slabs were, and
 /// checked as one process checks a mesh it reads, strictly: an inverted cell, which one
 /// process would turn over, is refused here rather than run as it is on the slabs.
 fn whole_mesh(setup: &Setup) -> Result<Mesh> {
@@ -661,7 +662,7 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
     drop(graph);
     let local = redistribute(&slab, &part, Some(world))?;
     let (n_slab_nodes, source) = (slab.nodes, path.display().to_string());
-    drop((slab, part));
+    drop(part);
     let found = comm.sum_i128(local.n_owned as i128) as usize;
     if found != n_slab_nodes {
         bail!(
@@ -694,7 +695,13 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
         };
         setup.resolve_local(mesh, &global)?
     };
-    Ok(Part { setup, plan, sizes })
+    // the slab stays for the static output, which every process writes its rows of
+    Ok(Part {
+        setup,
+        plan,
+        sizes,
+        rows: Some(slab),
+    })
 }
 
 /// Every process's outcome agreed: an error anywhere is reported by rank 0 (`Collective`, the
@@ -746,6 +753,7 @@ mod tests {
             points: m.points[p0..p1].to_vec(),
             node_ids: m.node_ids[p0..p1].to_vec(),
             cell_start: c0,
+            conn_start: m.offsets[c0],
             kinds: m.kinds[c0..c1].to_vec(),
             offsets: m.offsets[c0..=c1].iter().map(|&o| o - base).collect(),
             conn: m.conn[m.offsets[c0]..m.offsets[c1]].to_vec(),

@@ -212,7 +212,7 @@ impl Series {
             });
         }
         let created =
-            SeriesWriter::create(&file, layout(sizes), sim.global_mesh(), &spec, io).and_then(|mut writer| {
+            SeriesWriter::create_from(&file, layout(sizes), sim.static_mesh(), &spec, io).and_then(|mut writer| {
                 // a new file is a new inode: the writer lock covers its hard links from now on
                 if let Some(lock) = claim {
                     lock.hold_output(&file);

@@ -32,6 +32,17 @@ impl Simulation {
         self.global.as_ref()
     }
 
+    /// Where the static mesh of an output comes from: every process's slab on a start from
+    /// the slabs (`distribute::slabs`: each writes its slab's rows), else the whole mesh on
+    /// the process that holds it.
+    pub fn static_mesh(&self) -> eprop_series::vtkhdf::StaticMesh<'_> {
+        use eprop_series::vtkhdf::StaticMesh;
+        match &self.rows {
+            Some(rows) => StaticMesh::Slabs(rows),
+            None => StaticMesh::Whole(self.global.as_ref()),
+        }
+    }
+
     /// Nodes of the whole mesh.
     pub fn n_global(&self) -> usize {
         self.n_global

@@ -21,7 +21,7 @@ pub struct Built {
 pub fn build_mpi(world: &dyn Comm, make_setup: impl FnOnce() -> Result<Setup>) -> Result<Built> {
     let rank = world.rank();
     let Share {
-        part: mine,
+        part: mut mine,
         global,
         comm,
         halo,
@@ -32,7 +32,9 @@ pub fn build_mpi(world: &dyn Comm, make_setup: impl FnOnce() -> Result<Setup>) -
         mine.plan.numbering.n_owned,
         mine.plan.n_halo()
     );
-    let sim = Simulation::new_with(mine.setup, comm, halo, mine.plan, global)?;
+    let rows = mine.rows.take();
+    let mut sim = Simulation::new_with(mine.setup, comm, halo, mine.plan, global)?;
+    sim.rows = rows;
     Ok(Built {
         sim,
         sizes: mine.sizes,

@@ -78,6 +78,9 @@ pub struct Simulation {
     comm: Box<dyn Comm>,
     /// The whole mesh, on the process that writes the static part of the output (rank 0).
     global: Option<Mesh>,
+    /// This process's slab of the mesh on a start from the slabs: every process writes its
+    /// rows of the static output.
+    rows: Option<eprop_series::vtkhdf::MeshSlab>,
     n_global: usize,
     numbering: LocalNumbering,
     /// Global node index of each local node.
@@ -773,6 +776,7 @@ impl Simulation {
             setup,
             comm,
             global,
+            rows: None,
             gid,
             numbering,
         })

@@ -1,6 +1,7 @@
 //! A new series: the static mesh, `/eprop`, and every per-step dataset with room for the run's
 //! output steps.
 
+use super::mesh::MeshSlab;
 use super::{
     access, at, table, values_set, Field, Layout, SeriesSpec, SeriesWriter, ToolSets, COUNT, MAX_ROOM, STEP_SETS,
 };
@@ -91,12 +92,82 @@ fn scalar_attr<T: hdf5::H5Type>(team: &Team, loc: &hdf5::Location, name: &str, v
     )
 }
 
+/// Where the static mesh of a new series comes from.
+#[derive(Clone, Copy)]
+pub enum StaticMesh<'a> {
+    /// The whole mesh, on the one process that writes it (rank 0); None on the others.
+    Whole(Option<&'a Mesh>),
+    /// Every process's slab of the mesh (`read_slab`, its points as the run reads them): each
+    /// process writes its own rows, and the file is the one the whole mesh makes.
+    Slabs(&'a MeshSlab),
+}
+
+/// A fixed-size dataset created by every process, each writing its `rows` rows (of `ncomp`
+/// values) at `row0` together (one process: all of them).
+#[allow(clippy::too_many_arguments)]
+fn fixed_rows<T: hdf5::H5Type>(
+    team: &Team,
+    group: &hdf5::Group,
+    name: &str,
+    shape: &[usize],
+    row0: usize,
+    data: &[T],
+    ncomp: usize,
+    parallel: bool,
+) -> Result<Dataset> {
+    let what = at(format!("creating the output ({name})"));
+    let ds = team.settle(what, group.new_dataset::<T>().shape(shape).create(name))?;
+    let written = super::write_rows_of(&ds, row0, data.len() / ncomp, ncomp, data, parallel);
+    team.settle(at(format!("writing the output ({name})")), written)?;
+    Ok(ds)
+}
+
+/// The connectivity (VTK's node order), offsets and types of the static mesh from a slab's
+/// cells, at their global rows, every process its own (`last`: the process that writes the
+/// final offset).
+fn write_slab_cells(
+    t: &Team,
+    top: &hdf5::Group,
+    layout: Layout,
+    s: &MeshSlab,
+    last: bool,
+    parallel: bool,
+) -> Result<()> {
+    let mut conn: Vec<i64> = Vec::with_capacity(s.conn.len());
+    let mut offs: Vec<i64> = Vec::with_capacity(s.n_cells() + 1);
+    for c in 0..s.n_cells() {
+        offs.push((s.conn_start + conn.len()) as i64);
+        conn.extend(vtk_order(s.kinds[c], s.cell(c)).iter().map(|&x| x as i64));
+    }
+    if last {
+        offs.push((s.conn_start + conn.len()) as i64);
+    }
+    fixed_rows(t, top, "Connectivity", &[layout.conn], s.conn_start, &conn, 1, parallel)?;
+    drop(conn);
+    fixed_rows(t, top, "Offsets", &[layout.cells + 1], s.cell_start, &offs, 1, parallel)?;
+    drop(offs);
+    let types: Vec<u8> = s.kinds.iter().map(|k| k.vtk_type()).collect();
+    fixed_rows(t, top, "Types", &[layout.cells], s.cell_start, &types, 1, parallel)?;
+    Ok(())
+}
+
 /// The static mesh of a new series under `/VTKHDF` (every process calls; rank 0, which holds
-/// `mesh`, gives the values): the counts, the connectivity in VTK's node order, the offsets,
-/// the cell types and the points.
-fn write_mesh(t: &Team, top: &hdf5::Group, layout: Layout, mesh: Option<&Mesh>) -> Result<()> {
-    let root = mesh.is_some();
+/// the whole mesh, gives the values, or every process its slab's): the counts, the
+/// connectivity in VTK's node order, the offsets, the cell types and the points.
+fn write_mesh(
+    t: &Team,
+    top: &hdf5::Group,
+    layout: Layout,
+    src: StaticMesh,
+    root: bool,
+    last: bool,
+    parallel: bool,
+) -> Result<()> {
     let n = layout.nodes;
+    let mesh = match src {
+        StaticMesh::Whole(m) => m,
+        StaticMesh::Slabs(_) => None,
+    };
     let (mut conn, mut offs, mut types, mut pts) = (vec![], vec![], vec![], vec![]);
     if let Some(mesh) = mesh {
         conn.reserve(mesh.conn.len());
@@ -119,6 +190,12 @@ fn write_mesh(t: &Team, top: &hdf5::Group, layout: Layout, mesh: Option<&Mesh>) 
         &[1],
         on_root(&counts[2..3]).as_deref(),
     )?;
+    if let StaticMesh::Slabs(s) = src {
+        write_slab_cells(t, top, layout, s, last, parallel)?;
+        let pts: Vec<f64> = s.points.iter().flatten().copied().collect();
+        fixed_rows(t, top, "Points", &[n, 3], s.node_start, &pts, 3, parallel)?;
+        return Ok(());
+    }
     fixed(t, top, "Connectivity", &[layout.conn], Some(&conn[..]).filter(|_| root))?;
     fixed(t, top, "Offsets", &[layout.cells + 1], Some(&offs[..]).filter(|_| root))?;
     fixed(t, top, "Types", &[layout.cells], Some(&types[..]).filter(|_| root))?;
@@ -130,16 +207,17 @@ fn write_mesh(t: &Team, top: &hdf5::Group, layout: Layout, mesh: Option<&Mesh>) 
 /// count of complete steps (the dataset and its mirror attribute), the identity and extra
 /// attributes, the scenario text, the control volumes, node ids and cell tags, and the probe
 /// tables, returned as time, step, force, displacement, and the count.
+#[allow(clippy::too_many_arguments)]
 fn create_eprop(
     t: &Team,
     file: &File,
     layout: Layout,
-    mesh: Option<&Mesh>,
+    src: StaticMesh,
+    root: bool,
     spec: &SeriesSpec,
     room: usize,
     parallel: bool,
 ) -> Result<[Dataset; 5]> {
-    let root = mesh.is_some();
     let n = layout.nodes;
     let mk = |what: &str| at(format!("creating the output ({what})"));
     let ep = t.settle(mk("/eprop"), file.create_group("eprop"))?;
@@ -164,9 +242,27 @@ fn create_eprop(
         at("writing the output (control_volumes)"),
         super::write_rows(&cv, spec.block_start, spec.block_len, 1, spec.control_volumes, parallel),
     )?;
-    let ids: Option<Vec<i64>> = mesh.map(|m| m.node_ids.iter().map(|&x| x as i64).collect());
-    fixed(t, &ep, "node_ids", &[n], ids.as_deref())?;
-    fixed(t, &ep, "cell_tags", &[layout.cells], mesh.map(|m| &m.cell_tags[..]))?;
+    match src {
+        StaticMesh::Whole(mesh) => {
+            let ids: Option<Vec<i64>> = mesh.map(|m| m.node_ids.iter().map(|&x| x as i64).collect());
+            fixed(t, &ep, "node_ids", &[n], ids.as_deref())?;
+            fixed(t, &ep, "cell_tags", &[layout.cells], mesh.map(|m| &m.cell_tags[..]))?;
+        }
+        StaticMesh::Slabs(s) => {
+            let ids: Vec<i64> = s.node_ids.iter().map(|&x| x as i64).collect();
+            fixed_rows(t, &ep, "node_ids", &[n], s.node_start, &ids, 1, parallel)?;
+            fixed_rows(
+                t,
+                &ep,
+                "cell_tags",
+                &[layout.cells],
+                s.cell_start,
+                &s.cell_tags,
+                1,
+                parallel,
+            )?;
+        }
+    }
     let pr = t.settle(mk("probes"), ep.create_group("probes"))?;
     let ln: Vec<i64> = spec.load_nodes.iter().map(|&x| x as i64).collect();
     fixed(t, &pr, "node", &[ln.len()], Some(&ln[..]).filter(|_| root))?;
@@ -194,8 +290,27 @@ impl SeriesWriter {
         spec: &SeriesSpec,
         comm: Option<&mpi::topology::SimpleCommunicator>,
     ) -> Result<Self> {
+        Self::create_from(path, layout, StaticMesh::Whole(mesh), spec, comm)
+    }
+
+    /// `create` with the static mesh from `src`: the whole mesh on rank 0, or every
+    /// process's slab (then every process writes its rows of the mesh, and rank 0 is the
+    /// root of the rest).
+    pub fn create_from(
+        path: &Path,
+        layout: Layout,
+        src: StaticMesh,
+        spec: &SeriesSpec,
+        comm: Option<&mpi::topology::SimpleCommunicator>,
+    ) -> Result<Self> {
+        use mpi::topology::Communicator;
         let parallel = comm.is_some();
-        let root = mesh.is_some();
+        let (rank, size) = comm.map_or((0, 1), |c| (c.rank(), c.size()));
+        let root = match src {
+            StaticMesh::Whole(mesh) => mesh.is_some(),
+            StaticMesh::Slabs(_) => rank == 0,
+        };
+        let last = rank + 1 == size;
         let team = Team::new(path, comm);
         let file = team.settle_open(at(CREATING), access(comm).create(path))?;
         team.hold(&file);
@@ -213,7 +328,7 @@ impl SeriesWriter {
         let ty = FixedAscii::<16>::from_ascii(b"UnstructuredGrid").unwrap();
         scalar_attr(t, &top, "Type", &ty)?;
 
-        write_mesh(t, &top, layout, mesh)?;
+        write_mesh(t, &top, layout, src, root, last, parallel)?;
 
         let mk = |what: &str| at(format!("creating the output ({what})"));
         let pd = t.settle(mk("PointData"), top.create_group("PointData"))?;
@@ -225,8 +340,16 @@ impl SeriesWriter {
         // the mesh's cell tags (physical groups: the tissues) as cell data, so that a viewer
         // colours by them; written once, every step points at the same rows
         let cd = t.settle(mk("CellData"), top.create_group("CellData"))?;
-        let tags: Option<Vec<i64>> = mesh.map(|m| m.cell_tags.iter().map(|&x| x as i64).collect());
-        fixed(t, &cd, "tag", &[layout.cells], tags.as_deref())?;
+        match src {
+            StaticMesh::Whole(mesh) => {
+                let tags: Option<Vec<i64>> = mesh.map(|m| m.cell_tags.iter().map(|&x| x as i64).collect());
+                fixed(t, &cd, "tag", &[layout.cells], tags.as_deref())?;
+            }
+            StaticMesh::Slabs(s) => {
+                let tags: Vec<i64> = s.cell_tags.iter().map(|&x| x as i64).collect();
+                fixed_rows(t, &cd, "tag", &[layout.cells], s.cell_start, &tags, 1, parallel)?;
+            }
+        }
         let c1 = room.clamp(1, 1024);
         let cell_offsets = Some(t.settle(mk("CellDataOffsets/tag"), table::<i64>(&cdo, "tag", room, &[], c1))?);
         let values = t.settle(mk("Values"), values_set(&steps, room, 0))?;
@@ -247,7 +370,7 @@ impl SeriesWriter {
         }
 
         let [probe_time, probe_step, probe_force, probe_disp, count] =
-            create_eprop(t, &file, layout, mesh, spec, room, parallel)?;
+            create_eprop(t, &file, layout, src, root, spec, room, parallel)?;
         t.settle(at("writing the output (flush)"), file.flush())?;
         Ok(SeriesWriter {
             path: path.to_path_buf(),

@@ -107,6 +107,8 @@ pub struct MeshSlab {
     pub points: Vec<[f64; 3]>,
     pub node_ids: Vec<u64>,
     pub cell_start: usize,
+    /// The first of the slab's connectivity ids in the whole mesh's connectivity.
+    pub conn_start: usize,
     pub kinds: Vec<CellKind>,
     /// `offsets[c]..offsets[c + 1]` indexes `conn` for local cell c (from 0).
     pub offsets: Vec<usize>,
@@ -215,6 +217,7 @@ pub fn read_slab(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>) 
         cells,
         node_start: p0,
         cell_start: c0,
+        conn_start: k0 as usize,
         offsets: Vec::with_capacity(c1 - c0 + 1),
         conn: Vec::with_capacity(raw.len()),
         kinds: Vec::with_capacity(c1 - c0),

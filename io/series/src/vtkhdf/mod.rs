@@ -37,7 +37,7 @@ mod mesh;
 mod read;
 mod restart;
 
-pub use create::CREATING;
+pub use create::{StaticMesh, CREATING};
 pub use mesh::{block, read_slab, write_mesh_file, MeshSlab};
 pub use read::{add_dataset, kind_of, read_mesh, read_scenario, read_step, write_csr, Kind, SeriesFile};
 
@@ -312,16 +312,37 @@ fn rows_of(ds: &Dataset) -> usize {
 /// Writes rows `row0..row0 + rows` (`ncomp` values each) of a dataset, collectively under MPI
 /// (every process calls, some with no rows).
 fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64], parallel: bool) -> hdf5::Result<()> {
-    use hdf5_sys::h5d::H5Dwrite;
-    use hdf5_sys::h5p::{H5Pclose, H5Pcreate, H5P_CLS_DATASET_XFER};
-    use hdf5_sys::h5s::{H5S_seloper_t, H5Sclose, H5Screate_simple, H5Sselect_hyperslab, H5Sselect_none};
-    use hdf5_sys::h5t::{H5T_NATIVE_DOUBLE, H5T_NATIVE_FLOAT};
     if data.len() != rows * ncomp {
         return Err(format!("internal: {} values for {rows} rows of {ncomp}", data.len()).into());
     }
     // A float32 file array gets float32 values: parallel HDF5 writes no filtered (deflated)
     // chunks through a type conversion, so the conversion is done here, the same on every path.
-    let narrow: Option<Vec<f32>> = (ds.dtype()?.size() == 4).then(|| data.iter().map(|&x| x as f32).collect());
+    match ds.dtype()?.size() == 4 {
+        true => {
+            let narrow: Vec<f32> = data.iter().map(|&x| x as f32).collect();
+            write_rows_of(ds, row0, rows, ncomp, &narrow, parallel)
+        }
+        false => write_rows_of(ds, row0, rows, ncomp, data, parallel),
+    }
+}
+
+/// Writes `rows` rows of `ncomp` values of `T` at row `row0` of `ds` (a collective write
+/// under MPI-IO when `parallel`: every process calls, with its own rows, possibly none).
+pub(super) fn write_rows_of<T: hdf5::H5Type>(
+    ds: &Dataset,
+    row0: usize,
+    rows: usize,
+    ncomp: usize,
+    data: &[T],
+    parallel: bool,
+) -> hdf5::Result<()> {
+    use hdf5_sys::h5d::H5Dwrite;
+    use hdf5_sys::h5p::{H5Pclose, H5Pcreate, H5P_CLS_DATASET_XFER};
+    use hdf5_sys::h5s::{H5S_seloper_t, H5Sclose, H5Screate_simple, H5Sselect_hyperslab, H5Sselect_none};
+    if data.len() != rows * ncomp {
+        return Err(format!("internal: {} values for {rows} rows of {ncomp}", data.len()).into());
+    }
+    let mem_type = hdf5::Datatype::from_type::<T>()?;
     let nd = ds.ndim();
     let start = [row0 as u64, 0];
     let count = [rows as u64, ncomp as u64];
@@ -349,10 +370,7 @@ fn write_rows(ds: &Dataset, row0: usize, rows: usize, ncomp: usize, data: &[f64]
         if parallel {
             hdf5_sys::h5p::H5Pset_dxpl_mpio(dxpl, hdf5_sys::h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
         }
-        let st = match &narrow {
-            Some(v) => H5Dwrite(ds.id(), *H5T_NATIVE_FLOAT, ms, fs, dxpl, v.as_ptr().cast()),
-            None => H5Dwrite(ds.id(), *H5T_NATIVE_DOUBLE, ms, fs, dxpl, data.as_ptr().cast()),
-        };
+        let st = H5Dwrite(ds.id(), mem_type.id(), ms, fs, dxpl, data.as_ptr().cast());
         // the error stack of the write, before the closes below add to it
         let err = (st < 0).then(|| hdf5::Error::query().unwrap_or_else(|e| e));
         H5Pclose(dxpl);
