@@ -1,5 +1,7 @@
 //! The batch scripts: scripts/eprop.slurm (its directives, the binary from EPROP or PATH, a dry
-//! run through a stand-in `srun`, SIGTERM passed on to the ranks and the restart it advises) and
+//! run through a stand-in `srun`, SIGTERM passed on to the ranks and the restart it advises; the
+//! large-mesh steps: box, convert to .vtkhdf, partition check, the output continued when it
+//! exists), scripts/scale_study.sh (bash -n) and
 //! scripts/run_mpi.sh (--oversubscribe only for more ranks than cores, the binary from EPROP).
 
 mod common;
@@ -194,6 +196,73 @@ fn the_slurm_script_runs_its_command_and_passes_sigterm_on() {
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(common::steps_complete(&h5), 21);
+}
+
+#[test]
+fn the_slurm_script_makes_the_vtkhdf_checks_the_split_and_continues_its_output() {
+    let s = script("eprop.slurm");
+    let d = tempfile::tempdir().unwrap();
+    let bin = d.path().join("bin");
+    std::fs::create_dir(&bin).unwrap();
+    stand_in(&bin, "srun", "while [[ $1 == -* ]]; do shift; done\nexec \"$@\"");
+    let path = path_with(&bin);
+    std::fs::write(
+        d.path().join("box.toml"),
+        "[mesh]\nfile = \"box.vtkhdf\"\n[model]\nreading = \"paper\"\nintegrator = \"euler\"\n\
+         [[fixed]]\nhalfspace = { point = [0, 0, 0.01], normal = [0, 0, -1] }\n\
+         [[load]]\nnearest = [0.5, 0.5, 1.0]\nnormal = 0.05\n[time]\nsteps = 4\n[output]\nevery = 2\n",
+    )
+    .unwrap();
+    let job = |convert: &str| {
+        let mut c = Command::new("bash");
+        c.arg(&s)
+            .args(["box.toml", "-q"])
+            .current_dir(d.path())
+            .env("PATH", &path)
+            .env("EPROP", env!("CARGO_BIN_EXE_eprop"))
+            .env("EPROP_BOX", "4,4,4")
+            .env("EPROP_CONVERT", convert)
+            .env("EPROP_PARTITION_CHECK", "1")
+            .env("EPROP_OUTPUT", "run.h5")
+            .env_remove("EPROP_MODULES")
+            .env_remove("EPROP_REQUEUE");
+        c.output().unwrap()
+    };
+    let out = job("box.msh");
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("fix:"));
+    // the box, its .vtkhdf, the split of it and the run
+    let out = job("box.msh box.vtkhdf");
+    let (so, se) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{se}");
+    assert!(d.path().join("box.vtkhdf").exists() && !d.path().join("box.vtkhdf.part.vtkhdf").exists());
+    assert!(so.contains("edge cut") && so.contains("125 nodes"), "{so}");
+    assert_eq!(common::steps_complete(&d.path().join("run.h5")), 3);
+    // again: the mesh is kept, the output is continued, not replaced
+    let before = std::fs::metadata(d.path().join("box.vtkhdf"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    let out = job("box.msh box.vtkhdf");
+    let se = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{se}");
+    assert!(se.contains("--restart") && !se.contains("eprop convert"), "{se}");
+    assert_eq!(
+        std::fs::metadata(d.path().join("box.vtkhdf"))
+            .unwrap()
+            .modified()
+            .unwrap(),
+        before
+    );
+    assert_eq!(common::steps_complete(&d.path().join("run.h5")), 3);
+}
+
+#[test]
+fn the_scale_study_script_parses() {
+    bash_n(&script("scale_study.sh"));
 }
 
 #[test]
