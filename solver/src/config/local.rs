@@ -13,7 +13,7 @@
 
 use super::fixed::{FixedSet, Plane};
 use super::loads::{Load, Push};
-use super::select::{distance, nearest_surface_flags, surface_node_areas, Keys, Selector, NEAREST_FAR};
+use super::select::{distance, nearest_in_reach, nearest_surface_flags, surface_node_areas, Keys, Selector};
 use super::{Reading, Scenario, Setup};
 use anyhow::{anyhow, Result};
 use eprop_io::geom::{cross, dot, norm, scale, sub};
@@ -80,9 +80,7 @@ impl Setup {
     /// `resolve_local` finishes it on each process's share of the mesh.
     pub fn deferred(scenario: Scenario) -> Result<Setup> {
         let (sc, f) = (&scenario, &scenario.file);
-        f.mesh
-            .factor(f.model.reading)
-            .map_err(|e| anyhow!("{}: {e}", sc.path.display()))?;
+        super::mesh::factor(sc)?;
         check_supported(sc)?;
         let time = super::time::resolve(sc, &f.time)?;
         let output = super::output::resolve(sc);
@@ -237,16 +235,7 @@ fn nodes(s: &Selector, mesh: &Mesh, g: &Global) -> Result<Vec<bool>, String> {
             Ok(set)
         }
         Selector::Nearest(p) => {
-            let (lo, hi) = g.bounds;
-            let extent = distance(hi, lo);
-            let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
-            let far = distance(p.0, centre);
-            if !(far <= NEAREST_FAR * extent.max(f64::MIN_POSITIVE)) {
-                return Err(format!(
-                    "[{:e}, {:e}, {:e}] is {far:.4e} from the centre of the mesh, more than {NEAREST_FAR:e} times its extent {extent:.4e}, so no node is nearer than another; fix: give a point on the surface of the mesh",
-                    p.0[0], p.0[1], p.0[2]
-                ));
-            }
+            nearest_in_reach(p.0, g.bounds)?;
             // this process's nearest owned surface node, then the nearest of those (ties: the
             // lowest global index, as on the whole mesh)
             let on_surface = nearest_surface_flags(mesh);

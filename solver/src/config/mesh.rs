@@ -114,12 +114,18 @@ pub fn mesh_of_slab(path: &std::path::Path, slab: eprop_series::vtkhdf::MeshSlab
 /// The scaled mesh's bounding-box diagonal must lie in this range.
 pub(crate) const EXTENT: (f64, f64) = (1e-60, 1e60);
 
+/// The factor that scales the scenario's mesh file to the reading's length unit.
+pub fn factor(sc: &Scenario) -> Result<f64> {
+    sc.file
+        .mesh
+        .factor(sc.file.model.reading)
+        .map_err(|e| anyhow!("{}: {e}", sc.path.display()))
+}
+
 /// Reads the mesh the scenario names and scales it (refused if its extent is out of `EXTENT`).
 pub fn read(sc: &Scenario) -> Result<Mesh> {
     let ms = &sc.file.mesh;
-    let factor = ms
-        .factor(sc.file.model.reading)
-        .map_err(|e| anyhow!("{}: {e}", sc.path.display()))?;
+    let factor = factor(sc)?;
     let opts = eprop_io::ReadOptions { strict: ms.strict };
     let path = sc.mesh_path();
     let mesh = match super::local::slab_mesh(sc) {

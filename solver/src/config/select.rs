@@ -162,18 +162,7 @@ impl Selector {
                 }
             },
             Selector::Nearest(p) => {
-                // from far enough away every node is equally far in floating point, and the
-                // choice would be the lowest index
-                let (lo, hi) = mesh.bounds();
-                let extent = distance(hi, lo);
-                let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
-                let far = distance(p.0, centre);
-                if !(far <= NEAREST_FAR * extent.max(f64::MIN_POSITIVE)) {
-                    return Err(format!(
-                        "[{:e}, {:e}, {:e}] is {far:.4e} from the centre of the mesh, more than {NEAREST_FAR:e} times its extent {extent:.4e}, so no node is nearer than another; fix: give a point on the surface of the mesh",
-                        p.0[0], p.0[1], p.0[2]
-                    ));
-                }
+                nearest_in_reach(p.0, mesh.bounds())?;
                 let i = nearest_surface_node(mesh, p.0).ok_or("the mesh has no surface node")?;
                 set[i as usize] = true;
             }
@@ -353,6 +342,22 @@ pub(crate) fn surface_node_areas(mesh: &Mesh) -> Vec<f64> {
 /// A `nearest` point farther than this multiple of the mesh's extent from its centre is
 /// refused.
 pub(crate) const NEAREST_FAR: f64 = 1e6;
+
+/// Refuses a `nearest` point farther than `NEAREST_FAR` extents from the centre of the mesh
+/// of bounds (lo, hi): from far enough away every node is equally far in floating point, and
+/// the choice would be the lowest index.
+pub(crate) fn nearest_in_reach(p: [f64; 3], (lo, hi): ([f64; 3], [f64; 3])) -> Result<(), String> {
+    let extent = distance(hi, lo);
+    let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
+    let far = distance(p, centre);
+    if !(far <= NEAREST_FAR * extent.max(f64::MIN_POSITIVE)) {
+        return Err(format!(
+            "[{:e}, {:e}, {:e}] is {far:.4e} from the centre of the mesh, more than {NEAREST_FAR:e} times its extent {extent:.4e}, so no node is nearer than another; fix: give a point on the surface of the mesh",
+            p[0], p[1], p[2]
+        ));
+    }
+    Ok(())
+}
 
 /// |a - b| without overflow where |a - b| itself is finite (the difference is scaled by its
 /// largest component first: a point 1e150 away is 1e150 away, not inf).

@@ -622,11 +622,7 @@ pub fn start(world: &Handle, setup: Setup) -> Result<(Part, Option<Mesh>)> {
 fn whole_mesh(setup: &Setup) -> Result<Mesh> {
     let sc = &setup.scenario;
     let path = sc.mesh_path();
-    let factor = sc
-        .file
-        .mesh
-        .factor(sc.file.model.reading)
-        .map_err(|e| anyhow!("{}: {e}", sc.path.display()))?;
+    let factor = crate::config::mesh::factor(sc)?;
     let opts = eprop_io::ReadOptions { strict: true };
     let mut mesh = crate::config::mesh::read_vtkhdf(&path, &opts)?;
     if factor != 1.0 {
@@ -639,11 +635,7 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
     let (rank, size) = (comm.rank(), comm.size());
     let sc = &setup.scenario;
     let path = sc.mesh_path();
-    let factor = sc
-        .file
-        .mesh
-        .factor(sc.file.model.reading)
-        .map_err(|e| anyhow!("{}: {e}", sc.path.display()))?;
+    let factor = crate::config::mesh::factor(sc)?;
     let mut slab = read(Some(comm), &path).map_err(|e| match e.is::<super::parts::ReportedElsewhere>() {
         true => e,
         false => anyhow!("{e:#}\n  (mesh named by {} [mesh] file)", sc.path.display()),
