@@ -643,13 +643,17 @@ fn a_full_disk_at_creation_and_mid_run_on_2_ranks_stops_every_rank_cleanly() {
     drop(small);
 
     // mid-run: a filler takes the free space while the job writes (forced: past the start's
-    // refusal, so the disk itself says ENOSPC)
+    // refusal, so the disk itself says ENOSPC). The job writes every tenth step: writing every
+    // step it filled the 64 MiB on its own within seconds (about 150 output steps a second),
+    // before a loaded machine's watcher had read its first three steps
     let Some(disk) = Tmpfs::mount("64m") else { return };
     let sc = cylinder(dir, "s.toml", "", 20_000);
     edit(&sc, "steps = 20000", "steps = 20000\nh = 0.002\n");
+    let slow = cylinder(dir, "slow.toml", "[output]\nevery = 10\n", 20_000);
+    edit(&slow, "steps = 20000", "steps = 20000\nh = 0.002\n");
     for ranks in [2, 1] {
         let h5 = disk.path().join(format!("run{ranks}.h5"));
-        let mut job = spawn(ranks, &["run", s(&sc), "-q", "-o", s(&h5), "--force"]);
+        let mut job = spawn(ranks, &["run", s(&slow), "-q", "-o", s(&h5), "--force"]);
         wait_for_steps(&h5, 3, &mut job);
         let filler = disk.fill();
         let o = finish(job, 180, "the job on a full disk");
@@ -665,7 +669,7 @@ fn a_full_disk_at_creation_and_mid_run_on_2_ranks_stops_every_rank_cleanly() {
             ],
         );
         assert_eq!(stderr(&o).matches("ENOSPC").count(), 1, "one message: {}", stderr(&o));
-        restart_completes(dir, &sc, &h5, ranks, filler);
+        restart_completes(dir, &slow, &h5, ranks, filler);
     }
     // a run that cannot write all its steps is refused unless forced; forced, it writes until
     // the disk refuses a write (inside HDF5's collective calls on 2 ranks), then every rank

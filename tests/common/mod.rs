@@ -533,7 +533,12 @@ pub fn wait_for_steps(h5: &Path, k: i64, child: &mut Child) {
     let t = Instant::now();
     while live_steps(h5).unwrap_or(0) < k {
         if let Some(st) = child.try_wait().unwrap() {
-            panic!("the run ended ({st}) before it wrote {k} steps");
+            let mut err = String::new();
+            if let Some(mut e) = child.stderr.take() {
+                use std::io::Read;
+                let _ = e.read_to_string(&mut err);
+            }
+            panic!("the run ended ({st}) before it wrote {k} steps: {err}");
         }
         assert!(t.elapsed() < Duration::from_secs(120), "no {k} steps after 120 s");
         std::thread::sleep(Duration::from_millis(20));
