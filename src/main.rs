@@ -486,7 +486,8 @@ enum Shape {
         /// Cell layers along the axis
         #[arg(long, default_value_t = 11)]
         layers: usize,
-        /// Output file (.msh, Gmsh 4.1)
+        /// Output file: .msh (Gmsh 4.1, with the tagged faces), .vtu, or .vtkhdf (read in
+        /// slabs by the processes of a job; volume cells only, faces are selected by box)
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -501,7 +502,8 @@ enum Shape {
         /// Cell kind
         #[arg(long, value_enum, default_value_t = Kind::Tet)]
         kind: Kind,
-        /// Output file (.msh, Gmsh 4.1)
+        /// Output file: .msh (Gmsh 4.1, with the tagged faces), .vtu, or .vtkhdf (read in
+        /// slabs by the processes of a job; volume cells only, faces are selected by box)
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -630,7 +632,7 @@ fn real_main(cli: Cli) -> Result<()> {
         Cmd::Mesh(a) => {
             let (mesh, out) = generate(a.shape)?;
             let _lock = eprop::guard::safety::claim_file(&out, "the mesh file (-o)", &[], a.overwrite)?;
-            eprop_io::write_mesh(&mesh, &out)?;
+            write_mesh_any(&mesh, &out)?;
             println!("{}: {} nodes, {} cells", out.display(), mesh.n_nodes(), mesh.n_cells());
             Ok(())
         }
@@ -735,18 +737,23 @@ fn convert(input: &Path, output: &Path, strict: bool, overwrite: bool) -> Result
     for w in &m.warnings {
         eprintln!("warning: {w}");
     }
-    let vtkhdf = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf"));
-    if vtkhdf {
-        // the mesh that the processes of a job read in slabs
-        if !m.facets.is_empty() || !m.group_names.is_empty() {
-            eprintln!("warning: {}: a .vtkhdf mesh keeps the volume cells, their tags and the node ids; the boundary facets and group names are left out", output.display());
-        }
-        eprop_series::vtkhdf::write_mesh_file(&m, output)?;
-    } else {
-        eprop_io::write_mesh(&m, output)?;
-    }
+    write_mesh_any(&m, output)?;
     println!("{}: {} nodes, {} cells", output.display(), m.n_nodes(), m.n_cells());
     Ok(())
+}
+
+/// Writes a mesh by the output's extension: `.vtkhdf` (the mesh the processes of a job read in
+/// slabs; it keeps the volume cells, their tags and the node ids, and says so when boundary
+/// facets or group names are left out), or what `eprop_io::write_mesh` writes (.msh, .vtu).
+fn write_mesh_any(m: &eprop_mesh::Mesh, output: &Path) -> Result<()> {
+    if output.extension().is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf")) {
+        if !m.facets.is_empty() || !m.group_names.is_empty() {
+            eprintln!("warning: {}: a .vtkhdf mesh keeps the volume cells, their tags and the node ids; the boundary facets and group names are left out (select faces by box, sphere or half-space)", output.display());
+        }
+        eprop_series::vtkhdf::write_mesh_file(m, output)
+    } else {
+        eprop_io::write_mesh(m, output)
+    }
 }
 
 /// `eprop bench`: the --json file claimed first (rank 0 writes it), a row per case as it is

@@ -962,3 +962,32 @@ fn zlib_bombs_are_refused_before_inflating() {
         }
     }
 }
+
+/// `eprop mesh box -o FILE.vtkhdf` writes the mesh a job reads in slabs: the same points,
+/// cells, tags and node ids as the box written as .msh (whose faces it leaves out, and says so).
+#[test]
+fn a_generated_box_writes_vtkhdf_directly() {
+    let d = tempfile::tempdir().unwrap();
+    let (msh, vtkhdf) = (d.path().join("b.msh"), d.path().join("b.vtkhdf"));
+    let box_to = |out: &Path| {
+        eprop(&[
+            "mesh",
+            "box",
+            "--size",
+            "1,2,0.5",
+            "--cells",
+            "3,4,2",
+            "-o",
+            out.to_str().unwrap(),
+        ])
+    };
+    let (ok, _, err) = box_to(&msh);
+    assert!(ok, "{err}");
+    let (ok, out, err) = box_to(&vtkhdf);
+    assert!(ok, "{err}");
+    assert!(out.contains("60 nodes, 144 cells"), "{out}");
+    assert!(err.contains("boundary facets and group names are left out"), "{err}");
+    let a = read_mesh(&msh).unwrap();
+    let b = eprop::config::mesh::read_vtkhdf(&vtkhdf, &ReadOptions::default()).unwrap();
+    same(&a, &b, "vtkhdf", false, true);
+}
