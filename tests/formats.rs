@@ -37,6 +37,15 @@ fn every_shared_tet_mesh_reads_and_validates() {
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         assert_eq!(v["cells"].as_u64().unwrap() as usize, m.n_cells());
         assert!(v["warnings"].is_array());
+        // the cell tags (an atlas's tissues) with their cells, which add up to the mesh's
+        let tags = v["cell_tags"].as_array().unwrap();
+        let cells: u64 = tags.iter().map(|t| t[1].as_u64().unwrap()).sum();
+        assert_eq!(cells as usize, m.n_cells(), "{}", p.display());
+        if p.to_string_lossy().contains("head_atlas") {
+            assert!(tags.len() >= 4, "an atlas has its tissues: {tags:?}");
+            let (_, text, _) = eprop(&["info", p.to_str().unwrap()]);
+            assert!(text.contains("  cell tag         3: "), "{text}");
+        }
         n += 1;
     }
     assert!(n >= 5, "expected the five shared tet meshes, found {n}");

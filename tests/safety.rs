@@ -1365,7 +1365,25 @@ fn products_that_overflow_or_underflow_are_refused_when_the_scenario_is_read() {
         1,
         &[
             "is in the fixed set",
-            "(with [mesh] scale = 1e59 the mesh spans 4.8867e59",
+            "(the mesh spans (-1.0000e59, -9.8481e58, 0.0000) .. (1.0000e59, 9.8481e58, 4.0000e59); with [mesh] scale = 1e59 every length of the scenario",
+            "fix:",
+        ],
+    );
+    // a support given in the file's millimetres where the scenario's lengths are metres
+    // holds every node: said at its line, with the mesh's extent as read (not as a stability
+    // bound that overflows)
+    std::fs::write(
+        dir.join("all.toml"),
+        "[mesh]\nfile = \"cyl.msh\"\nunit = \"mm\"\n[model]\nreading = \"continuum\"\n[[fixed]]\nhalfspace = { point = [0, 0, 2], normal = [0, 0, -1] }\n[[load]]\nnearest = [0.001, 0, 0.004]\nforce = [0, 0, -0.1]\n[time]\nsteps = 1\n",
+    )
+    .unwrap();
+    let o = eprop(1, &["check", s(&dir.join("all.toml"))]);
+    refused(
+        &o,
+        1,
+        &[
+            "all.toml:7: [fixed] halfspace: selects every node of the mesh, so nothing can move",
+            "(the mesh spans (-0.001000, -0.000985, 0.000000) .. (0.001000, 0.000985, 0.004000); with [mesh] unit = \"mm\" the mesh is read in metres",
             "fix:",
         ],
     );

@@ -71,16 +71,39 @@ mod tests {
     }
 }
 
+/// A number's text without the sign of a zero ("-0.000" reads "0.000").
+fn unsigned_zero(s: String) -> String {
+    match s.strip_prefix('-') {
+        Some(rest) if rest.chars().all(|c| c == '0' || c == '.') => rest.to_string(),
+        _ => s,
+    }
+}
+
+/// A box's corners as `(x, y, z) .. (x, y, z)`, every coordinate with the decimals that give
+/// its largest about four significant digits (a mesh in metres from a file in mm reads
+/// `(-0.001000, ...)`), in exponent form beyond `fixed`'s range.
+pub fn span(lo: [f64; 3], hi: [f64; 3]) -> String {
+    let big = lo.iter().chain(&hi).fold(0.0f64, |m, x| m.max(x.abs()));
+    let text = |p: [f64; 3]| -> String {
+        let one = |x: f64| {
+            if big == 0.0 || !(1e-3..1e9).contains(&big) {
+                fixed(x, 4)
+            } else {
+                let digits = (3 - big.log10().floor() as i64).clamp(0, 9) as usize;
+                unsigned_zero(format!("{x:.digits$}"))
+            }
+        };
+        format!("({}, {}, {})", one(p[0]), one(p[1]), one(p[2]))
+    };
+    format!("{} .. {}", text(lo), text(hi))
+}
+
 /// `x` with `digits` decimals where that reads well (1e-3 <= |x| < 1e9, and zero), in exponent
 /// form otherwise (a time of 1e300 is not 300 digits, 1e-12 is not 0.000000); never `-0`.
 pub fn fixed(x: f64, digits: usize) -> String {
     let a = x.abs();
     if a == 0.0 || (1e-3..1e9).contains(&a) {
-        let s = format!("{x:.digits$}");
-        match s.strip_prefix('-') {
-            Some(rest) if rest.chars().all(|c| c == '0' || c == '.') => rest.to_string(),
-            _ => s,
-        }
+        unsigned_zero(format!("{x:.digits$}"))
     } else if a.is_finite() {
         format!("{x:.digits$e}")
     } else {

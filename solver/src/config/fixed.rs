@@ -57,6 +57,19 @@ pub fn resolve(sc: &Scenario, sets: &[Entry<FixedSet>], mesh: &Mesh) -> Result<(
     for e in sets {
         let none = "selects no node; fix: check it against the mesh (eprop info MESH)";
         let set = sc.select(&e.selector, FixedSet::TABLE, mesh, none)?;
+        if set.iter().all(|&b| b) {
+            let (lo, hi) = mesh.bounds();
+            return Err(sc.error_at(
+                e.selector.span(),
+                FixedSet::TABLE,
+                e.selector.get_ref().key(),
+                format!(
+                    "selects every node of the mesh, so nothing can move (the mesh spans {}{}); fix: select the part that is held, in the mesh's coordinates as read",
+                    crate::diagnostics::span(lo, hi),
+                    super::unit_note(sc)
+                ),
+            ));
+        }
         for i in 0..n {
             fixed[i] |= set[i];
         }

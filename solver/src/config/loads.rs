@@ -116,16 +116,14 @@ impl Load {
 /// what it spans then (the scenario's lengths are in the scaled unit: `nearest = [1, 0, 2]` on
 /// a mesh scaled by 1e59 lands at its fixed end); empty otherwise.
 fn scaled_hint(sc: &Scenario, mesh: &Mesh) -> String {
-    let ms = &sc.file.mesh;
-    let key = match (ms.unit, ms.scale) {
-        (Some(u), _) if u.metres() != 1.0 => format!("[mesh] unit = \"{}\"", u.name()),
-        (None, Some(s)) if s != 1.0 => format!("[mesh] scale = {}", crate::diagnostics::short(s)),
-        _ => return String::new(),
-    };
+    if super::unit_note(sc).is_empty() {
+        return String::new();
+    }
     let (lo, hi) = mesh.bounds();
     format!(
-        " (with {key} the mesh spans {:.4e}: every length of the scenario, `nearest` and `patch` included, is in that unit)",
-        super::distance(hi, lo)
+        " (the mesh spans {}{})",
+        crate::diagnostics::span(lo, hi),
+        super::unit_note(sc)
     )
 }
 

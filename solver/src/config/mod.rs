@@ -460,6 +460,24 @@ impl Setup {
     }
 }
 
+/// When `[mesh] unit` or `scale` rescales the mesh file's coordinates: "; with [mesh] unit =
+/// "mm" every length of the scenario, `nearest` and `patch` included, is in metres"; empty
+/// otherwise.
+pub(crate) fn unit_note(sc: &Scenario) -> String {
+    let ms = &sc.file.mesh;
+    match (ms.unit, ms.scale) {
+        (Some(u), _) if u.metres() != 1.0 => format!(
+            "; with [mesh] unit = \"{}\" the mesh is read in metres and every length of the scenario, `nearest` and `patch` included, is in metres",
+            u.name()
+        ),
+        (None, Some(s)) if s != 1.0 => format!(
+            "; with [mesh] scale = {} every length of the scenario, `nearest` and `patch` included, is in the scaled unit",
+            crate::diagnostics::short(s)
+        ),
+        _ => String::new(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

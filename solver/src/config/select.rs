@@ -136,7 +136,16 @@ impl Selector {
                     }
                 }
             }
-            Selector::Tag(t) => mark_tags(mesh, &[(None, *t)], &mut set),
+            Selector::Tag(t) => {
+                mark_tags(mesh, &[(None, *t)], &mut set);
+                if !set.contains(&true) {
+                    return Err(format!(
+                        "no cell or facet of {} carries tag {t}; its tags: {}; fix: name one of those (`eprop info MESH` lists them with their cells and volumes)",
+                        mesh.source,
+                        tag_list(mesh)
+                    ));
+                }
+            }
             Selector::Group(name) => {
                 let found: Vec<(Option<u8>, i32)> = mesh
                     .group_names
@@ -298,6 +307,32 @@ fn patch(mesh: &Mesh, ball: &Ball, area: &[f64], set: &mut [bool]) -> Result<(),
         ));
     }
     Ok(())
+}
+
+/// The tags a mesh carries, for a message: "cells 1 (n), 2 (n); facets 5 (n)" (or "none").
+pub fn tag_list(mesh: &Mesh) -> String {
+    let count = |tags: &[i32]| {
+        let mut m = std::collections::BTreeMap::<i32, usize>::new();
+        for &t in tags {
+            *m.entry(t).or_default() += 1;
+        }
+        m.iter()
+            .map(|(t, n)| format!("{t} ({n})"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut parts = vec![];
+    if mesh.n_cells() > 0 {
+        parts.push(format!("cells {}", count(&mesh.cell_tags)));
+    }
+    if !mesh.facets.is_empty() {
+        parts.push(format!("facets {}", count(&mesh.facets.tags)));
+    }
+    if parts.is_empty() {
+        "none".to_string()
+    } else {
+        parts.join("; ")
+    }
 }
 
 /// Flags the nodes of the cells and facets with one of `tags`: (dimension, tag), any
@@ -605,6 +640,14 @@ mod tests {
         assert!(e.contains("known groups") && e.contains("xmax"), "{e}");
         assert_eq!(count(Selector::Node(14)), Ok(1));
         assert!(count(Selector::Node(0)).unwrap_err().contains("fix:"));
+        // a tag no cell or facet carries names the tags there are
+        let tags = tag_list(&m);
+        assert!(tags.starts_with("cells ") && tags.contains("; facets "), "{tags}");
+        let e = count(Selector::Tag(99)).unwrap_err();
+        assert!(
+            e.contains("carries tag 99; its tags: cells ") && e.contains("fix:"),
+            "{e}"
+        );
         // the centre node (0.5, 0.5, 0.5) is interior: the nearest surface node is another
         let near = Selector::Nearest(Point([0.5, 0.5, 0.45])).nodes(&m).unwrap();
         let i = near.iter().position(|&b| b).unwrap();

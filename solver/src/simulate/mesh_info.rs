@@ -22,6 +22,8 @@ pub struct MeshInfo {
     /// Faces of the volume cells that belong to one cell: the mesh's boundary, computed.
     pub boundary_faces: usize,
     pub groups: Vec<(u8, i32, String)>,
+    /// The volume cells' tags (a multi-tissue atlas's tissues): tag, cells, their volume.
+    pub cell_tags: Vec<(i32, usize, f64)>,
     pub bounds: [[f64; 3]; 2],
     pub volume: f64,
     pub control_volume_sum: f64,
@@ -39,9 +41,15 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
     let n = mesh.n_nodes();
     let inc = Incidence::new(mesh);
     let dual = Dual::build(mesh, &inc, n, None);
-    let volume: f64 = (0..mesh.n_cells())
-        .map(|c| cell_volume(mesh.kinds[c], mesh.cell(c), &mesh.points))
-        .sum();
+    let mut by_tag = std::collections::BTreeMap::<i32, (usize, f64)>::new();
+    let mut volume = 0.0;
+    for c in 0..mesh.n_cells() {
+        let v = cell_volume(mesh.kinds[c], mesh.cell(c), &mesh.points);
+        volume += v;
+        let e = by_tag.entry(mesh.cell_tags[c]).or_default();
+        e.0 += 1;
+        e.1 += v;
+    }
     let (mut qmin, mut qmax) = (f64::INFINITY, 0.0f64);
     for c in 0..mesh.n_cells() {
         let q = cell_quality(mesh.kinds[c], mesh.cell(c), &mesh.points);
@@ -78,6 +86,7 @@ pub fn mesh_info(mesh: &Mesh) -> MeshInfo {
         surface_facets: mesh.facets.len(),
         boundary_faces: eprop_io::mesh::boundary_faces(mesh).len(),
         groups: mesh.group_names.iter().map(|((d, t), s)| (*d, *t, s.clone())).collect(),
+        cell_tags: by_tag.into_iter().map(|(t, (n, v))| (t, n, v)).collect(),
         bounds: [lo, hi],
         volume,
         control_volume_sum: dual.vol.iter().sum(),
@@ -111,6 +120,12 @@ impl std::fmt::Display for MeshInfo {
         }
         for (d, t, s) in &self.groups {
             writeln!(f, "  group            {s:?} (dim {d}, tag {t})")?;
+        }
+        if self.cell_tags.len() > 1 {
+            // the tissues of an atlas, for `[[material.region]] tag = N`
+            for (t, n, v) in &self.cell_tags {
+                writeln!(f, "  cell tag         {t}: {n} cells, volume {v:.6e}")?;
+            }
         }
         writeln!(
             f,

@@ -216,6 +216,14 @@ fn mechanics_dt(setup: &Setup, active: &[bool], n_owned: usize, comm: &dyn Comm)
             .fold(f64::INFINITY, f64::min),
     );
     let path = setup.scenario.path.display();
+    let free = comm.sum_i128((0..n_owned).filter(|&i| active[i]).count() as i128);
+    if free == 0 {
+        // every node fixed (or in no cell): there is nothing to step, whatever dt
+        bail!(
+            "{path}: every node of the mesh is fixed by the [[fixed]] sets, so nothing can move{}; fix: select only the part that is held",
+            crate::config::unit_note(&setup.scenario)
+        )
+    }
     let dt = match setup.time.dt {
         Some(dt) if dt > dt_bound => bail!(
             "{path}: [time] dt = {} is above the mechanics stability bound {dt_bound:.6e}; fix: use dt <= {:.6e} or leave dt out (automatic)",

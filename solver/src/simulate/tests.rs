@@ -83,6 +83,14 @@ fn the_mechanics_bound_separates_decay_from_growth() {
         e.contains("dt = 100 is above the mechanics stability bound") && e.contains("fix:"),
         "{e}"
     );
+    // no free node (every node fixed): said so, not as a bound that overflows
+    let e = mechanics_dt(&fixed_dt, &vec![false; n], n, &Serial)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("every node of the mesh is fixed") && e.contains("fix:"),
+        "{e}"
+    );
     let free = setup("[material]\ndamping = 0.0\n[model]\nstiffness = 0.0\n[time]\nsteps = 1\n");
     let e = mechanics_dt(&free, &vec![true; n], n, &Serial).unwrap_err().to_string();
     assert!(
