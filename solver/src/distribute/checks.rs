@@ -260,7 +260,7 @@ pub fn components(mesh: &eprop_mesh::Mesh, gid: &[u32], n_owned: usize, comm: &d
             break;
         }
     }
-    tracing::debug!("components labelled in {rounds} rounds");
+    tracing::debug!("components labelled in {rounds} rounds of the halo exchange");
     let own = (0..n_owned).filter(|&i| label[i] == f64::from(gid[i])).count();
     comm.sum_i128(own as i128) as usize
 }

@@ -631,7 +631,9 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
     drop(graph);
     let mut local = redistribute(&slab, &part, Some(world))?;
     drop(part);
+    let t = std::time::Instant::now();
     checks::first(comm, checks::cells(&local, &source)).map_err(named)?;
+    tracing::debug!("the cells checked in {:.3} s", t.elapsed().as_secs_f64());
     if factor != 1.0 {
         slab.points.iter_mut().flatten().for_each(|x| *x *= factor);
         local.points.iter_mut().flatten().for_each(|x| *x *= factor);
@@ -659,7 +661,9 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
     let ends: Vec<f64> = comm.max_each(&ends.map(|x| -x));
     let bounds = ([-ends[0], -ends[1], -ends[2]], [ends[3], ends[4], ends[5]]);
     let halo = super::halo::Halo::new(plan.pattern.clone(), world.duplicate());
+    let t = std::time::Instant::now();
     let comps = checks::components(&mesh, &plan.numbering.global, plan.numbering.n_owned, comm, &halo);
+    tracing::debug!("{comps} component(s) counted in {:.3} s", t.elapsed().as_secs_f64());
     // the whole mesh's warnings (of the summary) ride with the local mesh
     mesh.warnings.extend(checks::components_warning(comps));
     let setup = {
