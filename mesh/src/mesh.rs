@@ -279,7 +279,7 @@ pub fn for_each_face<E>(mesh: &Mesh, mut f: impl FnMut(&[u32; 4], &[(u32, u8)]) 
 /// Items `(cell, slot)` for `slot < per_cell`, grouped by the node `key` gives them (`None`:
 /// no such item), as CSR: `ptr` per node, items encoded `cell * per_cell + slot` (`per_cell`
 /// is 1 or 8). Two passes, so the memory is 4 bytes per item.
-pub(crate) fn group_by_node(
+pub fn group_by_node(
     np: usize,
     n_cells: usize,
     per_cell: usize,

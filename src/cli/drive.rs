@@ -200,8 +200,9 @@ pub fn check(sim: &Simulation, s: &Settings) -> Result<Checked> {
         space(sim, &budget, s)?;
     }
     let root = sim.comm().rank() == 0;
-    let mut warnings = match &sim.global_mesh() {
-        Some(mesh) if root => plausible::load_warnings(sim, mesh),
+    // the whole mesh's bounds and the loads' nodes (reductions on a start from the slabs)
+    let mut warnings = match sim.whole_mesh(&plausible::load_nodes(sim)) {
+        Some(mesh) if root => plausible::load_warnings(sim, &mesh),
         _ => vec![],
     };
     // every process takes part (reductions); rank 0 keeps them

@@ -334,8 +334,9 @@ pub fn check(path: &Path, opts: &RunOptions, measure: bool) -> Result<CheckRepor
     let per_substep = sim.time_substeps(5);
     let steps = budget.steps;
     let mesh = sim.global_mesh().unwrap_or(&sim.setup().mesh);
-    let mut warnings = eprop::output::summary::warnings(&sim, mesh);
-    warnings.extend(crate::guard::plausible::load_warnings(&sim, mesh));
+    let whole = eprop::simulate::WholeMesh::of(mesh, &crate::guard::plausible::load_nodes(&sim));
+    let mut warnings = eprop::output::summary::warnings(&sim, &whole);
+    warnings.extend(crate::guard::plausible::load_warnings(&sim, &whole));
     warnings.extend(crate::guard::plausible::tool_warnings(&sim));
     if sim.loads().iter().any(|l| l.nodes.len() == 1) {
         warnings.push(

@@ -7,9 +7,8 @@
 
 use eprop::config::{Reading, CONTINUUM};
 use eprop::diagnostics::{fixed, short};
-use eprop::simulate::Simulation;
+use eprop::simulate::{Simulation, WholeMesh};
 use eprop_io::geom::{norm, sub};
-use eprop_mesh::Mesh;
 
 /// max |u| above this fraction of the mesh's bounding-box diagonal is warned about once (the
 /// model is a small-deformation one).
@@ -21,8 +20,8 @@ pub const AREA_FRACTION: f64 = 1e-6;
 /// The tissue law is meant for contact stresses sigma up to this multiple of `young`.
 pub const STRESS_RATIO: f64 = 1.0;
 
-fn diagonal(mesh: &Mesh) -> f64 {
-    let (lo, hi) = mesh.bounds();
+fn diagonal(mesh: &WholeMesh) -> f64 {
+    let (lo, hi) = mesh.bounds;
     norm(sub(hi, lo))
 }
 
@@ -46,8 +45,18 @@ fn metres_hint(sim: &Simulation, diag: f64) -> String {
     }
 }
 
-/// Warnings about the loads of a simulation on its whole mesh (the process that holds it).
-pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
+/// The nodes of the whole mesh `load_warnings` looks at (`Simulation::whole_mesh`): the
+/// first node of each load (global indices).
+pub fn load_nodes(sim: &Simulation) -> Vec<usize> {
+    sim.loads()
+        .iter()
+        .filter_map(|l| l.nodes.first().map(|&n| n as usize))
+        .collect()
+}
+
+/// Warnings about the loads of a simulation on its whole mesh (rank 0's view of it, with the
+/// nodes of `load_nodes`).
+pub fn load_warnings(sim: &Simulation, mesh: &WholeMesh) -> Vec<String> {
     let mut out = Vec::new();
     let diag = diagonal(mesh);
     let young = sim.setup().law.young;
@@ -75,9 +84,9 @@ pub fn load_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
         }
         if let Some(eprop::config::Selector::Nearest(p)) = entries.get(k).map(|e| e.selector.get_ref()) {
             let node = l.nodes[0] as usize;
-            let d = eprop::config::distance(mesh.points[node], p.0);
+            let x = mesh.node(node).1;
+            let d = eprop::config::distance(x, p.0);
             if d > NEAREST_FRACTION * diag {
-                let x = mesh.points[node];
                 out.push(format!(
                     "load {}: `nearest = [{}, {}, {}]` picks node {} at ({}, {}, {}), {d:.4e} away from the point ({:.1} % of the mesh's diagonal {diag:.4e}); fix: give a point on the surface of the mesh",
                     k + 1,
@@ -123,7 +132,7 @@ pub fn relaxation_time(m: f64, g: f64, k: f64) -> f64 {
 /// "Defaults"): the mesh's extent (a unit mistake: a mesh in mm read as metres spans 180 m),
 /// the mechanics' relaxation time, the time the energy takes to cross the mesh, and the
 /// stiffness of the tissue law. None in the paper reading (no units).
-pub fn scale_warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
+pub fn scale_warnings(sim: &Simulation, mesh: &WholeMesh) -> Vec<String> {
     let mut out = Vec::new();
     let st = sim.setup();
     if st.model.reading != Reading::Continuum {

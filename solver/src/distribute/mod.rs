@@ -5,6 +5,7 @@
 //! errors and exit statuses). Nothing outside this module names MPI: the rest of the crate
 //! holds a `comm::Comm`.
 
+pub mod checks;
 pub mod comm;
 pub mod field;
 pub mod halo;

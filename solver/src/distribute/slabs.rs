@@ -15,6 +15,7 @@
 //!   `eprop_partition::quality` measures them on the whole graph, from the slabs (the parts of
 //!   the neighbours in other slabs asked of their owners).
 
+use super::checks;
 use super::comm::{Comm, Handle, Mpi};
 use super::parts::{GlobalSizes, Part, StableHash};
 use super::ptscotch::{self, Slab};
@@ -587,10 +588,11 @@ fn sizes_of(slab: &MeshSlab, world: &Handle, comm: &dyn Comm) -> GlobalSizes {
 /// The start of a run from a VTKHDF mesh in slabs (every process of `world` calls, each with
 /// the `deferred` setup rank 0 made): each reads its slab, the node graph is built and split
 /// into one part per process, cells and coordinates move to their owners (`redistribute`),
-/// and each process builds its plan and resolves the scenario on its local mesh
-/// (`Setup::resolve_local`). Returns the process's part, with its slab for the static output
-/// (every process writes its slab's rows); rank 0 also reads the whole mesh for the summary
-/// and the load warnings (the one array of size N left: points, cells and ids).
+/// the whole mesh's checks are made of the shares (`checks`), and each process builds its
+/// plan and resolves the scenario on its local mesh (`Setup::resolve_local`). Returns the
+/// process's part, with its slab for the static output (every process writes its slab's
+/// rows); no process reads the whole mesh (the summary and the warnings take what they need
+/// of it by reductions, `Simulation::whole_mesh`).
 /// An error on any process is every process's (printed once, by rank 0).
 pub fn start(world: &Handle, setup: Setup) -> Result<(Part, Option<Mesh>)> {
     use mpi::topology::Communicator;
@@ -601,34 +603,8 @@ pub fn start(world: &Handle, setup: Setup) -> Result<(Part, Option<Mesh>)> {
     );
     let made = start_here(world, &comm, setup);
     let made = agree(world, &comm, made)?;
-    let global = match rank {
-        0 => Some(whole_mesh(&made.setup)),
-        _ => None,
-    };
-    let failed = comm.max(f64::from(u8::from(global.as_ref().is_some_and(|g| g.is_err()))));
-    if failed > 0.0 {
-        return match global {
-            Some(Err(e)) => Err(super::parts::Collective(format!("{e:#}")).into()),
-            _ => Err(super::parts::ReportedElsewhere.into()),
-        };
-    }
     tracing::debug!("rank {rank} of {size}: part made from the slabs");
-    Ok((made, global.map(|g| g.expect("checked"))))
-}
-
-/// The whole mesh for rank 0's summary and warnings, scaled as the slabs were, and
-/// checked as one process checks a mesh it reads, strictly: an inverted cell, which one
-/// process would turn over, is refused here rather than run as it is on the slabs.
-fn whole_mesh(setup: &Setup) -> Result<Mesh> {
-    let sc = &setup.scenario;
-    let path = sc.mesh_path();
-    let factor = crate::config::mesh::factor(sc)?;
-    let opts = eprop_io::ReadOptions { strict: true };
-    let mut mesh = crate::config::mesh::read_vtkhdf(&path, &opts)?;
-    if factor != 1.0 {
-        mesh.points.iter_mut().flatten().for_each(|x| *x *= factor);
-    }
-    Ok(mesh)
+    Ok((made, None))
 }
 
 fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
@@ -636,15 +612,16 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
     let sc = &setup.scenario;
     let path = sc.mesh_path();
     let factor = crate::config::mesh::factor(sc)?;
-    let mut slab = read(Some(comm), &path).map_err(|e| match e.is::<super::parts::ReportedElsewhere>() {
+    let named = |e: anyhow::Error| match e.is::<super::parts::ReportedElsewhere>() {
         true => e,
         false => anyhow!("{e:#}\n  (mesh named by {} [mesh] file)", sc.path.display()),
-    })?;
+    };
+    let mut slab = read(Some(comm), &path).map_err(named)?;
     crate::diagnostics::log_memory("reading the slab of the mesh");
-    if factor != 1.0 {
-        slab.points.iter_mut().flatten().for_each(|x| *x *= factor);
-    }
-    let sizes = sizes_of(&slab, world, comm);
+    // the whole mesh's checks, as one process makes them of the mesh it reads (unscaled)
+    let (n_slab_nodes, source) = (slab.nodes, path.display().to_string());
+    checks::first(comm, vec![checks::coordinates(&slab, &source)]).map_err(named)?;
+    checks::count(slab.cells, &source).map_err(named)?;
     let cells = cells_to_owners(&slab, Some(world))?;
     let vtxdist = cuts(slab.nodes, size);
     let graph = node_graph(&cells, &vtxdist, vtxdist[rank], vtxdist[rank + 1])?;
@@ -652,9 +629,16 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
     let (part, how) = split(&graph, size, Some(comm))?;
     tracing::info!("{} nodes split into {size} parts ({how:?}) from the slabs", slab.nodes);
     drop(graph);
-    let local = redistribute(&slab, &part, Some(world))?;
-    let (n_slab_nodes, source) = (slab.nodes, path.display().to_string());
+    let mut local = redistribute(&slab, &part, Some(world))?;
     drop(part);
+    let t = std::time::Instant::now();
+    checks::first(comm, checks::cells(&local, &source)).map_err(named)?;
+    tracing::debug!("the cells checked in {:.3} s", t.elapsed().as_secs_f64());
+    if factor != 1.0 {
+        slab.points.iter_mut().flatten().for_each(|x| *x *= factor);
+        local.points.iter_mut().flatten().for_each(|x| *x *= factor);
+    }
+    let sizes = sizes_of(&slab, world, comm);
     let found = comm.sum_i128(local.n_owned as i128) as usize;
     if found != n_slab_nodes {
         bail!(
@@ -663,7 +647,7 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
         );
     }
     let plan = plan_of(&local, rank);
-    let mesh = local_mesh(&local, &plan, &source);
+    let mut mesh = local_mesh(&local, &plan, &source);
     drop(local);
     crate::diagnostics::log_memory("the local mesh from the slabs");
     let owned = &mesh.points[..plan.numbering.n_owned];
@@ -677,6 +661,11 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
     let ends: Vec<f64> = comm.max_each(&ends.map(|x| -x));
     let bounds = ([-ends[0], -ends[1], -ends[2]], [ends[3], ends[4], ends[5]]);
     let halo = super::halo::Halo::new(plan.pattern.clone(), world.duplicate());
+    let t = std::time::Instant::now();
+    let comps = checks::components(&mesh, &plan.numbering.global, plan.numbering.n_owned, comm, &halo);
+    tracing::debug!("{comps} component(s) counted in {:.3} s", t.elapsed().as_secs_f64());
+    // the whole mesh's warnings (of the summary) ride with the local mesh
+    mesh.warnings.extend(checks::components_warning(comps));
     let setup = {
         let global = crate::config::local::Global {
             n_owned: plan.numbering.n_owned,

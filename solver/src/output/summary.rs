@@ -5,8 +5,7 @@ use crate::config::Stop;
 use crate::diagnostics::{fixed, peak_rss, spread};
 use crate::distribute::parts::GlobalSizes;
 use crate::output::series::Series;
-use crate::simulate::{scheme_name, Simulation};
-use eprop_mesh::Mesh;
+use crate::simulate::{scheme_name, Simulation, WholeMesh};
 use eprop_series::vtkhdf::ToolState;
 use serde::Serialize;
 
@@ -282,8 +281,8 @@ pub struct Timing {
 }
 
 /// The reader's warnings about the mesh and the simulation's about its nodes.
-pub fn warnings(sim: &Simulation, mesh: &Mesh) -> Vec<String> {
-    let mut warnings = mesh.warnings.clone();
+pub fn warnings(sim: &Simulation, mesh: &WholeMesh) -> Vec<String> {
+    let mut warnings = mesh.warnings.to_vec();
     if sim.inactive_nodes() > 0 {
         warnings.push(format!(
             "{} node(s) belong to no cell and stay at rest",
@@ -307,8 +306,8 @@ pub fn summarize(
     let probes = sim.probes();
     let halo_wait = sim.comm().max(sim.prop.halo.wait_seconds());
     let peak = sim.comm().max(peak_rss() as f64);
-    let mesh = sim.global_mesh()?;
-    let mut warnings = warnings(sim, mesh);
+    let mesh = sim.whole_mesh(&[imax as usize])?;
+    let mut warnings = warnings(sim, &mesh);
     warnings.extend(run_warnings);
     if let Stop::Equilibrium { tol, .. } = sim.setup().time.stop {
         let residuals = sim.steady_residuals();
@@ -328,15 +327,15 @@ pub fn summarize(
             ));
         }
     }
-    let imax = imax as usize;
+    let (max_node, max_at) = mesh.node(imax as usize);
     let plan = sim.step_plan();
     let (append_first, append_last) = series.append_medians();
     let n = sizes.nodes;
     Some(Summary {
         scenario: sim.setup().scenario.path.display().to_string(),
-        mesh: mesh.source.clone(),
+        mesh: mesh.source.to_string(),
         nodes: n,
-        cells: mesh.n_cells(),
+        cells: mesh.cells,
         processes: sim.comm().size(),
         fixed_nodes: sim.fixed_nodes(),
         scheme: scheme_name(sim.setup().model.scheme()).to_string(),
@@ -362,8 +361,8 @@ pub fn summarize(
         peak_memory_mib: peak / 1048576.0,
         rank0_scatter_peak_mib: t.rank0_scatter_peak as f64 / 1048576.0,
         max_displacement: umax,
-        max_displacement_node: mesh.node_ids[imax],
-        max_displacement_at: mesh.points[imax],
+        max_displacement_node: max_node,
+        max_displacement_at: max_at,
         total_energy: total,
         max_speed: sim.max_speed(),
         loads: sim

@@ -32,6 +32,72 @@ impl Simulation {
         self.global.as_ref()
     }
 
+    /// What the summary and the warnings take of the whole mesh (every process calls): its
+    /// source, cell count, bounds and reader's warnings, and the input id and position of the
+    /// nodes `nodes` (global indices). From the whole mesh where a process holds it; on a
+    /// start from the slabs (no process holds it) by reductions over the processes' owned
+    /// nodes. Some on rank 0 only.
+    pub fn whole_mesh(&self, nodes: &[usize]) -> Option<WholeMesh<'_>> {
+        if self.rows.is_none() {
+            return self.global.as_ref().map(|m| WholeMesh::of(m, nodes));
+        }
+        let c = self.comm.as_ref();
+        let n_owned = self.numbering.n_owned;
+        let points = &self.setup.mesh.points[..n_owned];
+        let mut ends = [f64::NEG_INFINITY; 6];
+        for p in points {
+            for d in 0..3 {
+                ends[d] = ends[d].max(-p[d]);
+                ends[d + 3] = ends[d + 3].max(p[d]);
+            }
+        }
+        let ends = c.max_each(&ends);
+        // each node asked: its owner sends its id (two 32-bit halves) and its position
+        let owner: std::collections::HashMap<u64, usize> = nodes
+            .iter()
+            .filter_map(|&g| {
+                self.gid[..n_owned]
+                    .iter()
+                    .position(|&x| x == g as u64)
+                    .map(|l| (g as u64, l))
+            })
+            .collect();
+        let mut mine = Vec::with_capacity(6 * nodes.len());
+        for &g in nodes {
+            match owner.get(&(g as u64)) {
+                Some(&l) => {
+                    let id = self.setup.mesh.node_ids[l];
+                    let p = points[l];
+                    mine.extend([1.0, (id & 0xffff_ffff) as f64, (id >> 32) as f64, p[0], p[1], p[2]]);
+                }
+                None => mine.extend([0.0; 6]),
+            }
+        }
+        let all = c.all_gather(&mine);
+        if c.rank() != 0 {
+            return None;
+        }
+        let found = nodes
+            .iter()
+            .enumerate()
+            .map(|(k, &g)| {
+                let w = all
+                    .chunks_exact(6 * nodes.len())
+                    .map(|r| &r[6 * k..6 * k + 6])
+                    .find(|w| w[0] == 1.0)
+                    .expect("every node has an owner");
+                (g, w[1] as u64 | (w[2] as u64) << 32, [w[3], w[4], w[5]])
+            })
+            .collect();
+        Some(WholeMesh {
+            source: &self.setup.mesh.source,
+            cells: self.rows.as_ref().map_or(0, |r| r.cells),
+            bounds: ([-ends[0], -ends[1], -ends[2]], [ends[3], ends[4], ends[5]]),
+            warnings: &self.setup.mesh.warnings,
+            nodes: found,
+        })
+    }
+
     /// Where the static mesh of an output comes from: every process's slab on a start from
     /// the slabs (`distribute::slabs`: each writes its slab's rows), else the whole mesh on
     /// the process that holds it.
@@ -184,5 +250,38 @@ impl Simulation {
     /// Operator applications of every step this process advanced.
     pub(crate) fn applications(&self) -> &[u32] {
         &self.applications
+    }
+}
+
+/// What the summary and the warnings take of the whole mesh (`Simulation::whole_mesh`).
+pub struct WholeMesh<'a> {
+    /// Where it came from.
+    pub source: &'a str,
+    /// Its volume cells.
+    pub cells: usize,
+    /// Its bounding box (lowest and highest coordinates).
+    pub bounds: ([f64; 3], [f64; 3]),
+    /// The reader's warnings about it.
+    pub warnings: &'a [String],
+    /// The nodes asked for: global index, input id, position.
+    nodes: Vec<(usize, u64, [f64; 3])>,
+}
+
+impl<'a> WholeMesh<'a> {
+    /// The view of a whole mesh a process holds, with the nodes `nodes` (global indices).
+    pub fn of(m: &'a Mesh, nodes: &[usize]) -> WholeMesh<'a> {
+        WholeMesh {
+            source: &m.source,
+            cells: m.n_cells(),
+            bounds: m.bounds(),
+            warnings: &m.warnings,
+            nodes: nodes.iter().map(|&g| (g, m.node_ids[g], m.points[g])).collect(),
+        }
+    }
+
+    /// The input id and position of node `g` (global index), one of the nodes asked for.
+    pub fn node(&self, g: usize) -> (u64, [f64; 3]) {
+        let &(_, id, p) = self.nodes.iter().find(|n| n.0 == g).expect("a node asked for");
+        (id, p)
     }
 }

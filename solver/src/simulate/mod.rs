@@ -36,6 +36,7 @@ use eprop_series::vtkhdf::ToolState;
 use rayon::prelude::*;
 
 use crate::propagate::integrate::euler::SAFETY;
+pub use access::WholeMesh;
 pub use mesh_info::{mesh_info, MeshInfo};
 pub use stop::StopToken;
 

@@ -133,12 +133,20 @@ pub fn block(n: usize, size: usize, r: usize) -> usize {
     (r as u128 * n as u128 / size as u128) as usize
 }
 
+/// The connectivity ids `read_slab` reads at a time (8 MiB as int64).
+const CONNECTIVITY_CHUNK: i64 = 1 << 20;
+
 /// Reads process `rank`'s slab (of `size`) of the VTKHDF mesh at `path`: under MPI (`comm`)
 /// the file is opened by every process of `comm` together (MPI-IO), each reading its own
 /// rows; without, the whole mesh is one slab. A file that is not such a mesh, or whose arrays
 /// disagree with its counts, is refused by name (on the process that finds it: the caller
 /// agrees the outcome).
 pub fn read_slab(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>) -> Result<MeshSlab> {
+    read_slab_in(path, comm, CONNECTIVITY_CHUNK)
+}
+
+/// `read_slab` reading the connectivity `chunk` ids at a time (at least one cell).
+fn read_slab_in(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>, chunk: i64) -> Result<MeshSlab> {
     use mpi::topology::Communicator;
     let (rank, size) = comm.map_or((0, 1), |c| (c.rank() as usize, c.size() as usize));
     let f = h5(access(comm).open(path), path, "cannot open")?;
@@ -187,18 +195,13 @@ pub fn read_slab(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>) 
             path.display()
         );
     }
-    let read_1d = |d: hdf5::Dataset, a: usize, b: usize, name: &str| -> Result<Vec<i64>> {
+    let read_1d = |d: &hdf5::Dataset, a: usize, b: usize, name: &str| -> Result<Vec<i64>> {
         if a == b {
             return Ok(vec![]);
         }
         Ok(h5(d.read_slice_1d::<i64, _>(s![a..b]), path, name)?.to_vec())
     };
-    let raw = read_1d(
-        check("Connectivity", &[nconn])?,
-        k0 as usize,
-        k1 as usize,
-        "Connectivity",
-    )?;
+    let connectivity = check("Connectivity", &[nconn])?;
     let types: Vec<u8> = match c0 == c1 {
         true => vec![],
         false => h5(
@@ -209,7 +212,7 @@ pub fn read_slab(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>) 
         .to_vec(),
     };
     let tags = match top.link_exists("CellData") && top.link_exists("CellData/tag") {
-        true => read_1d(check("CellData/tag", &[cells])?, c0, c1, "CellData/tag")?,
+        true => read_1d(&check("CellData/tag", &[cells])?, c0, c1, "CellData/tag")?,
         false => vec![0; c1 - c0],
     };
     let mut slab = MeshSlab {
@@ -219,14 +222,26 @@ pub fn read_slab(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>) 
         cell_start: c0,
         conn_start: k0 as usize,
         offsets: Vec::with_capacity(c1 - c0 + 1),
-        conn: Vec::with_capacity(raw.len()),
+        conn: Vec::with_capacity((k1 - k0) as usize),
         kinds: Vec::with_capacity(c1 - c0),
         cell_tags: Vec::with_capacity(c1 - c0),
         ..Default::default()
     };
     slab.offsets.push(0);
+    // the connectivity is read in chunks of whole cells, each narrowed to u32 as it comes
+    // (not the slab's whole connectivity as int64 at once)
+    let (mut raw, mut from, mut to) = (Vec::new(), k0, k0);
     for c in 0..c1 - c0 {
-        let (s, e) = ((starts[c] - k0) as usize, (starts[c + 1] - k0) as usize);
+        if starts[c + 1] > to {
+            let end = (c + 1..=c1 - c0)
+                .take_while(|&e| starts[e] - starts[c] <= chunk)
+                .last()
+                .unwrap_or(c + 1)
+                .max(c + 1);
+            (from, to) = (starts[c], starts[end]);
+            raw = read_1d(&connectivity, from as usize, to as usize, "Connectivity")?;
+        }
+        let (s, e) = ((starts[c] - from) as usize, (starts[c + 1] - from) as usize);
         let vtk = &raw[s..e];
         let Some((kind, perm)) = volume_cell(types[c] as i64) else {
             bail!(
@@ -270,7 +285,7 @@ pub fn read_slab(path: &Path, comm: Option<&mpi::topology::SimpleCommunicator>) 
         )?;
         slab.points = pts.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
         slab.node_ids = match top.link_exists("PointData") && top.link_exists("PointData/node_ids") {
-            true => read_1d(check("PointData/node_ids", &[nodes])?, p0, p1, "PointData/node_ids")?
+            true => read_1d(&check("PointData/node_ids", &[nodes])?, p0, p1, "PointData/node_ids")?
                 .into_iter()
                 .map(|i| i as u64)
                 .collect(),
@@ -296,6 +311,14 @@ mod tests {
         m.node_ids.iter_mut().for_each(|i| *i = *i * 3 + 5);
         write_mesh_file(&m, &path).unwrap();
         let whole = read_slab(&path, None).unwrap();
+        // the connectivity read a few ids at a time: the same slab
+        for chunk in [1, 5, 13] {
+            let by = read_slab_in(&path, None, chunk).unwrap();
+            assert_eq!(
+                (&by.conn, &by.offsets, &by.kinds),
+                (&whole.conn, &whole.offsets, &whole.kinds)
+            );
+        }
         assert_eq!((whole.nodes, whole.cells), (m.n_nodes(), m.n_cells()));
         assert_eq!((&whole.points, &whole.node_ids), (&m.points, &m.node_ids));
         assert_eq!(
