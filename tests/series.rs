@@ -62,6 +62,51 @@ fn restart_continues_bit_for_bit_on_1_and_2_ranks() {
 }
 
 #[test]
+fn a_restart_of_a_complete_series_says_so_and_changes_nothing_on_1_and_2_ranks() {
+    let d = tempfile::tempdir().unwrap();
+    let sc = scenario(d.path(), "[output]\nevery = 2\n", 6);
+    let sc = sc.to_str().unwrap();
+    let h5 = d.path().join("a.h5");
+    let h = h5.to_str().unwrap();
+    ok(&serial(&["run", sc, "-q", "-o", h], 1));
+    let before = std::fs::read(&h5).unwrap();
+    for n in [1, 2] {
+        let out = if n == 1 {
+            serial(&["run", sc, "--restart", h], 1)
+        } else {
+            mpirun(n, &["run", sc, "--restart", h])
+        };
+        ok(&out);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            text.contains("steps       6 to t = ") && text.contains("the series was complete already; nothing to do"),
+            "{text}"
+        );
+        // no figures of a run that did not happen (they were -0.000 s and -0 node-substeps/s)
+        assert!(
+            !text.contains("-0") && !text.contains("speed") && !text.contains("restarted at"),
+            "{text}"
+        );
+        assert!(text.contains("(4 steps)"), "{text}");
+        // the JSON summary says it too, with no negative figures
+        let out = serial(&["run", sc, "--restart", h, "--json"], 1);
+        ok(&out);
+        let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(json["already_complete"], true, "{json}");
+        for k in ["output_seconds", "node_substeps_per_second", "wall_seconds"] {
+            let v = json[k].as_f64().unwrap();
+            assert!(v >= 0.0 && v.is_sign_positive(), "{k} = {v}");
+        }
+        assert_eq!(steps_complete(&h5), 4);
+        assert_eq!(
+            std::fs::read(&h5).unwrap(),
+            before,
+            "the file changed on {n} process(es)"
+        );
+    }
+}
+
+#[test]
 fn restart_refuses_another_scenario_or_mesh() {
     let d = tempfile::tempdir().unwrap();
     let sc = scenario(d.path(), "", 5);

@@ -392,6 +392,8 @@ fn steps(
             budget
         }
     };
+    // a restart of a series that is complete already: nothing to step or write
+    let already_complete = !fresh && sim.done();
     feed.after_step(sim);
     let restarted_at = sim.step();
     let setup_seconds = s.t0.elapsed().as_secs_f64();
@@ -447,6 +449,7 @@ fn steps(
         setup_seconds,
         wall_seconds: t1.elapsed().as_secs_f64(),
         restarted_from_step: s.restart.then_some(restarted_at),
+        already_complete,
         rank0_scatter_peak: s.rank0_scatter_peak,
     };
     Ok(summarize(sim, &s.sizes, &out.series, timing, out.warnings))

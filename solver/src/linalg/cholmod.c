@@ -31,10 +31,16 @@ void *eprop_cholmod_factor(int n, const int *colp, const int *rowi, const double
     f->c.error_handler = NULL;
     f->c.supernodal = supernodal ? CHOLMOD_SUPERNODAL : CHOLMOD_SIMPLICIAL;
     f->c.final_ll = 1;
-    /* every ordering CHOLMOD has (AMD, METIS, nested dissection, ...), the one with the
-     * fewest entries in the factor kept: the solves read the factor four times a step (on the
-     * 7,210-node tetgen kidney 3.4e5 entries against AMD's 4.1e5) */
-    f->c.nmethods = 9;
+    /* one ordering: CHOLMOD's nested dissection (METIS's node separators) down to parts of
+     * 64 nodes, ordered by constrained minimum degree. The solves read the factor four times
+     * a step, so its entries set the step time; on ten tetgen organ meshes of 1.2k-32k
+     * unknowns this ordering's factor had -0.6 % to +0.05 % the entries of the best of the
+     * nine orderings CHOLMOD can try (AMD's had up to 60 % more), and its analysis took a
+     * quarter of the time that trying all nine did (BENCHMARKS.md, "The fill-reducing
+     * ordering"). The METIS these calls reach is the one linked into eprop. */
+    f->c.nmethods = 1;
+    f->c.method[0].ordering = CHOLMOD_NESDIS;
+    f->c.method[0].nd_small = 64;
     int nnz = colp[n];
     cholmod_sparse *A = cholmod_allocate_sparse(n, n, nnz, 1, 1, 1, CHOLMOD_REAL, &f->c);
     if (!A) goto fail;

@@ -317,7 +317,8 @@ impl Series {
 
     /// Seconds spent appending.
     pub fn seconds(&self) -> f64 {
-        self.appends.iter().sum()
+        // + 0.0: none is 0, not the empty sum's -0
+        self.appends.iter().sum::<f64>() + 0.0
     }
 
     /// Median seconds of one append over the first and over the last 100 appends.

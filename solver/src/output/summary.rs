@@ -56,6 +56,8 @@ pub struct Summary {
     pub setup_seconds: f64,
     /// The step a restarted run continued from.
     pub restarted_from_step: Option<u64>,
+    /// A restart found the series complete already: no step was computed or written.
+    pub already_complete: bool,
     /// Time spent writing output (included in wall_seconds after the first step).
     pub output_seconds: f64,
     /// Median time of one output append over the first and the last 100 output steps.
@@ -111,6 +113,16 @@ impl std::fmt::Display for Summary {
             "  mesh        {} ({} nodes, {} cells, {} fixed) on {} process(es)",
             self.mesh, self.nodes, self.cells, self.fixed_nodes, self.processes
         )?;
+        if self.already_complete {
+            // nothing ran: no figures of a run that did not happen
+            writeln!(
+                f,
+                "  steps       {} to t = {}: the series was complete already; nothing to do",
+                self.steps,
+                fixed(self.time, 6)
+            )?;
+            return write!(f, "  output      {} ({} steps)", self.output, self.output_steps);
+        }
         writeln!(
             f,
             "  scheme      {}, Euler substep h = {:.4e} (bound {:.4e}), {} per step, dt = {:.4e}",
@@ -276,6 +288,8 @@ pub struct Timing {
     pub wall_seconds: f64,
     /// The step a restarted run continued from.
     pub restarted_from_step: Option<u64>,
+    /// A restart found the series complete already (no step was computed).
+    pub already_complete: bool,
     /// Peak resident memory of rank 0 once the parts were sent (distributed runs).
     pub rank0_scatter_peak: u64,
 }
@@ -355,9 +369,12 @@ pub fn summarize(
         output_append_first100_median_s: append_first,
         output_append_last100_median_s: append_last,
         halo_wait_seconds: halo_wait,
+        // + 0.0: never -0 (an empty sum is -0)
         node_substeps_per_second: (n as f64 * sim.applications().iter().map(|&a| a as f64).sum::<f64>())
-            / t.wall_seconds.max(1e-12),
+            / t.wall_seconds.max(1e-12)
+            + 0.0,
         restarted_from_step: t.restarted_from_step,
+        already_complete: t.already_complete,
         peak_memory_mib: peak / 1048576.0,
         rank0_scatter_peak_mib: t.rank0_scatter_peak as f64 / 1048576.0,
         max_displacement: umax,
