@@ -43,8 +43,6 @@ fn main() -> anyhow::Result<()> {
         1e-5,
         &settings,
         "x",
-        0,
-        String::new(),
         sim.comm(),
     )?;
     // one process (`Simulation::new`): its collectives are the serial ones

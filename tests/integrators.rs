@@ -54,22 +54,7 @@ fn stepper(
         "rkl2" => Box::new(Rkl2::new(hb, dt, 1, 1 << 20, layout, "t", String::new()).unwrap()),
         _ => {
             let gid: Vec<u64> = (0..layout.n_local as u64).collect();
-            Box::new(
-                Implicit::new(
-                    prop,
-                    vol,
-                    active,
-                    &gid,
-                    dt,
-                    hb,
-                    &settings(),
-                    "t",
-                    0,
-                    String::new(),
-                    &Serial,
-                )
-                .unwrap(),
-            )
+            Box::new(Implicit::new(prop, vol, active, &gid, dt, hb, &settings(), "t", &Serial).unwrap())
         }
     }
 }
@@ -438,8 +423,6 @@ fn a_solve_that_does_not_converge_is_an_error_that_names_the_fix() {
             hb,
             &st,
             "s.toml",
-            0,
-            String::new(),
             &Serial,
         )
         .unwrap(),
@@ -644,8 +627,7 @@ fn the_error_estimates_match_the_true_error_on_an_eigenvector() {
                 if kind.ends_with("multigrid") {
                     set.preconditioner = eprop::config::integrator::Preconditioner::Multigrid;
                 }
-                let mut imp =
-                    Implicit::new(&prop, &vol, &active, &gid, dt, hb, &set, "t", 0, String::new(), &Serial).unwrap();
+                let mut imp = Implicit::new(&prop, &vol, &active, &gid, dt, hb, &set, "t", &Serial).unwrap();
                 imp.set_accuracy(0.5);
                 Box::new(imp)
             };

@@ -38,8 +38,6 @@ fn implicit(s: &Simulation, pre: Preconditioner, tolerance: f64) -> Implicit {
         hb,
         &settings,
         "t",
-        0,
-        String::new(),
         &Serial,
     )
     .unwrap()

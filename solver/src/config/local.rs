@@ -79,28 +79,11 @@ impl Setup {
     /// The sections that do not need the mesh resolved, the others left empty (an empty mesh):
     /// `resolve_local` finishes it on each process's share of the mesh.
     pub fn deferred(scenario: Scenario) -> Result<Setup> {
-        let (sc, f) = (&scenario, &scenario.file);
+        let sc = &scenario;
         super::mesh::factor(sc)?;
         check_supported(sc)?;
-        let time = super::time::resolve(sc, &f.time)?;
-        let output = super::output::resolve(sc);
-        let law = f.tissue.law(f.model.reading);
-        let tools = super::tools::resolve(sc, &f.tool)?;
-        Ok(Setup {
-            tools,
-            model: f.model.clone(),
-            integrator: f.integrator.settings(f.model.integrator),
-            law,
-            time,
-            output,
-            performance: f.performance.resolve(),
-            materials: super::tissue::Materials::uniform(0, crate::config::PAPER_TISSUE),
-            fixed: Vec::new(),
-            supports: Vec::new(),
-            loads: Vec::new(),
-            mesh: Mesh::new(sc.mesh_path().display().to_string()),
-            scenario,
-        })
+        let mesh = Mesh::new(sc.mesh_path().display().to_string());
+        Setup::without_mesh_sections(scenario, mesh)
     }
 
     /// Whether this setup waits for `resolve_local` (made by `deferred`).

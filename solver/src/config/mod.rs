@@ -432,15 +432,26 @@ impl Setup {
 
     /// Resolves a scenario against an already loaded mesh, one section after the other.
     pub fn with_mesh(scenario: Scenario, mesh: Mesh) -> Result<Setup> {
+        let mut s = Setup::without_mesh_sections(scenario, mesh)?;
+        let (sc, f) = (&s.scenario, &s.scenario.file);
+        s.materials = material::resolve(sc, &f.material, &f.model, s.law, f.tissue.poisson, &s.mesh)?;
+        (s.fixed, s.supports) = fixed::resolve(sc, &f.fixed, &s.mesh)?;
+        s.loads = loads::resolve(sc, &f.load, &s.mesh, &s.fixed)?;
+        scales::check(&s)?;
+        Ok(s)
+    }
+
+    /// The sections that need no mesh (time, output, the tissue law, tools, the model, the
+    /// integrator and performance settings), beside `mesh`; the mesh's sections (materials,
+    /// supports, loads) empty: `with_mesh` resolves them on the whole mesh, `resolve_local` on
+    /// a process's share.
+    pub(crate) fn without_mesh_sections(scenario: Scenario, mesh: Mesh) -> Result<Setup> {
         let (sc, f) = (&scenario, &scenario.file);
         let time = time::resolve(sc, &f.time)?;
         let output = output::resolve(sc);
         let law = f.tissue.law(f.model.reading);
-        let materials = material::resolve(sc, &f.material, &f.model, law, f.tissue.poisson, &mesh)?;
-        let (fixed, supports) = fixed::resolve(sc, &f.fixed, &mesh)?;
-        let loads = loads::resolve(sc, &f.load, &mesh, &fixed)?;
         let tools = tools::resolve(sc, &f.tool)?;
-        let setup = Setup {
+        Ok(Setup {
             tools,
             model: f.model.clone(),
             integrator: f.integrator.settings(f.model.integrator),
@@ -448,15 +459,13 @@ impl Setup {
             time,
             output,
             performance: f.performance.resolve(),
-            materials,
-            fixed,
-            supports,
-            loads,
+            materials: tissue::Materials::uniform(0, PAPER_TISSUE),
+            fixed: Vec::new(),
+            supports: Vec::new(),
+            loads: Vec::new(),
             mesh,
             scenario,
-        };
-        scales::check(&setup)?;
-        Ok(setup)
+        })
     }
 }
 

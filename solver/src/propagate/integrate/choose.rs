@@ -190,19 +190,11 @@ fn euler(cx: &Context, why: String) -> Result<Box<dyn Stepper>> {
     Ok(Box::new(e))
 }
 
-fn implicit(cx: &Context, per_step: usize, why: String) -> Result<Implicit> {
+/// The implicit stepper on the context's operator with `settings` (the scenario's, or the
+/// real-time mode's lighter start).
+fn implicit(cx: &Context, settings: &Settings) -> Result<Implicit> {
     Implicit::new(
-        cx.prop,
-        cx.vol,
-        cx.active,
-        cx.gid,
-        cx.dt,
-        cx.h_bound,
-        cx.settings,
-        cx.path,
-        per_step,
-        why,
-        cx.comm,
+        cx.prop, cx.vol, cx.active, cx.gid, cx.dt, cx.h_bound, settings, cx.path, cx.comm,
     )
 }
 
@@ -455,7 +447,7 @@ pub fn build(cx: &mut Context) -> Result<Box<dyn Stepper>> {
             Ok(Box::new(r))
         }
         Kind::Implicit => {
-            let mut imp = implicit(cx, 0, String::new())?;
+            let mut imp = implicit(cx, cx.settings)?;
             imp.set_accuracy(s.accuracy);
             // a trial solve estimates the work per step (for `eprop check` and the summary)
             let it = imp.trial(cx.prop, cx.gid, cx.comm)?;
@@ -515,19 +507,7 @@ fn realtime(cx: &mut Context, solver: RealtimeSolver) -> Result<Box<dyn Stepper>
         preconditioner: Preconditioner::Jacobi,
         ..cx.settings.clone()
     };
-    let mut imp = Implicit::new(
-        cx.prop,
-        cx.vol,
-        cx.active,
-        cx.gid,
-        cx.dt,
-        cx.h_bound,
-        &light,
-        cx.path,
-        0,
-        String::new(),
-        cx.comm,
-    )?;
+    let mut imp = implicit(cx, &light)?;
     // a direct solver where the mesh is small enough and CHOLMOD is there (unless the
     // scenario asks for the iterations)
     let tried = match solver {
@@ -829,7 +809,7 @@ impl Candidates {
         let floor = CG_COST * (2.0 * 3.0 + 1.0);
         let mut imp = None;
         if floor * MARGIN < substeps {
-            let mut i = implicit(cx, 0, String::new())?;
+            let mut i = implicit(cx, cx.settings)?;
             if let Ok(it) = i.trial(cx.prop, cx.gid, cx.comm) {
                 i.set_accuracy(s.accuracy);
                 imp = Some((i, it));

@@ -78,8 +78,6 @@ impl Implicit {
         h_bound: f64,
         settings: &Settings,
         path: &str,
-        per_step: usize,
-        why: String,
         comm: &dyn Comm,
     ) -> Result<Implicit> {
         let layout = prop.layout();
@@ -92,9 +90,10 @@ impl Implicit {
                 h: super::euler_substep(dt, h_bound),
                 step: dt,
                 h_bound,
-                per_step,
-                cost: super::choose::CG_COST * per_step as f64,
-                why,
+                // the chooser sets them from its trial (`set_plan`)
+                per_step: 0,
+                cost: 0.0,
+                why: String::new(),
             },
             errors: ErrorState::new(1.0),
             solver,
