@@ -86,13 +86,8 @@ pub fn resolve(sc: &Scenario, sets: &[Entry<FixedSet>], mesh: &Mesh) -> Result<(
 pub(crate) fn support_plane(selector: &Selector, set: &[bool], mesh: &Mesh) -> Option<Plane> {
     let (lo, hi) = mesh.bounds();
     let tol = 1e-9 * norm(sub(hi, lo));
-    if let Selector::HalfSpace(h) = selector {
-        let n = norm(h.normal);
-        return Some(Plane {
-            point: h.point,
-            normal: scale(h.normal, 1.0 / n),
-            tol,
-        });
+    if let Some(p) = half_space_plane(selector, tol) {
+        return Some(p);
     }
     let pts: Vec<[f64; 3]> = (0..set.len()).filter(|&i| set[i]).map(|i| mesh.points[i]).collect();
     let a = *pts.first()?;
@@ -102,6 +97,36 @@ pub(crate) fn support_plane(selector: &Selector, set: &[bool], mesh: &Mesh) -> O
             .max_by(|p, q| from(*p).total_cmp(&from(*q)))
             .unwrap_or(a)
     };
+    plane_of_set(a, tol, &far, &|t| pts.iter().any(|&p| t(p)), &|t| {
+        mesh.points.iter().any(|&p| t(p))
+    })
+}
+
+/// A half-space selector's boundary plane (unit normal), None for another selector.
+pub(crate) fn half_space_plane(selector: &Selector, tol: f64) -> Option<Plane> {
+    let Selector::HalfSpace(h) = selector else {
+        return None;
+    };
+    let n = norm(h.normal);
+    Some(Plane {
+        point: h.point,
+        normal: scale(h.normal, 1.0 / n),
+        tol,
+    })
+}
+
+/// The plane of a set whose first point is `a`, if its points lie in one plane (within
+/// `tol`) with the mesh on one side: through `a`, the point `far` from it and the point
+/// farthest from that line. `far(from)` is the set's point of largest `from` (ties: the
+/// highest index), `set_any(t)` and `mesh_any(t)` whether `t` holds at a point of the set and
+/// of the mesh (whole, or by reductions over the processes: `config::local`).
+pub(crate) fn plane_of_set(
+    a: [f64; 3],
+    tol: f64,
+    far: &dyn Fn(&dyn Fn([f64; 3]) -> f64) -> [f64; 3],
+    set_any: &dyn Fn(&dyn Fn([f64; 3]) -> bool) -> bool,
+    mesh_any: &dyn Fn(&dyn Fn([f64; 3]) -> bool) -> bool,
+) -> Option<Plane> {
     let b = far(&|p| norm(sub(p, a)));
     let ab = sub(b, a);
     let c = far(&|p| norm(cross(ab, sub(p, a))));
@@ -111,13 +136,13 @@ pub(crate) fn support_plane(selector: &Selector, set: &[bool], mesh: &Mesh) -> O
         return None;
     }
     let normal = scale(nn, 1.0 / m);
-    if pts.iter().any(|&p| dot(sub(p, a), normal).abs() > tol) {
+    if set_any(&|p| dot(sub(p, a), normal).abs() > tol) {
         return None;
     }
     let side = |p: [f64; 3]| dot(sub(p, a), normal);
-    let normal = if mesh.points.iter().all(|&p| side(p) <= tol) {
+    let normal = if !mesh_any(&|p| side(p) > tol) {
         normal
-    } else if mesh.points.iter().all(|&p| side(p) >= -tol) {
+    } else if !mesh_any(&|p| side(p) < -tol) {
         scale(normal, -1.0)
     } else {
         return None;

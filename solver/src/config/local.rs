@@ -16,7 +16,7 @@ use super::loads::{Load, Push};
 use super::select::{distance, nearest_in_reach, nearest_surface_flags, surface_node_areas, Keys, Selector};
 use super::{Reading, Scenario, Setup};
 use anyhow::{anyhow, Result};
-use eprop_io::geom::{cross, dot, norm, scale, sub};
+use eprop_io::geom::{dot, norm, sub};
 use eprop_mesh::Mesh;
 use toml::Spanned;
 
@@ -44,11 +44,49 @@ pub struct Global<'a> {
     /// Bounds of the whole mesh.
     pub bounds: ([f64; 3], [f64; 3]),
     pub red: &'a dyn Reduce,
+    /// The piece (connected component) of each local node, named by the lowest global index
+    /// in it (`piece_labels`).
+    pub pieces: &'a [f64],
+}
+
+/// Whether `b` holds on any process.
+fn any(red: &dyn Reduce, b: bool) -> bool {
+    red.max(f64::from(u8::from(b))) > 0.0
+}
+
+/// The piece (connected component of the whole mesh) of each local node, named by the lowest
+/// global index in it: the local components' least labels spread through the halos until no
+/// process changes one (a few rounds: one per local part a piece crosses). Every process calls.
+pub fn piece_labels(mesh: &Mesh, gid: &[u32], n_owned: usize, red: &dyn Reduce) -> Vec<f64> {
+    let (comp, k) = eprop_mesh::mesh::components(mesh);
+    let mut label: Vec<f64> = gid.iter().map(|&g| f64::from(g)).collect();
+    let mut rounds = 0;
+    loop {
+        let mut low = vec![f64::INFINITY; k];
+        for (i, &c) in comp.iter().enumerate() {
+            low[c as usize] = low[c as usize].min(label[i]);
+        }
+        let mut changed = false;
+        for i in 0..n_owned {
+            let l = low[comp[i] as usize];
+            if l < label[i] {
+                label[i] = l;
+                changed = true;
+            }
+        }
+        red.exchange(&mut label);
+        rounds += 1;
+        if !any(red, changed) {
+            break;
+        }
+    }
+    tracing::debug!("pieces labelled in {rounds} rounds of the halo exchange");
+    label
 }
 
 impl Global<'_> {
     fn any(&self, b: bool) -> bool {
-        self.red.max(f64::from(u8::from(b))) > 0.0
+        any(self.red, b)
     }
     /// 1e-9 of the whole mesh's diagonal (the half-space selector's tolerance).
     fn tol(&self) -> f64 {
@@ -258,13 +296,8 @@ fn gather_points(g: &Global, mine: Option<(u32, [f64; 3])>) -> Vec<(u32, [f64; 3
 /// taken by reductions over the owned nodes.
 fn support_plane(selector: &Selector, set: &[bool], mesh: &Mesh, g: &Global) -> Option<Plane> {
     let tol = g.tol();
-    if let Selector::HalfSpace(h) = selector {
-        let n = norm(h.normal);
-        return Some(Plane {
-            point: h.point,
-            normal: scale(h.normal, 1.0 / n),
-            tol,
-        });
+    if let Some(p) = super::fixed::half_space_plane(selector, tol) {
+        return Some(p);
     }
     let owned: Vec<usize> = (0..g.n_owned).filter(|&i| set[i]).collect();
     // the first point (lowest global index)
@@ -279,28 +312,14 @@ fn support_plane(selector: &Selector, set: &[bool], mesh: &Mesh, g: &Global) -> 
         let mine = pick(&mut owned.iter().map(|&i| (g.gid[i], mesh.points[i])));
         pick(&mut gather_points(g, mine).into_iter()).map_or(a, |x| x.1)
     };
-    let b = far(&|p| norm(sub(p, a)));
-    let ab = sub(b, a);
-    let c = far(&|p| norm(cross(ab, sub(p, a))));
-    let nn = cross(ab, sub(c, a));
-    let m = norm(nn);
-    if !(m > 0.0) || !m.is_finite() {
-        return None;
-    }
-    let normal = scale(nn, 1.0 / m);
-    if g.any(owned.iter().any(|&i| dot(sub(mesh.points[i], a), normal).abs() > tol)) {
-        return None;
-    }
-    let side = |p: [f64; 3]| dot(sub(p, a), normal);
     let pts = &mesh.points[..g.n_owned];
-    let normal = if !g.any(pts.iter().any(|&p| side(p) > tol)) {
-        normal
-    } else if !g.any(pts.iter().any(|&p| side(p) < -tol)) {
-        scale(normal, -1.0)
-    } else {
-        return None;
-    };
-    Some(Plane { point: a, normal, tol })
+    super::fixed::plane_of_set(
+        a,
+        tol,
+        &far,
+        &|t| g.any(owned.iter().any(|&i| t(mesh.points[i]))),
+        &|t| g.any(pts.iter().any(|&p| t(p))),
+    )
 }
 
 /// `loads::resolve` on the local mesh: each load's contact nodes (global indices) and weights
@@ -391,53 +410,10 @@ fn loads(sc: &Scenario, mesh: &Mesh, fixed: &[bool], g: &Global) -> Result<Vec<L
     Ok(out)
 }
 
-/// `fixed::every_piece_held` on the local meshes: each node's piece named by the lowest global
-/// index in it (the local pieces' least labels spread through the halos until none changes),
-/// then the pieces' sizes and fixed nodes summed over the processes.
+/// `fixed::every_piece_held` on the local meshes: each node's piece (`Global::pieces`), then
+/// the pieces' sizes and fixed nodes summed over the processes.
 fn every_piece_held(sc: &Scenario, mesh: &Mesh, fixed: &[bool], g: &Global) -> Result<()> {
-    let n = mesh.n_nodes();
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn find(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
-    }
-    for c in 0..mesh.n_cells() {
-        let nodes = mesh.cell(c);
-        for &b in &nodes[1..] {
-            let (ra, rb) = (find(&mut parent, nodes[0]), find(&mut parent, b));
-            if ra != rb {
-                parent[rb as usize] = ra;
-            }
-        }
-    }
-    let root: Vec<u32> = (0..n as u32).map(|i| find(&mut parent, i)).collect();
-    drop(parent);
-    let mut label: Vec<f64> = g.gid.iter().map(|&i| f64::from(i)).collect();
-    let mut least = vec![f64::INFINITY; n];
-    loop {
-        least.iter_mut().for_each(|x| *x = f64::INFINITY);
-        for i in 0..n {
-            let r = root[i] as usize;
-            least[r] = least[r].min(label[i]);
-        }
-        let mut changed = false;
-        for i in 0..n {
-            let m = least[root[i] as usize];
-            if m < label[i] {
-                label[i] = m;
-                changed = true;
-            }
-        }
-        let before = label[g.n_owned..].to_vec();
-        g.red.exchange(&mut label);
-        changed |= before.iter().zip(&label[g.n_owned..]).any(|(a, b)| a != b);
-        if !g.any(changed) {
-            break;
-        }
-    }
+    let label = g.pieces;
     // per piece (by its label) seen here: owned nodes, whether one is fixed, the label's id
     let mut pieces: std::collections::BTreeMap<u32, [f64; 5]> = Default::default();
     for i in 0..g.n_owned {
@@ -513,12 +489,14 @@ mod tests {
         let deferred = Setup::deferred(parse()).unwrap();
         assert!(deferred.is_deferred());
         let gid: Vec<u32> = (0..mesh.n_nodes() as u32).collect();
+        let pieces = piece_labels(&mesh, &gid, mesh.n_nodes(), &One);
         let g = Global {
             n_owned: mesh.n_nodes(),
             gid: &gid,
             n_nodes: mesh.n_nodes(),
             bounds: mesh.bounds(),
             red: &One,
+            pieces: &pieces,
         };
         let local = deferred.resolve_local(mesh, &g).unwrap();
         assert!(!local.is_deferred());

@@ -9,13 +9,13 @@
 //!   duplicate cells (grouped by their lowest node), volumes and orientation, faces shared by
 //!   more than two cells (grouped by the face's lowest node) (`cells`);
 //! - components: labels (the lowest global node of each component) propagated over the local
-//!   meshes and the halo exchange until no process changes one (`components`).
+//!   meshes and the halo exchange until no process changes one (`config::local::piece_labels`,
+//!   counted by `components`).
 //!
 //! A check fails where the first offender (lowest global index) is: that process's message
 //! is the error (`first`), every other process's is `ReportedElsewhere`.
 
 use super::comm::Comm;
-use super::halo::Halo;
 use super::parts::ReportedElsewhere;
 use super::slabs::Local;
 use anyhow::{anyhow, Result};
@@ -232,36 +232,10 @@ fn volume(local: &Local, nodes: &[u32], c: usize, src: &str) -> Option<String> {
     None
 }
 
-/// The number of connected components of the whole mesh (over shared nodes) from the local
-/// meshes (`mesh` in the plan's numbering, `gid` its global indices; every process calls):
-/// each node's label, first its global index, becomes the lowest label of its local
-/// component, owners pass their labels to the halo copies, until no label changes; the
-/// components are the nodes that keep their own index.
-pub fn components(mesh: &eprop_mesh::Mesh, gid: &[u32], n_owned: usize, comm: &dyn Comm, halo: &Halo) -> usize {
-    let (comp, k) = eprop_mesh::mesh::components(mesh);
-    let mut label: Vec<f64> = gid.iter().map(|&g| f64::from(g)).collect();
-    let mut rounds = 0;
-    loop {
-        let mut low = vec![f64::INFINITY; k];
-        for (i, &c) in comp.iter().enumerate() {
-            low[c as usize] = low[c as usize].min(label[i]);
-        }
-        let mut changed = 0i128;
-        for i in 0..n_owned {
-            let l = low[comp[i] as usize];
-            if l < label[i] {
-                label[i] = l;
-                changed += 1;
-            }
-        }
-        halo.exchange(&mut label, 1);
-        rounds += 1;
-        if comm.sum_i128(changed) == 0 {
-            break;
-        }
-    }
-    tracing::debug!("components labelled in {rounds} rounds of the halo exchange");
-    let own = (0..n_owned).filter(|&i| label[i] == f64::from(gid[i])).count();
+/// How many pieces (connected components) the whole mesh has: the pieces named by one of
+/// their own owned nodes (`config::local::piece_labels`), summed over the processes.
+pub fn components(pieces: &[f64], gid: &[u32], n_owned: usize, comm: &dyn Comm) -> usize {
+    let own = (0..n_owned).filter(|&i| pieces[i] == f64::from(gid[i])).count();
     comm.sum_i128(own as i128) as usize
 }
 

@@ -145,6 +145,20 @@ impl Wide {
     }
 }
 
+/// The bounding box (lowest and highest coordinates) of every process's `points` (exact: a
+/// max over the processes of each coordinate and its negation). Every process calls.
+pub fn bounds(comm: &dyn Comm, points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    let mut ends = [f64::NEG_INFINITY; 6];
+    for p in points {
+        for d in 0..3 {
+            ends[d] = ends[d].max(-p[d]);
+            ends[d + 3] = ends[d + 3].max(p[d]);
+        }
+    }
+    let ends = comm.max_each(&ends);
+    ([-ends[0], -ends[1], -ends[2]], [ends[3], ends[4], ends[5]])
+}
+
 /// A reproducible, order-independent sum of f64 values spread over processes: the sum of the
 /// terms truncated to one fixed-point grid, added exactly (not the exact sum of the terms).
 ///

@@ -650,19 +650,12 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
     let mut mesh = local_mesh(&local, &plan, &source);
     drop(local);
     crate::diagnostics::log_memory("the local mesh from the slabs");
-    let owned = &mesh.points[..plan.numbering.n_owned];
-    let mut ends = [f64::INFINITY; 6];
-    for p in owned {
-        for d in 0..3 {
-            ends[d] = ends[d].min(p[d]);
-            ends[d + 3] = ends[d + 3].min(-p[d]);
-        }
-    }
-    let ends: Vec<f64> = comm.max_each(&ends.map(|x| -x));
-    let bounds = ([-ends[0], -ends[1], -ends[2]], [ends[3], ends[4], ends[5]]);
+    let bounds = super::comm::bounds(comm, &mesh.points[..plan.numbering.n_owned]);
     let halo = super::halo::Halo::new(plan.pattern.clone(), world.duplicate());
     let t = std::time::Instant::now();
-    let comps = checks::components(&mesh, &plan.numbering.global, plan.numbering.n_owned, comm, &halo);
+    let (gid, n_owned) = (&plan.numbering.global, plan.numbering.n_owned);
+    let pieces = crate::config::local::piece_labels(&mesh, gid, n_owned, &Reducer(comm, &halo));
+    let comps = checks::components(&pieces, gid, n_owned, comm);
     tracing::debug!("{comps} component(s) counted in {:.3} s", t.elapsed().as_secs_f64());
     // the whole mesh's warnings (of the summary) ride with the local mesh
     mesh.warnings.extend(checks::components_warning(comps));
@@ -673,6 +666,7 @@ fn start_here(world: &Handle, comm: &dyn Comm, setup: Setup) -> Result<Part> {
             n_nodes: n_slab_nodes,
             bounds,
             red: &Reducer(comm, &halo),
+            pieces: &pieces,
         };
         setup.resolve_local(mesh, &global)?
     };

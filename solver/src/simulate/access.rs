@@ -44,14 +44,7 @@ impl Simulation {
         let c = self.comm.as_ref();
         let n_owned = self.numbering.n_owned;
         let points = &self.setup.mesh.points[..n_owned];
-        let mut ends = [f64::NEG_INFINITY; 6];
-        for p in points {
-            for d in 0..3 {
-                ends[d] = ends[d].max(-p[d]);
-                ends[d + 3] = ends[d + 3].max(p[d]);
-            }
-        }
-        let ends = c.max_each(&ends);
+        let bounds = crate::distribute::comm::bounds(c, points);
         // each node asked: its owner sends its id (two 32-bit halves) and its position
         let owner: std::collections::HashMap<u64, usize> = nodes
             .iter()
@@ -92,7 +85,7 @@ impl Simulation {
         Some(WholeMesh {
             source: &self.setup.mesh.source,
             cells: self.rows.as_ref().map_or(0, |r| r.cells),
-            bounds: ([-ends[0], -ends[1], -ends[2]], [ends[3], ends[4], ends[5]]),
+            bounds,
             warnings: &self.setup.mesh.warnings,
             nodes: found,
         })
