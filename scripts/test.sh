@@ -6,6 +6,13 @@
 # exits non-zero when a test failed. With EPROP_REQUIRE_ALL=1 (CI) a skip is a failure.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# A full disk shows up as a linker killed by SIGBUS ("ld terminated with signal 7 [Bus error]")
+# or as tests failing to write: say so first. The build and the tests need about 5 GiB.
+free_kib() { df -Pk "${1:-.}" | awk 'NR == 2 {print $4}'; }
+if [ "$(free_kib .)" -lt $((5 * 1024 * 1024)) ]; then
+  echo "eprop tests: warning: only $(($(free_kib .) / 1024)) MiB free on $(df -P . | awk 'NR == 2 {print $6}');" \
+    "the build and the tests need about 5 GiB (a linker's 'Bus error' means the disk filled)" >&2
+fi
 scripts/setup.sh
 source scripts/env.sh
 cargo fmt --all -- --check
@@ -40,7 +47,8 @@ if [ "$skipped" -gt 0 ]; then
   sed 's/^/  skipped: /' "$skips"
 fi
 if [ "$status" -ne 0 ] || [ "$failed" -ne 0 ]; then
-  echo "eprop tests: FAILED (cargo test exited with status $status)"
+  echo "eprop tests: FAILED (cargo test exited with status $status;" \
+    "$(($(free_kib .) / 1024)) MiB free on the disk of target/)"
   exit 1
 fi
 # post-processing: the plotting script on a fresh run
