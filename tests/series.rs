@@ -104,6 +104,15 @@ fn a_restart_of_a_complete_series_says_so_and_changes_nothing_on_1_and_2_ranks()
             "the file changed on {n} process(es)"
         );
     }
+    // fewer steps asked than the series holds: said as such, the file as it was
+    let out = serial(&["run", sc, "--restart", h, "--steps", "3"], 1);
+    ok(&out);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("the series holds more steps than the 3 asked; nothing to do"),
+        "{text}"
+    );
+    assert_eq!(std::fs::read(&h5).unwrap(), before);
 }
 
 #[test]

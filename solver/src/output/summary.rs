@@ -51,6 +51,8 @@ pub struct Summary {
     pub applications_per_step: [u32; 3],
     pub dt: f64,
     pub steps: u64,
+    /// The steps the run asks for (`--steps`, `[time] steps` or `end`).
+    pub steps_asked: u64,
     pub time: f64,
     pub wall_seconds: f64,
     pub setup_seconds: f64,
@@ -115,12 +117,21 @@ impl std::fmt::Display for Summary {
         )?;
         if self.already_complete {
             // nothing ran: no figures of a run that did not happen
-            writeln!(
-                f,
-                "  steps       {} to t = {}: the series was complete already; nothing to do",
-                self.steps,
-                fixed(self.time, 6)
-            )?;
+            match self.steps > self.steps_asked {
+                true => writeln!(
+                    f,
+                    "  steps       {} to t = {}: the series holds more steps than the {} asked; nothing to do",
+                    self.steps,
+                    fixed(self.time, 6),
+                    self.steps_asked
+                )?,
+                false => writeln!(
+                    f,
+                    "  steps       {} to t = {}: the series was complete already; nothing to do",
+                    self.steps,
+                    fixed(self.time, 6)
+                )?,
+            }
             return write!(f, "  output      {} ({} steps)", self.output, self.output_steps);
         }
         writeln!(
@@ -362,6 +373,7 @@ pub fn summarize(
         applications_per_step: spread(sim.applications()),
         dt: sim.dt(),
         steps: sim.step(),
+        steps_asked: sim.max_steps(),
         time: sim.time(),
         wall_seconds: t.wall_seconds,
         setup_seconds: t.setup_seconds,
