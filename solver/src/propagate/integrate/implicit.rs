@@ -44,8 +44,8 @@ pub(crate) const FILTER_TOLERANCE: f64 = 1e-2;
 pub(crate) const FILTER_PASSES: usize = 2;
 
 /// The level whose filter carries a sub-step's error estimate to the end of its mechanics step
-/// where tools hold rows (`carry`), None where nothing is carried (no held rows, or the
-/// sub-step ends the mechanics step).
+/// where a tool moved the potential of the rows it holds at the step's start (`carry`), None
+/// where nothing is carried (nothing moved, or the sub-step ends the mechanics step).
 ///
 /// A tool sets its held nodes' potential at the start of each mechanics step (a newly caught
 /// node by a jump): a discontinuity of the data, whose layer in the free nodes around them
@@ -87,9 +87,9 @@ pub struct Implicit {
     /// The solves of the current level and the levels built.
     solver: Solver,
     pub last: SolveStats,
-    /// Whether this mechanics step holds rows (a tool's held nodes, on any process): their
-    /// potential was set at the step's start, and the estimate is carried to the step's end
-    /// (`carry_level`).
+    /// Whether a tool changed the potential of a row it holds over this mechanics step at its
+    /// start (on any process: `Propagation::held_moved`), so that the estimate is carried to
+    /// the step's end (`carry_level`).
     carry: bool,
     // work vectors: phi at the step's start, the stage value, the estimate and the right-hand
     // side
@@ -352,8 +352,8 @@ impl Stepper for Implicit {
             self.errors.substeps = (1, 0);
             return Ok(StepStats { applications });
         }
-        // held rows (their potential set at the step's start) on any process
-        self.carry = comm.max(if prop.frozen().is_empty() { 0.0 } else { 1.0 }) > 0.0;
+        // a held row's potential changed at the step's start, on any process
+        self.carry = comm.max(if prop.held_moved() { 1.0 } else { 0.0 }) > 0.0;
         let mut sub = self.errors.begin(0, 3.0);
         let mut applications = 0;
         while !sub.control.done() {
