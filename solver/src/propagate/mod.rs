@@ -48,6 +48,9 @@ pub struct Propagation {
     /// Owned rows held at their potential (`freeze`), and their coefficients.
     frozen: Vec<u32>,
     saved: Vec<f64>,
+    /// Whether the potential of a row held over this step was changed at its start
+    /// (`set_held_moved`).
+    held_moved: bool,
 }
 
 /// The depths (substeps per sweep) the tuner tries.
@@ -141,6 +144,7 @@ impl Propagation {
             wave: None,
             levels: vec![],
             frozen: Vec::new(),
+            held_moved: false,
             saved: Vec::new(),
         }
     }
@@ -315,6 +319,19 @@ impl Propagation {
     /// The rows `freeze` holds (sorted as given).
     pub fn frozen(&self) -> &[u32] {
         &self.frozen
+    }
+
+    /// Says whether the caller moved the potential of a row it holds over the coming step at
+    /// the step's start (a tool that moves what it holds, or catches a node away from where it
+    /// is): a jump of the data, whose layer the implicit integrator's error control carries to
+    /// the step's end (`integrate::implicit::carry_level`). On this process only.
+    pub fn set_held_moved(&mut self, moved: bool) {
+        self.held_moved = moved;
+    }
+
+    /// Whether a held row's potential was changed at this step's start (`set_held_moved`).
+    pub fn held_moved(&self) -> bool {
+        self.held_moved
     }
 
     /// A zero field over this process's nodes.

@@ -957,14 +957,18 @@ impl Simulation {
         let mut rows = Vec::with_capacity(k.held.len());
         let mut before = Vec::with_capacity(k.held.len());
         let mut is_held = vec![false; n];
+        let mut moved = false;
         for h in &k.held {
             let i = h.node as usize;
             let t = mat.at(i);
             before.push((h.node, self.prop.phi[i]));
+            // the tool moves the node (or catches it away from where it is)
+            moved |= h.target != h.before;
             self.prop.phi[i] = kinematic::held_potential(h.target, t.stiffness, t.coupling, p);
             rows.push(h.node);
             is_held[i] = true;
         }
+        self.prop.set_held_moved(moved);
         // the energy of the move: L phi right after it, on the whole operator
         self.prop.thaw();
         k.scratch[..n].copy_from_slice(&self.prop.phi[..n]);

@@ -43,6 +43,36 @@ pub(crate) const FILTER_TOLERANCE: f64 = 1e-2;
 /// How often the estimate goes through (V - theta tau W)^-1 V.
 pub(crate) const FILTER_PASSES: usize = 2;
 
+/// The level whose filter carries a sub-step's error estimate to the end of its mechanics step
+/// where a tool moved the potential of the rows it holds at the step's start (`carry`), None
+/// where nothing is carried (nothing moved, or the sub-step ends the mechanics step).
+///
+/// A tool sets its held nodes' potential at the start of each mechanics step (a newly caught
+/// node by a jump): a discontinuity of the data, whose layer in the free nodes around them
+/// relaxes as fast as the cells it crosses. The sub-steps inside it are never in their
+/// asymptotic range (on the head atlas the estimate of the first sub-step fell from 288 to 273
+/// times the tolerance over six halvings), so the control halved down to dt / 2^17 and climbed
+/// back in 60 sub-steps (7 rejected), each held to the tolerance although the layer's error
+/// decays within the step. But within a mechanics step the operator
+/// and the sources are constant, so an error committed at t_e is carried to the step's end
+/// (all the mechanics reads) by exp((t_end - t_e) L), which damps the layer's fast modes. The
+/// estimate is filtered further by (V - theta s W)^-1 V (`CARRY_PASSES` = 3 times), s the
+/// longest dt / 2^j with 3 theta s <= t_end - t_e, which damps no mode more than the rest of
+/// the step does: (1 + theta s lambda)^3 <= exp(3 theta s lambda) <= exp((t_end - t_e)
+/// lambda). What counts is then the error the step ends with; the last sub-step's is its
+/// own.
+pub(crate) fn carry_level(carry: bool, level: u32, pos: u64) -> Option<u32> {
+    // sub-steps of dt / 2^level left after this one
+    let left = (1u64 << level).checked_sub(pos + 1).filter(|&k| k > 0 && carry)?;
+    // the longest dt / 2^j with CARRY_PASSES theta dt / 2^j <= left dt / 2^level
+    let reach = left as f64 / (CARRY_PASSES as f64 * THETA);
+    Some((level as f64 - reach.log2()).ceil().max(0.0) as u32)
+}
+
+/// How often the estimate goes through (V - theta s W)^-1 V to carry it to the end of its
+/// mechanics step (`carry_level`).
+pub(crate) const CARRY_PASSES: usize = 3;
+
 /// Conjugate-gradient iterations of the last step's solves.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SolveStats {
@@ -57,6 +87,10 @@ pub struct Implicit {
     /// The solves of the current level and the levels built.
     solver: Solver,
     pub last: SolveStats,
+    /// Whether a tool changed the potential of a row it holds over this mechanics step at its
+    /// start (on any process: `Propagation::held_moved`), so that the estimate is carried to
+    /// the step's end (`carry_level`).
+    carry: bool,
     // work vectors: phi at the step's start, the stage value, the estimate and the right-hand
     // side
     phi_n: NodeField<V3>,
@@ -98,6 +132,7 @@ impl Implicit {
             errors: ErrorState::new(1.0),
             solver,
             last: SolveStats::default(),
+            carry: false,
             phi_n: z(),
             y: z(),
             e: z(),
@@ -220,6 +255,25 @@ impl Implicit {
             "implicit step {}: the estimate's filter solves took {per_pass:?} iterations",
             step + 1
         );
+        // held rows: the error carried to the end of the mechanics step
+        if let Some(level) = carry_level(self.carry, sub.control.level, sub.control.pos) {
+            self.solver.set_level(level, prop, comm)?;
+            for _ in 0..CARRY_PASSES {
+                let vol = self.solver.vol();
+                for i in 0..n {
+                    let (v, e) = (vol[i], self.e[i]);
+                    self.b[i] = [v * e[0], v * e[1], v * e[2]];
+                }
+                it += if self.solver.diagonal() {
+                    self.e[..n].iter_mut().for_each(|x| *x = [0.0; 3]);
+                    let tol = FILTER_TOLERANCE.max(self.solver.tolerance());
+                    self.solver.solve(prop, &mut self.e, &self.b, comm, 3, step, tol)? + 2
+                } else {
+                    self.solver.first_iterate(prop, &mut self.e, &self.b, comm, step)?;
+                    1
+                };
+            }
+        }
         let (e, p0, p1) = (&self.e[..n], &self.phi_n[..n], &prop.phi[..n]);
         let (ratio, _, _) = sub.ratio(super::squares(comm, n, |i| [e[i], p0[i], p1[i]]));
         Ok((ratio, 1 + it))
@@ -298,6 +352,8 @@ impl Stepper for Implicit {
             self.errors.substeps = (1, 0);
             return Ok(StepStats { applications });
         }
+        // a held row's potential changed at the step's start, on any process
+        self.carry = comm.max(if prop.held_moved() { 1.0 } else { 0.0 }) > 0.0;
         let mut sub = self.errors.begin(0, 3.0);
         let mut applications = 0;
         while !sub.control.done() {
@@ -332,7 +388,7 @@ impl Stepper for Implicit {
         self.errors.end(&sub);
         let (accepted, rejected) = sub.counts();
         tracing::debug!(
-            "implicit step {}: {accepted} TR-BDF2 steps, {rejected} rejected",
+            "implicit step {}: {accepted} TR-BDF2 steps, {rejected} rejected, {applications} operator applications",
             self.errors.step
         );
         Ok(StepStats { applications })
@@ -342,6 +398,43 @@ impl Stepper for Implicit {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_estimate_is_carried_to_the_step_end_no_further_than_the_step_damps() {
+        // nothing held, or the last sub-step of the mechanics step: nothing carried
+        assert_eq!(carry_level(false, 3, 0), None);
+        assert_eq!(carry_level(true, 0, 0), None);
+        assert_eq!(carry_level(true, 3, 7), None);
+        for level in 1..20u32 {
+            // (the sub-steps before the last one)
+            for pos in [0, 1, (1u64 << level) / 2, (1u64 << level) - 2]
+                .into_iter()
+                .filter(|&p| p + 1 < 1 << level)
+            {
+                let j = carry_level(true, level, pos).unwrap();
+                let left = ((1u64 << level) - pos - 1) as f64 / (1u64 << level) as f64;
+                let s = 0.5f64.powi(j as i32);
+                // within the time left (three passes at theta s each), and the longest such
+                assert!(
+                    CARRY_PASSES as f64 * THETA * s <= left * (1.0 + 1e-12),
+                    "{level} {pos} {j}"
+                );
+                assert!(
+                    j == 0 || CARRY_PASSES as f64 * THETA * 2.0 * s > left,
+                    "{level} {pos} {j}"
+                );
+                // three passes damp no mode more than exp(-left lambda)
+                for x in [1e-3, 1.0, 30.0, 1e6] {
+                    let passes = (1.0 + THETA * s * x).powi(CARRY_PASSES as i32).recip();
+                    assert!(passes >= (-left * x).exp(), "{level} {pos} {x}");
+                }
+            }
+        }
+        // after the first sub-step of dt / 8 7/8 dt are left, less than 3 theta dt = 0.879 dt:
+        // dt / 2; after the first of dt / 16 15/16 dt: dt
+        assert_eq!(carry_level(true, 3, 0), Some(1));
+        assert_eq!(carry_level(true, 4, 0), Some(0));
+    }
 
     #[test]
     fn tr_bdf2_is_second_order_and_l_stable_where_crank_nicolson_rings() {

@@ -119,7 +119,8 @@ where
 /// The most levels (halvings of the mechanics step) the error control may take: a step of
 /// dt / 2^MAX_LEVEL that is still not accurate enough is an error that names the fixes. The
 /// layer a tool's contact starts is as fast as the cells it touches relax: the head atlas under
-/// a sphere (dt = 0.03 s) needs dt / 2^18, so 16 levels refused it (docs/integrators.md).
+/// a sphere (dt = 0.03 s) needed dt / 2^18, so 16 levels refused it (docs/integrators.md; since
+/// implicit carries its estimate to the step's end there, `implicit::carry_level`, dt / 2^8).
 pub(crate) const MAX_LEVEL: u32 = 30;
 
 /// A step that changes phi by so little against its size is accurate whatever its estimate:
