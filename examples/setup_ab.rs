@@ -30,6 +30,11 @@ fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().collect();
     let path = std::path::PathBuf::from(a.get(1).expect("a mesh file"));
     let reps: usize = a.get(2).map(|s| s.parse()).transpose()?.unwrap_or(3);
+    // the phases' own `-vv` lines (where the dual's seconds go), on stderr
+    tracing_subscriber::fmt()
+        .with_max_level(tracing::Level::DEBUG)
+        .with_writer(std::io::stderr)
+        .init();
     let mut times = vec![Vec::new(); 4];
     for _ in 0..reps {
         let t = Instant::now();

@@ -255,6 +255,45 @@ pub(crate) fn visit_order(mesh: &Mesh, n: usize) -> Vec<u32> {
     order
 }
 
+/// Local node numbers 0..8: `cell_dual(kind, &LOCAL[..n], x)` computes on a cell's own copy
+/// `x` of its points (the same arithmetic as on the mesh's points).
+const LOCAL: [u32; MAX_NODES] = [0, 1, 2, 3, 4, 5, 6, 7];
+
+/// The kinds, nodes and points of a list of cells, copied side by side in two passes: one
+/// cell's loads do not wait for another's, so the processor overlaps their cache misses (a
+/// tetgen file numbers its cells and nodes in no spatial order, and a cell read at a time,
+/// offsets then nodes then points, waited for each miss in turn).
+pub(crate) struct Gathered {
+    pub kinds: Vec<CellKind>,
+    /// `ptr[k]..ptr[k + 1]` indexes `nodes` and `x` for the k-th cell.
+    pub ptr: Vec<u32>,
+    pub nodes: Vec<u32>,
+    pub x: Vec<[f64; 3]>,
+}
+
+impl Gathered {
+    pub fn new(mesh: &Mesh, cells: &[u32]) -> Self {
+        let mut kinds = Vec::with_capacity(cells.len());
+        let mut ptr = Vec::with_capacity(cells.len() + 1);
+        let mut nodes = Vec::with_capacity(4 * cells.len());
+        ptr.push(0);
+        for &c in cells {
+            kinds.push(mesh.kinds[c as usize]);
+            nodes.extend_from_slice(mesh.cell(c as usize));
+            ptr.push(nodes.len() as u32);
+        }
+        let pts = &mesh.points;
+        let x = nodes.iter().map(|&n| pts[n as usize]).collect();
+        Gathered { kinds, ptr, nodes, x }
+    }
+
+    /// The k-th cell's kind, nodes and points.
+    pub fn cell(&self, k: usize) -> (CellKind, &[u32], &[[f64; 3]]) {
+        let r = self.ptr[k] as usize..self.ptr[k + 1] as usize;
+        (self.kinds[k], &self.nodes[r.clone()], &self.x[r])
+    }
+}
+
 /// Per-cell pieces of the cells of a block of rows, each computed once for the block (the rows
 /// of a block are near each other in the visit order, so few cells are computed in two
 /// blocks), and for every incident cell of every row the slot of its piece: a row finds its
@@ -274,8 +313,15 @@ pub struct BlockCells<T> {
 }
 
 impl<T> BlockCells<T> {
-    /// The pieces `piece(c)` of the cells `c` of `rows` that `keep` keeps.
-    pub fn new(inc: &Incidence, rows: &[u32], keep: impl Fn(u32) -> bool, piece: impl Fn(u32) -> T) -> Self {
+    /// The pieces of the cells of `rows` that `keep` keeps: `pieces(cells)` gives them for the
+    /// block's kept cells, in increasing order (one call per block, so that it can gather the
+    /// cells' nodes and points side by side before it computes: `Gathered`).
+    pub fn new(
+        inc: &Incidence,
+        rows: &[u32],
+        keep: impl Fn(u32) -> bool,
+        pieces: impl FnOnce(&[u32]) -> Vec<T>,
+    ) -> Self {
         let mut start = Vec::with_capacity(rows.len() + 1);
         let mut at: Vec<u64> = Vec::new();
         for &i in rows {
@@ -287,19 +333,23 @@ impl<T> BlockCells<T> {
         start.push(at.len());
         let mut slot = vec![u32::MAX; at.len()];
         at.sort_unstable();
-        let mut items = Vec::new();
-        let mut last = u64::MAX;
+        let mut cells = Vec::new();
+        let (mut last, mut kept) = (u64::MAX, false);
         for &key in &at {
             let c = key >> 32;
-            if !keep(c as u32) {
-                continue;
-            }
             if c != last {
-                items.push(piece(c as u32));
                 last = c;
+                kept = keep(c as u32);
+                if kept {
+                    cells.push(c as u32);
+                }
             }
-            slot[(key & 0xffff_ffff) as usize] = (items.len() - 1) as u32;
+            if kept {
+                slot[(key & 0xffff_ffff) as usize] = (cells.len() - 1) as u32;
+            }
         }
+        let items = pieces(&cells);
+        assert_eq!(items.len(), cells.len(), "one piece per kept cell");
         BlockCells {
             items,
             slot,
@@ -397,13 +447,18 @@ impl Dual {
                 inc,
                 rows,
                 |_| true,
-                |c| {
+                |cells| {
                     // the cell's nodes, kind and boundary faces beside its dual piece: a row
                     // then reads nothing of the mesh's cell arrays
-                    let (kind, nodes) = (mesh.kinds[c as usize], mesh.cell(c as usize));
-                    let mut at = [0u32; MAX_NODES];
-                    at[..nodes.len()].copy_from_slice(nodes);
-                    (cell_dual(kind, nodes, pts), at, kind, mask[c as usize])
+                    let g = Gathered::new(mesh, cells);
+                    let mut out = Vec::with_capacity(cells.len());
+                    for (k, &c) in cells.iter().enumerate() {
+                        let (kind, nodes, x) = g.cell(k);
+                        let mut at = [0u32; MAX_NODES];
+                        at[..nodes.len()].copy_from_slice(nodes);
+                        out.push((cell_dual(kind, &LOCAL[..nodes.len()], x), at, kind, mask[c as usize]));
+                    }
+                    out
                 },
             )
         };
@@ -620,16 +675,21 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
             inc,
             rows,
             |c| mesh.kinds[c as usize] == CellKind::Tet,
-            |c| {
-                let nodes = mesh.cell(c as usize);
-                let (g, v) = tet_gradients(nodes, pts);
-                let rc = tensor(nodes);
-                let mut a = [0.0; 6];
-                for (k, &(lo, hi)) in TET_PAIRS.iter().enumerate() {
-                    let rg = rc * Vector3::from(g[hi]);
-                    a[k] = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
-                }
-                (a, [nodes[0], nodes[1], nodes[2], nodes[3]])
+            |cells| {
+                let g = Gathered::new(mesh, cells);
+                (0..cells.len())
+                    .map(|k| {
+                        let (_, nodes, x) = g.cell(k);
+                        let (gr, v) = tet_gradients(&LOCAL[..4], x);
+                        let rc = tensor(nodes);
+                        let mut a = [0.0; 6];
+                        for (k, &(lo, hi)) in TET_PAIRS.iter().enumerate() {
+                            let rg = rc * Vector3::from(gr[hi]);
+                            a[k] = -v * (gr[lo][0] * rg[0] + gr[lo][1] * rg[1] + gr[lo][2] * rg[2]);
+                        }
+                        (a, [nodes[0], nodes[1], nodes[2], nodes[3]])
+                    })
+                    .collect()
             },
         )
     };
