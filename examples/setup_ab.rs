@@ -3,6 +3,7 @@
 //! A digest of the dual and the coefficients (sum of their bits) is printed so that two builds
 //! can be compared bit for bit.
 //!   cargo run --release --example setup_ab -- MESH [REPS]
+//! (MESH `box:tet`, `box:hex`, `box:wedge` or `box:pyramid`: a generated box of those cells)
 use eprop::config::tissue::{Materials, Tissue};
 use eprop::discretize::geometry::{compact_coefficients, Dual, Incidence};
 
@@ -38,7 +39,20 @@ fn main() -> anyhow::Result<()> {
     let mut times = vec![Vec::new(); 4];
     for _ in 0..reps {
         let t = Instant::now();
-        let mesh = eprop_io::read_mesh(&path)?;
+        // `box:tet`, `box:hex`, `box:wedge`, `box:pyramid`: a generated 6 x 5 x 4 box of those cells
+        let mesh = match path.to_str().and_then(|p| p.strip_prefix("box:")) {
+            Some(kind) => {
+                use eprop_io::generate::{box_mesh, BoxCells};
+                let cells = match kind {
+                    "hex" => BoxCells::Hex,
+                    "wedge" => BoxCells::Wedge,
+                    "pyramid" => BoxCells::PyramidTet,
+                    _ => BoxCells::Tet,
+                };
+                box_mesh([1.0, 0.8, 0.6], [6, 5, 4], cells)?
+            }
+            None => eprop_io::read_mesh(&path)?,
+        };
         times[0].push(t.elapsed().as_secs_f64());
         let n = mesh.n_nodes();
         let t = Instant::now();

@@ -9,7 +9,7 @@
 
 use crate::config::tissue::Materials;
 use eprop_io::geom::{add, cell_volume, centroid, det3, dot, loop_area, scale, sub};
-use eprop_io::mesh::{boundary_faces, CellKind, Mesh};
+use eprop_io::mesh::{CellKind, Mesh};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -180,19 +180,31 @@ pub(crate) fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volum
 pub(crate) fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
     let key = |j: u32| gid.map_or(j as u64, |g| g[j as usize]);
     thread_local! {
-        static SCRATCH: std::cell::RefCell<Vec<u32>> = const { std::cell::RefCell::new(Vec::new()) };
+        // a row's distinct neighbours, and per node the (call, row) that last took it
+        static SCRATCH: std::cell::RefCell<(Vec<u32>, Vec<u64>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
     }
-    // the sorted, distinct neighbours of row i in a reused buffer
+    static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed) << 32;
+    let n_nodes = mesh.n_nodes();
+    // the distinct neighbours of row i (a mark per node, so only they are sorted: a row
+    // meets each neighbour about four times), sorted, in a reused buffer
     let with_row = |i: usize, f: &mut dyn FnMut(&[u32])| {
-        SCRATCH.with(|v| {
-            let mut v = v.borrow_mut();
+        SCRATCH.with(|sc| {
+            let (v, mark) = &mut *sc.borrow_mut();
+            if mark.len() < n_nodes {
+                mark.resize(n_nodes, u64::MAX);
+            }
+            let me = call | i as u64;
+            // the cells' nodes first (one cell's loads do not wait for another's), then the
+            // distinct ones but i
             v.clear();
             for &c in inc.of(i) {
-                v.extend(mesh.cell(c as usize).iter().filter(|&&j| j as usize != i));
+                v.extend_from_slice(mesh.cell(c as usize));
             }
+            mark[i] = me;
+            v.retain(|&j| std::mem::replace(&mut mark[j as usize], me) != me);
             v.sort_unstable_by_key(|&j| key(j));
-            v.dedup();
-            f(&v)
+            f(v)
         })
     };
     // one pass over blocks of rows, each block's rows in one buffer, joined in row order (no
@@ -224,15 +236,6 @@ pub(crate) fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Optio
         col.extend_from_slice(&cols);
     }
     (ptr, col)
-}
-
-/// Per-cell bitmask of boundary faces.
-pub(crate) fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
-    let mut mask = vec![0u8; mesh.n_cells()];
-    for (c, f) in boundary_faces(mesh) {
-        mask[c as usize] |= 1 << f;
-    }
-    mask
 }
 
 /// Runs `f(row, values of the row)` over the rows of a CSR array in parallel, filling `data`
@@ -300,8 +303,8 @@ impl Gathered {
 /// cells' pieces by position, without a search. The rows must be asked for in the block's
 /// order (`row`), as `par_rows_with` visits them.
 pub struct BlockCells<T> {
-    /// The pieces, in increasing cell order.
-    pub items: Vec<T>,
+    /// The pieces, in increasing cell order (a `Vec` of them, or a flat layout).
+    pub items: T,
     /// Per incidence of the block's rows, in row order then the row's cell order: the slot in
     /// `items` (u32::MAX for a cell `keep` leaves out).
     slot: Vec<u32>,
@@ -316,12 +319,7 @@ impl<T> BlockCells<T> {
     /// The pieces of the cells of `rows` that `keep` keeps: `pieces(cells)` gives them for the
     /// block's kept cells, in increasing order (one call per block, so that it can gather the
     /// cells' nodes and points side by side before it computes: `Gathered`).
-    pub fn new(
-        inc: &Incidence,
-        rows: &[u32],
-        keep: impl Fn(u32) -> bool,
-        pieces: impl FnOnce(&[u32]) -> Vec<T>,
-    ) -> Self {
+    pub fn new(inc: &Incidence, rows: &[u32], keep: impl Fn(u32) -> bool, pieces: impl FnOnce(&[u32]) -> T) -> Self {
         let mut start = Vec::with_capacity(rows.len() + 1);
         let mut at: Vec<u64> = Vec::new();
         for &i in rows {
@@ -349,7 +347,6 @@ impl<T> BlockCells<T> {
             }
         }
         let items = pieces(&cells);
-        assert_eq!(items.len(), cells.len(), "one piece per kept cell");
         BlockCells {
             items,
             slot,
@@ -430,90 +427,263 @@ pub(crate) fn par_rows_with<T: Send, R: Send, C>(
     out
 }
 
+/// The dual pieces of a block's cells, flat (`Dual::build`): their kinds and nodes
+/// (`Gathered`, without the points once the pieces are computed), S^cell of each local edge
+/// (`eptr[k]..eptr[k + 1]` for the k-th cell) and the volume piece of each local node
+/// (indexed as the nodes).
+struct DualPieces {
+    g: Gathered,
+    eptr: Vec<u32>,
+    s: Vec<[f64; 3]>,
+    vol: Vec<f64>,
+}
+
+impl DualPieces {
+    fn new(mesh: &Mesh, cells: &[u32]) -> Self {
+        let mut g = Gathered::new(mesh, cells);
+        let mut eptr = Vec::with_capacity(cells.len() + 1);
+        eptr.push(0);
+        let mut s = Vec::with_capacity(6 * cells.len());
+        let mut vol = Vec::with_capacity(g.nodes.len());
+        for k in 0..cells.len() {
+            let (kind, nodes, x) = g.cell(k);
+            let n = nodes.len();
+            let cd = cell_dual(kind, &LOCAL[..n], x);
+            s.extend_from_slice(&cd.s[..kind.edges().len()]);
+            vol.extend_from_slice(&cd.vol[..n]);
+            eptr.push(s.len() as u32);
+        }
+        g.x = Vec::new();
+        DualPieces { g, eptr, s, vol }
+    }
+}
+
+/// A row's faces through its node, to tell the boundary ones (on one cell only) apart: every
+/// cell with a face through node i is one of i's cells, so the row alone decides, as
+/// `boundary_faces` on the whole mesh would. A face is named by the positions among the row's
+/// columns of its other nodes.
+#[derive(Default)]
+struct RowFaces {
+    /// Triangles (i, a, b), a < b: bit b % 64 of word a * words + b / 64 is set once the
+    /// triangle is seen (`seen`) and once it is seen again (`twice`).
+    seen: Vec<u64>,
+    twice: Vec<u64>,
+    words: usize,
+    /// Triangles seen exactly once so far.
+    single: usize,
+    /// Quadrilaterals: their three other nodes' positions, sorted.
+    quads: Vec<[u32; 3]>,
+}
+
+impl RowFaces {
+    fn reset(&mut self, n_cols: usize) {
+        self.words = n_cols.div_ceil(64);
+        for v in [&mut self.seen, &mut self.twice] {
+            v.clear();
+            v.resize(n_cols * self.words, 0);
+        }
+        self.single = 0;
+        self.quads.clear();
+    }
+
+    /// The face's other nodes' positions (`pos`: of each local node of the cell), sorted, and
+    /// their count; None when the face does not pass through `li`.
+    fn key(face: &[usize], li: usize, pos: &[u32; MAX_NODES]) -> Option<([u32; 3], usize)> {
+        if !face.contains(&li) {
+            return None;
+        }
+        let mut k = [u32::MAX; 3];
+        let mut n = 0;
+        for &l in face {
+            if l != li {
+                k[n] = pos[l];
+                n += 1;
+            }
+        }
+        k[..n].sort_unstable();
+        Some((k, n))
+    }
+
+    fn tri(&self, k: &[u32; 3]) -> (usize, u64) {
+        (k[0] as usize * self.words + k[1] as usize / 64, 1 << (k[1] % 64))
+    }
+
+    fn add(&mut self, (k, n): ([u32; 3], usize)) {
+        if n == 2 {
+            let (w, bit) = self.tri(&k);
+            if self.seen[w] & bit == 0 {
+                self.seen[w] |= bit;
+                self.single += 1;
+            } else if self.twice[w] & bit == 0 {
+                self.twice[w] |= bit;
+                self.single -= 1;
+            }
+        } else {
+            self.quads.push(k);
+        }
+    }
+
+    /// Whether any face is on the boundary (sorts the quadrilaterals: call once all are in).
+    fn any(&mut self) -> bool {
+        self.quads.sort_unstable();
+        self.single > 0 || self.quads.chunk_by(|a, b| a == b).any(|g| g.len() == 1)
+    }
+
+    fn is_boundary(&self, (k, n): ([u32; 3], usize)) -> bool {
+        if n == 2 {
+            let (w, bit) = self.tri(&k);
+            self.seen[w] & bit != 0 && self.twice[w] & bit == 0
+        } else {
+            let at = self.quads.partition_point(|q| *q < k);
+            self.quads[at..].iter().take_while(|q| **q == k).count() == 1
+        }
+    }
+}
+
+thread_local! {
+    /// Per node, its position among the columns of the row this thread builds
+    /// (`with_columns`); stale entries of other rows stay.
+    static AT: std::cell::RefCell<Vec<u32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The positions of a row's columns: a table per node, so that finding a neighbour's entry is
+/// one load, not a search of the row (the search was half of a row's time on a tetgen mesh).
+#[derive(Clone, Copy)]
+pub(crate) struct Columns<'a> {
+    at: &'a [u32],
+    cols: &'a [u32],
+}
+
+impl Columns<'_> {
+    /// The position of node `j` among the row's columns (it must be one of them).
+    #[inline]
+    pub fn of(&self, j: u32) -> usize {
+        let p = self.at[j as usize] as usize;
+        assert!(self.cols.get(p) == Some(&j), "node {j} is not a column of the row");
+        p
+    }
+
+    /// The positions of a cell's local nodes (u32::MAX for the row's own, `li`).
+    fn of_cell(&self, nodes: &[u32], li: usize) -> [u32; MAX_NODES] {
+        let mut pos = [u32::MAX; MAX_NODES];
+        for (l, &n) in nodes.iter().enumerate() {
+            if l != li {
+                pos[l] = self.of(n) as u32;
+            }
+        }
+        pos
+    }
+}
+
+/// Runs `f` with the positions of the row's columns `cols` (nodes below `n_nodes`).
+pub(crate) fn with_columns<R>(n_nodes: usize, cols: &[u32], f: impl FnOnce(Columns<'_>) -> R) -> R {
+    AT.with(|at| {
+        let mut at = at.borrow_mut();
+        if at.len() < n_nodes {
+            at.resize(n_nodes, u32::MAX);
+        }
+        for (p, &j) in cols.iter().enumerate() {
+            at[j as usize] = p as u32;
+        }
+        f(Columns { at: &at, cols })
+    })
+}
+
 impl Dual {
     /// Median-dual geometry of rows `0..n_rows`. Every cell incident to a row must be present.
     pub fn build(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> Dual {
         let t = std::time::Instant::now();
         let (row_ptr, col) = pair_graph(mesh, inc, n_rows, gid);
         let t_pairs = t.elapsed().as_secs_f64();
-        let mask = boundary_mask(mesh);
-        let t_mask = t.elapsed().as_secs_f64() - t_pairs;
         let pts = &mesh.points;
         let mut s = vec![[0.0; 3]; col.len()];
         // the dual of each cell of a block of rows, computed once for the block (the rows of a
-        // block are near each other in the visit order, so few cells are computed in two blocks)
+        // block are near each other in the visit order, so few cells are computed in two
+        // blocks); the cells' nodes and kinds beside their pieces: a row then reads nothing of
+        // the mesh's cell arrays
         let cell_duals = |rows: &[u32]| {
-            BlockCells::new(
-                inc,
-                rows,
-                |_| true,
-                |cells| {
-                    // the cell's nodes, kind and boundary faces beside its dual piece: a row
-                    // then reads nothing of the mesh's cell arrays
-                    let g = Gathered::new(mesh, cells);
-                    let mut out = Vec::with_capacity(cells.len());
-                    for (k, &c) in cells.iter().enumerate() {
-                        let (kind, nodes, x) = g.cell(k);
-                        let mut at = [0u32; MAX_NODES];
-                        at[..nodes.len()].copy_from_slice(nodes);
-                        out.push((cell_dual(kind, &LOCAL[..nodes.len()], x), at, kind, mask[c as usize]));
-                    }
-                    out
-                },
+            (
+                BlockCells::new(inc, rows, |_| true, |cells| DualPieces::new(mesh, cells)),
+                std::cell::RefCell::new(RowFaces::default()),
             )
         };
         let order = visit_order(mesh, n_rows);
-        let rows: Vec<(f64, [f64; 3], f64)> =
-            par_rows_with(&mut s, &row_ptr[..=n_rows], Some(&order), cell_duals, |ctx, i, s| {
+        let rows: Vec<(f64, [f64; 3], f64)> = par_rows_with(
+            &mut s,
+            &row_ptr[..=n_rows],
+            Some(&order),
+            cell_duals,
+            |(ctx, faces), i, s| {
                 let cols = &col[row_ptr[i]..row_ptr[i + 1]];
-                let mut v = 0.0;
-                let mut a = [0.0; 3];
-                let slots = ctx.row(i);
-                for &slot in slots {
-                    let (cd, nodes, kind, mask) = &ctx.items[slot as usize];
-                    let (kind, mask) = (*kind, *mask);
-                    let nodes = &nodes[..kind.n_nodes()];
-                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                    v += cd.vol[li];
-                    for (e, edge) in kind.edges().iter().enumerate() {
-                        let (other, sign) = if edge[0] == li {
-                            (edge[1], 1.0)
-                        } else if edge[1] == li {
-                            (edge[0], -1.0)
-                        } else {
-                            continue;
-                        };
-                        let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
-                        s[p] = add(s[p], scale(cd.s[e], sign));
-                    }
-                    if mask != 0 {
-                        for (f, face) in kind.faces().iter().enumerate() {
-                            if mask & (1 << f) == 0 {
+                with_columns(mesh.n_nodes(), cols, |at| {
+                    let faces = &mut *faces.borrow_mut();
+                    faces.reset(cols.len());
+                    let p = &ctx.items;
+                    let cell = |slot: u32| {
+                        let k = slot as usize;
+                        let (kind, nodes) = (p.g.kinds[k], &p.g.nodes[p.g.ptr[k] as usize..p.g.ptr[k + 1] as usize]);
+                        let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                        (k, kind, nodes, li, at.of_cell(nodes, li))
+                    };
+                    let mut v = 0.0;
+                    let slots = ctx.row(i);
+                    for &slot in slots {
+                        let (k, kind, _, li, pos) = cell(slot);
+                        v += p.vol[p.g.ptr[k] as usize + li];
+                        let cs = &p.s[p.eptr[k] as usize..];
+                        for (e, edge) in kind.edges().iter().enumerate() {
+                            let (other, sign) = if edge[0] == li {
+                                (edge[1], 1.0)
+                            } else if edge[1] == li {
+                                (edge[0], -1.0)
+                            } else {
                                 continue;
+                            };
+                            let q = pos[other] as usize;
+                            s[q] = add(s[q], scale(cs[e], sign));
+                        }
+                        for face in kind.faces() {
+                            if let Some(key) = RowFaces::key(face, li, &pos) {
+                                faces.add(key);
                             }
-                            if let Some(k) = face.iter().position(|&l| l == li) {
+                        }
+                    }
+                    // the boundary faces' areas, in the order of the cells and their faces
+                    let mut a = [0.0; 3];
+                    if faces.any() {
+                        for &slot in slots {
+                            let (_, kind, nodes, li, pos) = cell(slot);
+                            for face in kind.faces() {
+                                let Some(key) = RowFaces::key(face, li, &pos) else {
+                                    continue;
+                                };
+                                if !faces.is_boundary(key) {
+                                    continue;
+                                }
                                 let nf = face.len();
+                                let k = face.iter().position(|&l| l == li).unwrap();
                                 let next = nodes[face[(k + 1) % nf]] as usize;
                                 let prev = nodes[face[(k + nf - 1) % nf]] as usize;
-                                let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
-                                let fcn = centroid(&fnodes, pts);
+                                let (fnodes, n) = face_nodes(face, nodes);
+                                let fcn = centroid(&fnodes[..n], pts);
                                 let xi = pts[i];
                                 let quad = [xi, scale(add(xi, pts[next]), 0.5), fcn, scale(add(xi, pts[prev]), 0.5)];
                                 a = add(a, loop_area(&quad));
                             }
                         }
                     }
-                }
-                let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
-                (v, a, da)
-            });
+                    let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
+                    (v, a, da)
+                })
+            },
+        );
         let vol = rows.iter().map(|r| r.0).collect();
         let area = rows.iter().map(|r| r.1).collect();
         let dual_area = rows.iter().map(|r| r.2).collect();
         tracing::debug!(
-            "dual geometry of {n_rows} rows in {:.2} s: pair graph {t_pairs:.2} s, boundary faces {t_mask:.2} s, dual faces and volumes {:.2} s",
+            "dual geometry of {n_rows} rows in {:.2} s: pair graph {t_pairs:.2} s, dual faces, volumes and boundary faces {:.2} s",
             t.elapsed().as_secs_f64(),
-            t.elapsed().as_secs_f64() - t_pairs - t_mask
+            t.elapsed().as_secs_f64() - t_pairs
         );
         Dual {
             n_rows,
@@ -612,24 +782,26 @@ pub(crate) fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Mater
     let mut out = vec![[0.0; 3]; dual.row_ptr[dual.n_rows]];
     par_rows(&mut out, &dual.row_ptr[..=dual.n_rows], |i, s| {
         let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
-        for &c in inc.of(i) {
-            let c = c as usize;
-            let (kind, nodes) = (mesh.kinds[c], mesh.cell(c));
-            let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-            let cd = cell_dual(kind, nodes, pts);
-            let w = cell_young(nodes, mat);
-            for (e, edge) in kind.edges().iter().enumerate() {
-                let (other, sign) = if edge[0] == li {
-                    (edge[1], w)
-                } else if edge[1] == li {
-                    (edge[0], -w)
-                } else {
-                    continue;
-                };
-                let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
-                s[p] = add(s[p], scale(cd.s[e], sign));
+        with_columns(mesh.n_nodes(), cols, |at| {
+            for &c in inc.of(i) {
+                let c = c as usize;
+                let (kind, nodes) = (mesh.kinds[c], mesh.cell(c));
+                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                let cd = cell_dual(kind, nodes, pts);
+                let w = cell_young(nodes, mat);
+                for (e, edge) in kind.edges().iter().enumerate() {
+                    let (other, sign) = if edge[0] == li {
+                        (edge[1], w)
+                    } else if edge[1] == li {
+                        (edge[0], -w)
+                    } else {
+                        continue;
+                    };
+                    let p = at.of(nodes[other]);
+                    s[p] = add(s[p], scale(cd.s[e], sign));
+                }
             }
-        }
+        })
     });
     out
 }
@@ -689,7 +861,7 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                         }
                         (a, [nodes[0], nodes[1], nodes[2], nodes[3]])
                     })
-                    .collect()
+                    .collect::<Vec<_>>()
             },
         )
     };
@@ -700,48 +872,50 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
         tets,
         |ctx, i, w| {
             let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
-            let slots = ctx.row(i);
-            for (&c, &slot) in inc.of(i).iter().zip(slots) {
-                if slot != u32::MAX {
-                    // a tetrahedron: its nodes and coefficients are the block's
-                    let (a, nodes) = &ctx.items[slot as usize];
-                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                    for lk in 0..4 {
-                        if lk == li {
-                            continue;
+            with_columns(mesh.n_nodes(), cols, |at| {
+                let slots = ctx.row(i);
+                for (&c, &slot) in inc.of(i).iter().zip(slots) {
+                    if slot != u32::MAX {
+                        // a tetrahedron: its nodes and coefficients are the block's
+                        let (a, nodes) = &ctx.items[slot as usize];
+                        let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                        for lk in 0..4 {
+                            if lk == li {
+                                continue;
+                            }
+                            let val = a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
+                            let p = at.of(nodes[lk]);
+                            w[p] += val;
                         }
-                        let val = a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
-                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
-                        w[p] += val;
-                    }
-                } else {
-                    let c = c as usize;
-                    let kind = mesh.kinds[c];
-                    let nodes = mesh.cell(c);
-                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                    let rc = tensor(nodes);
-                    let cd = cell_dual(kind, nodes, pts);
-                    let gg = green_gauss(kind, nodes, pts, cd.volume);
-                    // total outward dual-face vector of node li in this cell
-                    let mut sum_s = [0.0; 3];
-                    for (e, edge) in kind.edges().iter().enumerate() {
-                        if edge[0] == li {
-                            sum_s = add(sum_s, cd.s[e]);
-                        } else if edge[1] == li {
-                            sum_s = sub(sum_s, cd.s[e]);
+                    } else {
+                        let c = c as usize;
+                        let kind = mesh.kinds[c];
+                        let nodes = mesh.cell(c);
+                        let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                        let rc = tensor(nodes);
+                        let cd = cell_dual(kind, nodes, pts);
+                        let gg = green_gauss(kind, nodes, pts, cd.volume);
+                        // total outward dual-face vector of node li in this cell
+                        let mut sum_s = [0.0; 3];
+                        for (e, edge) in kind.edges().iter().enumerate() {
+                            if edge[0] == li {
+                                sum_s = add(sum_s, cd.s[e]);
+                            } else if edge[1] == li {
+                                sum_s = sub(sum_s, cd.s[e]);
+                            }
                         }
-                    }
-                    let rs = rc * Vector3::from(sum_s);
-                    for (lk, gk) in gg.iter().enumerate() {
-                        if lk == li {
-                            continue;
+                        let rs = rc * Vector3::from(sum_s);
+                        for (lk, gk) in gg.iter().enumerate() {
+                            if lk == li {
+                                continue;
+                            }
+                            let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
+                            let p = at.of(nodes[lk]);
+                            w[p] += val;
                         }
-                        let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
-                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
-                        w[p] += val;
                     }
                 }
-            }
+            })
         },
     );
     tracing::debug!(
