@@ -297,6 +297,33 @@ impl Gathered {
     }
 }
 
+/// Sorts keys `c << 32 | k` that were pushed in increasing k: a least-significant-digit radix
+/// sort over the bits of c, 11 at a time (stable, so k stays increasing within a c: the order
+/// of sorting the keys whole), two passes for two million cells instead of a comparison sort.
+fn sort_by_cell(at: &mut Vec<u64>) {
+    const DIGIT: u32 = 11;
+    let max = at.iter().map(|&k| k >> 32).max().unwrap_or(0);
+    let mut tmp = vec![0u64; at.len()];
+    let mut shift = 32;
+    while shift < 64 - max.leading_zeros() + 32 {
+        let digit = |k: u64| ((k >> shift) & ((1 << DIGIT) - 1)) as usize;
+        let mut at_digit = [0u32; (1 << DIGIT) + 1];
+        for &k in at.iter() {
+            at_digit[digit(k) + 1] += 1;
+        }
+        for d in 0..1 << DIGIT {
+            at_digit[d + 1] += at_digit[d];
+        }
+        for &k in at.iter() {
+            let d = digit(k);
+            tmp[at_digit[d] as usize] = k;
+            at_digit[d] += 1;
+        }
+        std::mem::swap(at, &mut tmp);
+        shift += DIGIT;
+    }
+}
+
 /// Per-cell pieces of the cells of a block of rows, each computed once for the block (the rows
 /// of a block are near each other in the visit order, so few cells are computed in two
 /// blocks), and for every incident cell of every row the slot of its piece: a row finds its
@@ -330,7 +357,7 @@ impl<T> BlockCells<T> {
         }
         start.push(at.len());
         let mut slot = vec![u32::MAX; at.len()];
-        at.sort_unstable();
+        sort_by_cell(&mut at);
         let mut cells = Vec::new();
         let (mut last, mut kept) = (u64::MAX, false);
         for &key in &at {
@@ -439,18 +466,26 @@ struct DualPieces {
 }
 
 impl DualPieces {
-    fn new(mesh: &Mesh, cells: &[u32]) -> Self {
+    /// Without `faces`, the volume pieces alone (`s` empty).
+    fn new(mesh: &Mesh, cells: &[u32], faces: bool) -> Self {
         let mut g = Gathered::new(mesh, cells);
         let mut eptr = Vec::with_capacity(cells.len() + 1);
         eptr.push(0);
-        let mut s = Vec::with_capacity(6 * cells.len());
+        let mut s = Vec::with_capacity(if faces { 6 * cells.len() } else { 0 });
         let mut vol = Vec::with_capacity(g.nodes.len());
         for k in 0..cells.len() {
             let (kind, nodes, x) = g.cell(k);
             let n = nodes.len();
-            let cd = cell_dual(kind, &LOCAL[..n], x);
-            s.extend_from_slice(&cd.s[..kind.edges().len()]);
-            vol.extend_from_slice(&cd.vol[..n]);
+            if !faces && kind == CellKind::Tet {
+                // `cell_dual`'s volume pieces of a tetrahedron, without its faces
+                vol.extend_from_slice(&[cell_volume(kind, &LOCAL[..n], x) / 4.0; 4]);
+            } else {
+                let cd = cell_dual(kind, &LOCAL[..n], x);
+                if faces {
+                    s.extend_from_slice(&cd.s[..kind.edges().len()]);
+                }
+                vol.extend_from_slice(&cd.vol[..n]);
+            }
             eptr.push(s.len() as u32);
         }
         g.x = Vec::new();
@@ -592,28 +627,41 @@ pub(crate) fn with_columns<R>(n_nodes: usize, cols: &[u32], f: impl FnOnce(Colum
 impl Dual {
     /// Median-dual geometry of rows `0..n_rows`. Every cell incident to a row must be present.
     pub fn build(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> Dual {
+        Dual::build_with(mesh, inc, n_rows, gid, true)
+    }
+
+    /// `build`, with the dual faces S_ij and their closure scale only where `faces` asks for
+    /// them (the paper scheme's fluxes and the mesh report need them; the compact scheme needs
+    /// the pair graph, the control volumes and the boundary areas alone): without, `s` and
+    /// `dual_area` are empty, as after `release_pairs`, and the rest is the same bits.
+    pub fn build_with(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>, faces: bool) -> Dual {
         let t = std::time::Instant::now();
         let (row_ptr, col) = pair_graph(mesh, inc, n_rows, gid);
         let t_pairs = t.elapsed().as_secs_f64();
         let pts = &mesh.points;
-        let mut s = vec![[0.0; 3]; col.len()];
+        let mut s = vec![[0.0; 3]; if faces { col.len() } else { 0 }];
+        // without the faces, every row's slice of `s` is empty
+        let no_faces: Vec<usize>;
+        let s_ptr = if faces {
+            &row_ptr[..=n_rows]
+        } else {
+            no_faces = vec![0; n_rows + 1];
+            &no_faces
+        };
+        let with_faces = faces;
         // the dual of each cell of a block of rows, computed once for the block (the rows of a
         // block are near each other in the visit order, so few cells are computed in two
         // blocks); the cells' nodes and kinds beside their pieces: a row then reads nothing of
         // the mesh's cell arrays
         let cell_duals = |rows: &[u32]| {
             (
-                BlockCells::new(inc, rows, |_| true, |cells| DualPieces::new(mesh, cells)),
+                BlockCells::new(inc, rows, |_| true, |cells| DualPieces::new(mesh, cells, with_faces)),
                 std::cell::RefCell::new(RowFaces::default()),
             )
         };
         let order = visit_order(mesh, n_rows);
-        let rows: Vec<(f64, [f64; 3], f64)> = par_rows_with(
-            &mut s,
-            &row_ptr[..=n_rows],
-            Some(&order),
-            cell_duals,
-            |(ctx, faces), i, s| {
+        let rows: Vec<(f64, [f64; 3], f64)> =
+            par_rows_with(&mut s, s_ptr, Some(&order), cell_duals, |(ctx, faces), i, s| {
                 let cols = &col[row_ptr[i]..row_ptr[i + 1]];
                 with_columns(mesh.n_nodes(), cols, |at| {
                     let faces = &mut *faces.borrow_mut();
@@ -631,16 +679,18 @@ impl Dual {
                         let (k, kind, _, li, pos) = cell(slot);
                         v += p.vol[p.g.ptr[k] as usize + li];
                         let cs = &p.s[p.eptr[k] as usize..];
-                        for (e, edge) in kind.edges().iter().enumerate() {
-                            let (other, sign) = if edge[0] == li {
-                                (edge[1], 1.0)
-                            } else if edge[1] == li {
-                                (edge[0], -1.0)
-                            } else {
-                                continue;
-                            };
-                            let q = pos[other] as usize;
-                            s[q] = add(s[q], scale(cs[e], sign));
+                        if with_faces {
+                            for (e, edge) in kind.edges().iter().enumerate() {
+                                let (other, sign) = if edge[0] == li {
+                                    (edge[1], 1.0)
+                                } else if edge[1] == li {
+                                    (edge[0], -1.0)
+                                } else {
+                                    continue;
+                                };
+                                let q = pos[other] as usize;
+                                s[q] = add(s[q], scale(cs[e], sign));
+                            }
                         }
                         for face in kind.faces() {
                             if let Some(key) = RowFaces::key(face, li, &pos) {
@@ -675,11 +725,14 @@ impl Dual {
                     let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
                     (v, a, da)
                 })
-            },
-        );
+            });
         let vol = rows.iter().map(|r| r.0).collect();
         let area = rows.iter().map(|r| r.1).collect();
-        let dual_area = rows.iter().map(|r| r.2).collect();
+        let dual_area = if faces {
+            rows.iter().map(|r| r.2).collect()
+        } else {
+            Vec::new()
+        };
         tracing::debug!(
             "dual geometry of {n_rows} rows in {:.2} s: pair graph {t_pairs:.2} s, dual faces, volumes and boundary faces {:.2} s",
             t.elapsed().as_secs_f64(),
@@ -815,6 +868,88 @@ const TET_PAIR_OF: [[usize; 4]; 4] = [
     [2, 4, 5, usize::MAX],
 ];
 
+/// A cell's tensor for the compact coefficients: the mean of its nodes', weighed by its young
+/// where tissues weigh (`cell_young`; no weight at all unless `Materials::weighs_young`).
+struct CellTensor<'a> {
+    r: &'a Materials,
+    weighs: bool,
+}
+
+impl<'a> CellTensor<'a> {
+    fn new(r: &'a Materials) -> Self {
+        CellTensor {
+            r,
+            weighs: r.weighs_young(),
+        }
+    }
+
+    fn of(&self, nodes: &[u32]) -> Matrix3<f64> {
+        let mut rc = Matrix3::zeros();
+        for &n in nodes {
+            rc += self.r.r(n as usize);
+        }
+        rc /= nodes.len() as f64;
+        if self.weighs {
+            rc *= cell_young(nodes, self.r);
+        }
+        rc
+    }
+
+    /// A tetrahedron's coefficient a_ab of each pair of its nodes (`TET_PAIRS`), from its
+    /// nodes and their points `x`: a_ab = -V grad N_a . R grad N_b, for (a, b) in increasing
+    /// local order so that a_ab == a_ba bitwise.
+    fn tet(&self, nodes: &[u32], x: &[[f64; 3]]) -> [f64; 6] {
+        let (gr, v) = tet_gradients(&LOCAL[..4], x);
+        let rc = self.of(nodes);
+        let mut a = [0.0; 6];
+        for (k, &(lo, hi)) in TET_PAIRS.iter().enumerate() {
+            let rg = rc * Vector3::from(gr[hi]);
+            a[k] = -v * (gr[lo][0] * rg[0] + gr[lo][1] * rg[1] + gr[lo][2] * rg[2]);
+        }
+        a
+    }
+
+    /// Adds to row i's coefficients `w` those of the mesh's cell `c`, not a tetrahedron: the
+    /// exact flux of R grad u (its Green-Gauss gradient) through i's dual faces in the cell.
+    fn add_other_row(&self, mesh: &Mesh, c: usize, i: usize, at: Columns<'_>, w: &mut [f64]) {
+        let pts = &mesh.points;
+        let kind = mesh.kinds[c];
+        let nodes = mesh.cell(c);
+        let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+        let rc = self.of(nodes);
+        let cd = cell_dual(kind, nodes, pts);
+        let gg = green_gauss(kind, nodes, pts, cd.volume);
+        // total outward dual-face vector of node li in this cell
+        let mut sum_s = [0.0; 3];
+        for (e, edge) in kind.edges().iter().enumerate() {
+            if edge[0] == li {
+                sum_s = add(sum_s, cd.s[e]);
+            } else if edge[1] == li {
+                sum_s = sub(sum_s, cd.s[e]);
+            }
+        }
+        let rs = rc * Vector3::from(sum_s);
+        for (lk, gk) in gg.iter().enumerate() {
+            if lk == li {
+                continue;
+            }
+            let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
+            w[at.of(nodes[lk])] += val;
+        }
+    }
+}
+
+/// Adds to the coefficients `w` of the row of a tetrahedron's local node `li` the
+/// tetrahedron's (`CellTensor::tet`).
+fn add_tet_row(a: &[f64; 6], nodes: &[u32], li: usize, at: Columns<'_>, w: &mut [f64]) {
+    for lk in 0..4 {
+        if lk == li {
+            continue;
+        }
+        w[at.of(nodes[lk])] += a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
+    }
+}
+
 /// Compact-scheme coefficients a_ij of rows `0..n_rows` on the pair graph of `dual`:
 /// sum_j a_ij (u_j - u_i) is the exact flux of (E/E0) R grad u (cell gradients) into the
 /// control volume of i. `r` gives the tensor and young of every local node; a cell uses the
@@ -822,26 +957,11 @@ const TET_PAIR_OF: [[usize; 4]; 4] = [
 /// `Materials::weighs_young`).
 pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Materials) -> Vec<f64> {
     let t = std::time::Instant::now();
-    let pts = &mesh.points;
     let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
     let order = visit_order(mesh, dual.n_rows);
-    let weighs = r.weighs_young();
-    // a cell's tensor: the mean of its nodes', weighed by its young where tissues weigh
-    let tensor = |nodes: &[u32]| {
-        let mut rc = Matrix3::zeros();
-        for &n in nodes {
-            rc += r.r(n as usize);
-        }
-        rc /= nodes.len() as f64;
-        if weighs {
-            rc *= cell_young(nodes, r);
-        }
-        rc
-    };
-    // the coefficient a_ab of each pair of nodes of each tetrahedron of a block of rows,
-    // computed once for the block (as the dual's cell pieces in `Dual::build`):
-    // a_ab = -V grad N_a . R grad N_b, for (a, b) in increasing local order so that
-    // a_ab == a_ba bitwise
+    let tensor = CellTensor::new(r);
+    // the coefficients of each tetrahedron of a block of rows, computed once for the block
+    // (as the dual's cell pieces in `Dual::build`)
     let tets = |rows: &[u32]| {
         BlockCells::new(
             inc,
@@ -852,14 +972,7 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                 (0..cells.len())
                     .map(|k| {
                         let (_, nodes, x) = g.cell(k);
-                        let (gr, v) = tet_gradients(&LOCAL[..4], x);
-                        let rc = tensor(nodes);
-                        let mut a = [0.0; 6];
-                        for (k, &(lo, hi)) in TET_PAIRS.iter().enumerate() {
-                            let rg = rc * Vector3::from(gr[hi]);
-                            a[k] = -v * (gr[lo][0] * rg[0] + gr[lo][1] * rg[1] + gr[lo][2] * rg[2]);
-                        }
-                        (a, [nodes[0], nodes[1], nodes[2], nodes[3]])
+                        (tensor.tet(nodes, x), [nodes[0], nodes[1], nodes[2], nodes[3]])
                     })
                     .collect::<Vec<_>>()
             },
@@ -879,40 +992,9 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                         // a tetrahedron: its nodes and coefficients are the block's
                         let (a, nodes) = &ctx.items[slot as usize];
                         let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                        for lk in 0..4 {
-                            if lk == li {
-                                continue;
-                            }
-                            let val = a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
-                            let p = at.of(nodes[lk]);
-                            w[p] += val;
-                        }
+                        add_tet_row(a, nodes, li, at, w);
                     } else {
-                        let c = c as usize;
-                        let kind = mesh.kinds[c];
-                        let nodes = mesh.cell(c);
-                        let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                        let rc = tensor(nodes);
-                        let cd = cell_dual(kind, nodes, pts);
-                        let gg = green_gauss(kind, nodes, pts, cd.volume);
-                        // total outward dual-face vector of node li in this cell
-                        let mut sum_s = [0.0; 3];
-                        for (e, edge) in kind.edges().iter().enumerate() {
-                            if edge[0] == li {
-                                sum_s = add(sum_s, cd.s[e]);
-                            } else if edge[1] == li {
-                                sum_s = sub(sum_s, cd.s[e]);
-                            }
-                        }
-                        let rs = rc * Vector3::from(sum_s);
-                        for (lk, gk) in gg.iter().enumerate() {
-                            if lk == li {
-                                continue;
-                            }
-                            let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
-                            let p = at.of(nodes[lk]);
-                            w[p] += val;
-                        }
+                        tensor.add_other_row(mesh, c as usize, i, at, w);
                     }
                 }
             })

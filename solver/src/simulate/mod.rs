@@ -678,7 +678,9 @@ impl Simulation {
         let n_global = c.sum_i128(n_owned as i128) as usize;
         let inc = Incidence::new(&setup.mesh);
         crate::diagnostics::log_memory("the local mesh and plan");
-        let mut dual = Dual::build(&setup.mesh, &inc, n_rows, Some(gid.as_slice()));
+        // the compact scheme needs no dual faces (`build_operator`)
+        let faces = !matches!(setup.model.scheme(), Scheme::Compact);
+        let mut dual = Dual::build_with(&setup.mesh, &inc, n_rows, Some(gid.as_slice()), faces);
         crate::diagnostics::log_memory("the dual geometry");
         let inactive_nodes = c.sum_i128(dual.vol[..n_owned].iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
         // halo nodes have no row here; only their fixedness matters
