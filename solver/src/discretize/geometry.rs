@@ -402,6 +402,41 @@ impl<T> Shared<T> {
     }
 }
 
+/// A second CSR array that a `par_rows_with` pass fills beside its own, row by row.
+struct RowsOut<'a, T> {
+    at: Shared<T>,
+    row_ptr: &'a [usize],
+    _data: std::marker::PhantomData<&'a mut [T]>,
+}
+
+impl<'a, T: Send> RowsOut<'a, T> {
+    fn new(data: &'a mut [T], row_ptr: &'a [usize]) -> Self {
+        assert!(row_ptr.windows(2).all(|w| w[0] <= w[1]) && row_ptr[row_ptr.len() - 1] <= data.len());
+        RowsOut {
+            at: Shared(data.as_mut_ptr()),
+            row_ptr,
+            _data: std::marker::PhantomData,
+        }
+    }
+
+    /// Row i's values.
+    ///
+    /// # Safety
+    /// No other reference to row i may be alive: each row asked for by the one iteration of
+    /// `par_rows_with` that builds that row.
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn row(&self, i: usize) -> &mut [T] {
+        // SAFETY: the row lies inside `data` (checked in `new`); exclusive by the caller's
+        // promise
+        unsafe {
+            std::slice::from_raw_parts_mut(
+                self.at.get().add(self.row_ptr[i]),
+                self.row_ptr[i + 1] - self.row_ptr[i],
+            )
+        }
+    }
+}
+
 /// `par_rows` with a context built once per block of rows (`init(rows of the block)`), shared
 /// by the rows of that block, the rows taken in blocks of `order` (a permutation of the rows;
 /// None: increasing). Results come back in row order; a row's work does not depend on the order.
@@ -463,19 +498,30 @@ struct DualPieces {
     eptr: Vec<u32>,
     s: Vec<[f64; 3]>,
     vol: Vec<f64>,
+    /// With a `CellTensor`: each tetrahedron's compact coefficients (`CellTensor::tet`; zero
+    /// for the other kinds, whose rows take theirs from the mesh).
+    a: Vec<[f64; 6]>,
 }
 
 impl DualPieces {
     /// Without `faces`, the volume pieces alone (`s` empty).
-    fn new(mesh: &Mesh, cells: &[u32], faces: bool) -> Self {
+    fn new(mesh: &Mesh, cells: &[u32], faces: bool, tensor: Option<&CellTensor>) -> Self {
         let mut g = Gathered::new(mesh, cells);
         let mut eptr = Vec::with_capacity(cells.len() + 1);
         eptr.push(0);
         let mut s = Vec::with_capacity(if faces { 6 * cells.len() } else { 0 });
         let mut vol = Vec::with_capacity(g.nodes.len());
+        let mut a = Vec::with_capacity(if tensor.is_some() { cells.len() } else { 0 });
         for k in 0..cells.len() {
             let (kind, nodes, x) = g.cell(k);
             let n = nodes.len();
+            if let Some(t) = tensor {
+                a.push(if kind == CellKind::Tet {
+                    t.tet(nodes, x)
+                } else {
+                    [0.0; 6]
+                });
+            }
             if !faces && kind == CellKind::Tet {
                 // `cell_dual`'s volume pieces of a tetrahedron, without its faces
                 vol.extend_from_slice(&[cell_volume(kind, &LOCAL[..n], x) / 4.0; 4]);
@@ -489,7 +535,7 @@ impl DualPieces {
             eptr.push(s.len() as u32);
         }
         g.x = Vec::new();
-        DualPieces { g, eptr, s, vol }
+        DualPieces { g, eptr, s, vol, a }
     }
 }
 
@@ -627,35 +673,57 @@ pub(crate) fn with_columns<R>(n_nodes: usize, cols: &[u32], f: impl FnOnce(Colum
 impl Dual {
     /// Median-dual geometry of rows `0..n_rows`. Every cell incident to a row must be present.
     pub fn build(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> Dual {
-        Dual::build_with(mesh, inc, n_rows, gid, true)
+        Dual::build_inner(mesh, inc, n_rows, gid, true, None).0
     }
 
-    /// `build`, with the dual faces S_ij and their closure scale only where `faces` asks for
-    /// them (the paper scheme's fluxes and the mesh report need them; the compact scheme needs
-    /// the pair graph, the control volumes and the boundary areas alone): without, `s` and
-    /// `dual_area` are empty, as after `release_pairs`, and the rest is the same bits.
-    pub fn build_with(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>, faces: bool) -> Dual {
+    /// What a compact-scheme operator needs, in one pass over blocks of rows: the dual without
+    /// its faces S_ij and their closure scale (`s` and `dual_area` empty, as after
+    /// `release_pairs`; the compact operator never reads them) and the compact coefficients
+    /// (`compact_coefficients`). The same bits as `build` and `compact_coefficients`.
+    pub fn build_compact(
+        mesh: &Mesh,
+        inc: &Incidence,
+        n_rows: usize,
+        gid: Option<&[u64]>,
+        r: &Materials,
+    ) -> (Dual, Vec<f64>) {
+        Dual::build_inner(mesh, inc, n_rows, gid, false, Some(r))
+    }
+
+    /// The dual, its faces where `faces` asks for them, and with materials `r` the compact
+    /// coefficients (else an empty vector).
+    fn build_inner(
+        mesh: &Mesh,
+        inc: &Incidence,
+        n_rows: usize,
+        gid: Option<&[u64]>,
+        faces: bool,
+        r: Option<&Materials>,
+    ) -> (Dual, Vec<f64>) {
         let t = std::time::Instant::now();
         let (row_ptr, col) = pair_graph(mesh, inc, n_rows, gid);
         let t_pairs = t.elapsed().as_secs_f64();
         let pts = &mesh.points;
         let mut s = vec![[0.0; 3]; if faces { col.len() } else { 0 }];
-        // without the faces, every row's slice of `s` is empty
-        let no_faces: Vec<usize>;
-        let s_ptr = if faces {
-            &row_ptr[..=n_rows]
-        } else {
-            no_faces = vec![0; n_rows + 1];
-            &no_faces
-        };
+        // without the faces (the coefficients), every row's slice of `s` (`coef`) is empty
+        let empty = vec![0; n_rows + 1];
+        let s_ptr = if faces { &row_ptr[..=n_rows] } else { &empty };
         let with_faces = faces;
+        let tensor = r.map(CellTensor::new);
+        let mut coef = vec![0.0; if r.is_some() { col.len() } else { 0 }];
+        let coef_rows = RowsOut::new(&mut coef, if r.is_some() { &row_ptr[..=n_rows] } else { &empty });
         // the dual of each cell of a block of rows, computed once for the block (the rows of a
         // block are near each other in the visit order, so few cells are computed in two
         // blocks); the cells' nodes and kinds beside their pieces: a row then reads nothing of
         // the mesh's cell arrays
         let cell_duals = |rows: &[u32]| {
             (
-                BlockCells::new(inc, rows, |_| true, |cells| DualPieces::new(mesh, cells, with_faces)),
+                BlockCells::new(
+                    inc,
+                    rows,
+                    |_| true,
+                    |cells| DualPieces::new(mesh, cells, with_faces, tensor.as_ref()),
+                ),
                 std::cell::RefCell::new(RowFaces::default()),
             )
         };
@@ -675,9 +743,21 @@ impl Dual {
                     };
                     let mut v = 0.0;
                     let slots = ctx.row(i);
-                    for &slot in slots {
+                    // SAFETY: this iteration is row i's only one
+                    let w = unsafe { coef_rows.row(i) };
+                    for (&c, &slot) in inc.of(i).iter().zip(slots) {
                         let (k, kind, _, li, pos) = cell(slot);
                         v += p.vol[p.g.ptr[k] as usize + li];
+                        match &tensor {
+                            Some(_) if kind == CellKind::Tet => {
+                                let a = &p.a[k];
+                                for lk in (0..4).filter(|&lk| lk != li) {
+                                    w[pos[lk] as usize] += a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
+                                }
+                            }
+                            Some(tensor) => tensor.add_other_row(mesh, c as usize, i, at, w),
+                            None => {}
+                        }
                         let cs = &p.s[p.eptr[k] as usize..];
                         if with_faces {
                             for (e, edge) in kind.edges().iter().enumerate() {
@@ -734,11 +814,14 @@ impl Dual {
             Vec::new()
         };
         tracing::debug!(
-            "dual geometry of {n_rows} rows in {:.2} s: pair graph {t_pairs:.2} s, dual faces, volumes and boundary faces {:.2} s",
+            "dual geometry{} of {n_rows} rows in {:.2} s: pair graph {t_pairs:.2} s, {}volumes and boundary faces{} {:.2} s",
+            if r.is_some() { " and compact coefficients" } else { "" },
             t.elapsed().as_secs_f64(),
+            if faces { "dual faces, " } else { "" },
+            if r.is_some() { ", coefficients" } else { "" },
             t.elapsed().as_secs_f64() - t_pairs
         );
-        Dual {
+        let dual = Dual {
             n_rows,
             row_ptr,
             col,
@@ -746,7 +829,8 @@ impl Dual {
             vol,
             area,
             dual_area,
-        }
+        };
+        (dual, coef)
     }
 
     /// Frees the dual-face vectors S_ij (and the closure scale) once the operator is built;
