@@ -546,25 +546,31 @@ impl DualPieces {
 #[derive(Default)]
 struct RowFaces {
     /// Triangles (i, a, b), a < b: bit b % 64 of word a * words + b / 64 is set once the
-    /// triangle is seen (`seen`) and once it is seen again (`twice`).
+    /// triangle is seen (`seen`) and once it is seen again (`twice`); words = 0 on a row of
+    /// more than `DENSE` columns, whose triangles go to `listed` (the bitsets grow as the
+    /// square of the columns).
     seen: Vec<u64>,
     twice: Vec<u64>,
     words: usize,
     /// Triangles seen exactly once so far.
     single: usize,
-    /// Quadrilaterals: their three other nodes' positions, sorted.
-    quads: Vec<[u32; 3]>,
+    /// Quadrilaterals (and the triangles of a row of many columns, third position u32::MAX):
+    /// their other nodes' positions, sorted.
+    listed: Vec<[u32; 3]>,
 }
 
 impl RowFaces {
+    /// The most columns of a row whose triangles are told apart in the bitsets.
+    const DENSE: usize = 1024;
+
     fn reset(&mut self, n_cols: usize) {
-        self.words = n_cols.div_ceil(64);
+        self.words = if n_cols <= Self::DENSE { n_cols.div_ceil(64) } else { 0 };
         for v in [&mut self.seen, &mut self.twice] {
             v.clear();
             v.resize(n_cols * self.words, 0);
         }
         self.single = 0;
-        self.quads.clear();
+        self.listed.clear();
     }
 
     /// The face's other nodes' positions (`pos`: of each local node of the cell), sorted, and
@@ -590,7 +596,7 @@ impl RowFaces {
     }
 
     fn add(&mut self, (k, n): ([u32; 3], usize)) {
-        if n == 2 {
+        if n == 2 && self.words > 0 {
             let (w, bit) = self.tri(&k);
             if self.seen[w] & bit == 0 {
                 self.seen[w] |= bit;
@@ -600,23 +606,23 @@ impl RowFaces {
                 self.single -= 1;
             }
         } else {
-            self.quads.push(k);
+            self.listed.push(k);
         }
     }
 
-    /// Whether any face is on the boundary (sorts the quadrilaterals: call once all are in).
+    /// Whether any face is on the boundary (sorts `listed`: call once all faces are in).
     fn any(&mut self) -> bool {
-        self.quads.sort_unstable();
-        self.single > 0 || self.quads.chunk_by(|a, b| a == b).any(|g| g.len() == 1)
+        self.listed.sort_unstable();
+        self.single > 0 || self.listed.chunk_by(|a, b| a == b).any(|g| g.len() == 1)
     }
 
     fn is_boundary(&self, (k, n): ([u32; 3], usize)) -> bool {
-        if n == 2 {
+        if n == 2 && self.words > 0 {
             let (w, bit) = self.tri(&k);
             self.seen[w] & bit != 0 && self.twice[w] & bit == 0
         } else {
-            let at = self.quads.partition_point(|q| *q < k);
-            self.quads[at..].iter().take_while(|q| **q == k).count() == 1
+            let at = self.listed.partition_point(|q| *q < k);
+            self.listed[at..].iter().take_while(|q| **q == k).count() == 1
         }
     }
 }
