@@ -192,3 +192,87 @@ fn the_geometry_and_operator_are_the_same_bits_on_one_and_two_threads() {
         assert!(one == two, "{}: the build differs on two threads", mesh.source);
     }
 }
+
+/// The boundary areas A_i as the whole mesh's boundary faces give them (`boundary_faces`):
+/// each face's quarter-loop added to its nodes in the order of the cells and their faces.
+fn areas_from_boundary_faces(mesh: &Mesh) -> Vec<[f64; 3]> {
+    use eprop_io::geom::{add, centroid, loop_area, scale};
+    let pts = &mesh.points;
+    let mut by_cell: Vec<Vec<u8>> = vec![Vec::new(); mesh.n_cells()];
+    for (c, f) in eprop_io::mesh::boundary_faces(mesh) {
+        by_cell[c as usize].push(f);
+    }
+    let mut area = vec![[0.0; 3]; mesh.n_nodes()];
+    let inc = Incidence::new(mesh);
+    for (i, a) in area.iter_mut().enumerate() {
+        for &c in inc.of(i) {
+            let (kind, nodes) = (mesh.kinds[c as usize], mesh.cell(c as usize));
+            let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+            for &f in &by_cell[c as usize] {
+                let face = kind.faces()[f as usize];
+                let Some(k) = face.iter().position(|&l| l == li) else {
+                    continue;
+                };
+                let nf = face.len();
+                let (next, prev) = (
+                    nodes[face[(k + 1) % nf]] as usize,
+                    nodes[face[(k + nf - 1) % nf]] as usize,
+                );
+                let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
+                let xi = pts[i];
+                let quad = [
+                    xi,
+                    scale(add(xi, pts[next]), 0.5),
+                    centroid(&fnodes, pts),
+                    scale(add(xi, pts[prev]), 0.5),
+                ];
+                *a = add(*a, loop_area(&quad));
+            }
+        }
+    }
+    area
+}
+
+#[test]
+fn a_rows_own_boundary_faces_are_the_whole_meshs() {
+    // generated boxes of every kind, and a fan: an apex over a 40 x 40 grid of triangles, so
+    // that the apex's row has 1,600 columns (its triangles are told apart by a sorted list, not
+    // the bitsets of a row of few columns)
+    let mut meshes: Vec<Mesh> = [BoxCells::Tet, BoxCells::Hex, BoxCells::Wedge, BoxCells::PyramidTet]
+        .into_iter()
+        .map(|k| box_mesh([1.0, 0.8, 0.6], [5, 4, 3], k).unwrap())
+        .collect();
+    let mut fan = Mesh::new("fan");
+    let n = 40;
+    for y in 0..n {
+        for x in 0..n {
+            fan.points.push([x as f64, y as f64, 0.0]);
+        }
+    }
+    fan.points.push([n as f64 / 2.0, n as f64 / 2.0, 5.0]);
+    let apex = (n * n) as u32;
+    let at = |x: usize, y: usize| (y * n + x) as u32;
+    for y in 0..n - 1 {
+        for x in 0..n - 1 {
+            fan.push_cell(
+                eprop_mesh::CellKind::Tet,
+                &[at(x, y), at(x + 1, y), at(x, y + 1), apex],
+                0,
+            );
+            fan.push_cell(
+                eprop_mesh::CellKind::Tet,
+                &[at(x + 1, y), at(x + 1, y + 1), at(x, y + 1), apex],
+                0,
+            );
+        }
+    }
+    meshes.push(fan);
+    for mesh in &meshes {
+        let inc = Incidence::new(mesh);
+        let dual = Dual::build(mesh, &inc, mesh.n_nodes(), None);
+        let want = areas_from_boundary_faces(mesh);
+        for (i, (a, b)) in dual.area.iter().zip(&want).enumerate() {
+            assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{}: A_{i}", mesh.source);
+        }
+    }
+}

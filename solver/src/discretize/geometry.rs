@@ -9,7 +9,7 @@
 
 use crate::config::tissue::Materials;
 use eprop_io::geom::{add, cell_volume, centroid, det3, dot, loop_area, scale, sub};
-use eprop_io::mesh::{boundary_faces, CellKind, Mesh};
+use eprop_io::mesh::{CellKind, Mesh};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -180,19 +180,31 @@ pub(crate) fn green_gauss(kind: CellKind, nodes: &[u32], pts: &[[f64; 3]], volum
 pub(crate) fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> (Vec<usize>, Vec<u32>) {
     let key = |j: u32| gid.map_or(j as u64, |g| g[j as usize]);
     thread_local! {
-        static SCRATCH: std::cell::RefCell<Vec<u32>> = const { std::cell::RefCell::new(Vec::new()) };
+        // a row's distinct neighbours, and per node the (call, row) that last took it
+        static SCRATCH: std::cell::RefCell<(Vec<u32>, Vec<u64>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
     }
-    // the sorted, distinct neighbours of row i in a reused buffer
+    static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed) << 32;
+    let n_nodes = mesh.n_nodes();
+    // the distinct neighbours of row i (a mark per node, so only they are sorted: a row
+    // meets each neighbour about four times), sorted, in a reused buffer
     let with_row = |i: usize, f: &mut dyn FnMut(&[u32])| {
-        SCRATCH.with(|v| {
-            let mut v = v.borrow_mut();
+        SCRATCH.with(|sc| {
+            let (v, mark) = &mut *sc.borrow_mut();
+            if mark.len() < n_nodes {
+                mark.resize(n_nodes, u64::MAX);
+            }
+            let me = call | i as u64;
+            // the cells' nodes first (one cell's loads do not wait for another's), then the
+            // distinct ones but i
             v.clear();
             for &c in inc.of(i) {
-                v.extend(mesh.cell(c as usize).iter().filter(|&&j| j as usize != i));
+                v.extend_from_slice(mesh.cell(c as usize));
             }
+            mark[i] = me;
+            v.retain(|&j| std::mem::replace(&mut mark[j as usize], me) != me);
             v.sort_unstable_by_key(|&j| key(j));
-            v.dedup();
-            f(&v)
+            f(v)
         })
     };
     // one pass over blocks of rows, each block's rows in one buffer, joined in row order (no
@@ -226,15 +238,6 @@ pub(crate) fn pair_graph(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Optio
     (ptr, col)
 }
 
-/// Per-cell bitmask of boundary faces.
-pub(crate) fn boundary_mask(mesh: &Mesh) -> Vec<u8> {
-    let mut mask = vec![0u8; mesh.n_cells()];
-    for (c, f) in boundary_faces(mesh) {
-        mask[c as usize] |= 1 << f;
-    }
-    mask
-}
-
 /// Runs `f(row, values of the row)` over the rows of a CSR array in parallel, filling `data`
 /// in place (no per-row allocation, so the peak memory is the array itself).
 pub(crate) fn par_rows<T: Send, R: Send>(
@@ -255,14 +258,80 @@ pub(crate) fn visit_order(mesh: &Mesh, n: usize) -> Vec<u32> {
     order
 }
 
+/// Local node numbers 0..8: `cell_dual(kind, &LOCAL[..n], x)` computes on a cell's own copy
+/// `x` of its points (the same arithmetic as on the mesh's points).
+const LOCAL: [u32; MAX_NODES] = [0, 1, 2, 3, 4, 5, 6, 7];
+
+/// The kinds, nodes and points of a list of cells, copied side by side in two passes: one
+/// cell's loads do not wait for another's, so the processor overlaps their cache misses (a
+/// tetgen file numbers its cells and nodes in no spatial order, and a cell read at a time,
+/// offsets then nodes then points, waited for each miss in turn).
+pub(crate) struct Gathered {
+    pub kinds: Vec<CellKind>,
+    /// `ptr[k]..ptr[k + 1]` indexes `nodes` and `x` for the k-th cell.
+    pub ptr: Vec<u32>,
+    pub nodes: Vec<u32>,
+    pub x: Vec<[f64; 3]>,
+}
+
+impl Gathered {
+    pub fn new(mesh: &Mesh, cells: &[u32]) -> Self {
+        let mut kinds = Vec::with_capacity(cells.len());
+        let mut ptr = Vec::with_capacity(cells.len() + 1);
+        let mut nodes = Vec::with_capacity(4 * cells.len());
+        ptr.push(0);
+        for &c in cells {
+            kinds.push(mesh.kinds[c as usize]);
+            nodes.extend_from_slice(mesh.cell(c as usize));
+            ptr.push(nodes.len() as u32);
+        }
+        let pts = &mesh.points;
+        let x = nodes.iter().map(|&n| pts[n as usize]).collect();
+        Gathered { kinds, ptr, nodes, x }
+    }
+
+    /// The k-th cell's kind, nodes and points.
+    pub fn cell(&self, k: usize) -> (CellKind, &[u32], &[[f64; 3]]) {
+        let r = self.ptr[k] as usize..self.ptr[k + 1] as usize;
+        (self.kinds[k], &self.nodes[r.clone()], &self.x[r])
+    }
+}
+
+/// Sorts keys `c << 32 | k` that were pushed in increasing k: a least-significant-digit radix
+/// sort over the bits of c, 11 at a time (stable, so k stays increasing within a c: the order
+/// of sorting the keys whole), two passes for two million cells instead of a comparison sort.
+fn sort_by_cell(at: &mut Vec<u64>) {
+    const DIGIT: u32 = 11;
+    let max = at.iter().map(|&k| k >> 32).max().unwrap_or(0);
+    let mut tmp = vec![0u64; at.len()];
+    let mut shift = 32;
+    while shift < 64 - max.leading_zeros() + 32 {
+        let digit = |k: u64| ((k >> shift) & ((1 << DIGIT) - 1)) as usize;
+        let mut at_digit = [0u32; (1 << DIGIT) + 1];
+        for &k in at.iter() {
+            at_digit[digit(k) + 1] += 1;
+        }
+        for d in 0..1 << DIGIT {
+            at_digit[d + 1] += at_digit[d];
+        }
+        for &k in at.iter() {
+            let d = digit(k);
+            tmp[at_digit[d] as usize] = k;
+            at_digit[d] += 1;
+        }
+        std::mem::swap(at, &mut tmp);
+        shift += DIGIT;
+    }
+}
+
 /// Per-cell pieces of the cells of a block of rows, each computed once for the block (the rows
 /// of a block are near each other in the visit order, so few cells are computed in two
 /// blocks), and for every incident cell of every row the slot of its piece: a row finds its
 /// cells' pieces by position, without a search. The rows must be asked for in the block's
 /// order (`row`), as `par_rows_with` visits them.
 pub struct BlockCells<T> {
-    /// The pieces, in increasing cell order.
-    pub items: Vec<T>,
+    /// The pieces, in increasing cell order (a `Vec` of them, or a flat layout).
+    pub items: T,
     /// Per incidence of the block's rows, in row order then the row's cell order: the slot in
     /// `items` (u32::MAX for a cell `keep` leaves out).
     slot: Vec<u32>,
@@ -274,8 +343,10 @@ pub struct BlockCells<T> {
 }
 
 impl<T> BlockCells<T> {
-    /// The pieces `piece(c)` of the cells `c` of `rows` that `keep` keeps.
-    pub fn new(inc: &Incidence, rows: &[u32], keep: impl Fn(u32) -> bool, piece: impl Fn(u32) -> T) -> Self {
+    /// The pieces of the cells of `rows` that `keep` keeps: `pieces(cells)` gives them for the
+    /// block's kept cells, in increasing order (one call per block, so that it can gather the
+    /// cells' nodes and points side by side before it computes: `Gathered`).
+    pub fn new(inc: &Incidence, rows: &[u32], keep: impl Fn(u32) -> bool, pieces: impl FnOnce(&[u32]) -> T) -> Self {
         let mut start = Vec::with_capacity(rows.len() + 1);
         let mut at: Vec<u64> = Vec::new();
         for &i in rows {
@@ -286,20 +357,23 @@ impl<T> BlockCells<T> {
         }
         start.push(at.len());
         let mut slot = vec![u32::MAX; at.len()];
-        at.sort_unstable();
-        let mut items = Vec::new();
-        let mut last = u64::MAX;
+        sort_by_cell(&mut at);
+        let mut cells = Vec::new();
+        let (mut last, mut kept) = (u64::MAX, false);
         for &key in &at {
             let c = key >> 32;
-            if !keep(c as u32) {
-                continue;
-            }
             if c != last {
-                items.push(piece(c as u32));
                 last = c;
+                kept = keep(c as u32);
+                if kept {
+                    cells.push(c as u32);
+                }
             }
-            slot[(key & 0xffff_ffff) as usize] = (items.len() - 1) as u32;
+            if kept {
+                slot[(key & 0xffff_ffff) as usize] = (cells.len() - 1) as u32;
+            }
         }
+        let items = pieces(&cells);
         BlockCells {
             items,
             slot,
@@ -325,6 +399,41 @@ unsafe impl<T: Send> Sync for Shared<T> {}
 impl<T> Shared<T> {
     fn get(&self) -> *mut T {
         self.0
+    }
+}
+
+/// A second CSR array that a `par_rows_with` pass fills beside its own, row by row.
+struct RowsOut<'a, T> {
+    at: Shared<T>,
+    row_ptr: &'a [usize],
+    _data: std::marker::PhantomData<&'a mut [T]>,
+}
+
+impl<'a, T: Send> RowsOut<'a, T> {
+    fn new(data: &'a mut [T], row_ptr: &'a [usize]) -> Self {
+        assert!(row_ptr.windows(2).all(|w| w[0] <= w[1]) && row_ptr[row_ptr.len() - 1] <= data.len());
+        RowsOut {
+            at: Shared(data.as_mut_ptr()),
+            row_ptr,
+            _data: std::marker::PhantomData,
+        }
+    }
+
+    /// Row i's values.
+    ///
+    /// # Safety
+    /// No other reference to row i may be alive: each row asked for by the one iteration of
+    /// `par_rows_with` that builds that row.
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn row(&self, i: usize) -> &mut [T] {
+        // SAFETY: the row lies inside `data` (checked in `new`); exclusive by the caller's
+        // promise
+        unsafe {
+            std::slice::from_raw_parts_mut(
+                self.at.get().add(self.row_ptr[i]),
+                self.row_ptr[i + 1] - self.row_ptr[i],
+            )
+        }
     }
 }
 
@@ -380,87 +489,345 @@ pub(crate) fn par_rows_with<T: Send, R: Send, C>(
     out
 }
 
+/// The dual pieces of a block's cells, flat (`Dual::build`): their kinds and nodes
+/// (`Gathered`, without the points once the pieces are computed), S^cell of each local edge
+/// (`eptr[k]..eptr[k + 1]` for the k-th cell) and the volume piece of each local node
+/// (indexed as the nodes).
+struct DualPieces {
+    g: Gathered,
+    eptr: Vec<u32>,
+    s: Vec<[f64; 3]>,
+    vol: Vec<f64>,
+    /// With a `CellTensor`: each tetrahedron's compact coefficients (`CellTensor::tet`; zero
+    /// for the other kinds, whose rows take theirs from the mesh).
+    a: Vec<[f64; 6]>,
+}
+
+impl DualPieces {
+    /// Without `faces`, the volume pieces alone (`s` empty).
+    fn new(mesh: &Mesh, cells: &[u32], faces: bool, tensor: Option<&CellTensor>) -> Self {
+        let mut g = Gathered::new(mesh, cells);
+        let mut eptr = Vec::with_capacity(cells.len() + 1);
+        eptr.push(0);
+        let mut s = Vec::with_capacity(if faces { 6 * cells.len() } else { 0 });
+        let mut vol = Vec::with_capacity(g.nodes.len());
+        let mut a = Vec::with_capacity(if tensor.is_some() { cells.len() } else { 0 });
+        for k in 0..cells.len() {
+            let (kind, nodes, x) = g.cell(k);
+            let n = nodes.len();
+            if let Some(t) = tensor {
+                a.push(if kind == CellKind::Tet {
+                    t.tet(nodes, x)
+                } else {
+                    [0.0; 6]
+                });
+            }
+            if !faces && kind == CellKind::Tet {
+                // `cell_dual`'s volume pieces of a tetrahedron, without its faces
+                vol.extend_from_slice(&[cell_volume(kind, &LOCAL[..n], x) / 4.0; 4]);
+            } else {
+                let cd = cell_dual(kind, &LOCAL[..n], x);
+                if faces {
+                    s.extend_from_slice(&cd.s[..kind.edges().len()]);
+                }
+                vol.extend_from_slice(&cd.vol[..n]);
+            }
+            eptr.push(s.len() as u32);
+        }
+        g.x = Vec::new();
+        DualPieces { g, eptr, s, vol, a }
+    }
+}
+
+/// A row's faces through its node, to tell the boundary ones (on one cell only) apart: every
+/// cell with a face through node i is one of i's cells, so the row alone decides, as
+/// `boundary_faces` on the whole mesh would. A face is named by the positions among the row's
+/// columns of its other nodes.
+#[derive(Default)]
+struct RowFaces {
+    /// Triangles (i, a, b), a < b: bit b % 64 of word a * words + b / 64 is set once the
+    /// triangle is seen (`seen`) and once it is seen again (`twice`); words = 0 on a row of
+    /// more than `DENSE` columns, whose triangles go to `listed` (the bitsets grow as the
+    /// square of the columns).
+    seen: Vec<u64>,
+    twice: Vec<u64>,
+    words: usize,
+    /// Triangles seen exactly once so far.
+    single: usize,
+    /// Quadrilaterals (and the triangles of a row of many columns, third position u32::MAX):
+    /// their other nodes' positions, sorted.
+    listed: Vec<[u32; 3]>,
+}
+
+impl RowFaces {
+    /// The most columns of a row whose triangles are told apart in the bitsets.
+    const DENSE: usize = 1024;
+
+    fn reset(&mut self, n_cols: usize) {
+        self.words = if n_cols <= Self::DENSE { n_cols.div_ceil(64) } else { 0 };
+        for v in [&mut self.seen, &mut self.twice] {
+            v.clear();
+            v.resize(n_cols * self.words, 0);
+        }
+        self.single = 0;
+        self.listed.clear();
+    }
+
+    /// The face's other nodes' positions (`pos`: of each local node of the cell), sorted, and
+    /// their count; None when the face does not pass through `li`.
+    fn key(face: &[usize], li: usize, pos: &[u32; MAX_NODES]) -> Option<([u32; 3], usize)> {
+        if !face.contains(&li) {
+            return None;
+        }
+        let mut k = [u32::MAX; 3];
+        let mut n = 0;
+        for &l in face {
+            if l != li {
+                k[n] = pos[l];
+                n += 1;
+            }
+        }
+        k[..n].sort_unstable();
+        Some((k, n))
+    }
+
+    fn tri(&self, k: &[u32; 3]) -> (usize, u64) {
+        (k[0] as usize * self.words + k[1] as usize / 64, 1 << (k[1] % 64))
+    }
+
+    fn add(&mut self, (k, n): ([u32; 3], usize)) {
+        if n == 2 && self.words > 0 {
+            let (w, bit) = self.tri(&k);
+            if self.seen[w] & bit == 0 {
+                self.seen[w] |= bit;
+                self.single += 1;
+            } else if self.twice[w] & bit == 0 {
+                self.twice[w] |= bit;
+                self.single -= 1;
+            }
+        } else {
+            self.listed.push(k);
+        }
+    }
+
+    /// Whether any face is on the boundary (sorts `listed`: call once all faces are in).
+    fn any(&mut self) -> bool {
+        self.listed.sort_unstable();
+        self.single > 0 || self.listed.chunk_by(|a, b| a == b).any(|g| g.len() == 1)
+    }
+
+    fn is_boundary(&self, (k, n): ([u32; 3], usize)) -> bool {
+        if n == 2 && self.words > 0 {
+            let (w, bit) = self.tri(&k);
+            self.seen[w] & bit != 0 && self.twice[w] & bit == 0
+        } else {
+            let at = self.listed.partition_point(|q| *q < k);
+            self.listed[at..].iter().take_while(|q| **q == k).count() == 1
+        }
+    }
+}
+
+thread_local! {
+    /// Per node, its position among the columns of the row this thread builds
+    /// (`with_columns`); stale entries of other rows stay.
+    static AT: std::cell::RefCell<Vec<u32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The positions of a row's columns: a table per node, so that finding a neighbour's entry is
+/// one load, not a search of the row (the search was half of a row's time on a tetgen mesh).
+#[derive(Clone, Copy)]
+pub(crate) struct Columns<'a> {
+    at: &'a [u32],
+    cols: &'a [u32],
+}
+
+impl Columns<'_> {
+    /// The position of node `j` among the row's columns (it must be one of them).
+    #[inline]
+    pub fn of(&self, j: u32) -> usize {
+        let p = self.at[j as usize] as usize;
+        assert!(self.cols.get(p) == Some(&j), "node {j} is not a column of the row");
+        p
+    }
+
+    /// The positions of a cell's local nodes (u32::MAX for the row's own, `li`).
+    fn of_cell(&self, nodes: &[u32], li: usize) -> [u32; MAX_NODES] {
+        let mut pos = [u32::MAX; MAX_NODES];
+        for (l, &n) in nodes.iter().enumerate() {
+            if l != li {
+                pos[l] = self.of(n) as u32;
+            }
+        }
+        pos
+    }
+}
+
+/// Runs `f` with the positions of the row's columns `cols` (nodes below `n_nodes`).
+pub(crate) fn with_columns<R>(n_nodes: usize, cols: &[u32], f: impl FnOnce(Columns<'_>) -> R) -> R {
+    AT.with(|at| {
+        let mut at = at.borrow_mut();
+        if at.len() < n_nodes {
+            at.resize(n_nodes, u32::MAX);
+        }
+        for (p, &j) in cols.iter().enumerate() {
+            at[j as usize] = p as u32;
+        }
+        f(Columns { at: &at, cols })
+    })
+}
+
 impl Dual {
     /// Median-dual geometry of rows `0..n_rows`. Every cell incident to a row must be present.
     pub fn build(mesh: &Mesh, inc: &Incidence, n_rows: usize, gid: Option<&[u64]>) -> Dual {
+        Dual::build_inner(mesh, inc, n_rows, gid, true, None).0
+    }
+
+    /// What a compact-scheme operator needs, in one pass over blocks of rows: the dual without
+    /// its faces S_ij and their closure scale (`s` and `dual_area` empty, as after
+    /// `release_pairs`; the compact operator never reads them) and the compact coefficients
+    /// (`compact_coefficients`). The same bits as `build` and `compact_coefficients`.
+    pub fn build_compact(
+        mesh: &Mesh,
+        inc: &Incidence,
+        n_rows: usize,
+        gid: Option<&[u64]>,
+        r: &Materials,
+    ) -> (Dual, Vec<f64>) {
+        Dual::build_inner(mesh, inc, n_rows, gid, false, Some(r))
+    }
+
+    /// The dual, its faces where `faces` asks for them, and with materials `r` the compact
+    /// coefficients (else an empty vector).
+    fn build_inner(
+        mesh: &Mesh,
+        inc: &Incidence,
+        n_rows: usize,
+        gid: Option<&[u64]>,
+        faces: bool,
+        r: Option<&Materials>,
+    ) -> (Dual, Vec<f64>) {
         let t = std::time::Instant::now();
         let (row_ptr, col) = pair_graph(mesh, inc, n_rows, gid);
         let t_pairs = t.elapsed().as_secs_f64();
-        let mask = boundary_mask(mesh);
-        let t_mask = t.elapsed().as_secs_f64() - t_pairs;
         let pts = &mesh.points;
-        let mut s = vec![[0.0; 3]; col.len()];
+        let mut s = vec![[0.0; 3]; if faces { col.len() } else { 0 }];
+        // without the faces (the coefficients), every row's slice of `s` (`coef`) is empty
+        let empty = vec![0; n_rows + 1];
+        let s_ptr = if faces { &row_ptr[..=n_rows] } else { &empty };
+        let with_faces = faces;
+        let tensor = r.map(CellTensor::new);
+        let mut coef = vec![0.0; if r.is_some() { col.len() } else { 0 }];
+        let coef_rows = RowsOut::new(&mut coef, if r.is_some() { &row_ptr[..=n_rows] } else { &empty });
         // the dual of each cell of a block of rows, computed once for the block (the rows of a
-        // block are near each other in the visit order, so few cells are computed in two blocks)
+        // block are near each other in the visit order, so few cells are computed in two
+        // blocks); the cells' nodes and kinds beside their pieces: a row then reads nothing of
+        // the mesh's cell arrays
         let cell_duals = |rows: &[u32]| {
-            BlockCells::new(
-                inc,
-                rows,
-                |_| true,
-                |c| {
-                    // the cell's nodes, kind and boundary faces beside its dual piece: a row
-                    // then reads nothing of the mesh's cell arrays
-                    let (kind, nodes) = (mesh.kinds[c as usize], mesh.cell(c as usize));
-                    let mut at = [0u32; MAX_NODES];
-                    at[..nodes.len()].copy_from_slice(nodes);
-                    (cell_dual(kind, nodes, pts), at, kind, mask[c as usize])
-                },
+            (
+                BlockCells::new(
+                    inc,
+                    rows,
+                    |_| true,
+                    |cells| DualPieces::new(mesh, cells, with_faces, tensor.as_ref()),
+                ),
+                std::cell::RefCell::new(RowFaces::default()),
             )
         };
         let order = visit_order(mesh, n_rows);
         let rows: Vec<(f64, [f64; 3], f64)> =
-            par_rows_with(&mut s, &row_ptr[..=n_rows], Some(&order), cell_duals, |ctx, i, s| {
+            par_rows_with(&mut s, s_ptr, Some(&order), cell_duals, |(ctx, faces), i, s| {
                 let cols = &col[row_ptr[i]..row_ptr[i + 1]];
-                let mut v = 0.0;
-                let mut a = [0.0; 3];
-                let slots = ctx.row(i);
-                for &slot in slots {
-                    let (cd, nodes, kind, mask) = &ctx.items[slot as usize];
-                    let (kind, mask) = (*kind, *mask);
-                    let nodes = &nodes[..kind.n_nodes()];
-                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                    v += cd.vol[li];
-                    for (e, edge) in kind.edges().iter().enumerate() {
-                        let (other, sign) = if edge[0] == li {
-                            (edge[1], 1.0)
-                        } else if edge[1] == li {
-                            (edge[0], -1.0)
-                        } else {
-                            continue;
-                        };
-                        let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
-                        s[p] = add(s[p], scale(cd.s[e], sign));
-                    }
-                    if mask != 0 {
-                        for (f, face) in kind.faces().iter().enumerate() {
-                            if mask & (1 << f) == 0 {
-                                continue;
+                with_columns(mesh.n_nodes(), cols, |at| {
+                    let faces = &mut *faces.borrow_mut();
+                    faces.reset(cols.len());
+                    let p = &ctx.items;
+                    let cell = |slot: u32| {
+                        let k = slot as usize;
+                        let (kind, nodes) = (p.g.kinds[k], &p.g.nodes[p.g.ptr[k] as usize..p.g.ptr[k + 1] as usize]);
+                        let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                        (k, kind, nodes, li, at.of_cell(nodes, li))
+                    };
+                    let mut v = 0.0;
+                    let slots = ctx.row(i);
+                    // SAFETY: this iteration is row i's only one
+                    let w = unsafe { coef_rows.row(i) };
+                    for (&c, &slot) in inc.of(i).iter().zip(slots) {
+                        let (k, kind, _, li, pos) = cell(slot);
+                        v += p.vol[p.g.ptr[k] as usize + li];
+                        match &tensor {
+                            Some(_) if kind == CellKind::Tet => {
+                                let a = &p.a[k];
+                                for lk in (0..4).filter(|&lk| lk != li) {
+                                    w[pos[lk] as usize] += a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
+                                }
                             }
-                            if let Some(k) = face.iter().position(|&l| l == li) {
+                            Some(tensor) => tensor.add_other_row(mesh, c as usize, i, at, w),
+                            None => {}
+                        }
+                        let cs = &p.s[p.eptr[k] as usize..];
+                        if with_faces {
+                            for (e, edge) in kind.edges().iter().enumerate() {
+                                let (other, sign) = if edge[0] == li {
+                                    (edge[1], 1.0)
+                                } else if edge[1] == li {
+                                    (edge[0], -1.0)
+                                } else {
+                                    continue;
+                                };
+                                let q = pos[other] as usize;
+                                s[q] = add(s[q], scale(cs[e], sign));
+                            }
+                        }
+                        for face in kind.faces() {
+                            if let Some(key) = RowFaces::key(face, li, &pos) {
+                                faces.add(key);
+                            }
+                        }
+                    }
+                    // the boundary faces' areas, in the order of the cells and their faces
+                    let mut a = [0.0; 3];
+                    if faces.any() {
+                        for &slot in slots {
+                            let (_, kind, nodes, li, pos) = cell(slot);
+                            for face in kind.faces() {
+                                let Some(key) = RowFaces::key(face, li, &pos) else {
+                                    continue;
+                                };
+                                if !faces.is_boundary(key) {
+                                    continue;
+                                }
                                 let nf = face.len();
+                                let k = face.iter().position(|&l| l == li).unwrap();
                                 let next = nodes[face[(k + 1) % nf]] as usize;
                                 let prev = nodes[face[(k + nf - 1) % nf]] as usize;
-                                let fnodes: Vec<u32> = face.iter().map(|&l| nodes[l]).collect();
-                                let fcn = centroid(&fnodes, pts);
+                                let (fnodes, n) = face_nodes(face, nodes);
+                                let fcn = centroid(&fnodes[..n], pts);
                                 let xi = pts[i];
                                 let quad = [xi, scale(add(xi, pts[next]), 0.5), fcn, scale(add(xi, pts[prev]), 0.5)];
                                 a = add(a, loop_area(&quad));
                             }
                         }
                     }
-                }
-                let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
-                (v, a, da)
+                    let da: f64 = s.iter().map(|x| dot(*x, *x).sqrt()).sum();
+                    (v, a, da)
+                })
             });
         let vol = rows.iter().map(|r| r.0).collect();
         let area = rows.iter().map(|r| r.1).collect();
-        let dual_area = rows.iter().map(|r| r.2).collect();
+        let dual_area = if faces {
+            rows.iter().map(|r| r.2).collect()
+        } else {
+            Vec::new()
+        };
         tracing::debug!(
-            "dual geometry of {n_rows} rows in {:.2} s: pair graph {t_pairs:.2} s, boundary faces {t_mask:.2} s, dual faces and volumes {:.2} s",
+            "dual geometry{} of {n_rows} rows in {:.2} s: pair graph {t_pairs:.2} s, {}volumes and boundary faces{} {:.2} s",
+            if r.is_some() { " and compact coefficients" } else { "" },
             t.elapsed().as_secs_f64(),
-            t.elapsed().as_secs_f64() - t_pairs - t_mask
+            if faces { "dual faces, " } else { "" },
+            if r.is_some() { ", coefficients" } else { "" },
+            t.elapsed().as_secs_f64() - t_pairs
         );
-        Dual {
+        let dual = Dual {
             n_rows,
             row_ptr,
             col,
@@ -468,7 +835,8 @@ impl Dual {
             vol,
             area,
             dual_area,
-        }
+        };
+        (dual, coef)
     }
 
     /// Frees the dual-face vectors S_ij (and the closure scale) once the operator is built;
@@ -557,24 +925,26 @@ pub(crate) fn young_faces(mesh: &Mesh, inc: &Incidence, dual: &Dual, mat: &Mater
     let mut out = vec![[0.0; 3]; dual.row_ptr[dual.n_rows]];
     par_rows(&mut out, &dual.row_ptr[..=dual.n_rows], |i, s| {
         let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
-        for &c in inc.of(i) {
-            let c = c as usize;
-            let (kind, nodes) = (mesh.kinds[c], mesh.cell(c));
-            let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-            let cd = cell_dual(kind, nodes, pts);
-            let w = cell_young(nodes, mat);
-            for (e, edge) in kind.edges().iter().enumerate() {
-                let (other, sign) = if edge[0] == li {
-                    (edge[1], w)
-                } else if edge[1] == li {
-                    (edge[0], -w)
-                } else {
-                    continue;
-                };
-                let p = cols.iter().position(|&x| x == nodes[other]).unwrap();
-                s[p] = add(s[p], scale(cd.s[e], sign));
+        with_columns(mesh.n_nodes(), cols, |at| {
+            for &c in inc.of(i) {
+                let c = c as usize;
+                let (kind, nodes) = (mesh.kinds[c], mesh.cell(c));
+                let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                let cd = cell_dual(kind, nodes, pts);
+                let w = cell_young(nodes, mat);
+                for (e, edge) in kind.edges().iter().enumerate() {
+                    let (other, sign) = if edge[0] == li {
+                        (edge[1], w)
+                    } else if edge[1] == li {
+                        (edge[0], -w)
+                    } else {
+                        continue;
+                    };
+                    let p = at.of(nodes[other]);
+                    s[p] = add(s[p], scale(cd.s[e], sign));
+                }
             }
-        }
+        })
     });
     out
 }
@@ -588,6 +958,88 @@ const TET_PAIR_OF: [[usize; 4]; 4] = [
     [2, 4, 5, usize::MAX],
 ];
 
+/// A cell's tensor for the compact coefficients: the mean of its nodes', weighed by its young
+/// where tissues weigh (`cell_young`; no weight at all unless `Materials::weighs_young`).
+struct CellTensor<'a> {
+    r: &'a Materials,
+    weighs: bool,
+}
+
+impl<'a> CellTensor<'a> {
+    fn new(r: &'a Materials) -> Self {
+        CellTensor {
+            r,
+            weighs: r.weighs_young(),
+        }
+    }
+
+    fn of(&self, nodes: &[u32]) -> Matrix3<f64> {
+        let mut rc = Matrix3::zeros();
+        for &n in nodes {
+            rc += self.r.r(n as usize);
+        }
+        rc /= nodes.len() as f64;
+        if self.weighs {
+            rc *= cell_young(nodes, self.r);
+        }
+        rc
+    }
+
+    /// A tetrahedron's coefficient a_ab of each pair of its nodes (`TET_PAIRS`), from its
+    /// nodes and their points `x`: a_ab = -V grad N_a . R grad N_b, for (a, b) in increasing
+    /// local order so that a_ab == a_ba bitwise.
+    fn tet(&self, nodes: &[u32], x: &[[f64; 3]]) -> [f64; 6] {
+        let (gr, v) = tet_gradients(&LOCAL[..4], x);
+        let rc = self.of(nodes);
+        let mut a = [0.0; 6];
+        for (k, &(lo, hi)) in TET_PAIRS.iter().enumerate() {
+            let rg = rc * Vector3::from(gr[hi]);
+            a[k] = -v * (gr[lo][0] * rg[0] + gr[lo][1] * rg[1] + gr[lo][2] * rg[2]);
+        }
+        a
+    }
+
+    /// Adds to row i's coefficients `w` those of the mesh's cell `c`, not a tetrahedron: the
+    /// exact flux of R grad u (its Green-Gauss gradient) through i's dual faces in the cell.
+    fn add_other_row(&self, mesh: &Mesh, c: usize, i: usize, at: Columns<'_>, w: &mut [f64]) {
+        let pts = &mesh.points;
+        let kind = mesh.kinds[c];
+        let nodes = mesh.cell(c);
+        let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+        let rc = self.of(nodes);
+        let cd = cell_dual(kind, nodes, pts);
+        let gg = green_gauss(kind, nodes, pts, cd.volume);
+        // total outward dual-face vector of node li in this cell
+        let mut sum_s = [0.0; 3];
+        for (e, edge) in kind.edges().iter().enumerate() {
+            if edge[0] == li {
+                sum_s = add(sum_s, cd.s[e]);
+            } else if edge[1] == li {
+                sum_s = sub(sum_s, cd.s[e]);
+            }
+        }
+        let rs = rc * Vector3::from(sum_s);
+        for (lk, gk) in gg.iter().enumerate() {
+            if lk == li {
+                continue;
+            }
+            let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
+            w[at.of(nodes[lk])] += val;
+        }
+    }
+}
+
+/// Adds to the coefficients `w` of the row of a tetrahedron's local node `li` the
+/// tetrahedron's (`CellTensor::tet`).
+fn add_tet_row(a: &[f64; 6], nodes: &[u32], li: usize, at: Columns<'_>, w: &mut [f64]) {
+    for lk in 0..4 {
+        if lk == li {
+            continue;
+        }
+        w[at.of(nodes[lk])] += a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
+    }
+}
+
 /// Compact-scheme coefficients a_ij of rows `0..n_rows` on the pair graph of `dual`:
 /// sum_j a_ij (u_j - u_i) is the exact flux of (E/E0) R grad u (cell gradients) into the
 /// control volume of i. `r` gives the tensor and young of every local node; a cell uses the
@@ -595,41 +1047,24 @@ const TET_PAIR_OF: [[usize; 4]; 4] = [
 /// `Materials::weighs_young`).
 pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Materials) -> Vec<f64> {
     let t = std::time::Instant::now();
-    let pts = &mesh.points;
     let mut out = vec![0.0; dual.row_ptr[dual.n_rows]];
     let order = visit_order(mesh, dual.n_rows);
-    let weighs = r.weighs_young();
-    // a cell's tensor: the mean of its nodes', weighed by its young where tissues weigh
-    let tensor = |nodes: &[u32]| {
-        let mut rc = Matrix3::zeros();
-        for &n in nodes {
-            rc += r.r(n as usize);
-        }
-        rc /= nodes.len() as f64;
-        if weighs {
-            rc *= cell_young(nodes, r);
-        }
-        rc
-    };
-    // the coefficient a_ab of each pair of nodes of each tetrahedron of a block of rows,
-    // computed once for the block (as the dual's cell pieces in `Dual::build`):
-    // a_ab = -V grad N_a . R grad N_b, for (a, b) in increasing local order so that
-    // a_ab == a_ba bitwise
+    let tensor = CellTensor::new(r);
+    // the coefficients of each tetrahedron of a block of rows, computed once for the block
+    // (as the dual's cell pieces in `Dual::build`)
     let tets = |rows: &[u32]| {
         BlockCells::new(
             inc,
             rows,
             |c| mesh.kinds[c as usize] == CellKind::Tet,
-            |c| {
-                let nodes = mesh.cell(c as usize);
-                let (g, v) = tet_gradients(nodes, pts);
-                let rc = tensor(nodes);
-                let mut a = [0.0; 6];
-                for (k, &(lo, hi)) in TET_PAIRS.iter().enumerate() {
-                    let rg = rc * Vector3::from(g[hi]);
-                    a[k] = -v * (g[lo][0] * rg[0] + g[lo][1] * rg[1] + g[lo][2] * rg[2]);
-                }
-                (a, [nodes[0], nodes[1], nodes[2], nodes[3]])
+            |cells| {
+                let g = Gathered::new(mesh, cells);
+                (0..cells.len())
+                    .map(|k| {
+                        let (_, nodes, x) = g.cell(k);
+                        (tensor.tet(nodes, x), [nodes[0], nodes[1], nodes[2], nodes[3]])
+                    })
+                    .collect::<Vec<_>>()
             },
         )
     };
@@ -640,48 +1075,19 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
         tets,
         |ctx, i, w| {
             let cols = &dual.col[dual.row_ptr[i]..dual.row_ptr[i + 1]];
-            let slots = ctx.row(i);
-            for (&c, &slot) in inc.of(i).iter().zip(slots) {
-                if slot != u32::MAX {
-                    // a tetrahedron: its nodes and coefficients are the block's
-                    let (a, nodes) = &ctx.items[slot as usize];
-                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                    for lk in 0..4 {
-                        if lk == li {
-                            continue;
-                        }
-                        let val = a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
-                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
-                        w[p] += val;
-                    }
-                } else {
-                    let c = c as usize;
-                    let kind = mesh.kinds[c];
-                    let nodes = mesh.cell(c);
-                    let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                    let rc = tensor(nodes);
-                    let cd = cell_dual(kind, nodes, pts);
-                    let gg = green_gauss(kind, nodes, pts, cd.volume);
-                    // total outward dual-face vector of node li in this cell
-                    let mut sum_s = [0.0; 3];
-                    for (e, edge) in kind.edges().iter().enumerate() {
-                        if edge[0] == li {
-                            sum_s = add(sum_s, cd.s[e]);
-                        } else if edge[1] == li {
-                            sum_s = sub(sum_s, cd.s[e]);
-                        }
-                    }
-                    let rs = rc * Vector3::from(sum_s);
-                    for (lk, gk) in gg.iter().enumerate() {
-                        if lk == li {
-                            continue;
-                        }
-                        let val = rs[0] * gk[0] + rs[1] * gk[1] + rs[2] * gk[2];
-                        let p = cols.iter().position(|&x| x == nodes[lk]).unwrap();
-                        w[p] += val;
+            with_columns(mesh.n_nodes(), cols, |at| {
+                let slots = ctx.row(i);
+                for (&c, &slot) in inc.of(i).iter().zip(slots) {
+                    if slot != u32::MAX {
+                        // a tetrahedron: its nodes and coefficients are the block's
+                        let (a, nodes) = &ctx.items[slot as usize];
+                        let li = nodes.iter().position(|&x| x as usize == i).unwrap();
+                        add_tet_row(a, nodes, li, at, w);
+                    } else {
+                        tensor.add_other_row(mesh, c as usize, i, at, w);
                     }
                 }
-            }
+            })
         },
     );
     tracing::debug!(

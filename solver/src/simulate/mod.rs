@@ -136,7 +136,8 @@ pub struct Simulation {
 }
 
 /// The operator of the scenario's scheme on this process's rows (`compact` frees the dual
-/// faces before its coefficients are computed and takes the pair columns over), and the
+/// faces before its coefficients are computed, unless `coefficients` brings them
+/// (`Dual::build_compact`), and takes the pair columns over), and the
 /// capacities C_i of its rows (`geometry::capacities`: the control volumes weighted by young,
 /// which the integrators' symmetric forms weigh by; None, the control volumes, when no tissue
 /// weighs).
@@ -144,6 +145,7 @@ fn build_operator(
     setup: &Setup,
     inc: &Incidence,
     dual: &mut Dual,
+    coefficients: Option<Vec<f64>>,
     active: &[bool],
     n_rows: usize,
 ) -> (Operator, Option<Vec<f64>>) {
@@ -153,7 +155,7 @@ fn build_operator(
     let op = match setup.model.scheme() {
         Scheme::Compact => {
             dual.release_pairs(); // S_ij are not needed by compact: free them first
-            let a = compact_coefficients(mesh, inc, dual, r);
+            let a = coefficients.unwrap_or_else(|| compact_coefficients(mesh, inc, dual, r));
             crate::diagnostics::log_memory("the coefficients");
             let col = std::mem::take(&mut dual.col);
             let cap = capacity.as_deref().unwrap_or(&dual.vol);
@@ -678,7 +680,13 @@ impl Simulation {
         let n_global = c.sum_i128(n_owned as i128) as usize;
         let inc = Incidence::new(&setup.mesh);
         crate::diagnostics::log_memory("the local mesh and plan");
-        let mut dual = Dual::build(&setup.mesh, &inc, n_rows, Some(gid.as_slice()));
+        // the compact scheme's dual (no faces) and coefficients in one pass
+        let (mut dual, coefficients) = if setup.model.scheme() == Scheme::Compact {
+            let (d, a) = Dual::build_compact(&setup.mesh, &inc, n_rows, Some(gid.as_slice()), &setup.materials);
+            (d, Some(a))
+        } else {
+            (Dual::build(&setup.mesh, &inc, n_rows, Some(gid.as_slice())), None)
+        };
         crate::diagnostics::log_memory("the dual geometry");
         let inactive_nodes = c.sum_i128(dual.vol[..n_owned].iter().filter(|&&v| v <= 0.0).count() as i128) as usize;
         // halo nodes have no row here; only their fixedness matters
@@ -686,7 +694,7 @@ impl Simulation {
             .map(|i| !setup.fixed[i] && (i >= n_rows || dual.vol[i] > 0.0))
             .collect();
         let fixed_nodes = c.sum_i128(setup.fixed[..n_owned].iter().filter(|&&b| b).count() as i128) as usize;
-        let (mut op, capacity) = build_operator(&setup, &inc, &mut dual, &active, n_rows);
+        let (mut op, capacity) = build_operator(&setup, &inc, &mut dual, coefficients, &active, n_rows);
         if let Operator::Compact(c) = &mut op {
             c.kernel.vector &= setup.performance.simd;
         }
