@@ -141,11 +141,7 @@ fn organ_scenarios_run_on_one_and_two_ranks() {
                 "-o",
                 h5.to_str().unwrap(),
             ];
-            let out = if n == 1 {
-                common::serial(&args, 1)
-            } else {
-                common::mpirun(n, &args)
-            };
+            let out = common::processes(n, &args);
             let v = json_of(out, format!("{} on {n}", p.display()));
             let m = v["max_displacement"].as_f64().unwrap();
             assert!(m > 0.0 && m.is_finite(), "{}: max |u| = {m}", p.display());

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{assert_same, mpirun, serial};
+use common::{assert_same, mpirun, processes, serial};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -50,10 +50,9 @@ fn restart_continues_bit_for_bit_on_1_and_2_ranks() {
     for (first, then) in [(1, 2), (2, 1), (2, 2)] {
         let cut = d.path().join(format!("cut{first}{then}.h5"));
         let c = cut.to_str().unwrap();
-        let run = |n: usize, args: &[&str]| if n == 1 { serial(args, 1) } else { mpirun(n, args) };
-        ok(&run(first, &["run", sc, "-q", "-o", c, "--steps", "12"]));
+        ok(&processes(first, &["run", sc, "-q", "-o", c, "--steps", "12"]));
         assert_eq!(steps_complete(&cut), 5);
-        let out = run(then, &["run", sc, "--restart", c]);
+        let out = processes(then, &["run", sc, "--restart", c]);
         ok(&out);
         assert!(String::from_utf8_lossy(&out.stdout).contains("restarted at step 12"));
         assert_same(&full, &cut);
@@ -71,11 +70,7 @@ fn a_restart_of_a_complete_series_says_so_and_changes_nothing_on_1_and_2_ranks()
     ok(&serial(&["run", sc, "-q", "-o", h], 1));
     let before = std::fs::read(&h5).unwrap();
     for n in [1, 2] {
-        let out = if n == 1 {
-            serial(&["run", sc, "--restart", h], 1)
-        } else {
-            mpirun(n, &["run", sc, "--restart", h])
-        };
+        let out = processes(n, &["run", sc, "--restart", h]);
         ok(&out);
         let text = String::from_utf8_lossy(&out.stdout);
         assert!(

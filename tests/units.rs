@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{mpirun, serial};
+use common::{mpirun, processes, serial};
 use eprop::config::{Scenario, Setup};
 use eprop::linalg::V3;
 use eprop::simulate::Simulation;
@@ -117,7 +117,7 @@ start = [0.05, 0.05, 0.122]\nvelocity = [0.0, 0.0, -0.2]\n[time]\nsteps = 12\ndt
         for ranks in [1, 2] {
             let out = d.path().join(format!("t{unit}{ranks}.h5"));
             let args = ["run", &sc, "-q", "-o", out.to_str().unwrap()];
-            let o = if ranks == 1 { serial(&args, 1) } else { mpirun(2, &args) };
+            let o = processes(ranks, &args);
             assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
             outs.push(out);
         }

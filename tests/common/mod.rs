@@ -143,6 +143,14 @@ pub fn mpirun_env(n: usize, args: &[&str], env: &[(&str, &str)]) -> std::process
         .expect("mpirun is installed (scripts/test.sh installs openmpi-bin)")
 }
 
+/// eprop on `n` processes: one without mpirun (`serial`, one thread), more by `mpirun -n`.
+pub fn processes(n: usize, args: &[&str]) -> std::process::Output {
+    match n {
+        1 => serial(args, 1),
+        _ => mpirun(n, args),
+    }
+}
+
 pub fn serial(args: &[&str], threads: usize) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_eprop"))
         .args(args)

@@ -714,7 +714,6 @@ impl Dual {
         // without the faces (the coefficients), every row's slice of `s` (`coef`) is empty
         let empty = vec![0; n_rows + 1];
         let s_ptr = if faces { &row_ptr[..=n_rows] } else { &empty };
-        let with_faces = faces;
         let tensor = r.map(CellTensor::new);
         let mut coef = vec![0.0; if r.is_some() { col.len() } else { 0 }];
         let coef_rows = RowsOut::new(&mut coef, if r.is_some() { &row_ptr[..=n_rows] } else { &empty });
@@ -728,18 +727,18 @@ impl Dual {
                     inc,
                     rows,
                     |_| true,
-                    |cells| DualPieces::new(mesh, cells, with_faces, tensor.as_ref()),
+                    |cells| DualPieces::new(mesh, cells, faces, tensor.as_ref()),
                 ),
                 std::cell::RefCell::new(RowFaces::default()),
             )
         };
         let order = visit_order(mesh, n_rows);
         let rows: Vec<(f64, [f64; 3], f64)> =
-            par_rows_with(&mut s, s_ptr, Some(&order), cell_duals, |(ctx, faces), i, s| {
+            par_rows_with(&mut s, s_ptr, Some(&order), cell_duals, |(ctx, row_faces), i, s| {
                 let cols = &col[row_ptr[i]..row_ptr[i + 1]];
                 with_columns(mesh.n_nodes(), cols, |at| {
-                    let faces = &mut *faces.borrow_mut();
-                    faces.reset(cols.len());
+                    let row_faces = &mut *row_faces.borrow_mut();
+                    row_faces.reset(cols.len());
                     let p = &ctx.items;
                     let cell = |slot: u32| {
                         let k = slot as usize;
@@ -755,17 +754,12 @@ impl Dual {
                         let (k, kind, _, li, pos) = cell(slot);
                         v += p.vol[p.g.ptr[k] as usize + li];
                         match &tensor {
-                            Some(_) if kind == CellKind::Tet => {
-                                let a = &p.a[k];
-                                for lk in (0..4).filter(|&lk| lk != li) {
-                                    w[pos[lk] as usize] += a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
-                                }
-                            }
+                            Some(_) if kind == CellKind::Tet => add_tet_row(&p.a[k], li, &pos, w),
                             Some(tensor) => tensor.add_other_row(mesh, c as usize, i, at, w),
                             None => {}
                         }
                         let cs = &p.s[p.eptr[k] as usize..];
-                        if with_faces {
+                        if faces {
                             for (e, edge) in kind.edges().iter().enumerate() {
                                 let (other, sign) = if edge[0] == li {
                                     (edge[1], 1.0)
@@ -780,20 +774,20 @@ impl Dual {
                         }
                         for face in kind.faces() {
                             if let Some(key) = RowFaces::key(face, li, &pos) {
-                                faces.add(key);
+                                row_faces.add(key);
                             }
                         }
                     }
                     // the boundary faces' areas, in the order of the cells and their faces
                     let mut a = [0.0; 3];
-                    if faces.any() {
+                    if row_faces.any() {
                         for &slot in slots {
                             let (_, kind, nodes, li, pos) = cell(slot);
                             for face in kind.faces() {
                                 let Some(key) = RowFaces::key(face, li, &pos) else {
                                     continue;
                                 };
-                                if !faces.is_boundary(key) {
+                                if !row_faces.is_boundary(key) {
                                     continue;
                                 }
                                 let nf = face.len();
@@ -1030,13 +1024,11 @@ impl<'a> CellTensor<'a> {
 }
 
 /// Adds to the coefficients `w` of the row of a tetrahedron's local node `li` the
-/// tetrahedron's (`CellTensor::tet`).
-fn add_tet_row(a: &[f64; 6], nodes: &[u32], li: usize, at: Columns<'_>, w: &mut [f64]) {
-    for lk in 0..4 {
-        if lk == li {
-            continue;
-        }
-        w[at.of(nodes[lk])] += a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
+/// tetrahedron's (`CellTensor::tet`); `pos`: the positions of its local nodes among the row's
+/// columns (`Columns::of_cell`).
+fn add_tet_row(a: &[f64; 6], li: usize, pos: &[u32; MAX_NODES], w: &mut [f64]) {
+    for lk in (0..4).filter(|&lk| lk != li) {
+        w[pos[lk] as usize] += a[TET_PAIR_OF[li.min(lk)][li.max(lk)]];
     }
 }
 
@@ -1082,7 +1074,7 @@ pub fn compact_coefficients(mesh: &Mesh, inc: &Incidence, dual: &Dual, r: &Mater
                         // a tetrahedron: its nodes and coefficients are the block's
                         let (a, nodes) = &ctx.items[slot as usize];
                         let li = nodes.iter().position(|&x| x as usize == i).unwrap();
-                        add_tet_row(a, nodes, li, at, w);
+                        add_tet_row(a, li, &at.of_cell(nodes, li), w);
                     } else {
                         tensor.add_other_row(mesh, c as usize, i, at, w);
                     }

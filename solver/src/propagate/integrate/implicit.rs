@@ -207,6 +207,31 @@ impl Implicit {
         self.solver.preconditioner_phrase(it)
     }
 
+    /// One pass of the estimate's filter at the solver's level: e <- (V - theta tau W)^-1 b,
+    /// with b = V e where `b_from_e` (else the b already made), by the diagonal level's solve
+    /// or the preconditioner's first iterate. Returns the iterations and the operator
+    /// applications it took.
+    fn filter(&mut self, prop: &mut Propagation, comm: &dyn Comm, b_from_e: bool) -> Result<(usize, usize)> {
+        let n = self.b.len();
+        let step = self.errors.step;
+        if b_from_e {
+            let vol = self.solver.vol();
+            for i in 0..n {
+                let (v, e) = (vol[i], self.e[i]);
+                self.b[i] = [v * e[0], v * e[1], v * e[2]];
+            }
+        }
+        Ok(if self.solver.diagonal() {
+            self.e[..n].iter_mut().for_each(|x| *x = [0.0; 3]);
+            let tol = FILTER_TOLERANCE.max(self.solver.tolerance());
+            let k = self.solver.solve(prop, &mut self.e, &self.b, comm, 3, step, tol)?;
+            (k, k + 2)
+        } else {
+            self.solver.first_iterate(prop, &mut self.e, &self.b, comm, step)?;
+            (1, 1)
+        })
+    }
+
     /// The error of the TR-BDF2 step just taken (phi_n to prop.phi through self.y) against
     /// its tolerance: Hosea and Shampine's embedded third-order estimate,
     ///   est = tau/3 ((1 - sqrt 2) f(phi_n) + f(Y) - gamma f(phi_n+1)),  f = L phi + Q
@@ -232,22 +257,8 @@ impl Implicit {
         let mut it = 0;
         let mut per_pass = [0usize; FILTER_PASSES];
         for pass in 0..FILTER_PASSES {
-            if pass > 0 {
-                let vol = self.solver.vol();
-                for i in 0..n {
-                    let (v, e) = (vol[i], self.e[i]);
-                    self.b[i] = [v * e[0], v * e[1], v * e[2]];
-                }
-            }
-            let (k, apps) = if self.solver.diagonal() {
-                self.e[..n].iter_mut().for_each(|x| *x = [0.0; 3]);
-                let tol = FILTER_TOLERANCE.max(self.solver.tolerance());
-                let k = self.solver.solve(prop, &mut self.e, &self.b, comm, 3, step, tol)?;
-                (k, k + 2)
-            } else {
-                self.solver.first_iterate(prop, &mut self.e, &self.b, comm, step)?;
-                (1, 1)
-            };
+            // the first pass's right-hand side is the one just made, the others V e
+            let (k, apps) = self.filter(prop, comm, pass > 0)?;
             per_pass[pass] = k;
             it += apps;
         }
@@ -259,19 +270,7 @@ impl Implicit {
         if let Some(level) = carry_level(self.carry, sub.control.level, sub.control.pos) {
             self.solver.set_level(level, prop, comm)?;
             for _ in 0..CARRY_PASSES {
-                let vol = self.solver.vol();
-                for i in 0..n {
-                    let (v, e) = (vol[i], self.e[i]);
-                    self.b[i] = [v * e[0], v * e[1], v * e[2]];
-                }
-                it += if self.solver.diagonal() {
-                    self.e[..n].iter_mut().for_each(|x| *x = [0.0; 3]);
-                    let tol = FILTER_TOLERANCE.max(self.solver.tolerance());
-                    self.solver.solve(prop, &mut self.e, &self.b, comm, 3, step, tol)? + 2
-                } else {
-                    self.solver.first_iterate(prop, &mut self.e, &self.b, comm, step)?;
-                    1
-                };
+                it += self.filter(prop, comm, true)?.1;
             }
         }
         let (e, p0, p1) = (&self.e[..n], &self.phi_n[..n], &prop.phi[..n]);
